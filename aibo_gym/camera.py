@@ -1,0 +1,66 @@
+"""The robot's scanning head and camera: which beacon is seen and what the sighting reads.
+
+* Head pan (rad, relative to the body): ``pan_amplitude * sin(2 pi t / pan_period)``, t in s.
+* A beacon is *visible* when its bearing relative to the camera axis (heading + pan) is within
+  ``fov / 2`` and its distance is within ``range_mm``. At most one sighting per frame: the visible
+  beacon nearest the image centre, detected with probability ``detect_prob``.
+* Sighting: height px = ``focal_px * beacon_height_mm / d`` + N(0, sigma_height^2) (pinhole,
+  57000 / d by default) and angle rad = wrap(bearing from the body heading + N(0, sigma_angle^2)),
+  counter-clockwise positive.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from .robot import wrap_angle
+
+
+def head_pan(t: float, amplitude: float, period: float) -> float:
+    """Head pan angle (rad, relative to the body) at time ``t`` (s)."""
+    return amplitude * math.sin(2.0 * math.pi * t / period)
+
+
+class Camera:
+    """Beacon sensing for one config; pure Python floats (4 beacons are faster than NumPy)."""
+
+    def __init__(self, cfg: dict[str, Any], sigma_height: float, sigma_angle: float) -> None:
+        self.beacons = [(float(b[0]), float(b[1])) for b in cfg["beacons"]]
+        self.half_fov = 0.5 * cfg["fov"]
+        self.rmin, self.rmax = cfg["range_mm"]
+        self.detect_prob = cfg["detect_prob"]
+        self.height_px_mm = cfg["focal_px"] * cfg["beacon_height_mm"]
+        self.sigma_height = sigma_height
+        self.sigma_angle = sigma_angle
+
+    def nearest_visible(self, x: float, y: float, theta: float, pan: float) -> tuple[int, float, float] | None:
+        """The visible beacon nearest the image centre: (index, distance mm, bearing rad from
+        the body heading), or None. ``theta`` is the heading, ``pan`` the head pan (rad)."""
+        best = None
+        best_off = math.inf
+        for i, (bx, by) in enumerate(self.beacons):
+            dx, dy = bx - x, by - y
+            d = math.hypot(dx, dy)
+            if not self.rmin <= d <= self.rmax:
+                continue
+            bearing = wrap_angle(math.atan2(dy, dx) - theta)
+            off = abs(wrap_angle(bearing - pan))
+            if off <= self.half_fov and off < best_off:
+                best, best_off = (i, d, bearing), off
+        return best
+
+    def sight(
+        self, x: float, y: float, theta: float, pan: float, u: float, z_height: float, z_angle: float
+    ) -> tuple[int, float, float, float] | None:
+        """One frame's sighting (index, height px, angle rad, distance mm) or None.
+
+        ``u`` ~ U(0, 1) decides detection; ``z_height``, ``z_angle`` ~ N(0, 1) are the noises.
+        """
+        seen = self.nearest_visible(x, y, theta, pan)
+        if seen is None or u >= self.detect_prob:
+            return None
+        i, d, bearing = seen
+        height = self.height_px_mm / d + self.sigma_height * z_height
+        angle = wrap_angle(bearing + self.sigma_angle * z_angle)
+        return i, height, angle, d

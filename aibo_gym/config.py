@@ -1,0 +1,290 @@
+"""The one configuration dict of ``AiboBeacons-v0`` (highway-env style).
+
+:func:`default_config` lists every key with its default; :func:`make_config` merges a user's
+(partial) dict into it and validates it. An unknown key or a bad value raises ValueError naming
+the key and the valid choices. Units: mm, rad, px, s.
+
+================  ==================================  ==============================================
+key               default                             meaning
+================  ==================================  ==============================================
+field             [5400, 3600]                        field length (x) and width (y), mm; origin at centre
+beacons           [[1350, 1950], [-1350, 1950],       beacon positions (B x 2), mm
+                  [-1350, -1950], [1350, -1950]]
+dt                1/30                                seconds per frame
+max_steps         27000                               frames before ``truncated`` (15 min at 30 fps)
+robot_seed        0                                   seed of the robot's true action model only
+velocities        None                                40 x 3 true velocities (mm/s, mm/s, rad/s); None: drawn
+nominal_max       [355, 420, pi/2]                    nominal top speed per component over the 40 actions
+                                                      (mm/s, mm/s, rad/s): what the robot *believes*
+velocity_range    [710, 840, pi]                      max - min of the true velocities per component
+slip_std          [3.0, 3.0, 0.02]                    per-frame robot-frame slip noise std (mm, mm, rad)
+big_slip_prob     0.0                                 probability per frame of an extra large slip
+big_slip_std      [30, 30, 0.2]                       std of a large slip (mm, mm, rad)
+pan_amplitude     1.4                                 head pan amplitude, rad (pan = A sin(2 pi t / T))
+pan_period        3.0                                 head pan period T, s
+fov               0.99                                camera horizontal field of view (total), rad
+range_mm          [1275, 4175]                        distances at which a beacon is recognized, mm
+detect_prob       0.9                                 probability a visible beacon is detected
+focal_px          190                                 camera focal length, px
+beacon_height_mm  300                                 beacon height, mm (height px = focal*H/d)
+noise             "paper-sim"                         sensor noise preset: "paper-sim" or "aibo"
+sigma_height      None                                px; overrides the preset when set
+sigma_angle       None                                rad; overrides the preset when set
+walls             "clamp"                             "clamp", "pymunk" or "none"
+robot_radius      150                                 robot body radius for walls="pymunk", mm
+pymunk_substeps   4                                   fixed physics substeps per frame
+effects           {}                                  {name: {param: value}}, see aibo_gym.effects
+reward            "none"                              only "none" (reward 0) for now
+start_pose        [0, 0, 0]                           (x mm, y mm, theta rad) or "random"
+================  ==================================  ==============================================
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from typing import Any, Callable
+
+import numpy as np
+
+from .effects import validate_effects
+
+NOISE_PRESETS: dict[str, dict[str, float]] = {
+    "paper-sim": {"sigma_height": 1.0, "sigma_angle": 0.5},  # the paper's simulation
+    "aibo": {"sigma_height": 1.59, "sigma_angle": 0.0267},  # measured on the ERS-7
+}
+WALL_MODES = ("clamp", "pymunk", "none")
+REWARDS = ("none",)
+START_MARGIN_MM = 500.0  # start_pose="random": distance kept from the field edge, mm
+
+
+def default_config() -> dict[str, Any]:
+    """A fresh dict of every config key with its default value (see the module docstring)."""
+    return {
+        "field": [5400.0, 3600.0],
+        "beacons": [[1350.0, 1950.0], [-1350.0, 1950.0], [-1350.0, -1950.0], [1350.0, -1950.0]],
+        "dt": 1.0 / 30.0,
+        "max_steps": 27000,
+        "robot_seed": 0,
+        "velocities": None,
+        "nominal_max": [355.0, 420.0, math.pi / 2],
+        "velocity_range": [710.0, 840.0, math.pi],
+        "slip_std": [3.0, 3.0, 0.02],
+        "big_slip_prob": 0.0,
+        "big_slip_std": [30.0, 30.0, 0.2],
+        "pan_amplitude": 1.4,
+        "pan_period": 3.0,
+        "fov": 0.99,
+        "range_mm": [1275.0, 4175.0],
+        "detect_prob": 0.9,
+        "focal_px": 190.0,
+        "beacon_height_mm": 300.0,
+        "noise": "paper-sim",
+        "sigma_height": None,
+        "sigma_angle": None,
+        "walls": "clamp",
+        "robot_radius": 150.0,
+        "pymunk_substeps": 4,
+        "effects": {},
+        "reward": "none",
+        "start_pose": [0.0, 0.0, 0.0],
+    }
+
+
+# ---------------------------------------------------------------- value checks
+def _bad(key: str, value: Any, want: str) -> ValueError:
+    return ValueError(f"config key '{key}': invalid value {value!r} (expected {want})")
+
+
+def _num(key: str, v: Any, want: str = "a finite number") -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(v):
+        raise _bad(key, v, want)
+    return float(v)
+
+
+def _numbers(key: str, v: Any, n: int | None, want: str) -> list[float]:
+    if isinstance(v, np.ndarray):
+        v = v.tolist()
+    if not isinstance(v, (list, tuple)) or (n is not None and len(v) != n):
+        raise _bad(key, v, want)
+    return [_num(key, x, want) for x in v]
+
+
+def _positive(key: str, v: Any) -> float:
+    x = _num(key, v, "a positive number")
+    if x <= 0:
+        raise _bad(key, v, "a positive number")
+    return x
+
+
+def _int_min(lo: int) -> Callable[[str, Any], int]:
+    def check(key: str, v: Any) -> int:
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+            raise _bad(key, v, f"an integer >= {lo}")
+        return int(v)
+    return check
+
+
+def _triple(nonneg: bool, positive: bool = False) -> Callable[[str, Any], list[float]]:
+    want = "3 positive numbers" if positive else ("3 numbers >= 0" if nonneg else "3 numbers")
+
+    def check(key: str, v: Any) -> list[float]:
+        xs = _numbers(key, v, 3, want)
+        if (positive and min(xs) <= 0) or (nonneg and min(xs) < 0):
+            raise _bad(key, v, want)
+        return xs
+    return check
+
+
+def _prob(key: str, v: Any) -> float:
+    x = _num(key, v, "a probability in [0, 1]")
+    if not 0.0 <= x <= 1.0:
+        raise _bad(key, v, "a probability in [0, 1]")
+    return x
+
+
+def _choice(choices: tuple[str, ...]) -> Callable[[str, Any], str]:
+    def check(key: str, v: Any) -> str:
+        if v not in choices:
+            raise ValueError(
+                f"config key '{key}': invalid value {v!r} (valid choices: {', '.join(map(repr, choices))})"
+            )
+        return v
+    return check
+
+
+def _pair_positive(key: str, v: Any) -> list[float]:
+    xs = _numbers(key, v, 2, "2 positive numbers (length, width) mm")
+    if min(xs) <= 0:
+        raise _bad(key, v, "2 positive numbers (length, width) mm")
+    return xs
+
+
+def _beacons(key: str, v: Any) -> list[list[float]]:
+    want = "a non-empty list of [x, y] positions, mm"
+    if isinstance(v, np.ndarray):
+        v = v.tolist()
+    if not isinstance(v, (list, tuple)) or len(v) == 0:
+        raise _bad(key, v, want)
+    return [_numbers(key, b, 2, want) for b in v]
+
+
+def _velocities(key: str, v: Any) -> list[list[float]] | None:
+    if v is None:
+        return None
+    want = "None or a 40 x 3 list of velocities (mm/s, mm/s, rad/s)"
+    if isinstance(v, np.ndarray):
+        v = v.tolist()
+    if not isinstance(v, (list, tuple)) or len(v) != 40:
+        raise _bad(key, v, want)
+    return [_numbers(key, row, 3, want) for row in v]
+
+
+def _angle_range(key: str, v: Any, hi: float) -> float:
+    x = _num(key, v, f"a number in [0, {hi:.4g}]")
+    if not 0.0 <= x <= hi:
+        raise _bad(key, v, f"a number in [0, {hi:.4g}]")
+    return x
+
+
+def _fov(key: str, v: Any) -> float:
+    x = _angle_range(key, v, 2 * math.pi)
+    if x == 0:
+        raise _bad(key, v, "a number in (0, 2 pi]")
+    return x
+
+
+def _range_mm(key: str, v: Any) -> list[float]:
+    xs = _numbers(key, v, 2, "[min, max] mm with 0 <= min < max")
+    if not 0 <= xs[0] < xs[1]:
+        raise _bad(key, v, "[min, max] mm with 0 <= min < max")
+    return xs
+
+
+def _sigma(key: str, v: Any) -> float | None:
+    if v is None:
+        return None
+    x = _num(key, v, "None or a number >= 0")
+    if x < 0:
+        raise _bad(key, v, "None or a number >= 0")
+    return x
+
+
+def _start_pose(key: str, v: Any) -> str | list[float]:
+    if isinstance(v, str):
+        return _choice(("random",))(key, v)
+    return _numbers(key, v, 3, "'random' or [x mm, y mm, theta rad]")
+
+
+CHECKS: dict[str, Callable[[str, Any], Any]] = {
+    "field": _pair_positive,
+    "beacons": _beacons,
+    "dt": _positive,
+    "max_steps": _int_min(1),
+    "robot_seed": _int_min(0),
+    "velocities": _velocities,
+    "nominal_max": _triple(True, positive=True),
+    "velocity_range": _triple(True, positive=True),
+    "slip_std": _triple(True),
+    "big_slip_prob": _prob,
+    "big_slip_std": _triple(True),
+    "pan_amplitude": lambda k, v: _angle_range(k, v, math.pi),
+    "pan_period": _positive,
+    "fov": _fov,
+    "range_mm": _range_mm,
+    "detect_prob": _prob,
+    "focal_px": _positive,
+    "beacon_height_mm": _positive,
+    "noise": _choice(tuple(NOISE_PRESETS)),
+    "sigma_height": _sigma,
+    "sigma_angle": _sigma,
+    "walls": _choice(WALL_MODES),
+    "robot_radius": _positive,
+    "pymunk_substeps": _int_min(1),
+    "effects": lambda k, v: validate_effects(v),
+    "reward": _choice(REWARDS),
+    "start_pose": _start_pose,
+}
+
+
+def _cross_checks(cfg: dict[str, Any]) -> None:
+    half_l, half_w = cfg["field"][0] / 2, cfg["field"][1] / 2
+    sp = cfg["start_pose"]
+    if isinstance(sp, list) and (abs(sp[0]) > half_l or abs(sp[1]) > half_w):
+        raise _bad("start_pose", sp, f"a position inside the field |x| <= {half_l:g}, |y| <= {half_w:g}")
+    if cfg["robot_radius"] >= min(half_l, half_w):
+        raise _bad("robot_radius", cfg["robot_radius"], f"a radius < {min(half_l, half_w):g} mm (half the field width)")
+    if sp == "random" and min(half_l, half_w) <= START_MARGIN_MM:
+        raise _bad("start_pose", sp, f"a fixed pose: the field is too small for a {START_MARGIN_MM:g} mm margin")
+
+
+def make_config(config: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Merge ``config`` into :func:`default_config`, validate, and return the full normalized dict.
+
+    Nested dicts are merged (a user dict updates the default dict). Lists are replaced.
+    Raises ValueError naming the key and the valid choices on an unknown key or a bad value.
+    """
+    cfg = default_config()
+    if config is None:
+        config = {}
+    if not isinstance(config, dict):
+        raise ValueError(f"config must be a dict, got {type(config).__name__}")
+    for key, value in config.items():
+        if key not in cfg:
+            raise ValueError(f"unknown config key '{key}' (valid keys: {', '.join(sorted(cfg))})")
+        if isinstance(cfg[key], dict) and isinstance(value, dict):
+            merged = copy.deepcopy(cfg[key])
+            merged.update(value)
+            value = merged
+        cfg[key] = copy.deepcopy(value)
+    out = {key: CHECKS[key](key, value) for key, value in cfg.items()}
+    _cross_checks(out)
+    return out
+
+
+def sensor_sigmas(cfg: dict[str, Any]) -> tuple[float, float]:
+    """(sigma_height px, sigma_angle rad) of a validated config: the preset, overridden if set."""
+    preset = NOISE_PRESETS[cfg["noise"]]
+    sh = preset["sigma_height"] if cfg["sigma_height"] is None else cfg["sigma_height"]
+    sa = preset["sigma_angle"] if cfg["sigma_angle"] is None else cfg["sigma_angle"]
+    return float(sh), float(sa)
