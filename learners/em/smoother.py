@@ -1,0 +1,374 @@
+"""Plain-NumPy, per-step REFERENCE E-step: forward EKF (alpha), backward information
+filter (beta, delta) and their combination (gamma), as specified in docs/em-math.md.
+
+The generic pieces (``ekf_predict`` ... ``combine``, ``forward_pass``, ``backward_pass``,
+``two_filter_smooth``) know nothing about the robot: they take a (linearized) model as
+callables
+
+    motion(i, mean)  -> (g, F, Q)            # g = g_i(mean), F = dg_i/ds at mean, Q noise cov
+    observe(i, mean) -> None | (h, H, R, z, angle_mask)
+                                             # h = h_i(mean), H = dh_i/ds, R obs noise cov,
+                                             # z the observation, angle_mask marks the
+                                             # components whose innovation is wrapped
+
+so a linear-Gaussian system runs through the very same code (tests/test_smoother.py shows
+equality with a textbook Kalman filter + RTS smoother). ``smooth`` wires the aibo model
+(``geometry.motion`` / ``geometry.observe``) into them, log by log.
+
+Deviation (named, see the spec): the log-likelihood uses the full one-step predictive
+covariance S = H P- H^T + R_obs, not the paper's J Sigma_alpha,t-1 J^T.
+
+This module is the reference for the compiled twin in ``kernels.py``; it favours clarity
+over speed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Optional
+
+import numpy as np
+
+from . import geometry
+from .data import Batch
+from .params import Params
+from .posterior import Posterior
+
+LOG_2PI = float(np.log(2.0 * np.pi))
+
+#: aibo observation: (height px, angle rad); only the angle innovation is wrapped.
+AIBO_ANGLE_MASK = np.array([False, True])
+
+MotionFn = Callable[[int, np.ndarray], tuple]
+ObserveFn = Callable[[int, np.ndarray], Optional[tuple]]
+
+
+def sym(A: np.ndarray) -> np.ndarray:
+    """Symmetric part (A + A^T) / 2 over the last two axes."""
+    return 0.5 * (A + np.swapaxes(A, -1, -2))
+
+
+# --------------------------------------------------------------------------- generic steps
+
+
+def ekf_predict(P: np.ndarray, g: np.ndarray, F: np.ndarray, Q: np.ndarray):
+    """EKF time update from a belief with covariance P, linearized motion (g, F) and noise Q.
+
+    Returns (mu-, P-) = (g, F P F^T + Q), symmetrized.
+    """
+    return np.array(g, dtype=float), sym(F @ P @ F.T + Q)
+
+
+def innovation(h: np.ndarray, z: np.ndarray, angle_mask) -> np.ndarray:
+    """v = z - h with the components in ``angle_mask`` wrapped to (-pi, pi]."""
+    v = np.asarray(z, dtype=float) - h
+    if angle_mask is not None and np.any(angle_mask):
+        v = np.where(angle_mask, geometry.wrap(v), v)
+    return v
+
+
+def ekf_innovation(P_pred, h, H, R, z, angle_mask):
+    """Innovation v (wrapped where ``angle_mask``) and its predictive covariance S = H P- H^T + R."""
+    v = innovation(h, z, angle_mask)
+    S = sym(H @ P_pred @ H.T + R)
+    return v, S
+
+
+def gaussian_loglik(v: np.ndarray, S: np.ndarray):
+    """(log N(v; 0, S), v^T S^-1 v). Raises LinAlgError if S is not positive definite."""
+    L = np.linalg.cholesky(S)
+    w = np.linalg.solve(L, v)
+    mahal2 = float(w @ w)
+    logdet = 2.0 * float(np.sum(np.log(np.diag(L))))
+    return -0.5 * (mahal2 + logdet + len(v) * LOG_2PI), mahal2
+
+
+def ekf_update(mu_pred, P_pred, H, R, v, S):
+    """EKF measurement update, Joseph form: K = P- H^T S^-1, mu = mu- + K v,
+    P = (I - K H) P- (I - K H)^T + K R K^T (symmetrized)."""
+    K = np.linalg.solve(S, H @ P_pred).T  # S and P- symmetric
+    IKH = np.eye(len(mu_pred)) - K @ H
+    P = sym(IKH @ P_pred @ IKH.T + K @ R @ K.T)
+    return mu_pred + K @ v, P
+
+
+def info_observe(Y, y, H, R, v, mu_lin):
+    """Backward observation update in information form, h linearized at ``mu_lin``:
+    Y_delta = Y + H^T R^-1 H, y_delta = y + H^T R^-1 (v + H mu_lin), v the (wrapped)
+    innovation at mu_lin."""
+    HtRi = np.linalg.solve(R, H).T
+    return sym(Y + HtRi @ H), y + HtRi @ (v + H @ mu_lin)
+
+
+def info_predict_back(Yd, yd, F, Q, c):
+    """Backward time update through s' = F s + c + w, w ~ N(0, Q), of an information-form
+    factor (Yd, yd) on s': Ytil = (I + Yd Q)^-1 Yd, ytil = (I + Yd Q)^-1 yd,
+    Y = F^T Ytil F, y = F^T (ytil - Ytil c). Exact for Yd = 0 (no information)."""
+    n = len(yd)
+    M = np.eye(n) + Yd @ Q
+    X = np.linalg.solve(M, np.concatenate([Yd, yd[:, None]], axis=1))
+    Ytil = sym(X[:, :n])
+    ytil = X[:, n]
+    return sym(F.T @ Ytil @ F), F.T @ (ytil - Ytil @ c)
+
+
+def combine(mu_alpha, cov_alpha, Y, y):
+    """Combination (eqs. (1)-(2)) of a forward belief N(mu_alpha, A) with an information-form
+    backward factor (Y, y); vectorized over leading axes. With M = (I + Y A)^-1:
+    mu_gamma = mu_alpha + A M (y - Y mu_alpha), Sigma_gamma = A - A M Y A (symmetrized)."""
+    A = np.asarray(cov_alpha, dtype=float)
+    n = A.shape[-1]
+    M = np.linalg.inv(np.eye(n) + Y @ A)
+    AM = A @ M
+    r = y - np.einsum("...ij,...j->...i", Y, mu_alpha)
+    mu = mu_alpha + np.einsum("...ij,...j->...i", AM, r)
+    cov = sym(A - AM @ Y @ A)
+    return mu, cov
+
+
+# --------------------------------------------------------------------------- generic passes
+
+
+@dataclass
+class ForwardResult:
+    """Output of ``forward_pass`` over T frames (T + 1 poses)."""
+
+    mu: np.ndarray  # (T+1, n) filtered means
+    cov: np.ndarray  # (T+1, n, n) filtered covariances
+    g: np.ndarray  # (T, n) motion linearization at mu[i]: g_i(mu[i])
+    F: np.ndarray  # (T, n, n) Jacobians at mu[i]
+    Q: np.ndarray  # (T, n, n) motion noise at mu[i]
+    loglik: float  # sum of applied sightings' predictive log densities
+    mahal2: np.ndarray  # (T,) v^T S^-1 v, NaN where no observation
+    applied: np.ndarray  # (T,) bool: the observation was applied (present and not gated)
+
+
+@dataclass
+class SmootherResult:
+    forward: ForwardResult
+    Y: np.ndarray  # (T+1, n, n) backward information of beta at each pose (Y[T] = 0)
+    y: np.ndarray  # (T+1, n)
+    Y_delta: np.ndarray  # (T, n, n) information of delta = b(s, o) beta at frame i's end pose
+    y_delta: np.ndarray  # (T, n)
+    mu: np.ndarray  # (T+1, n) smoothed means
+    cov: np.ndarray  # (T+1, n, n) smoothed covariances
+
+
+def _fail(where: str, i: int, what: str):
+    raise FloatingPointError(f"{where}frame {i}: {what}")
+
+
+def forward_pass(mu0, P0, n_frames: int, motion: MotionFn, observe: ObserveFn,
+                 gate: float | None = None, where: str = "") -> ForwardResult:
+    """Forward EKF over ``n_frames`` frames from N(mu0, P0).
+
+    Frame i predicts pose i+1 from pose i (``motion(i, mu_alpha_i)``), then, if
+    ``observe(i, mu-)`` is not None, updates with that observation (Joseph form). A sighting
+    with ``gate is not None and mahal2 > gate`` is not applied and adds no likelihood term;
+    its mahal2 is still reported. Raises FloatingPointError (message starts with ``where``
+    and names the frame) when a non-finite value appears.
+    """
+    mu0 = np.asarray(mu0, dtype=float)
+    n = len(mu0)
+    mu = np.empty((n_frames + 1, n))
+    cov = np.empty((n_frames + 1, n, n))
+    gs = np.empty((n_frames, n))
+    Fs = np.empty((n_frames, n, n))
+    Qs = np.empty((n_frames, n, n))
+    mahal2 = np.full(n_frames, np.nan)
+    applied = np.zeros(n_frames, dtype=bool)
+    loglik = 0.0
+    mu[0] = mu0
+    cov[0] = sym(np.asarray(P0, dtype=float))
+    if not (np.isfinite(mu[0]).all() and np.isfinite(cov[0]).all()):
+        _fail(where, 0, "non-finite initial state")
+    i = 0
+    try:
+        for i in range(n_frames):
+            g, F, Q = motion(i, mu[i])
+            gs[i], Fs[i], Qs[i] = g, F, Q
+            m, P = ekf_predict(cov[i], g, F, Q)
+            ob = observe(i, m)
+            if ob is not None:
+                h, H, R, z, amask = ob
+                v, S = ekf_innovation(P, h, H, R, z, amask)
+                ll, d2 = gaussian_loglik(v, S)
+                if not (np.isfinite(ll) and np.isfinite(d2)):
+                    _fail(where, i, f"non-finite innovation {v} / likelihood in the forward pass")
+                mahal2[i] = d2
+                if gate is None or d2 <= gate:
+                    m, P = ekf_update(m, P, H, R, v, S)
+                    loglik += ll
+                    applied[i] = True
+            if not (np.isfinite(m).all() and np.isfinite(P).all()):
+                _fail(where, i, "non-finite filtered mean/covariance in the forward pass")
+            mu[i + 1] = m
+            cov[i + 1] = P
+    except np.linalg.LinAlgError as e:
+        raise FloatingPointError(f"{where}frame {i}: forward pass: {e}") from e
+    return ForwardResult(mu, cov, gs, Fs, Qs, loglik, mahal2, applied)
+
+
+def observation_information(mu_alpha, observe: ObserveFn, applied):
+    """Per-frame observation information for the backward pass, h linearized at the filtered
+    mean mu_alpha[i+1]: dY[i] = H^T R^-1 H, dy[i] = H^T R^-1 (v + H mu_alpha[i+1]) where
+    ``applied[i]``, zero elsewhere (v the wrapped innovation). Returns (dY (T,n,n), dy (T,n))."""
+    mu_alpha = np.asarray(mu_alpha, dtype=float)
+    T = len(applied)
+    n = mu_alpha.shape[1]
+    dY = np.zeros((T, n, n))
+    dy = np.zeros((T, n))
+    zY, zy = np.zeros((n, n)), np.zeros(n)
+    for i in np.flatnonzero(applied):
+        ml = mu_alpha[i + 1]
+        h, H, R, z, amask = observe(int(i), ml)
+        dY[i], dy[i] = info_observe(zY, zy, H, R, innovation(h, z, amask), ml)
+    return dY, dy
+
+
+def backward_pass(mu_alpha, g, F, Q, dY, dy, where: str = ""):
+    """Backward information filter, Sigma_beta,T = infinity (Y = 0, y = 0 at the last pose).
+
+    For frame i = T-1 .. 0: observation update Y_delta = Y + dY[i], y_delta = y + dy[i]
+    (``observation_information``: h linearized at mu_alpha[i+1]; zero for frames without an
+    applied sighting), stored as delta for frame i; then the time update to pose i through
+    the motion linearized at mu_alpha[i] (``g[i], F[i], Q[i]`` from the forward pass,
+    c = g[i] - F[i] mu_alpha[i]).
+
+    Returns (Y (T+1,n,n), y (T+1,n), Y_delta (T,n,n), y_delta (T,n)).
+    """
+    mu_alpha = np.asarray(mu_alpha, dtype=float)
+    T = len(g)
+    n = mu_alpha.shape[1]
+    Y = np.zeros((T + 1, n, n))
+    y = np.zeros((T + 1, n))
+    Yd = np.empty((T, n, n))
+    yd = np.empty((T, n))
+    c_all = g - np.einsum("tij,tj->ti", F, mu_alpha[:-1])
+    Yc = np.zeros((n, n))
+    yc = np.zeros(n)
+    i = T - 1
+    try:
+        for i in range(T - 1, -1, -1):
+            Yc = Yc + dY[i]
+            yc = yc + dy[i]
+            Yd[i], yd[i] = Yc, yc
+            Yc, yc = info_predict_back(Yc, yc, F[i], Q[i], c_all[i])
+            Y[i], y[i] = Yc, yc
+    except np.linalg.LinAlgError as e:
+        raise FloatingPointError(f"{where}frame {i}: backward pass: {e}") from e
+    bad = ~(np.isfinite(Yd).all(axis=(1, 2)) & np.isfinite(yd).all(axis=1)
+            & np.isfinite(Y[:-1]).all(axis=(1, 2)) & np.isfinite(y[:-1]).all(axis=1))
+    if bad.any():
+        _fail(where, int(np.flatnonzero(bad)[-1]), "non-finite information in the backward pass")
+    return Y, y, Yd, yd
+
+
+def two_filter_smooth(mu0, P0, n_frames: int, motion: MotionFn, observe: ObserveFn,
+                      gate: float | None = None, where: str = "",
+                      obs_info: Callable | None = None) -> SmootherResult:
+    """Forward EKF + backward information filter + combination for one sequence.
+
+    ``obs_info(mu_alpha, applied) -> (dY, dy)`` may replace the per-frame
+    ``observation_information`` loop by an equivalent vectorized computation.
+    """
+    fw = forward_pass(mu0, P0, n_frames, motion, observe, gate, where)
+    if obs_info is None:
+        dY, dy = observation_information(fw.mu, observe, fw.applied)
+    else:
+        dY, dy = obs_info(fw.mu, fw.applied)
+    Y, y, Yd, yd = backward_pass(fw.mu, fw.g, fw.F, fw.Q, dY, dy, where)
+    try:
+        mu, cov = combine(fw.mu, fw.cov, Y, y)
+    except np.linalg.LinAlgError as e:
+        raise FloatingPointError(f"{where}combination: {e}") from e
+    bad = ~(np.isfinite(mu).all(axis=1) & np.isfinite(cov).all(axis=(1, 2)))
+    if bad.any():
+        p = int(np.argmax(bad))
+        _fail(where, max(p - 1, 0), f"non-finite smoothed belief at pose {p}")
+    return SmootherResult(fw, Y, y, Yd, yd, mu, cov)
+
+
+# --------------------------------------------------------------------------- the aibo model
+
+
+def aibo_model(params: Params, actions, obs, beacon_xy, used):
+    """The aibo model of one log as (motion, observe, obs_info) callables for ``two_filter_smooth``.
+
+    ``actions`` (T,), ``obs`` (T, 2), ``beacon_xy`` (T, 2), ``used`` (T,) are the log's frames.
+    """
+    disp = params.action.disp[np.asarray(actions)]
+    sigA = np.asarray(params.action.cov, dtype=float)
+    sensor = params.sensor
+    R_obs = np.diag([sensor.sigma_height**2, sensor.sigma_angle**2])
+
+    def motion(i, mean):
+        g, F, R3 = geometry.motion(mean, disp[i])
+        return g, F, R3 @ sigA @ R3.T
+
+    def observe(i, mean):
+        if not used[i]:
+            return None
+        h, H, _ = geometry.observe(mean, beacon_xy[i], sensor)
+        return h, H, R_obs, obs[i], AIBO_ANGLE_MASK
+
+    def obs_info(mu_alpha, applied):
+        """Vectorized ``observation_information`` for the aibo model (same numbers)."""
+        T = len(applied)
+        dY = np.zeros((T, 3, 3))
+        dy = np.zeros((T, 3))
+        idx = np.flatnonzero(applied)
+        if len(idx):
+            ml = mu_alpha[idx + 1]
+            h, H, _ = geometry.observe(ml, beacon_xy[idx], sensor)
+            v = innovation(h, obs[idx], AIBO_ANGLE_MASK)
+            HtRi = np.swapaxes(H, 1, 2) / np.diag(R_obs)  # H^T R^-1, R_obs diagonal
+            dY[idx] = sym(HtRi @ H)
+            dy[idx] = np.einsum("tij,tj->ti", HtRi, v + np.einsum("tij,tj->ti", H, ml))
+        return dY, dy
+
+    return motion, observe, obs_info
+
+
+def smooth(params: Params, batch: Batch, gate: float | None = None) -> Posterior:
+    """Reference E-step for every log of ``batch`` (see docs/em-math.md, "E-step").
+
+    Each log k starts from ``params.init[k]``. With ``gate``, a used sighting whose squared
+    Mahalanobis innovation exceeds ``gate`` is neither applied (forward nor backward) nor
+    counted in the likelihood; its mahal2 is still stored, so the caller prunes
+    ``batch.used & (post.mahal2 > gate)``. Raises FloatingPointError naming the log and frame
+    if a non-finite value appears.
+    """
+    S = batch.n_logs
+    if len(params.init) != S:
+        raise ValueError(f"params.init has {len(params.init)} entries, batch has {S} logs")
+    N = batch.n_frames
+    P = N + S
+    mu_alpha = np.empty((P, 3))
+    cov_alpha = np.empty((P, 3, 3))
+    mu_gamma = np.empty((P, 3))
+    cov_gamma = np.empty((P, 3, 3))
+    info_delta = np.empty((N, 3, 3))
+    vec_delta = np.empty((N, 3))
+    mahal2 = np.full(N, np.nan)
+    loglik = 0.0
+    fstart = batch.frame_start
+    pstart = batch.pose_start
+    for k in range(S):
+        f0, f1 = int(fstart[k]), int(fstart[k + 1])
+        p0, p1 = int(pstart[k]), int(pstart[k + 1])
+        motion_fn, observe_fn, obs_info = aibo_model(
+            params, batch.actions[f0:f1], batch.obs[f0:f1], batch.beacon_xy[f0:f1], batch.used[f0:f1]
+        )
+        init = params.init[k]
+        r = two_filter_smooth(init.mean, init.cov, f1 - f0, motion_fn, observe_fn, gate, where=f"log {k}, ",
+                              obs_info=obs_info)
+        mu_alpha[p0:p1] = r.forward.mu
+        cov_alpha[p0:p1] = r.forward.cov
+        mu_gamma[p0:p1] = r.mu
+        cov_gamma[p0:p1] = r.cov
+        info_delta[f0:f1] = r.Y_delta
+        vec_delta[f0:f1] = r.y_delta
+        mahal2[f0:f1] = r.forward.mahal2
+        loglik += r.forward.loglik
+    return Posterior(mu_alpha, cov_alpha, mu_gamma, cov_gamma, info_delta, vec_delta, float(loglik), mahal2)
