@@ -1,0 +1,661 @@
+"""Compiled (numba) twin of the E-step and the action statistics.
+
+Same contract and equations as the plain-NumPy reference (``smoother.smooth`` and
+``action_mstep.action_statistics``); docs/em-math.md is the specification. Everything runs
+inside ``@njit`` kernels over flat arrays, looping over the logs of the batch inside the
+kernel; 3x3 and 2x2 algebra is written out by hand (no np.linalg, no per-frame allocation).
+
+Conventions match the reference:
+- heading unwrapped in every mean; innovations wrapped to (-pi, pi];
+- Joseph-form update, full one-step predictive S for the likelihood and mahal2;
+- backward information filter from Y = 0, y = 0 at each log's last pose, linearized at the
+  forward filtered means; combination into gamma in information form;
+- covariances (and Y) symmetrized.
+
+A non-finite value makes the wrapper raise ``FloatingPointError`` naming the log and frame.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from learners.em.data import Batch
+from learners.em.params import Params
+from learners.em.posterior import Posterior
+
+__all__ = ["smooth_compiled", "action_statistics_compiled", "sensor_points_compiled"]
+
+_TWO_PI = 2.0 * math.pi
+_LOG_2PI = math.log(2.0 * math.pi)
+
+# status codes returned by the kernels
+_OK = 0
+_BAD_FORWARD = 1
+_BAD_BACKWARD = 2
+_BAD_GAMMA = 3
+_BAD_ACTION = 4
+_STAGES = {
+    _BAD_FORWARD: "forward filter",
+    _BAD_BACKWARD: "backward information filter",
+    _BAD_GAMMA: "combination (gamma)",
+    _BAD_ACTION: "action statistics",
+}
+
+
+# ----------------------------------------------------------------------------------------------
+# small algebra on tuples: a 3x3 matrix is a row-major 9-tuple, a vector a 3-tuple. Tuples
+# live in registers (no allocation, no reference counting) and LLVM inlines these calls.
+# ----------------------------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def _wrap(a):
+    """Wrap an angle to (-pi, pi] (same formula as geometry.wrap)."""
+    return a - _TWO_PI * math.ceil((a - math.pi) / _TWO_PI)
+
+
+@njit(cache=True)
+def _horner(coef, d):
+    """f(d) = sum_k coef[k] d**k and f'(d), by Horner's rule."""
+    n = coef.shape[0]
+    f = coef[n - 1]
+    for k in range(n - 2, -1, -1):
+        f = f * d + coef[k]
+    if n < 2:
+        return f, 0.0
+    g = (n - 1) * coef[n - 1]
+    for k in range(n - 2, 0, -1):
+        g = g * d + k * coef[k]
+    return f, g
+
+
+@njit(cache=True)
+def _ld3(a, p):
+    return (a[p, 0], a[p, 1], a[p, 2])
+
+
+@njit(cache=True)
+def _st3(a, p, v):
+    a[p, 0] = v[0]
+    a[p, 1] = v[1]
+    a[p, 2] = v[2]
+
+
+@njit(cache=True)
+def _ld33(a, p):
+    return (a[p, 0, 0], a[p, 0, 1], a[p, 0, 2], a[p, 1, 0], a[p, 1, 1], a[p, 1, 2], a[p, 2, 0], a[p, 2, 1], a[p, 2, 2])
+
+
+@njit(cache=True)
+def _st33(a, p, M):
+    a[p, 0, 0] = M[0]
+    a[p, 0, 1] = M[1]
+    a[p, 0, 2] = M[2]
+    a[p, 1, 0] = M[3]
+    a[p, 1, 1] = M[4]
+    a[p, 1, 2] = M[5]
+    a[p, 2, 0] = M[6]
+    a[p, 2, 1] = M[7]
+    a[p, 2, 2] = M[8]
+
+
+@njit(cache=True)
+def _mm(A, B):
+    """A @ B"""
+    return (
+        A[0] * B[0] + A[1] * B[3] + A[2] * B[6],
+        A[0] * B[1] + A[1] * B[4] + A[2] * B[7],
+        A[0] * B[2] + A[1] * B[5] + A[2] * B[8],
+        A[3] * B[0] + A[4] * B[3] + A[5] * B[6],
+        A[3] * B[1] + A[4] * B[4] + A[5] * B[7],
+        A[3] * B[2] + A[4] * B[5] + A[5] * B[8],
+        A[6] * B[0] + A[7] * B[3] + A[8] * B[6],
+        A[6] * B[1] + A[7] * B[4] + A[8] * B[7],
+        A[6] * B[2] + A[7] * B[5] + A[8] * B[8],
+    )
+
+
+@njit(cache=True)
+def _mmT(A, B):
+    """A @ B.T"""
+    return (
+        A[0] * B[0] + A[1] * B[1] + A[2] * B[2],
+        A[0] * B[3] + A[1] * B[4] + A[2] * B[5],
+        A[0] * B[6] + A[1] * B[7] + A[2] * B[8],
+        A[3] * B[0] + A[4] * B[1] + A[5] * B[2],
+        A[3] * B[3] + A[4] * B[4] + A[5] * B[5],
+        A[3] * B[6] + A[4] * B[7] + A[5] * B[8],
+        A[6] * B[0] + A[7] * B[1] + A[8] * B[2],
+        A[6] * B[3] + A[7] * B[4] + A[8] * B[5],
+        A[6] * B[6] + A[7] * B[7] + A[8] * B[8],
+    )
+
+
+@njit(cache=True)
+def _mv(A, v):
+    """A @ v"""
+    return (
+        A[0] * v[0] + A[1] * v[1] + A[2] * v[2],
+        A[3] * v[0] + A[4] * v[1] + A[5] * v[2],
+        A[6] * v[0] + A[7] * v[1] + A[8] * v[2],
+    )
+
+
+@njit(cache=True)
+def _mTv(A, v):
+    """A.T @ v"""
+    return (
+        A[0] * v[0] + A[3] * v[1] + A[6] * v[2],
+        A[1] * v[0] + A[4] * v[1] + A[7] * v[2],
+        A[2] * v[0] + A[5] * v[1] + A[8] * v[2],
+    )
+
+
+@njit(cache=True)
+def _add(A, B):
+    return (A[0] + B[0], A[1] + B[1], A[2] + B[2], A[3] + B[3], A[4] + B[4], A[5] + B[5],
+            A[6] + B[6], A[7] + B[7], A[8] + B[8])  # fmt: skip
+
+
+@njit(cache=True)
+def _sub(A, B):
+    return (A[0] - B[0], A[1] - B[1], A[2] - B[2], A[3] - B[3], A[4] - B[4], A[5] - B[5],
+            A[6] - B[6], A[7] - B[7], A[8] - B[8])  # fmt: skip
+
+
+@njit(cache=True)
+def _sym(A):
+    """(A + A^T) / 2"""
+    s01 = 0.5 * (A[1] + A[3])
+    s02 = 0.5 * (A[2] + A[6])
+    s12 = 0.5 * (A[5] + A[7])
+    return (A[0], s01, s02, s01, A[4], s12, s02, s12, A[8])
+
+
+@njit(cache=True)
+def _add_outer2(A, a, wa, b, wb):
+    """A + wa a a^T + wb b b^T (a, b 3-vectors)."""
+    return (
+        A[0] + wa * a[0] * a[0] + wb * b[0] * b[0],
+        A[1] + wa * a[0] * a[1] + wb * b[0] * b[1],
+        A[2] + wa * a[0] * a[2] + wb * b[0] * b[2],
+        A[3] + wa * a[1] * a[0] + wb * b[1] * b[0],
+        A[4] + wa * a[1] * a[1] + wb * b[1] * b[1],
+        A[5] + wa * a[1] * a[2] + wb * b[1] * b[2],
+        A[6] + wa * a[2] * a[0] + wb * b[2] * b[0],
+        A[7] + wa * a[2] * a[1] + wb * b[2] * b[1],
+        A[8] + wa * a[2] * a[2] + wb * b[2] * b[2],
+    )
+
+
+@njit(cache=True)
+def _inv(A):
+    """(A^-1, det A) for a general 3x3 A, by cofactors (det 0 gives non-finite entries)."""
+    c00 = A[4] * A[8] - A[5] * A[7]
+    c01 = A[5] * A[6] - A[3] * A[8]
+    c02 = A[3] * A[7] - A[4] * A[6]
+    det = A[0] * c00 + A[1] * c01 + A[2] * c02
+    r = 1.0 / det
+    return (
+        c00 * r,
+        (A[2] * A[7] - A[1] * A[8]) * r,
+        (A[1] * A[5] - A[2] * A[4]) * r,
+        c01 * r,
+        (A[0] * A[8] - A[2] * A[6]) * r,
+        (A[2] * A[3] - A[0] * A[5]) * r,
+        c02 * r,
+        (A[1] * A[6] - A[0] * A[7]) * r,
+        (A[0] * A[4] - A[1] * A[3]) * r,
+    ), det
+
+
+@njit(cache=True)
+def _inv_i_plus(X):
+    """(I + X)^-1"""
+    return _inv((1.0 + X[0], X[1], X[2], X[3], 1.0 + X[4], X[5], X[6], X[7], 1.0 + X[8]))[0]
+
+
+@njit(cache=True)
+def _fin3(v):
+    return math.isfinite(v[0] + v[1] + v[2])
+
+
+@njit(cache=True)
+def _fin33(A):
+    return math.isfinite(A[0] + A[1] + A[2] + A[3] + A[4] + A[5] + A[6] + A[7] + A[8])
+
+
+@njit(cache=True)
+def _fpft(P, a, b):
+    """F P F^T for F = I except F[0,2] = a, F[1,2] = b (the motion Jacobian)."""
+    # rows: r0 += a r2, r1 += b r2
+    r00 = P[0] + a * P[6]
+    r01 = P[1] + a * P[7]
+    r02 = P[2] + a * P[8]
+    r10 = P[3] + b * P[6]
+    r11 = P[4] + b * P[7]
+    r12 = P[5] + b * P[8]
+    # columns: c0 += a c2, c1 += b c2
+    return (
+        r00 + a * r02, r01 + b * r02, r02,
+        r10 + a * r12, r11 + b * r12, r12,
+        P[6] + a * P[8], P[7] + b * P[8], P[8],
+    )  # fmt: skip
+
+
+@njit(cache=True)
+def _ftyf(Y, a, b):
+    """F^T Y F for F = I except F[0,2] = a, F[1,2] = b."""
+    # rows: r2 += a r0 + b r1
+    r20 = Y[6] + a * Y[0] + b * Y[3]
+    r21 = Y[7] + a * Y[1] + b * Y[4]
+    r22 = Y[8] + a * Y[2] + b * Y[5]
+    # columns: c2 += a c0 + b c1
+    return (
+        Y[0], Y[1], Y[2] + a * Y[0] + b * Y[1],
+        Y[3], Y[4], Y[5] + a * Y[3] + b * Y[4],
+        r20, r21, r22 + a * r20 + b * r21,
+    )  # fmt: skip
+
+
+@njit(cache=True)
+def _motion(mu, disp, a, sig):
+    """g(mu), F = dg/ds at mu, Q = R Sigma_A R^T for action a."""
+    th = mu[2]
+    c = math.cos(th)
+    s = math.sin(th)
+    ux = disp[a, 0]
+    uy = disp[a, 1]
+    g = (mu[0] + c * ux - s * uy, mu[1] + s * ux + c * uy, th + disp[a, 2])
+    F = (1.0, 0.0, -s * ux - c * uy, 0.0, 1.0, c * ux - s * uy, 0.0, 0.0, 1.0)
+    R = (c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0)
+    return g, F, _mmT(_mm(R, sig), R)
+
+
+@njit(cache=True)
+def _observe(mu, bx, by, coef):
+    """(f(d), bearing (not wrapped), H row 0, H row 1) at pose mu."""
+    dx = bx - mu[0]
+    dy = by - mu[1]
+    q = dx * dx + dy * dy
+    d = math.sqrt(q)
+    fd, fp = _horner(coef, d)
+    h0 = (-fp * dx / d, -fp * dy / d, 0.0)
+    h1 = (dy / q, -dx / q, -1.0)
+    return fd, math.atan2(dy, dx) - mu[2], h0, h1
+
+
+@njit(cache=True)
+def _dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@njit(cache=True)
+def _combine(ma, A, Y, y):
+    """gamma from alpha N(ma, A) and beta information (Y, y): M = (I + Y A)^-1,
+    mu = ma + A M (y - Y ma), cov = A - A M Y A (symmetrized)."""
+    AM = _mm(A, _inv_i_plus(_mm(Y, A)))
+    Yma = _mv(Y, ma)
+    w = _mv(AM, (y[0] - Yma[0], y[1] - Yma[1], y[2] - Yma[2]))
+    mu = (ma[0] + w[0], ma[1] + w[1], ma[2] + w[2])
+    return mu, _sym(_sub(A, _mm(_mm(AM, Y), A)))
+
+
+_ZERO33 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+# ----------------------------------------------------------------------------------------------
+# E-step kernel
+# ----------------------------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def _smooth_kernel(
+    actions, obs, beacon_xy, used, frame_start, disp, sig_a, coef, var_h, var_a,
+    init_mean, init_cov, use_gate, gate,
+    mu_alpha, cov_alpha, mu_gamma, cov_gamma, info_delta, vec_delta, mahal2,
+):  # fmt: skip
+    """Returns (status, log index, frame index within the log, loglik)."""
+    sig = _ld33(sig_a.reshape(1, 3, 3), 0)
+    ivh = 1.0 / var_h
+    iva = 1.0 / var_a
+    loglik = 0.0
+    n_logs = frame_start.shape[0] - 1
+    for k in range(n_logs):
+        f0 = frame_start[k]
+        f1 = frame_start[k + 1]
+        ps = f0 + k  # pose_start[k]
+        n = f1 - f0
+
+        # ---------------- forward EKF ----------------
+        mu = _ld3(init_mean, k)
+        P = _sym(_ld33(init_cov, k))
+        _st3(mu_alpha, ps, mu)
+        _st33(cov_alpha, ps, P)
+        if not (_fin3(mu) and _fin33(P)):
+            return _BAD_FORWARD, k, 0, loglik
+        for j in range(n):
+            i = f0 + j
+            g, F, Q = _motion(mu, disp, actions[i], sig)
+            mu = g
+            P = _sym(_add(_fpft(P, F[2], F[5]), Q))  # P- = F P F^T + Q
+            mahal2[i] = np.nan
+            if used[i]:
+                fd, bear, h0, h1 = _observe(mu, beacon_xy[i, 0], beacon_xy[i, 1], coef)
+                v0 = obs[i, 0] - fd
+                v1 = _wrap(obs[i, 1] - bear)
+                # PHt columns: P- h0, P- h1; S = H P- H^T + R_obs
+                ph0 = _mv(P, h0)
+                ph1 = _mv(P, h1)
+                s00 = _dot(h0, ph0) + var_h
+                s11 = _dot(h1, ph1) + var_a
+                s01 = 0.5 * (_dot(h0, ph1) + _dot(h1, ph0))
+                det_s = s00 * s11 - s01 * s01
+                i00 = s11 / det_s
+                i11 = s00 / det_s
+                i01 = -s01 / det_s
+                m2v = v0 * (i00 * v0 + i01 * v1) + v1 * (i01 * v0 + i11 * v1)
+                mahal2[i] = m2v
+                if not (math.isfinite(m2v) and det_s > 0.0 and s00 > 0.0):
+                    return _BAD_FORWARD, k, j, loglik
+                if not (use_gate and m2v > gate):
+                    loglik += -0.5 * (m2v + math.log(det_s) + 2.0 * _LOG_2PI)
+                    # K = P- H^T S^-1 (columns k0, k1)
+                    k0 = (ph0[0] * i00 + ph1[0] * i01, ph0[1] * i00 + ph1[1] * i01, ph0[2] * i00 + ph1[2] * i01)
+                    k1 = (ph0[0] * i01 + ph1[0] * i11, ph0[1] * i01 + ph1[1] * i11, ph0[2] * i01 + ph1[2] * i11)
+                    mu = (mu[0] + k0[0] * v0 + k1[0] * v1, mu[1] + k0[1] * v0 + k1[1] * v1,
+                          mu[2] + k0[2] * v0 + k1[2] * v1)  # fmt: skip
+                    # Joseph: (I - K H) P- (I - K H)^T + K R_obs K^T
+                    IKH = _sub((1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0),
+                               _add_outer_pair(k0, h0, k1, h1))  # fmt: skip
+                    P = _sym(_add_outer2(_mmT(_mm(IKH, P), IKH), k0, var_h, k1, var_a))
+            _st3(mu_alpha, i + k + 1, mu)
+            _st33(cov_alpha, i + k + 1, P)
+            if not (_fin3(mu) and _fin33(P)):
+                return _BAD_FORWARD, k, j, loglik
+
+        # ---------------- backward information filter + combination ----------------
+        Y = _ZERO33
+        y = (0.0, 0.0, 0.0)
+        for j in range(n - 1, -1, -1):
+            i = f0 + j
+            p = ps + j
+            # gamma at the end pose p + 1 (beta = (Y, y) there)
+            mg, cg = _combine(_ld3(mu_alpha, p + 1), _ld33(cov_alpha, p + 1), Y, y)
+            _st3(mu_gamma, p + 1, mg)
+            _st33(cov_gamma, p + 1, cg)
+            if not (_fin3(mg) and _fin33(cg)):
+                return _BAD_GAMMA, k, j, loglik
+            # observation update at the end pose, h linearized at mu_alpha[p + 1]
+            if used[i] and not (use_gate and mahal2[i] > gate):
+                ma = _ld3(mu_alpha, p + 1)
+                fd, bear, h0, h1 = _observe(ma, beacon_xy[i, 0], beacon_xy[i, 1], coef)
+                z0 = (obs[i, 0] - fd + _dot(h0, ma)) * ivh  # R_obs^-1 (v + H mu)
+                z1 = (_wrap(obs[i, 1] - bear) + _dot(h1, ma)) * iva
+                Y = _sym(_add_outer2(Y, h0, ivh, h1, iva))
+                y = (y[0] + h0[0] * z0 + h1[0] * z1, y[1] + h0[1] * z0 + h1[1] * z1, y[2] + h0[2] * z0 + h1[2] * z1)
+            _st3(vec_delta, i, y)
+            _st33(info_delta, i, Y)
+            # time update to pose p, g linearized at mu_alpha[p]: c = g - F mu
+            ma = _ld3(mu_alpha, p)
+            g, F, Q = _motion(ma, disp, actions[i], sig)
+            Fm = _mv(F, ma)
+            c = (g[0] - Fm[0], g[1] - Fm[1], g[2] - Fm[2])
+            B = _inv_i_plus(_mm(Y, Q))
+            Yt = _sym(_mm(B, Y))
+            yt = _mv(B, y)
+            Ytc = _mv(Yt, c)
+            y = _mTv(F, (yt[0] - Ytc[0], yt[1] - Ytc[1], yt[2] - Ytc[2]))
+            Y = _sym(_ftyf(Yt, F[2], F[5]))  # F^T Ytil F
+            if not (_fin3(y) and _fin33(Y)):
+                return _BAD_BACKWARD, k, j, loglik
+        mg, cg = _combine(_ld3(mu_alpha, ps), _ld33(cov_alpha, ps), Y, y)
+        _st3(mu_gamma, ps, mg)
+        _st33(cov_gamma, ps, cg)
+        if not (_fin3(mg) and _fin33(cg)):
+            return _BAD_GAMMA, k, 0, loglik
+    return _OK, -1, -1, loglik
+
+
+@njit(cache=True)
+def _add_outer_pair(a, b, c, d):
+    """a b^T + c d^T (3-vectors)."""
+    return (
+        a[0] * b[0] + c[0] * d[0], a[0] * b[1] + c[0] * d[1], a[0] * b[2] + c[0] * d[2],
+        a[1] * b[0] + c[1] * d[0], a[1] * b[1] + c[1] * d[1], a[1] * b[2] + c[1] * d[2],
+        a[2] * b[0] + c[2] * d[0], a[2] * b[1] + c[2] * d[1], a[2] * b[2] + c[2] * d[2],
+    )  # fmt: skip
+
+
+# ----------------------------------------------------------------------------------------------
+# action statistics kernel
+# ----------------------------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def _action_kernel(actions, frame_start, disp, sig_a, mu_alpha, cov_alpha, mu_gamma, info_delta, vec_delta,
+                   mu_star, c_star):  # fmt: skip
+    """Returns (status, log index, frame index within the log)."""
+    Sinv, det = _inv(_ld33(sig_a.reshape(1, 3, 3), 0))
+    if not (math.isfinite(det) and det != 0.0):
+        return _BAD_ACTION, -1, -1
+    n_logs = frame_start.shape[0] - 1
+    for k in range(n_logs):
+        f0 = frame_start[k]
+        f1 = frame_start[k + 1]
+        ps = f0 + k
+        for j in range(f1 - f0):
+            i = f0 + j
+            p = ps + j
+            g0 = _ld3(mu_gamma, p)
+            g1 = _ld3(mu_gamma, p + 1)
+            th = g0[2]
+            c = math.cos(th)
+            s = math.sin(th)
+            dx = g1[0] - g0[0]
+            dy = g1[1] - g0[1]
+            # d = R(-theta)(s1 - s0); L2 = R(-theta); L1 = -R(-theta) with column 2 = dd/dtheta_p
+            d = (c * dx + s * dy, -s * dx + c * dy, g1[2] - g0[2])
+            L2 = (c, s, 0.0, -s, c, 0.0, 0.0, 0.0, 1.0)
+            L1 = (-c, -s, -s * dx + c * dy, s, -c, -c * dx - s * dy, 0.0, 0.0, -1.0)
+            a1 = _mv(L1, g0)
+            a2 = _mv(L2, g1)
+            m = (d[0] - a1[0] - a2[0], d[1] - a1[1] - a2[1], d[2] - a1[2] - a2[2])
+            # Y' = L2^-T Y_delta L2^-1 = L2 Y_delta L2^T (L2 orthogonal), y' = L2 y_delta
+            Yp = _sym(_mmT(_mm(L2, _ld33(info_delta, i)), L2))
+            yp = _mv(L2, _ld3(vec_delta, i))
+            # P1 = L1 P_alpha,p L1^T, m1 = L1 mu_alpha,p + m
+            P1 = _mmT(_mm(L1, _ld33(cov_alpha, p)), L1)
+            b = _mv(L1, _ld3(mu_alpha, p))
+            m1 = (b[0] + m[0], b[1] + m[1], b[2] + m[2])
+            # Y_d = (I + Y' P1)^-1 Y', y_d = (I + Y' P1)^-1 (y' + Y' m1)
+            B = _inv_i_plus(_mm(Yp, P1))
+            Yd = _sym(_mm(B, Yp))
+            b = _mv(Yp, m1)
+            yd = _mv(B, (yp[0] + b[0], yp[1] + b[1], yp[2] + b[2]))
+            # C* = (Sigma^-1 + Y_d)^-1, mu* = mu_hat + C* (y_d - Y_d mu_hat)
+            Cs = _sym(_inv(_add(Sinv, Yd))[0])
+            a = actions[i]
+            mh = (disp[a, 0], disp[a, 1], disp[a, 2])
+            b = _mv(Yd, mh)
+            w = _mv(Cs, (yd[0] - b[0], yd[1] - b[1], yd[2] - b[2]))
+            ms = (mh[0] + w[0], mh[1] + w[1], mh[2] + w[2])
+            _st3(mu_star, i, ms)
+            _st33(c_star, i, Cs)
+            if not (_fin3(ms) and _fin33(Cs)):
+                return _BAD_ACTION, k, j
+    return _OK, -1, -1
+
+
+# ----------------------------------------------------------------------------------------------
+# sensor M-step points (cubature)
+# ----------------------------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def _cubature_kernel(frame_idx, pose_idx, mu_gamma, cov_gamma, beacon_xy, dist, bearing):
+    """For each listed sighting: the 6 cubature points mu + sqrt(3) L e_0, e_1, e_2, then
+    mu - sqrt(3) L e_0, e_1, e_2 (L = Cholesky of Sigma_gamma), their distance to the beacon
+    and wrapped bearing.
+    Returns -1 on success, else the row whose covariance is not positive definite."""
+    r3 = math.sqrt(3.0)
+    pt = np.empty(3)
+    for n in range(frame_idx.shape[0]):
+        i = frame_idx[n]
+        p = pose_idx[n]
+        S = cov_gamma[p]
+        l00 = S[0, 0]
+        if not l00 > 0.0:
+            return n
+        l00 = math.sqrt(l00)
+        l10 = S[1, 0] / l00
+        l20 = S[2, 0] / l00
+        t = S[1, 1] - l10 * l10
+        if not t > 0.0:
+            return n
+        l11 = math.sqrt(t)
+        l21 = (S[2, 1] - l20 * l10) / l11
+        t = S[2, 2] - l20 * l20 - l21 * l21
+        if not t > 0.0:
+            return n
+        l22 = math.sqrt(t)
+        bx = beacon_xy[i, 0]
+        by = beacon_xy[i, 1]
+        for jj in range(6):
+            col = jj % 3
+            sgn = r3 if jj < 3 else -r3
+            if col == 0:
+                e0, e1, e2 = l00, l10, l20
+            elif col == 1:
+                e0, e1, e2 = 0.0, l11, l21
+            else:
+                e0, e1, e2 = 0.0, 0.0, l22
+            pt[0] = mu_gamma[p, 0] + sgn * e0
+            pt[1] = mu_gamma[p, 1] + sgn * e1
+            pt[2] = mu_gamma[p, 2] + sgn * e2
+            ddx = bx - pt[0]
+            ddy = by - pt[1]
+            dist[n, jj] = math.sqrt(ddx * ddx + ddy * ddy)
+            bearing[n, jj] = _wrap(math.atan2(ddy, ddx) - pt[2])
+    return -1
+
+
+# ----------------------------------------------------------------------------------------------
+# Python wrappers
+# ----------------------------------------------------------------------------------------------
+
+
+def _f64(a, shape=None) -> np.ndarray:
+    out = np.ascontiguousarray(a, dtype=np.float64)
+    if shape is not None and out.shape != shape:
+        raise ValueError(f"expected shape {shape}, got {out.shape}")
+    return out
+
+
+def _raise(status: int, k: int, j: int, batch: Batch) -> None:
+    if status == _OK:
+        return
+    stage = _STAGES.get(status, f"status {status}")
+    if k < 0:
+        raise FloatingPointError(f"non-finite or singular value in the {stage}")
+    frame = int(batch.frame_start[k]) + j
+    raise FloatingPointError(f"non-finite value in the E-step {stage}: log {k}, frame {j} (batch frame {frame})")
+
+
+def smooth_compiled(params: Params, batch: Batch, gate: float | None = None) -> Posterior:
+    """Compiled E-step: forward EKF, backward information filter, combination (docs/em-math.md).
+
+    Same contract as ``learners.em.smoother.smooth``. ``gate``: a used sighting whose mahal2
+    exceeds it is not applied (no update, no likelihood term, skipped by the backward pass);
+    its mahal2 is still stored so the caller can prune it (``used & (mahal2 > gate)``).
+    """
+    n_logs = batch.n_logs
+    if len(params.init) != n_logs:
+        raise ValueError(f"params has {len(params.init)} initial states for {n_logs} logs")
+    n = batch.n_frames
+    n_poses = n + n_logs
+    frame_start = np.ascontiguousarray(batch.frame_start, dtype=np.int64)
+    actions = np.ascontiguousarray(batch.actions, dtype=np.int64)
+    obs = _f64(batch.obs, (n, 2))
+    beacon_xy = _f64(batch.beacon_xy, (n, 2))
+    used = np.ascontiguousarray(batch.used, dtype=np.bool_)
+    if used.shape != (n,) or actions.shape != (n,):
+        raise ValueError("batch.actions / batch.used must have one entry per frame")
+    disp = _f64(params.action.disp)
+    if n and (actions.min() < 0 or actions.max() >= disp.shape[0]):
+        raise ValueError("action index out of range")
+    sig_a = _f64(params.action.cov, (3, 3))
+    coef = _f64(params.sensor.coef).reshape(-1)
+    if coef.size == 0:
+        coef = np.zeros(1)
+    var_h = float(params.sensor.sigma_height) ** 2
+    var_a = float(params.sensor.sigma_angle) ** 2
+    init_mean = np.ascontiguousarray(np.stack([np.asarray(s.mean, float).reshape(3) for s in params.init]))
+    init_cov = np.ascontiguousarray(np.stack([np.asarray(s.cov, float).reshape(3, 3) for s in params.init]))
+    use_gate = gate is not None
+    gate_v = float(gate) if use_gate else np.inf
+
+    mu_alpha = np.empty((n_poses, 3))
+    cov_alpha = np.empty((n_poses, 3, 3))
+    mu_gamma = np.empty((n_poses, 3))
+    cov_gamma = np.empty((n_poses, 3, 3))
+    info_delta = np.empty((n, 3, 3))
+    vec_delta = np.empty((n, 3))
+    mahal2 = np.empty(n)
+    status, k, j, loglik = _smooth_kernel(
+        actions, obs, beacon_xy, used, frame_start, disp, sig_a, coef, var_h, var_a,
+        init_mean, init_cov, use_gate, gate_v,
+        mu_alpha, cov_alpha, mu_gamma, cov_gamma, info_delta, vec_delta, mahal2,
+    )  # fmt: skip
+    _raise(status, k, j, batch)
+    if not math.isfinite(loglik):
+        raise FloatingPointError("non-finite log-likelihood in the E-step")
+    return Posterior(mu_alpha, cov_alpha, mu_gamma, cov_gamma, info_delta, vec_delta, float(loglik), mahal2)
+
+
+def action_statistics_compiled(params: Params, batch: Batch, post: Posterior) -> tuple[np.ndarray, np.ndarray]:
+    """Compiled twin of ``action_mstep.action_statistics``: (mu_star (N, 3), C_star (N, 3, 3)).
+
+    mu*_i, C*_i: the previous action model N(disp[a_i], Sigma_A) times the linearized belief
+    over the displacement d_i from alpha (start pose) and delta (end pose) (docs/em-math.md).
+    """
+    n = batch.n_frames
+    mu_star = np.empty((n, 3))
+    c_star = np.empty((n, 3, 3))
+    status, k, j = _action_kernel(
+        np.ascontiguousarray(batch.actions, dtype=np.int64),
+        np.ascontiguousarray(batch.frame_start, dtype=np.int64),
+        _f64(params.action.disp),
+        _f64(params.action.cov, (3, 3)),
+        _f64(post.mu_alpha),
+        _f64(post.cov_alpha),
+        _f64(post.mu_gamma),
+        _f64(post.info_delta),
+        _f64(post.vec_delta),
+        mu_star,
+        c_star,
+    )
+    _raise(status, k, j, batch)
+    return mu_star, c_star
+
+
+def sensor_points_compiled(batch: Batch, post: Posterior) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cubature points of the sensor M-step (method="cubature") for every used sighting.
+
+    Returns (frames (M,), dist (M, 6) mm, bearing (M, 6) rad, wrapped to (-pi, pi]).
+    Points are mu + sqrt(3) L e_0, e_1, e_2, then mu - sqrt(3) L e_0, e_1, e_2 (L the Cholesky
+    factor of Sigma_gamma of the end pose), the order of ``sensor_mstep.sensor_points``, so
+    ``dist.ravel()`` / ``bearing.ravel()`` are its ``dist`` / ``bearing``. Weights (1/6) are the caller's.
+    """
+    frames = np.flatnonzero(np.asarray(batch.used, bool)).astype(np.int64)
+    poses = np.ascontiguousarray(batch.frame_to_pose[frames] + 1, dtype=np.int64)
+    dist = np.empty((frames.size, 6))
+    bearing = np.empty((frames.size, 6))
+    bad = _cubature_kernel(frames, poses, _f64(post.mu_gamma), _f64(post.cov_gamma), _f64(batch.beacon_xy),
+                           dist, bearing)  # fmt: skip
+    if bad >= 0:
+        raise np.linalg.LinAlgError(f"smoothed covariance of batch frame {int(frames[bad])} is not positive definite")
+    return frames, dist, bearing
