@@ -1,0 +1,28 @@
+"""One module per ``aibo`` sub-command; each exposes ``run(args) -> int``. Imports are lazy so
+``aibo --help`` stays quick."""
+
+from __future__ import annotations
+
+
+def run_collect(args) -> int:
+    from aibo.commands.collect import run
+
+    return run(args)
+
+
+def run_learn(args) -> int:
+    from aibo.commands.learn import run
+
+    return run(args)
+
+
+def run_reproduce(args) -> int:
+    from aibo.commands.reproduce import run
+
+    return run(args)
+
+
+def run_bench(args) -> int:
+    from aibo.commands.bench import run
+
+    return run(args)

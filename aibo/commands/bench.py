@@ -1,0 +1,147 @@
+"""``aibo bench``: speed of the E-step and of whole fits, measured in one run on this machine.
+
+Figures (all also in ``--json``):
+- E-step frames/s, compiled (numba) and the NumPy per-step reference, on the same 27,000-frame
+  log in the same run, and their ratio;
+- first-call compile time (a fresh process with an empty numba cache);
+- a paper-scale fit (27,000 frames, paper start, to convergence): iterations, time per iteration,
+  wall time (compile excluded), final log-likelihood;
+- scaling at 2,700 / 27,000 / 270,000 / 1,000,000 frames: E-step + M-step time and peak memory,
+  each size in its own process so peak memory is that size's alone.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from aibo_gym import trajectory
+from aibo_gym.trajectory import atomic_write
+
+SIZES = (2_700, 27_000, 270_000, 1_000_000)
+QUICK_SIZES = (2_700, 27_000)
+PAPER_FRAMES = 27_000
+
+
+def _median_time(fn, repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
+
+
+def machine() -> dict:
+    return {"python": platform.python_version(), "machine": platform.machine(), "cpus": os.cpu_count(),
+            "processor": platform.processor() or "unknown"}
+
+
+def estep_speed(tr) -> dict:
+    """Compiled vs NumPy reference E-step on the same log, after warm-up."""
+    from learners.em.data import make_batch
+    from learners.em.kernels import smooth_compiled
+    from learners.em.params import paper_start
+    from learners.em.smoother import smooth
+
+    batch = make_batch([tr])
+    params = paper_start(tr.dt)
+    smooth_compiled(params, batch)  # warm-up (numba compile or cache load)
+    t_c = _median_time(lambda: smooth_compiled(params, batch), 7)
+    t_np = _median_time(lambda: smooth(params, batch), 1)
+    n = batch.n_frames
+    return {"frames": n, "compiled_s": t_c, "numpy_s": t_np, "compiled_frames_per_s": n / t_c,
+            "numpy_frames_per_s": n / t_np, "speedup": t_np / t_c}
+
+
+def compile_time() -> float:
+    """Seconds of the first E-step call in a fresh process with an empty numba cache."""
+    with tempfile.TemporaryDirectory() as cache:
+        env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+        out = subprocess.run([sys.executable, "-m", "aibo.bench_worker", "compile"], env=env,
+                             capture_output=True, text=True, check=True)
+    return float(json.loads(out.stdout)["compile_s"])
+
+
+def paper_fit(tr, **options) -> dict:
+    """A full fit from the paper's start to convergence (compiled E-step already warm)."""
+    from learners.em.fit import EMOptions
+    from learners.em.learner import EMLearner
+    from learners.metrics import model_errors
+
+    opts = EMOptions(**options)
+    t0 = time.perf_counter()
+    res = EMLearner(opts).fit([tr])
+    wall = time.perf_counter() - t0
+    err = model_errors(res.params, [tr]).as_dict()
+    return {"options": {k: v for k, v in options.items()}, "iterations": res.iterations,
+            "best_iteration": res.info["best_iteration"], "wall_s": wall, "per_iteration_ms": 1000 * wall / res.iterations,
+            "final_loglik": max(res.loglik), "errors": err}
+
+
+def scaling(log_path: Path, sizes) -> list[dict]:
+    rows = []
+    for n in sizes:
+        out = subprocess.run([sys.executable, "-m", "aibo.bench_worker", "scale", str(log_path), str(n)],
+                             capture_output=True, text=True)
+        if out.returncode != 0:
+            rows.append({"frames": n, "error": out.stderr.strip().splitlines()[-1:]})
+            continue
+        row = json.loads(out.stdout)
+        rows.append(row)
+        print(f"  {n:>9,d} frames: E-step {1000 * row['estep_s']:8.1f} ms, M-step {1000 * row['mstep_s']:8.1f} ms, "
+              f"peak +{row['peak_mb']:.0f} MB ({row['bytes_per_frame']:.0f} B/frame)", flush=True)
+    return rows
+
+
+def run(args) -> int:
+    from aibo_gym.collect import collect
+
+    sizes = QUICK_SIZES if args.quick else SIZES
+    report: dict = {"machine": machine(), "quick": bool(args.quick)}
+    print(f"machine: {report['machine']}")
+    print(f"simulating {max(sizes):,d} frames for the benchmark logs ...", flush=True)
+    t0 = time.perf_counter()
+    big = collect({"noise": "paper-sim"}, steps=max(sizes), seed=7)
+    report["collect_frames_per_s"] = big.n_frames / (time.perf_counter() - t0)
+    paper = collect({"noise": "paper-sim"}, steps=PAPER_FRAMES, seed=1)
+
+    print("E-step, compiled vs NumPy reference (27,000 frames) ...", flush=True)
+    report["estep"] = estep_speed(paper)
+    e = report["estep"]
+    print(f"  compiled {1000 * e['compiled_s']:.1f} ms ({e['compiled_frames_per_s']:,.0f} frames/s), "
+          f"NumPy {1000 * e['numpy_s']:.0f} ms ({e['numpy_frames_per_s']:,.0f} frames/s): {e['speedup']:.0f}x")
+    report["compile_s"] = compile_time()
+    print(f"  first-call compile time {report['compile_s']:.1f} s")
+
+    print("paper-scale fits (27,000 frames, paper start, to convergence) ...", flush=True)
+    variants = {"default": {}} if args.quick else {
+        "default": {},
+        "paper_recipe": {"learn_motion_noise": False, "sensor_method": "sample"},
+    }
+    report["fits"] = {}
+    for name, options in variants.items():
+        fit = paper_fit(paper, **options)
+        report["fits"][name] = fit
+        print(f"  {name:14s} {fit['iterations']:5d} iterations, {fit['per_iteration_ms']:.1f} ms/iteration, "
+              f"{fit['wall_s']:.2f} s, loglik {fit['final_loglik']:.1f}, vx/vy {fit['errors']['vx_rel']:.2%}/"
+              f"{fit['errors']['vy_rel']:.2%}", flush=True)
+
+    print("scaling (each size in its own process) ...", flush=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "big.npz"
+        trajectory.save(big, path)
+        report["scaling"] = scaling(path, sizes)
+    if args.json:
+        text = json.dumps(report, indent=1)
+        atomic_write(args.json, lambda f: f.write(text.encode()))
+        print(f"wrote {args.json}")
+    return 0

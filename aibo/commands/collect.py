@@ -1,0 +1,35 @@
+"""``aibo collect``: run the simulator with an exploration policy and write a log."""
+
+from __future__ import annotations
+
+import sys
+import time
+
+from aibo.cli import CLIError
+from aibo_gym import trajectory
+
+
+def run(args) -> int:
+    from aibo_gym.collect import collect
+
+    if args.steps < 1:
+        raise CLIError(f"--steps must be >= 1, got {args.steps}")
+    config = dict(args.config)
+    if args.preset:
+        config["noise"] = args.preset
+    t0 = time.perf_counter()
+    tr = collect(config, steps=args.steps, seed=args.seed, policy=args.policy, localizer=args.localizer,
+                 progress=sys.stderr.isatty())
+    seconds = time.perf_counter() - t0
+    if args.plot:
+        from aibo_gym.plot import plot_trajectory
+
+        plot_trajectory(tr, args.plot, title=f"{tr.n_frames} frames, seed {args.seed}")
+    if args.blind:
+        tr = trajectory.blind(tr)
+    trajectory.save(tr, args.out)
+    seen = (tr.beacon >= 0).mean()
+    print(f"wrote {args.out}: {tr.n_frames} frames ({tr.n_frames * tr.dt / 60:.1f} min), "
+          f"{seen:.0%} with a sighting, {tr.n_frames / seconds:,.0f} frames/s"
+          + (f"; figure {args.plot}" if args.plot else ""))
+    return 0

@@ -1,0 +1,85 @@
+"""``aibo learn``: learn action and sensor models from logs and write an aibo-model/1 file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from aibo.cli import CLIError
+from aibo.report import Progress, error_table
+from aibo_gym import trajectory
+from learners import model_file
+from learners.base import LearnResult, get_learner
+from learners.em.fit import EMOptions
+from learners.metrics import model_errors, observed_distance_range, true_height, velocity_errors
+
+
+def em_options(args) -> EMOptions:
+    opts = EMOptions(max_iter=args.max_iter, patience=args.patience, seed=args.seed,
+                     sensor_method=args.sensor_method, estep=args.estep)
+    if args.learn_motion_noise is not None:
+        opts.learn_motion_noise = args.learn_motion_noise
+    return opts.validate()
+
+
+def make_learner(args):
+    cls = get_learner(args.learner)
+    if args.learner == "em":
+        return cls(em_options(args), checkpoint_path=f"{args.out}.checkpoint.npz", resume=not args.no_resume)
+    return cls()
+
+
+def run(args) -> int:
+    if Path(args.out).is_dir():
+        raise CLIError(f"--out {args.out}: is a folder; give a file name such as model.json")
+    logs = [trajectory.load(p) for p in args.logs]
+    init = model_file.load_params(args.init, len(logs)) if args.init else None
+    learner = make_learner(args)
+    progress = Progress(args.learner)
+    result = learner.fit(logs, init=init, progress=progress)
+    progress.close()
+    model_file.save(result, args.out)
+    print(f"wrote {args.out}: {result.iterations} iterations, converged={result.converged}, "
+          f"{result.pruned_observations} sightings pruned as outliers")
+    if all(tr.truth is not None and tr.pose is not None for tr in logs):
+        print(error_table({args.learner: model_errors(result.params, logs)}))
+    if args.plots:
+        write_plots(Path(args.plots), result, logs, start=init)
+        print(f"figures in {args.plots}/")
+    return 0
+
+
+def write_plots(folder: Path, result: LearnResult, logs, start=None, oracle=None, prefix: str = "") -> list[Path]:
+    """Learning curves and sensor models; velocity-error curves when the logs carry truth."""
+    from aibo import figures
+    from learners.em.params import PAPER_START_SENSOR
+
+    paths = []
+    best = result.info.get("best_iteration")
+    if result.loglik:
+        paths.append(folder / f"{prefix}loglik.png")
+        figures.loglik_curve(paths[-1], result.loglik, best)
+    truth = logs[0].truth if logs[0].pose is not None else None
+    d_range = observed_distance_range(logs) if truth else result.params.sensor.distance_range_mm
+    curves = {"start": (start.sensor if start else PAPER_START_SENSOR), f"learned ({result.learner})": result.params.sensor}
+    if oracle is not None:
+        curves["oracle"] = oracle.sensor
+    if truth:
+        curves["true (pinhole)"] = true_height(truth, np.linspace(*d_range, 300))
+    paths.append(folder / f"{prefix}sensor_model.png")
+    figures.sensor_models(paths[-1], d_range, curves)
+    if truth and result.history:
+        true_vel = np.asarray(truth["velocities"])
+        series: dict[str, list[float]] = {"vx": [], "vy": [], "vtheta": []}
+        for rec in result.history:
+            e = velocity_errors(rec.params.action.velocities, true_vel)
+            for k in series:
+                series[k].append(e[f"{k}_rel"])
+        ref = None
+        if oracle is not None:
+            e = velocity_errors(oracle.action.velocities, true_vel)
+            ref = {k: e[f"{k}_rel"] for k in series}
+        paths.append(folder / f"{prefix}velocity_error.png")
+        figures.velocity_error_curves(paths[-1], series, ref)
+    return paths

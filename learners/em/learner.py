@@ -1,0 +1,104 @@
+"""The ``em`` learner plugin: the paper's EM over one or more logs, resumable, with a sanity check."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import replace
+
+import numpy as np
+
+from aibo_gym.trajectory import Trajectory
+from learners.base import IterationRecord, LearnResult, ProgressFn
+from learners.em import checkpoint
+from learners.em.data import Batch, make_batch
+from learners.em.fit import EMOptions, EMState, e_step, initial_state, options_json, run
+from learners.em.params import DEFAULT_INITIAL, Params, paper_start
+
+#: A fit whose smoothed path spends more than this share of poses far outside the field is refused.
+MAX_OFF_FIELD = 0.05
+OFF_FIELD_MARGIN_MM = 500.0
+
+
+class EMDivergedError(RuntimeError):
+    """EM converged to a world that does not fit the field (usually a bad starting sensor model)."""
+
+
+def off_field_fraction(mu: np.ndarray, field: np.ndarray, margin: float = OFF_FIELD_MARGIN_MM) -> float:
+    """Share of poses (x, y in mm) further than ``margin`` outside the field rectangle."""
+    half = np.asarray(field, float) / 2 + margin
+    return float(np.mean((np.abs(mu[:, 0]) > half[0]) | (np.abs(mu[:, 1]) > half[1])))
+
+
+class EMLearner:
+    """Maximum-likelihood action and sensor models by EM (Stronger & Stone).
+
+    Arguments: ``options`` (EMOptions), ``checkpoint_path`` (write the state there every
+    ``checkpoint_every`` iterations and resume from it when it matches), ``check_field``
+    (refuse a result whose smoothed path leaves the field).
+    """
+
+    name = "em"
+
+    def __init__(self, options: EMOptions | None = None, checkpoint_path: str | os.PathLike | None = None,
+                 resume: bool = True, checkpoint_every: int = 20, check_field: bool = True):
+        self.options = (options or EMOptions()).validate()
+        self.checkpoint_path = checkpoint_path
+        self.resume = resume
+        self.checkpoint_every = checkpoint_every
+        self.check_field = check_field
+
+    def start_params(self, logs: list[Trajectory], init: Params | None) -> Params:
+        start = init or paper_start(logs[0].dt, len(logs))
+        if len(start.init) != len(logs):
+            start = replace(start, init=tuple(start.init[0] if len(start.init) == 1 else DEFAULT_INITIAL
+                                              for _ in logs))
+        if not np.isclose(start.action.dt, logs[0].dt):
+            disp = start.action.velocities * logs[0].dt
+            start = replace(start, action=replace(start.action, disp=disp, dt=logs[0].dt))
+        return start
+
+    def fit(self, logs: list[Trajectory], init: Params | None = None, progress: ProgressFn | None = None) -> LearnResult:
+        batch = make_batch(logs)
+        start = self.start_params(logs, init)
+        state = self._load_or_start(batch, start)
+        resumed_from = state.iteration
+        history: list[IterationRecord] = []
+        fp = checkpoint.fingerprint(batch, start, options_json(self.options))
+
+        def on_iteration(st: EMState, _post) -> None:
+            rec = IterationRecord(st.iteration, st.loglik[-1], st.seconds[-1], st.params)
+            history.append(rec)
+            if progress is not None:
+                progress(rec)
+            if self.checkpoint_path and st.iteration % self.checkpoint_every == 0:
+                checkpoint.save(self.checkpoint_path, st, fp)
+
+        state = run(batch, state, self.options, on_iteration)
+        info = {"best_iteration": state.best_iteration + 1, "resumed_from": resumed_from,
+                "seconds_per_iteration": float(np.mean(state.seconds)) if state.seconds else 0.0,
+                "options": self.options.__dict__.copy()}
+        info["off_field_fraction"] = self._check(batch.with_used(state.used), state.best, logs)
+        if self.checkpoint_path and os.path.exists(self.checkpoint_path):
+            os.unlink(self.checkpoint_path)
+        return LearnResult("em", state.best, state.iteration, state.converged, list(state.loglik),
+                           state.pruned, history, info)
+
+    def _load_or_start(self, batch: Batch, start: Params) -> EMState:
+        if self.checkpoint_path and self.resume:
+            fp = checkpoint.fingerprint(batch, start, options_json(self.options))
+            saved = checkpoint.load(self.checkpoint_path, fp)
+            if saved is not None:
+                return saved
+        return initial_state(start, batch, self.options)
+
+    def _check(self, batch: Batch, best: Params, logs: list[Trajectory]) -> float:
+        post = e_step(best, batch, self.options.estep)
+        frac = max(off_field_fraction(post.mu_gamma[a:b], tr.field)
+                   for tr, a, b in zip(logs, batch.pose_start[:-1], batch.pose_start[1:]))
+        if self.check_field and frac > MAX_OFF_FIELD:
+            raise EMDivergedError(
+                f"EM converged to a world that does not fit the field: {frac:.0%} of smoothed poses lie more "
+                f"than {OFF_FIELD_MARGIN_MM:.0f} mm outside it. The starting sensor model probably implies "
+                "wrong beacon distances; start from a better one (--init MODEL.json)."
+            )
+        return frac

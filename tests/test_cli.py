@@ -1,0 +1,132 @@
+"""The ``aibo`` command end to end: collect, learn, reproduce --quick, and bad input."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from aibo.cli import main
+from aibo_gym import trajectory
+
+
+def aibo(*args: str) -> subprocess.CompletedProcess:
+    """Run the installed console script's module as a user would (a fresh process)."""
+    return subprocess.run([sys.executable, "-m", "aibo.cli", *args], capture_output=True, text=True, timeout=600)
+
+
+@pytest.fixture(scope="module")
+def log_path(tmp_path_factory):
+    path = tmp_path_factory.mktemp("cli") / "log.npz"
+    r = aibo("collect", "--steps", "3000", "--seed", "2", "--out", str(path), "--plot", str(path.with_suffix(".png")))
+    assert r.returncode == 0, r.stderr
+    assert "3000 frames" in r.stdout
+    return path
+
+
+def test_collect_writes_a_valid_log_and_figure(log_path):
+    tr = trajectory.load(log_path)
+    assert tr.n_frames == 3000 and tr.pose is not None and tr.truth is not None
+    assert log_path.with_suffix(".png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_collect_blind_has_no_truth(tmp_path):
+    out = tmp_path / "b.npz"
+    assert main(["collect", "--steps", "200", "--seed", "1", "--blind", "--preset", "aibo", "--out", str(out)]) == 0
+    tr = trajectory.load(out)
+    assert tr.pose is None and "truth" not in tr.meta
+    assert tr.meta["config"]["noise"] == "aibo"
+
+
+def test_collect_same_seed_same_bytes(tmp_path):
+    a, b = tmp_path / "a.npz", tmp_path / "b.npz"
+    for p in (a, b):
+        assert main(["collect", "--steps", "300", "--seed", "9", "--out", str(p)]) == 0
+    assert a.read_bytes() == b.read_bytes()
+
+
+def test_learn_writes_model_and_plots(log_path, tmp_path, capsys):
+    out = tmp_path / "model.json"
+    code = main(["learn", str(log_path), "--out", str(out), "--max-iter", "30", "--patience", "10",
+                 "--plots", str(tmp_path / "plots")])
+    assert code == 0
+    doc = json.loads(out.read_text())
+    assert doc["format"] == "aibo-model/1" and doc["learner"] == "em"
+    assert len(doc["loglik"]) == doc["iterations"] <= 30
+    text = capsys.readouterr().out
+    assert "vx RMS / range" in text and "paper" in text  # the error table for logs with truth
+    for name in ("loglik.png", "sensor_model.png", "velocity_error.png"):
+        assert (tmp_path / "plots" / name).stat().st_size > 1000
+    assert not (tmp_path / "model.json.checkpoint.npz").exists()
+    # a learned model is a valid start for another fit
+    assert main(["learn", str(log_path), "--out", str(tmp_path / "m2.json"), "--init", str(out),
+                 "--max-iter", "3", "--learner", "em"]) == 0
+
+
+def test_learn_oracle(log_path, tmp_path):
+    out = tmp_path / "oracle.json"
+    assert main(["learn", str(log_path), "--learner", "oracle", "--out", str(out)]) == 0
+    assert json.loads(out.read_text())["learner"] == "oracle"
+
+
+def _bad_log(tmp_path, log_path):
+    tr = trajectory.load(log_path)
+    data = dict(np.load(log_path))
+    data["actions"] = data["actions"].copy()
+    data["actions"][5] = 40
+    bad = tmp_path / "bad.npz"
+    np.savez(bad, **data)
+    return bad
+
+
+@pytest.mark.parametrize("case", ["bad_log", "missing_log", "bad_init", "unknown_learner", "oracle_blind"])
+def test_learn_bad_input_one_line_and_out_untouched(case, log_path, tmp_path):
+    out = tmp_path / "model.json"
+    out.write_text("precious")
+    args = [str(log_path), "--out", str(out), "--max-iter", "2"]
+    expect = str(log_path)
+    if case == "bad_log":
+        bad = _bad_log(tmp_path, log_path)
+        args[0], expect = str(bad), "'actions'"
+    elif case == "missing_log":
+        args[0], expect = str(tmp_path / "nope.npz"), "file not found"
+    elif case == "bad_init":
+        (tmp_path / "init.json").write_text('{"format": "aibo-model/1"}')
+        args += ["--init", str(tmp_path / "init.json")]
+        expect = "action_model.velocities"
+    elif case == "unknown_learner":
+        args += ["--learner", "magic"]
+        expect = "unknown learner 'magic'"
+    elif case == "oracle_blind":
+        blind = tmp_path / "blind.npz"
+        trajectory.save(trajectory.blind(trajectory.load(log_path)), blind)
+        args[0] = str(blind)
+        args += ["--learner", "oracle"]
+        expect = "needs true poses"
+    r = aibo("learn", *args)
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("aibo: error:") and expect in lines[0], r.stderr
+    assert "Traceback" not in r.stderr
+    assert out.read_text() == "precious"
+
+
+def test_collect_bad_config_is_one_line(tmp_path):
+    r = aibo("collect", "--steps", "10", "--out", str(tmp_path / "x.npz"), "--config", '{"walls": "glass"}')
+    assert r.returncode == 2 and "walls" in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "x.npz").exists()
+
+
+@pytest.mark.slow
+def test_reproduce_quick_end_to_end(tmp_path):
+    r = aibo("reproduce", "--quick", "--out", str(tmp_path))
+    assert r.returncode == 0, r.stderr
+    assert "vx RMS / range" in r.stdout and "oracle" in r.stdout
+    report = json.loads((tmp_path / "report.json").read_text())
+    assert report["quick"] and report["iterations"] >= 1
+    assert report["em"]["vtheta_rel"] < 0.05  # a first look, not the bar
+    for name in report["figures"]:
+        assert (tmp_path / name).read_bytes()[:4] == b"\x89PNG"

@@ -1,0 +1,86 @@
+"""The EM learner on simulated logs with ground truth: it learns, it stops, it resumes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from aibo_gym.trajectory import blind
+from learners.em.fit import EMOptions
+from learners.em.learner import EMDivergedError, EMLearner
+from learners.em.params import SensorModel, paper_start
+from learners.metrics import model_errors
+from learners.oracle import OracleLearner
+from tests._logs import sim_log
+
+
+def test_oracle_recovers_truth_from_true_poses():
+    tr = sim_log()
+    err = model_errors(OracleLearner().fit([tr]).params, [tr])
+    # 200 s of log: about 150 frames per action, so slip noise alone leaves ~1.5% (see the README)
+    assert err.vx_rel < 0.02 and err.vy_rel < 0.02 and err.vtheta_rel < 0.03
+    assert err.sigma_height_rel < 0.05 and err.sigma_angle_rel < 0.05
+    assert err.sensor_rms_px < 0.5
+
+
+def test_oracle_needs_poses():
+    with pytest.raises(ValueError, match="needs true poses"):
+        OracleLearner().fit([blind(sim_log())])
+
+
+def test_em_learns_from_paper_start_on_a_blind_log():
+    tr = sim_log()
+    res = EMLearner(EMOptions(max_iter=150, patience=30, seed=0)).fit([blind(tr)])
+    err = model_errors(res.params, [tr])
+    start = model_errors(paper_start(tr.dt), [tr])
+    # A 200 s log: far from the paper's 15 min, but the models must be close to the truth.
+    assert err.vx_rel < 0.08 and err.vy_rel < 0.08 and err.vtheta_rel < 0.05, err
+    assert err.sensor_rms_px < 1.0 < start.sensor_rms_px
+    assert err.sigma_height_rel < 0.15
+    ll = np.asarray(res.loglik)
+    assert ll[5] > ll[0] and ll[15] > ll[5]  # the likelihood rises over the first iterations
+    assert res.loglik[res.info["best_iteration"] - 1] == max(res.loglik)
+
+
+def test_several_logs_of_different_length_are_one_fit():
+    a, b = sim_log(3000, seed=5), sim_log(4500, seed=6)
+    res = EMLearner(EMOptions(max_iter=80, patience=20)).fit([a, b])
+    assert len(res.params.init) == 2
+    err = model_errors(res.params, [a, b])
+    assert err.vtheta_rel < 0.06 and err.vx_rel < 0.15
+
+
+def test_stop_rule_returns_best_params():
+    res = EMLearner(EMOptions(max_iter=400, patience=5, seed=1)).fit([sim_log()])
+    best = res.info["best_iteration"]
+    assert res.converged and res.iterations == best + 5
+    assert max(res.loglik[best:]) < res.loglik[best - 1] == max(res.loglik)
+
+
+def test_resume_after_interruption_gives_the_same_fit(tmp_path):
+    tr = sim_log(3000, seed=4)
+    opts = EMOptions(max_iter=12, patience=50, seed=2)
+    full = EMLearner(opts).fit([tr])
+    ckpt = tmp_path / "m.json.checkpoint.npz"
+
+    def stop_at_9(rec):
+        if rec.iteration == 9:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        EMLearner(opts, checkpoint_path=ckpt, checkpoint_every=4).fit([tr], progress=stop_at_9)
+    assert ckpt.exists()
+    resumed = EMLearner(opts, checkpoint_path=ckpt, checkpoint_every=4).fit([tr])
+    assert resumed.info["resumed_from"] == 8
+    np.testing.assert_allclose(resumed.loglik, full.loglik, rtol=1e-12)
+    np.testing.assert_allclose(resumed.params.action.disp, full.params.action.disp, rtol=1e-12)
+    assert not ckpt.exists()
+
+
+def test_a_start_that_puts_beacons_off_the_field_fails_loudly():
+    tr = sim_log()
+    start = paper_start(tr.dt)
+    # height = 45 - 0.004 d implies beacons ~8 m away: EM settles in a wrong world (see docs/em-math.md)
+    bad = start.with_(sensor=SensorModel(np.array([45.0, -0.004]), 10.0, 0.2))
+    with pytest.raises(EMDivergedError, match="does not fit the field"):
+        EMLearner(EMOptions(max_iter=60, patience=20)).fit([tr], init=bad)
