@@ -223,7 +223,17 @@ def save(tr: Trajectory, path: str | os.PathLike) -> None:
         arrays["pose"] = np.asarray(tr.pose, dtype=np.float64)
     if tr.meta:
         arrays["meta"] = np.array(json.dumps(tr.meta, sort_keys=True))
-    atomic_write(path, lambda f: np.savez_compressed(f, **arrays))
+    atomic_write(path, lambda f: _write_npz(f, arrays))
+
+
+def _write_npz(f, arrays: dict[str, np.ndarray]) -> None:
+    """Like ``np.savez_compressed`` but with fixed zip timestamps: same content, same bytes."""
+    with zipfile.ZipFile(f, mode="w", compression=zipfile.ZIP_DEFLATED) as zf:
+        for key, value in arrays.items():
+            info = zipfile.ZipInfo(f"{key}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = zipfile.ZIP_DEFLATED
+            with zf.open(info, "w", force_zip64=True) as member:
+                np.lib.format.write_array(member, np.asanyarray(value), allow_pickle=False)
 
 
 def atomic_write(path: str | os.PathLike, write) -> None:

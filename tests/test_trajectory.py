@@ -152,11 +152,14 @@ def test_failed_write_leaves_existing_file_intact(tr, tmp_path, monkeypatch):
     save(tr, path)
     before = path.read_bytes()
 
-    def explode(f, **arrays):
-        f.write(b"partial")
+    calls = []
+
+    def explode(member, array, **kw):  # the disk fills up after the first array is half-written
+        calls.append(1)
+        member.write(b"partial")
         raise OSError("disk full")
 
-    monkeypatch.setattr(np, "savez_compressed", explode)
+    monkeypatch.setattr(np.lib.format, "write_array", explode)
     with pytest.raises(OSError, match="disk full"):
         save(tr, path)
     assert path.read_bytes() == before
