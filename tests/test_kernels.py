@@ -442,3 +442,127 @@ def test_sensor_points_cubature():
     d_ref, a_ref, _, _ = sensor_mstep.sensor_points(params, batch, post, np.random.default_rng(0), "cubature")
     np.testing.assert_allclose(dist.ravel(), d_ref, rtol=1e-12)
     np.testing.assert_allclose(_wrap(bearing.ravel() - a_ref), 0, atol=1e-9)
+
+
+# ----------------------------------------------------------------------------------------------
+# fused compiled M-step (fit.m_step with estep="compiled") against the NumPy reference path
+# ----------------------------------------------------------------------------------------------
+
+
+def _mstep_pair(params, batch, post, method, learn_noise, seed=7, n_samples=1):
+    from learners.em.fit import EMOptions, m_step
+
+    opts = EMOptions(sensor_method=method, learn_motion_noise=learn_noise, n_samples=n_samples)
+    ref_opts = EMOptions(sensor_method=method, learn_motion_noise=learn_noise, n_samples=n_samples, estep="numpy")
+    rng_c, rng_r = np.random.default_rng(seed), np.random.default_rng(seed)
+    got = m_step(params, batch, post, rng_c, opts)
+    ref = m_step(params, batch, post, rng_r, ref_opts)
+    assert rng_c.bit_generator.state == rng_r.bit_generator.state  # same draws from the generator
+    return got, ref
+
+
+def _assert_params_close(got, ref, tol=TOL):
+    _close_vec("disp", got.action.disp, ref.action.disp, tol)
+    _close_mat("action cov", got.action.cov[None], ref.action.cov[None], tol)
+    assert got.action.dt == ref.action.dt
+    c_got, c_ref = np.asarray(got.sensor.coef), np.asarray(ref.sensor.coef)
+    assert c_got.shape == c_ref.shape
+    # coefficients of powers of d (mm): compare the fitted curves on the distance range, and each
+    # coefficient relative to its own size
+    np.testing.assert_allclose(c_got, c_ref, rtol=tol, atol=0)
+    for name in ("sigma_height", "sigma_angle"):
+        np.testing.assert_allclose(getattr(got.sensor, name), getattr(ref.sensor, name), rtol=tol, atol=0)
+    np.testing.assert_allclose(got.sensor.distance_range_mm, ref.sensor.distance_range_mm, rtol=tol, atol=0)
+    assert len(got.init) == len(ref.init)
+    for a, b in zip(got.init, ref.init):
+        np.testing.assert_array_equal(a.mean, b.mean)
+        np.testing.assert_array_equal(a.cov, b.cov)
+
+
+def _with_unused_action(params, batch):
+    """Params/batch where action 0 and the highest action are never executed (their disp must be kept)."""
+    actions = batch.actions.copy()
+    n_act = params.action.disp.shape[0]
+    actions[actions == 0] = 1
+    actions[actions == n_act - 1] = 1
+    b = Batch(actions, batch.obs, batch.beacon_xy, batch.used, batch.frame_start, batch.dt)
+    disp = np.array(params.action.disp, float)
+    disp[0] = [3.0, -1.0, 0.02]
+    disp[n_act - 1] = [-2.0, 0.5, -0.01]
+    return params.with_(action=ActionModel(disp, params.action.cov, params.action.dt)), b
+
+
+@pytest.mark.parametrize("case", CASES)
+@pytest.mark.parametrize("method", ["cubature", "sample"])
+@pytest.mark.parametrize("learn_noise", [False, True])
+def test_compiled_mstep_matches_numpy_reference(case, method, learn_noise):
+    _reference_or_skip()
+    params, batch = _case(case)
+    params, batch = _with_unused_action(params, batch)
+    post = smooth_compiled(params, batch, GATE)
+    batch = batch.with_used(batch.used & ~(post.mahal2 > GATE))  # the loop prunes gated sightings
+    post = smooth_compiled(params, batch, None)
+    got, ref = _mstep_pair(params, batch, post, method, learn_noise)
+    _assert_params_close(got, ref)
+    n_act = params.action.disp.shape[0]
+    np.testing.assert_array_equal(got.action.disp[[0, n_act - 1]], params.action.disp[[0, n_act - 1]])
+    if not learn_noise:
+        np.testing.assert_array_equal(got.action.cov, params.action.cov)
+
+
+def test_compiled_mstep_several_samples_and_degrees():
+    _reference_or_skip()
+    from learners.em.fit import EMOptions, m_step
+
+    params, batch = _case("multi")
+    post = smooth_compiled(params, batch, None)
+    got, ref = _mstep_pair(params, batch, post, "sample", True, seed=3, n_samples=4)
+    _assert_params_close(got, ref)
+    for degree in (1, 2, 5):
+        for method in ("cubature", "sample"):
+            r1, r2 = np.random.default_rng(1), np.random.default_rng(1)
+            got = m_step(params, batch, post, r1, EMOptions(sensor_method=method, degree=degree))
+            ref = m_step(params, batch, post, r2, EMOptions(sensor_method=method, degree=degree, estep="numpy"))
+            _assert_params_close(got, ref)
+
+
+def test_compiled_mstep_after_em_iterations():
+    """A few EM iterations on the paper's start (learned noise), then compiled == reference."""
+    _reference_or_skip()
+    from learners.em.fit import EMOptions, m_step
+
+    params, batch = _case("paper_start")
+    opts = EMOptions(sensor_method="cubature", learn_motion_noise=True, estep="numpy")
+    post = smooth_compiled(params, batch, None)
+    for it in range(3):
+        params = m_step(params, batch, post, np.random.default_rng(it), opts)
+        post = smooth_compiled(params, batch, None)
+    for method in ("cubature", "sample"):
+        got, ref = _mstep_pair(params, batch, post, method, True)
+        _assert_params_close(got, ref)
+
+
+def test_compiled_mstep_errors_like_reference():
+    _reference_or_skip()
+    from learners.em.fit import EMOptions, m_step
+
+    params, batch = _case("multi")
+    post = smooth_compiled(params, batch, None)
+    # a smoothed covariance that is not positive definite: FloatingPointError, generator untouched
+    frames = np.flatnonzero(batch.used)
+    bad_pose = int(batch.frame_to_pose[frames[5]] + 1)
+    cov = post.cov_gamma.copy()
+    cov[bad_pose] = -np.eye(3)
+    bad = type(post)(post.mu_alpha, post.cov_alpha, post.mu_gamma, cov, post.info_delta, post.vec_delta,
+                     post.loglik, post.mahal2)  # fmt: skip
+    for estep in ("compiled", "numpy"):
+        rng = np.random.default_rng(0)
+        before = rng.bit_generator.state
+        with pytest.raises(FloatingPointError):
+            m_step(params, batch, bad, rng, EMOptions(sensor_method="sample", estep=estep))
+        assert rng.bit_generator.state == before
+    # too few sightings for the polynomial: ValueError on both paths
+    few = batch.with_used(batch.used & (np.cumsum(batch.used) <= 3))
+    for estep in ("compiled", "numpy"):
+        with pytest.raises(ValueError, match="need at least"):
+            m_step(params, few, post, np.random.default_rng(0), EMOptions(sensor_method="sample", estep=estep))

@@ -77,13 +77,12 @@ def update_action_model(params: Params, batch: Batch, post: Posterior, learn_noi
     old = np.asarray(params.action.disp, dtype=float)
     n_act = old.shape[0]
     counts = np.bincount(batch.actions, minlength=n_act).astype(float)
-    sums = np.zeros_like(old)
-    np.add.at(sums, batch.actions, mu_star)
+    sums = np.stack([np.bincount(batch.actions, weights=mu_star[:, k], minlength=n_act) for k in range(3)], axis=1)
     disp = old.copy()
     seen = counts > 0
     disp[seen] = sums[seen] / counts[seen, None]
     cov = np.array(params.action.cov, dtype=float)
     if learn_noise and len(mu_star):
         r = mu_star - disp[batch.actions]
-        cov = _sym((C_star + r[:, :, None] * r[:, None, :]).mean(axis=0))
+        cov = _sym(C_star.mean(axis=0) + r.T @ r / len(r))
     return ActionModel(disp, cov, params.action.dt)

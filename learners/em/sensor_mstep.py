@@ -64,10 +64,13 @@ def sensor_points(params: Params, batch: Batch, post: Posterior, rng: np.random.
 
 
 def fit_polynomial(d, h, w, degree: int = 3) -> np.ndarray:
-    """Weighted least-squares polynomial f minimizing sum w (f(d) - h)^2, fitted in the scaled
-    variable u = (d - c)/s (``numpy.polynomial.Polynomial.fit``; its ``w`` multiplies the
-    UNSQUARED residual, so sqrt(w) is passed) and converted to ascending powers of d (mm).
-    Returns ``degree + 1`` coefficients (zero-padded)."""
+    """Weighted least-squares polynomial f minimizing sum w (f(d) - h)^2.
+
+    Well-conditioned: the fit is done in a Chebyshev basis of the scaled variable
+    u = (d - c)/s in [-1, 1] (normal equations of a (degree+1)-square Gram matrix, whose
+    condition number stays small in that basis), then converted to ascending powers of d (mm).
+    Returns ``degree + 1`` coefficients.
+    """
     d = np.asarray(d, dtype=float)
     h = np.asarray(h, dtype=float)
     w = np.asarray(w, dtype=float)
@@ -75,19 +78,26 @@ def fit_polynomial(d, h, w, degree: int = 3) -> np.ndarray:
         raise ValueError(f"need at least {degree + 1} points to fit a degree-{degree} polynomial, got {len(d)}")
     if not (np.isfinite(d).all() and np.isfinite(h).all() and np.isfinite(w).all()):
         raise FloatingPointError("fit_polynomial: non-finite input")
-    coef = np.polynomial.Polynomial.fit(d, h, degree, w=np.sqrt(w)).convert().coef
+    lo, hi = float(d.min()), float(d.max())
+    if hi <= lo:
+        raise ValueError(f"need at least two distinct distances to fit a polynomial, got all {lo} mm")
+    V = np.polynomial.chebyshev.chebvander((2.0 * d - (lo + hi)) / (hi - lo), degree)
+    Vw = V * w[:, None]
+    cheb = np.linalg.solve(Vw.T @ V, Vw.T @ h)
+    coef = np.polynomial.Chebyshev(cheb, domain=[lo, hi]).convert(kind=np.polynomial.Polynomial).coef
     out = np.zeros(degree + 1)
     out[: len(coef)] = coef
     return out
 
 
 def update_sensor_model(params: Params, batch: Batch, post: Posterior, rng: np.random.Generator,
-                        method: str = "sample", n_samples: int = 1, degree: int = 3) -> SensorModel:
+                        method: str = "sample", n_samples: int = 1, degree: int = 3,
+                        points=sensor_points) -> SensorModel:
     """New SensorModel from the used sightings: f by ``fit_polynomial``, sigma_height =
     sqrt(weighted mean of (f(d) - o1)^2), sigma_angle = sqrt(weighted mean of
     wrap(bearing - o2)^2), distance_range_mm = (min, max) of the distances at the smoothed means.
     """
-    dist, bearing, obs, w = sensor_points(params, batch, post, rng, method, n_samples)
+    dist, bearing, obs, w = points(params, batch, post, rng, method, n_samples)
     coef = fit_polynomial(dist, obs[:, 0], w, degree)
     wsum = w.sum()
     res_h = np.polynomial.polynomial.polyval(dist, coef) - obs[:, 0]
