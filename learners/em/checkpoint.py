@@ -59,7 +59,7 @@ def save(path: str | os.PathLike, state: EMState, fp: str) -> None:
     scalars = {
         "format": FORMAT, "fingerprint": fp, "iteration": state.iteration, "best_loglik": state.best_loglik,
         "best_iteration": state.best_iteration, "pruned": state.pruned, "rng_state": state.rng_state,
-        "converged": state.converged,
+        "converged": state.converged, "record_iteration": state.record_iteration,
     }
     arrays = {**_params_arrays("cur", state.params), **_params_arrays("best", state.best)}
     arrays["loglik"] = np.asarray(state.loglik, float)
@@ -88,6 +88,7 @@ def load(path: str | os.PathLike, fp: str) -> EMState | None:
                 best_loglik=best_ll, best_iteration=int(scalars["best_iteration"]),
                 loglik=d["loglik"].tolist(), used=d["used"].astype(bool), pruned=int(scalars["pruned"]),
                 rng_state=scalars["rng_state"], converged=bool(scalars["converged"]), seconds=d["seconds"].tolist(),
+                record_iteration=int(scalars["record_iteration"]),
             )
     except (KeyError, OSError, json.JSONDecodeError) as exc:
         raise ValueError(f"{path}: unreadable checkpoint ({exc}); delete it or pass --no-resume") from None

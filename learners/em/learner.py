@@ -65,15 +65,20 @@ class EMLearner:
         history: list[IterationRecord] = []
         fp = checkpoint.fingerprint(batch, start, options_json(self.options))
 
-        def on_iteration(st: EMState, _post) -> None:
-            rec = IterationRecord(st.iteration, st.loglik[-1], st.seconds[-1], st.params)
+        def on_iteration(st: EMState, params: Params, loglik: float) -> None:
+            rec = IterationRecord(st.iteration, loglik, st.seconds[-1], params)
             history.append(rec)
             if progress is not None:
                 progress(rec)
-            if self.checkpoint_path and st.iteration % self.checkpoint_every == 0:
-                checkpoint.save(self.checkpoint_path, st, fp)
 
-        state = run(batch, state, self.options, on_iteration)
+        last_saved = [state.iteration]
+
+        def on_cycle(st: EMState) -> None:
+            if self.checkpoint_path and st.iteration - last_saved[0] >= self.checkpoint_every:
+                checkpoint.save(self.checkpoint_path, st, fp)
+                last_saved[0] = st.iteration
+
+        state = run(batch, state, self.options, on_iteration, on_cycle)
         info = {"best_iteration": state.best_iteration + 1, "resumed_from": resumed_from,
                 "seconds_per_iteration": float(np.mean(state.seconds)) if state.seconds else 0.0,
                 "options": self.options.__dict__.copy()}
