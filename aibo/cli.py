@@ -60,11 +60,16 @@ def build_parser() -> argparse.ArgumentParser:
     lr.add_argument("--seed", type=int, default=0)
     lr.add_argument("--init", help="start from this model file instead of the paper's start")
     lr.add_argument("--plots", help="write learning-curve and sensor-model PNGs to this folder")
-    lr.add_argument("--sensor-method", choices=["sample", "cubature"], default="sample",
-                    help="sensor M-step expectation: one sample per frame (paper) or cubature points")
+    lr.add_argument("--paper-recipe", action="store_true",
+                    help="the paper's recipe as written: fixed motion noise, one sample per sighting, plain EM")
+    lr.add_argument("--sensor-method", choices=["sample", "cubature"],
+                    help="sensor M-step expectation: one sample per sighting (paper) or cubature points (default)")
     lr.add_argument("--learn-motion-noise", action=argparse.BooleanOptionalAction, default=None,
-                    help="re-estimate Sigma_A in the M-step (deviation from the paper)")
-    lr.add_argument("--estep", choices=["compiled", "numpy"], default="compiled")
+                    help="re-estimate Sigma_A in the M-step (default on; off in the paper)")
+    lr.add_argument("--accel", choices=["none", "squarem"], help="EM acceleration (default squarem; paper: none)")
+    lr.add_argument("--gate", type=float, help="first-iteration outlier gate on Mahalanobis^2 (default 50; 0 = off)")
+    lr.add_argument("--estep", choices=["compiled", "numpy"], default="compiled",
+                    help="numba kernels (default) or the plain NumPy reference")
     lr.add_argument("--no-resume", action="store_true", help="ignore a checkpoint left by an interrupted run")
     lr.set_defaults(run=commands.run_learn)
 

@@ -130,3 +130,18 @@ def test_reproduce_quick_end_to_end(tmp_path):
     assert report["em"]["vtheta_rel"] < 0.05  # a first look, not the bar
     for name in report["figures"]:
         assert (tmp_path / name).read_bytes()[:4] == b"\x89PNG"
+
+
+@pytest.mark.slow
+def test_bench_quick_writes_every_figure(tmp_path):
+    out = tmp_path / "bench.json"
+    r = aibo("bench", "--quick", "--json", str(out))
+    assert r.returncode == 0, r.stderr
+    rep = json.loads(out.read_text())
+    e = rep["estep"]
+    assert e["speedup"] == pytest.approx(e["numpy_s"] / e["compiled_s"]) and e["speedup"] > 1
+    assert rep["compile_s"] > 0
+    fit = rep["fits"]["default"]
+    assert fit["iterations"] >= 1 and fit["wall_s"] > 0 and fit["per_iteration_ms"] > 0
+    assert [row["frames"] for row in rep["scaling"]] == [2700, 9000]
+    assert all(row["peak_mb"] >= 0 and row["estep_s"] > 0 for row in rep["scaling"])

@@ -27,8 +27,9 @@ from aibo_gym import trajectory
 from aibo_gym.trajectory import atomic_write
 
 SIZES = (2_700, 27_000, 270_000, 1_000_000)
-QUICK_SIZES = (2_700, 27_000)
+QUICK_SIZES = (2_700, 9_000)
 PAPER_FRAMES = 27_000
+QUICK_PAPER_FRAMES = 9_000  # --quick: a smoke test of the whole benchmark, not a measurement
 
 
 def _median_time(fn, repeats: int) -> float:
@@ -71,18 +72,16 @@ def compile_time() -> float:
     return float(json.loads(out.stdout)["compile_s"])
 
 
-def paper_fit(tr, **options) -> dict:
+def paper_fit(tr, opts) -> dict:
     """A full fit from the paper's start to convergence (compiled E-step already warm)."""
-    from learners.em.fit import EMOptions
     from learners.em.learner import EMLearner
     from learners.metrics import model_errors
 
-    opts = EMOptions(**options)
     t0 = time.perf_counter()
     res = EMLearner(opts).fit([tr])
     wall = time.perf_counter() - t0
     err = model_errors(res.params, [tr]).as_dict()
-    return {"options": {k: v for k, v in options.items()}, "iterations": res.iterations,
+    return {"options": dict(opts.__dict__), "iterations": res.iterations,
             "best_iteration": res.info["best_iteration"], "wall_s": wall, "per_iteration_ms": 1000 * wall / res.iterations,
             "final_loglik": max(res.loglik), "errors": err}
 
@@ -106,15 +105,16 @@ def run(args) -> int:
     from aibo_gym.collect import collect
 
     sizes = QUICK_SIZES if args.quick else SIZES
+    paper_frames = QUICK_PAPER_FRAMES if args.quick else PAPER_FRAMES
     report: dict = {"machine": machine(), "quick": bool(args.quick)}
     print(f"machine: {report['machine']}")
     print(f"simulating {max(sizes):,d} frames for the benchmark logs ...", flush=True)
     t0 = time.perf_counter()
     big = collect({"noise": "paper-sim"}, steps=max(sizes), seed=7)
     report["collect_frames_per_s"] = big.n_frames / (time.perf_counter() - t0)
-    paper = collect({"noise": "paper-sim"}, steps=PAPER_FRAMES, seed=1)
+    paper = collect({"noise": "paper-sim"}, steps=paper_frames, seed=1)
 
-    print("E-step, compiled vs NumPy reference (27,000 frames) ...", flush=True)
+    print(f"E-step, compiled vs NumPy reference ({paper_frames:,d} frames) ...", flush=True)
     report["estep"] = estep_speed(paper)
     e = report["estep"]
     print(f"  compiled {1000 * e['compiled_s']:.1f} ms ({e['compiled_frames_per_s']:,.0f} frames/s), "
@@ -122,14 +122,18 @@ def run(args) -> int:
     report["compile_s"] = compile_time()
     print(f"  first-call compile time {report['compile_s']:.1f} s")
 
-    print("paper-scale fits (27,000 frames, paper start, to convergence) ...", flush=True)
-    variants = {"default": {}} if args.quick else {
-        "default": {},
-        "paper_recipe": {"learn_motion_noise": False, "sensor_method": "sample"},
+    print(f"fits ({paper_frames:,d} frames, paper start, to convergence) ...", flush=True)
+    from learners.em.fit import EMOptions
+
+    variants = {"default": EMOptions()} if args.quick else {
+        "default": EMOptions(),
+        "paper_recipe": EMOptions.paper(),
+        "default_without_squarem": EMOptions(accel="none"),
+        "learned_noise_sampled_plain": EMOptions.paper(learn_motion_noise=True),
     }
     report["fits"] = {}
-    for name, options in variants.items():
-        fit = paper_fit(paper, **options)
+    for name, opts in variants.items():
+        fit = paper_fit(paper, opts)
         report["fits"][name] = fit
         print(f"  {name:14s} {fit['iterations']:5d} iterations, {fit['per_iteration_ms']:.1f} ms/iteration, "
               f"{fit['wall_s']:.2f} s, loglik {fit['final_loglik']:.1f}, vx/vy {fit['errors']['vx_rel']:.2%}/"

@@ -16,10 +16,14 @@ from learners.metrics import model_errors, observed_distance_range, true_height,
 
 
 def em_options(args) -> EMOptions:
-    opts = EMOptions(max_iter=args.max_iter, patience=args.patience, seed=args.seed,
-                     sensor_method=args.sensor_method, estep=args.estep)
-    if args.learn_motion_noise is not None:
-        opts.learn_motion_noise = args.learn_motion_noise
+    """Defaults (or the paper's recipe), overridden by every option the user gave."""
+    opts = EMOptions.paper() if args.paper_recipe else EMOptions()
+    opts.max_iter, opts.patience, opts.seed, opts.estep = args.max_iter, args.patience, args.seed, args.estep
+    for name in ("sensor_method", "learn_motion_noise", "accel"):
+        if getattr(args, name) is not None:
+            setattr(opts, name, getattr(args, name))
+    if args.gate is not None:
+        opts.gate = args.gate if args.gate > 0 else None
     return opts.validate()
 
 

@@ -31,7 +31,7 @@ ORACLE_FACTOR = 1.5
 
 def em_options(args) -> EMOptions:
     if args.paper_recipe:
-        opts = EMOptions(learn_motion_noise=False, sensor_method="sample", seed=args.seed)
+        opts = EMOptions.paper(seed=args.seed)
     else:
         opts = EMOptions(seed=args.seed)
     if args.quick:
@@ -59,7 +59,7 @@ def run(args) -> int:
     start = paper_start(tr.dt)
     print(f"EM from the paper's start (zero velocities, height = {PAPER_START_SENSOR.coef[0]:g} "
           f"{PAPER_START_SENSOR.coef[1]:+g} d px): motion noise {'learned' if opts.learn_motion_noise else 'fixed'}, "
-          f"sensor step '{opts.sensor_method}'")
+          f"sensor step '{opts.sensor_method}', acceleration '{opts.accel}'")
     progress = Progress("EM", every=50)
     t0 = time.perf_counter()
     em = EMLearner(opts, checkpoint_path=out / "model_em.json.checkpoint.npz").fit(logs, init=start, progress=progress)
