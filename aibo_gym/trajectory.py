@@ -144,9 +144,16 @@ def load(path: str | os.PathLike) -> Trajectory:
     """Read and validate an aibo-trajectory/1 file. Raises TrajectoryError on any problem."""
     source = str(path)
     try:
+        with open(path, "rb") as f:
+            if f.read(4) != b"PK\x03\x04":
+                raise TrajectoryError(f"{source}: not an .npz file (no zip signature)")
         npz = np.load(path, allow_pickle=False)
     except FileNotFoundError:
         raise TrajectoryError(f"{source}: file not found") from None
+    except IsADirectoryError:
+        raise TrajectoryError(f"{source}: is a folder, not a log file") from None
+    except TrajectoryError:
+        raise
     except (OSError, ValueError, zipfile.BadZipFile) as exc:
         raise TrajectoryError(f"{source}: not a readable .npz file ({exc})") from None
     with npz:

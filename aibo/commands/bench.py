@@ -97,7 +97,8 @@ def scaling(log_path: Path, sizes) -> list[dict]:
         row = json.loads(out.stdout)
         rows.append(row)
         print(f"  {n:>9,d} frames: E-step {1000 * row['estep_s']:8.1f} ms, M-step {1000 * row['mstep_s']:8.1f} ms, "
-              f"peak +{row['peak_mb']:.0f} MB ({row['bytes_per_frame']:.0f} B/frame)", flush=True)
+              f"peak {row['peak_mb']:.1f} MB ({row['bytes_per_frame']:.0f} B/frame), process max RSS {row['max_rss_mb']:.0f} MB",
+              flush=True)
     return rows
 
 
@@ -110,7 +111,7 @@ def run(args) -> int:
     print(f"machine: {report['machine']}")
     print(f"simulating {max(sizes):,d} frames for the benchmark logs ...", flush=True)
     t0 = time.perf_counter()
-    big = collect({"noise": "paper-sim"}, steps=max(sizes), seed=7)
+    big = collect({"noise": "paper-sim", "max_steps": max(sizes)}, steps=max(sizes), seed=7)
     report["collect_frames_per_s"] = big.n_frames / (time.perf_counter() - t0)
     paper = collect({"noise": "paper-sim"}, steps=paper_frames, seed=1)
 
