@@ -164,3 +164,14 @@ def test_failed_write_leaves_existing_file_intact(tr, tmp_path, monkeypatch):
         save(tr, path)
     assert path.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["log.npz"]
+
+
+def test_saved_files_get_the_usual_permissions(tr, tmp_path):
+    import os
+    import stat
+
+    path = tmp_path / "log.npz"
+    save(tr, path)
+    mask = os.umask(0)
+    os.umask(mask)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~mask
