@@ -35,6 +35,14 @@ def compile_cmd() -> dict:
     return {"compile_s": time.perf_counter() - t0}
 
 
+def _head(full, k: int):
+    """The first k frames of a log, as a new log (copies, so the full log can be freed)."""
+    from aibo_gym.trajectory import Trajectory
+
+    return Trajectory(full.dt, full.actions[:k].copy(), full.obs[:k].copy(), full.beacon[:k].copy(),
+                      full.head_pan[:k].copy(), full.beacons, full.field, full.attempted)
+
+
 def scale_cmd(path: str, n: int) -> dict:
     """Time one E-step and one M-step on the first ``n`` frames; peak memory of the batch, the
     posterior and the M-step (NumPy allocations, traced with tracemalloc; the kernels allocate
@@ -49,12 +57,7 @@ def scale_cmd(path: str, n: int) -> dict:
     full = trajectory.load(path)
     if n > full.n_frames:
         raise SystemExit(f"{path} has only {full.n_frames} frames")
-
-    def head(k: int) -> trajectory.Trajectory:
-        return trajectory.Trajectory(full.dt, full.actions[:k].copy(), full.obs[:k].copy(), full.beacon[:k].copy(),
-                                     full.head_pan[:k].copy(), full.beacons, full.field, full.attempted)
-
-    tr, small = head(n), make_batch([head(min(n, 500))])
+    tr, small = _head(full, n), make_batch([_head(full, min(n, 500))])
     del full
     params, opts, rng = paper_start(tr.dt), EMOptions(), np.random.default_rng(0)
     m_step(params, small, e_step(params, small, "compiled"), rng, opts)  # load the kernels first

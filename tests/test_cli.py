@@ -73,7 +73,6 @@ def test_learn_oracle(log_path, tmp_path):
 
 
 def _bad_log(tmp_path, log_path):
-    tr = trajectory.load(log_path)
     data = dict(np.load(log_path))
     data["actions"] = data["actions"].copy()
     data["actions"][5] = 40
