@@ -163,34 +163,12 @@ def _add(A, B):
 
 
 @njit(cache=True)
-def _sub(A, B):
-    return (A[0] - B[0], A[1] - B[1], A[2] - B[2], A[3] - B[3], A[4] - B[4], A[5] - B[5],
-            A[6] - B[6], A[7] - B[7], A[8] - B[8])  # fmt: skip
-
-
-@njit(cache=True)
 def _sym(A):
     """(A + A^T) / 2"""
     s01 = 0.5 * (A[1] + A[3])
     s02 = 0.5 * (A[2] + A[6])
     s12 = 0.5 * (A[5] + A[7])
     return (A[0], s01, s02, s01, A[4], s12, s02, s12, A[8])
-
-
-@njit(cache=True)
-def _add_outer2(A, a, wa, b, wb):
-    """A + wa a a^T + wb b b^T (a, b 3-vectors)."""
-    return (
-        A[0] + wa * a[0] * a[0] + wb * b[0] * b[0],
-        A[1] + wa * a[0] * a[1] + wb * b[0] * b[1],
-        A[2] + wa * a[0] * a[2] + wb * b[0] * b[2],
-        A[3] + wa * a[1] * a[0] + wb * b[1] * b[0],
-        A[4] + wa * a[1] * a[1] + wb * b[1] * b[1],
-        A[5] + wa * a[1] * a[2] + wb * b[1] * b[2],
-        A[6] + wa * a[2] * a[0] + wb * b[2] * b[0],
-        A[7] + wa * a[2] * a[1] + wb * b[2] * b[1],
-        A[8] + wa * a[2] * a[2] + wb * b[2] * b[2],
-    )
 
 
 @njit(cache=True)
@@ -248,80 +226,198 @@ def _fpft(P, a, b):
     )  # fmt: skip
 
 
-@njit(cache=True)
-def _ftyf(Y, a, b):
-    """F^T Y F for F = I except F[0,2] = a, F[1,2] = b."""
-    # rows: r2 += a r0 + b r1
-    r20 = Y[6] + a * Y[0] + b * Y[3]
-    r21 = Y[7] + a * Y[1] + b * Y[4]
-    r22 = Y[8] + a * Y[2] + b * Y[5]
-    # columns: c2 += a c0 + b c1
-    return (
-        Y[0], Y[1], Y[2] + a * Y[0] + b * Y[1],
-        Y[3], Y[4], Y[5] + a * Y[3] + b * Y[4],
-        r20, r21, r22 + a * r20 + b * r21,
-    )  # fmt: skip
+# ----------------------------------------------------------------------------------------------
+# fast trig (E-step and M-steps): libm's sin/cos/atan2 are a large share of the per-frame cost
+# ----------------------------------------------------------------------------------------------
+
+# cos/sin to ~1 ulp for |x| < 1e5 (fdlibm's kernels after a 3-part Cody-Waite reduction by pi/2),
+# branch-free so the loop over all headings vectorizes; larger or non-finite x fall back to libm.
+_SIN1, _SIN2, _SIN3, _SIN4, _SIN5, _SIN6 = (
+    -1.66666666666666324348e-01, 8.33333333332248946124e-03, -1.98412698298579493134e-04,
+    2.75573137070700676789e-06, -2.50507602534068634195e-08, 1.58969099521155010221e-10,
+)
+_COS1, _COS2, _COS3, _COS4, _COS5, _COS6 = (
+    4.16666666666666019037e-02, -1.38888888888741095749e-03, 2.48015872894767294178e-05,
+    -2.75573143513906633035e-07, 2.08757232129817482790e-09, -1.13596475577881948265e-11,
+)
+_INVPIO2 = 6.36619772367581382433e-01
+_PIO2_1 = 1.57079632673412561417e00  # first 33 bits of pi/2
+_PIO2_2 = 6.07710050630396597660e-11  # next 33 bits
+_PIO2_3 = 2.02226624871116645580e-21  # next 33 bits
 
 
-@njit(cache=True)
-def _motion(mu, disp, a, sig):
-    """g(mu), F = dg/ds at mu, Q = R Sigma_A R^T for action a."""
-    th = mu[2]
-    c = math.cos(th)
-    s = math.sin(th)
-    ux = disp[a, 0]
-    uy = disp[a, 1]
-    g = (mu[0] + c * ux - s * uy, mu[1] + s * ux + c * uy, th + disp[a, 2])
-    F = (1.0, 0.0, -s * ux - c * uy, 0.0, 1.0, c * ux - s * uy, 0.0, 0.0, 1.0)
-    R = (c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0)
-    return g, F, _mmT(_mm(R, sig), R)
+@njit(cache=True, error_model="numpy")
+def _cos_sin_core(xr):
+    """(cos xr, sin xr) for |xr| < 1e5, branch-free (|error| <= ~1 ulp; 1.2e-16 absolute)."""
+    n = math.floor(xr * _INVPIO2 + 0.5)
+    r = ((xr - n * _PIO2_1) - n * _PIO2_2) - n * _PIO2_3
+    z = r * r
+    ps = r + r * z * (_SIN1 + z * (_SIN2 + z * (_SIN3 + z * (_SIN4 + z * (_SIN5 + z * _SIN6)))))
+    w = z * z
+    rc = z * (_COS1 + z * (_COS2 + z * _COS3)) + w * w * (_COS4 + z * (_COS5 + z * _COS6))
+    hz = 0.5 * z
+    w = 1.0 - hz
+    pc = w + (((1.0 - w) - hz) + z * rc)
+    q = np.int64(n) & 3
+    odd = (q & 1) == 1
+    c0 = ps if odd else pc
+    s0 = pc if odd else ps
+    return (-c0 if (q == 1 or q == 2) else c0), (-s0 if q >= 2 else s0)
 
 
-@njit(cache=True)
-def _observe(mu, bx, by, coef):
-    """(f(d), bearing (not wrapped), H row 0, H row 1) at pose mu."""
-    dx = bx - mu[0]
-    dy = by - mu[1]
-    q = dx * dx + dy * dy
-    d = math.sqrt(q)
-    fd, fp = _horner(coef, d)
-    h0 = (-fp * dx / d, -fp * dy / d, 0.0)
-    h1 = (dy / q, -dx / q, -1.0)
-    return fd, math.atan2(dy, dx) - mu[2], h0, h1
+@njit(cache=True, error_model="numpy")
+def _cos_sin(x):
+    """(cos x, sin x): ``_cos_sin_core``, libm for large or non-finite x."""
+    if abs(x) < 1.0e5:
+        return _cos_sin_core(x)
+    return math.cos(x), math.sin(x)
 
 
-@njit(cache=True)
-def _dot(a, b):
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+@njit(cache=True, error_model="numpy")
+def _cos_sin_all(x, cos_out, sin_out):
+    """cos_out[i], sin_out[i] = cos(x[i]), sin(x[i]) (|error| <= ~1 ulp; 1.2e-16 absolute)."""
+    for i in range(x.shape[0]):
+        xi = x[i]
+        cos_out[i], sin_out[i] = _cos_sin_core(xi if abs(xi) < 1.0e5 else 0.0)
+    for i in range(x.shape[0]):  # rare: libm for large or non-finite angles
+        if not abs(x[i]) < 1.0e5:
+            cos_out[i] = math.cos(x[i])
+            sin_out[i] = math.sin(x[i])
 
 
-@njit(cache=True)
-def _combine(ma, A, Y, y):
-    """gamma from alpha N(ma, A) and beta information (Y, y): M = (I + Y A)^-1,
-    mu = ma + A M (y - Y ma), cov = A - A M Y A (symmetrized)."""
-    AM = _mm(A, _inv_i_plus(_mm(Y, A)))
-    Yma = _mv(Y, ma)
-    w = _mv(AM, (y[0] - Yma[0], y[1] - Yma[1], y[2] - Yma[2]))
-    mu = (ma[0] + w[0], ma[1] + w[1], ma[2] + w[2])
-    return mu, _sym(_sub(A, _mm(_mm(AM, Y), A)))
+# atan2 to ~2 ulp (Cephes' atan rational on [0, tan(pi/8)] after the usual octant reduction),
+# branch-free and about 2.5x faster than libm's in these loops (one per sighting and per sensor point).
+_AT_P0, _AT_P1, _AT_P2, _AT_P3, _AT_P4 = (
+    -8.750608600031904122785e-1, -1.615753718733365076637e1, -7.500855792314704667340e1,
+    -1.228866684490136173410e2, -6.485021904942025371773e1,
+)
+_AT_Q0, _AT_Q1, _AT_Q2, _AT_Q3, _AT_Q4 = (
+    2.485846490142306297962e1, 1.650270098316988542046e2, 4.328810604912902668951e2,
+    4.853903996359136964868e2, 1.945506571482613964425e2,
+)
+_TAN_PI8 = 0.41421356237309504880
+_MOREBITS = 6.123233995736765886130e-17  # pi/2 - fl(pi/2)
 
 
-_ZERO33 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+@njit(cache=True, error_model="numpy")
+def _atan2(y, x):
+    """atan2(y, x) in [-pi, pi] (signed zeros and NaN as libm; |error| <= 3 ulp, 4.5e-16 rad)."""
+    ax = abs(x)
+    ay = abs(y)
+    swap = ay > ax
+    num = ay if swap else ax
+    den = ax if swap else ay
+    t = den / num if num != 0.0 else 0.0  # in [0, 1]
+    tb = (den - num) / (den + num) if num != 0.0 else 0.0
+    big = t > _TAN_PI8
+    t = tb if big else t
+    z = t * t
+    pp = (((_AT_P0 * z + _AT_P1) * z + _AT_P2) * z + _AT_P3) * z + _AT_P4
+    qq = ((((z + _AT_Q0) * z + _AT_Q1) * z + _AT_Q2) * z + _AT_Q3) * z + _AT_Q4
+    r = t * (z * pp / qq) + t
+    r = (0.25 * math.pi + 0.5 * _MOREBITS) + r if big else r
+    r = (0.5 * math.pi + _MOREBITS) - r if swap else r
+    r = (math.pi + 2.0 * _MOREBITS) - r if math.copysign(1.0, x) < 0.0 else r
+    return math.copysign(r, y)
+
+
 
 
 # ----------------------------------------------------------------------------------------------
 # E-step kernel
 # ----------------------------------------------------------------------------------------------
+#
+# Speed notes (the equations are docs/em-math.md's; only rounding differs from the reference):
+# - cos/sin of each forward filtered heading are computed once (``_cos_sin``) and kept in a
+#   scratch array: the backward time update linearizes g at the same mu_alpha, so it rebuilds
+#   F, Q and c = g - F mu from them without any trig;
+# - bearings use the branch-free ``_atan2`` (<= 3 ulp);
+# - F = I + (column 2) and Q = R Sigma_A R^T (Sigma_A symmetrized once) are applied through their
+#   structure; symmetric results (P, Y, Q, Ytil, Sigma_gamma) are formed from their upper triangle,
+#   which replaces the symmetrization (same matrix up to rounding);
+# - H has the constant entries H[0,2] = 0, H[1,2] = -1, written out (x * 0.0 is not folded);
+# - the backward observation information H^T R^-1 H, H^T R^-1 (v + H mu) at mu_alpha[i+1] is
+#   computed by the forward pass right after that mean is known (off its serial chain) and parked
+#   in info_delta[i] / vec_delta[i] (zero where no sighting is applied); the backward pass adds it
+#   and overwrites the slot with Y_delta, y_delta;
+# - combination: A - A M Y A = A M exactly (A M (I + Y A) = A), so Sigma_gamma = sym(A M);
+# - the E-step's own functions may fuse a * b + c into one FMA (``_FMA``): fewer instructions on
+#   the forward pass's serial chain, rounding-level differences only.
+
+_FMA = {"contract"}
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=_FMA)
+def _symm(a00, a01, a02, a11, a12, a22):
+    """The symmetric 3x3 (row-major 9-tuple) with the given upper triangle."""
+    return (a00, a01, a02, a01, a11, a12, a02, a12, a22)
+
+
+@njit(cache=True, fastmath=_FMA)
+def _rot_sym(c, s, A):
+    """R A R^T for symmetric A, R = [[c, -s, 0], [s, c, 0], [0, 0, 1]] (upper triangle, mirrored)."""
+    b0 = c * A[0] - s * A[3]
+    b1 = c * A[1] - s * A[4]
+    b3 = s * A[0] + c * A[3]
+    b4 = s * A[1] + c * A[4]
+    return _symm(c * b0 - s * b1, s * b0 + c * b1, c * A[2] - s * A[5], s * b3 + c * b4, s * A[2] + c * A[5], A[8])
+
+
+@njit(cache=True, fastmath=_FMA)
+def _fpft_sym(P, a, b):
+    """F P F^T for symmetric P, F = I except F[0,2] = a, F[1,2] = b (upper triangle, mirrored)."""
+    r02 = P[2] + a * P[8]
+    r12 = P[5] + b * P[8]
+    return _symm(P[0] + a * P[6] + a * r02, P[1] + a * P[7] + b * r02, r02,
+                 P[4] + b * P[7] + b * r12, r12, P[8])  # fmt: skip
+
+
+@njit(cache=True, fastmath=_FMA)
+def _ftyf_sym(Y, a, b):
+    """F^T Y F for symmetric Y, F = I except F[0,2] = a, F[1,2] = b (upper triangle, mirrored)."""
+    r20 = Y[6] + a * Y[0] + b * Y[3]
+    r21 = Y[7] + a * Y[1] + b * Y[4]
+    r22 = Y[8] + a * Y[2] + b * Y[5]
+    return _symm(Y[0], Y[1], r20, Y[4], r21, r22 + a * r20 + b * r21)
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FMA)
+def _observe_h(mu, bx, by, coef):
+    """(f(d), bearing (not wrapped), H) at pose mu, H as its 4 non-constant entries:
+    row 0 = (e0, e1, 0), row 1 = (t0, t1, -1)."""
+    dx = bx - mu[0]
+    dy = by - mu[1]
+    q = dx * dx + dy * dy
+    d = math.sqrt(q)
+    fd, fp = _horner(coef, d)
+    fpd = fp / d
+    rq = 1.0 / q
+    return fd, _atan2(dy, dx) - mu[2], -fpd * dx, -fpd * dy, dy * rq, -dx * rq
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FMA)
+def _combine_fast(ma, A, Y, y):
+    """gamma from alpha N(ma, A) and beta information (Y, y): M = (I + Y A)^-1,
+    mu = ma + A M (y - Y ma), cov = A - A M Y A = A M (symmetrized)."""
+    AM = _mm(A, _inv_i_plus(_mm(Y, A)))
+    Yma = _mv(Y, ma)
+    w = _mv(AM, (y[0] - Yma[0], y[1] - Yma[1], y[2] - Yma[2]))
+    return (ma[0] + w[0], ma[1] + w[1], ma[2] + w[2]), _sym(AM)
+
+
+_ZERO33 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+_ZERO3 = (0.0, 0.0, 0.0)
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FMA)
 def _smooth_kernel(
     actions, obs, beacon_xy, used, frame_start, disp, sig_a, coef, var_h, var_a,
     init_mean, init_cov, use_gate, gate,
-    mu_alpha, cov_alpha, mu_gamma, cov_gamma, info_delta, vec_delta, mahal2,
+    mu_alpha, cov_alpha, mu_gamma, cov_gamma, info_delta, vec_delta, mahal2, cos_th, sin_th,
 ):  # fmt: skip
-    """Returns (status, log index, frame index within the log, loglik)."""
-    sig = _ld33(sig_a.reshape(1, 3, 3), 0)
+    """Returns (status, log index, frame index within the log, loglik).
+    cos_th, sin_th (n_poses,): scratch, cos/sin of mu_alpha[:, 2] (every pose but each log's last)."""
+    sig = _sym(_ld33(sig_a.reshape(1, 3, 3), 0))
     ivh = 1.0 / var_h
     iva = 1.0 / var_a
     loglik = 0.0
@@ -341,95 +437,129 @@ def _smooth_kernel(
             return _BAD_FORWARD, k, 0, loglik
         for j in range(n):
             i = f0 + j
-            g, F, Q = _motion(mu, disp, actions[i], sig)
-            mu = g
-            P = _sym(_add(_fpft(P, F[2], F[5]), Q))  # P- = F P F^T + Q
+            a = actions[i]
+            ux = disp[a, 0]
+            uy = disp[a, 1]
+            c, s = _cos_sin(mu[2])
+            cos_th[ps + j] = c  # for the backward pass
+            sin_th[ps + j] = s
+            fa = -s * ux - c * uy  # F[0,2]
+            fb = c * ux - s * uy  # F[1,2]
+            mu = (mu[0] + c * ux - s * uy, mu[1] + s * ux + c * uy, mu[2] + disp[a, 2])
+            P = _add(_fpft_sym(P, fa, fb), _rot_sym(c, s, sig))  # P- = F P F^T + Q
             mahal2[i] = np.nan
+            applied = False
             if used[i]:
-                fd, bear, h0, h1 = _observe(mu, beacon_xy[i, 0], beacon_xy[i, 1], coef)
+                bx = beacon_xy[i, 0]
+                by = beacon_xy[i, 1]
+                fd, bear, e0, e1, t0, t1 = _observe_h(mu, bx, by, coef)
                 v0 = obs[i, 0] - fd
                 v1 = _wrap(obs[i, 1] - bear)
-                # PHt columns: P- h0, P- h1; S = H P- H^T + R_obs
-                ph0 = _mv(P, h0)
-                ph1 = _mv(P, h1)
-                s00 = _dot(h0, ph0) + var_h
-                s11 = _dot(h1, ph1) + var_a
-                s01 = 0.5 * (_dot(h0, ph1) + _dot(h1, ph0))
+                # P- H^T columns ph0 = P- h0, ph1 = P- h1; S = H P- H^T + R_obs
+                ph0 = (P[0] * e0 + P[1] * e1, P[3] * e0 + P[4] * e1, P[6] * e0 + P[7] * e1)
+                ph1 = (P[0] * t0 + P[1] * t1 - P[2], P[3] * t0 + P[4] * t1 - P[5], P[6] * t0 + P[7] * t1 - P[8])
+                s00 = e0 * ph0[0] + e1 * ph0[1] + var_h
+                s11 = t0 * ph1[0] + t1 * ph1[1] - ph1[2] + var_a
+                s01 = 0.5 * ((e0 * ph1[0] + e1 * ph1[1]) + (t0 * ph0[0] + t1 * ph0[1] - ph0[2]))
                 det_s = s00 * s11 - s01 * s01
-                i00 = s11 / det_s
-                i11 = s00 / det_s
-                i01 = -s01 / det_s
+                rdet = 1.0 / det_s
+                i00 = s11 * rdet
+                i11 = s00 * rdet
+                i01 = -s01 * rdet
                 m2v = v0 * (i00 * v0 + i01 * v1) + v1 * (i01 * v0 + i11 * v1)
                 mahal2[i] = m2v
                 if not (math.isfinite(m2v) and det_s > 0.0 and s00 > 0.0):
                     return _BAD_FORWARD, k, j, loglik
                 if not (use_gate and m2v > gate):
+                    applied = True
                     loglik += -0.5 * (m2v + math.log(det_s) + 2.0 * _LOG_2PI)
                     # K = P- H^T S^-1 (columns k0, k1)
                     k0 = (ph0[0] * i00 + ph1[0] * i01, ph0[1] * i00 + ph1[1] * i01, ph0[2] * i00 + ph1[2] * i01)
                     k1 = (ph0[0] * i01 + ph1[0] * i11, ph0[1] * i01 + ph1[1] * i11, ph0[2] * i01 + ph1[2] * i11)
                     mu = (mu[0] + k0[0] * v0 + k1[0] * v1, mu[1] + k0[1] * v0 + k1[1] * v1,
                           mu[2] + k0[2] * v0 + k1[2] * v1)  # fmt: skip
-                    # Joseph: (I - K H) P- (I - K H)^T + K R_obs K^T
-                    IKH = _sub((1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0),
-                               _add_outer_pair(k0, h0, k1, h1))  # fmt: skip
-                    P = _sym(_add_outer2(_mmT(_mm(IKH, P), IKH), k0, var_h, k1, var_a))
+                    # Joseph, (I - K H) P- (I - K H)^T + K R_obs K^T, as rank-2 updates:
+                    # X = (I - K H) P- = P- - k0 ph0^T - k1 ph1^T (P- symmetric), then
+                    # X (I - K H)^T = X - (X h0) k0^T - (X h1) k1^T
+                    X = (P[0] - k0[0] * ph0[0] - k1[0] * ph1[0], P[1] - k0[0] * ph0[1] - k1[0] * ph1[1],
+                         P[2] - k0[0] * ph0[2] - k1[0] * ph1[2], P[3] - k0[1] * ph0[0] - k1[1] * ph1[0],
+                         P[4] - k0[1] * ph0[1] - k1[1] * ph1[1], P[5] - k0[1] * ph0[2] - k1[1] * ph1[2],
+                         P[6] - k0[2] * ph0[0] - k1[2] * ph1[0], P[7] - k0[2] * ph0[1] - k1[2] * ph1[1],
+                         P[8] - k0[2] * ph0[2] - k1[2] * ph1[2])  # fmt: skip
+                    xh0 = (X[0] * e0 + X[1] * e1, X[3] * e0 + X[4] * e1, X[6] * e0 + X[7] * e1)
+                    xh1 = (X[0] * t0 + X[1] * t1 - X[2], X[3] * t0 + X[4] * t1 - X[5], X[6] * t0 + X[7] * t1 - X[8])
+                    # (r, c) entry of the symmetric result, r <= c
+                    g0 = (var_h * k0[0] - xh0[0], var_h * k0[1] - xh0[1], var_h * k0[2] - xh0[2])
+                    g1 = (var_a * k1[0] - xh1[0], var_a * k1[1] - xh1[1], var_a * k1[2] - xh1[2])
+                    P = _symm(X[0] + g0[0] * k0[0] + g1[0] * k1[0], X[1] + g0[0] * k0[1] + g1[0] * k1[1],
+                              X[2] + g0[0] * k0[2] + g1[0] * k1[2], X[4] + g0[1] * k0[1] + g1[1] * k1[1],
+                              X[5] + g0[1] * k0[2] + g1[1] * k1[2], X[8] + g0[2] * k0[2] + g1[2] * k1[2])  # fmt: skip
             _st3(mu_alpha, i + k + 1, mu)
             _st33(cov_alpha, i + k + 1, P)
             if not (_fin3(mu) and _fin33(P)):
                 return _BAD_FORWARD, k, j, loglik
+            if applied:
+                # backward observation information, h linearized at mu_alpha[i + 1] = mu:
+                # H^T R_obs^-1 H and H^T R_obs^-1 (v + H mu), parked in the delta slots of frame i
+                fd, bear, e0, e1, t0, t1 = _observe_h(mu, bx, by, coef)
+                z0 = (obs[i, 0] - fd + (e0 * mu[0] + e1 * mu[1])) * ivh
+                z1 = (_wrap(obs[i, 1] - bear) + (t0 * mu[0] + t1 * mu[1] - mu[2])) * iva
+                _st33(info_delta, i, _symm(ivh * e0 * e0 + iva * t0 * t0, ivh * e0 * e1 + iva * t0 * t1, -iva * t0,
+                                           ivh * e1 * e1 + iva * t1 * t1, -iva * t1, iva))  # fmt: skip
+                _st3(vec_delta, i, (e0 * z0 + t0 * z1, e1 * z0 + t1 * z1, -z1))
+            else:
+                _st33(info_delta, i, _ZERO33)
+                _st3(vec_delta, i, _ZERO3)
 
         # ---------------- backward information filter + combination ----------------
         Y = _ZERO33
-        y = (0.0, 0.0, 0.0)
+        y = _ZERO3
         for j in range(n - 1, -1, -1):
             i = f0 + j
             p = ps + j
             # gamma at the end pose p + 1 (beta = (Y, y) there)
-            mg, cg = _combine(_ld3(mu_alpha, p + 1), _ld33(cov_alpha, p + 1), Y, y)
+            mg, cg = _combine_fast(_ld3(mu_alpha, p + 1), _ld33(cov_alpha, p + 1), Y, y)
             _st3(mu_gamma, p + 1, mg)
             _st33(cov_gamma, p + 1, cg)
             if not (_fin3(mg) and _fin33(cg)):
                 return _BAD_GAMMA, k, j, loglik
-            # observation update at the end pose, h linearized at mu_alpha[p + 1]
-            if used[i] and not (use_gate and mahal2[i] > gate):
-                ma = _ld3(mu_alpha, p + 1)
-                fd, bear, h0, h1 = _observe(ma, beacon_xy[i, 0], beacon_xy[i, 1], coef)
-                z0 = (obs[i, 0] - fd + _dot(h0, ma)) * ivh  # R_obs^-1 (v + H mu)
-                z1 = (_wrap(obs[i, 1] - bear) + _dot(h1, ma)) * iva
-                Y = _sym(_add_outer2(Y, h0, ivh, h1, iva))
-                y = (y[0] + h0[0] * z0 + h1[0] * z1, y[1] + h0[1] * z0 + h1[1] * z1, y[2] + h0[2] * z0 + h1[2] * z1)
+            # observation update at the end pose (the information parked by the forward pass)
+            dY = _ld33(info_delta, i)
+            dy = _ld3(vec_delta, i)
+            Y = _symm(Y[0] + dY[0], Y[1] + dY[1], Y[2] + dY[2], Y[4] + dY[4], Y[5] + dY[5], Y[8] + dY[8])
+            y = (y[0] + dy[0], y[1] + dy[1], y[2] + dy[2])
             _st3(vec_delta, i, y)
             _st33(info_delta, i, Y)
-            # time update to pose p, g linearized at mu_alpha[p]: c = g - F mu
-            ma = _ld3(mu_alpha, p)
-            g, F, Q = _motion(ma, disp, actions[i], sig)
-            Fm = _mv(F, ma)
-            c = (g[0] - Fm[0], g[1] - Fm[1], g[2] - Fm[2])
-            B = _inv_i_plus(_mm(Y, Q))
-            Yt = _sym(_mm(B, Y))
+            # time update to pose p, g linearized at mu_alpha[p] (cos/sin kept by the forward pass):
+            # c = g - F mu = (F[1,2] - F[0,2] th, -F[0,2] - F[1,2] th, ut)
+            a = actions[i]
+            ux = disp[a, 0]
+            uy = disp[a, 1]
+            c = cos_th[p]
+            s = sin_th[p]
+            fa = -s * ux - c * uy
+            fb = c * ux - s * uy
+            th = mu_alpha[p, 2]
+            cv = (fb - fa * th, -fa - fb * th, disp[a, 2])
+            B = _inv_i_plus(_mm(Y, _rot_sym(c, s, sig)))  # (I + Y_delta Q)^-1
+            # Ytil = B Y_delta (symmetric: upper triangle), ytil = B y_delta
+            Yt = _symm(B[0] * Y[0] + B[1] * Y[3] + B[2] * Y[6], B[0] * Y[1] + B[1] * Y[4] + B[2] * Y[7],
+                       B[0] * Y[2] + B[1] * Y[5] + B[2] * Y[8], B[3] * Y[1] + B[4] * Y[4] + B[5] * Y[7],
+                       B[3] * Y[2] + B[4] * Y[5] + B[5] * Y[8], B[6] * Y[2] + B[7] * Y[5] + B[8] * Y[8])  # fmt: skip
             yt = _mv(B, y)
-            Ytc = _mv(Yt, c)
-            y = _mTv(F, (yt[0] - Ytc[0], yt[1] - Ytc[1], yt[2] - Ytc[2]))
-            Y = _sym(_ftyf(Yt, F[2], F[5]))  # F^T Ytil F
+            Ytc = _mv(Yt, cv)
+            w0 = yt[0] - Ytc[0]
+            w1 = yt[1] - Ytc[1]
+            y = (w0, w1, yt[2] - Ytc[2] + fa * w0 + fb * w1)  # F^T (ytil - Ytil c)
+            Y = _ftyf_sym(Yt, fa, fb)  # F^T Ytil F
             if not (_fin3(y) and _fin33(Y)):
                 return _BAD_BACKWARD, k, j, loglik
-        mg, cg = _combine(_ld3(mu_alpha, ps), _ld33(cov_alpha, ps), Y, y)
+        mg, cg = _combine_fast(_ld3(mu_alpha, ps), _ld33(cov_alpha, ps), Y, y)
         _st3(mu_gamma, ps, mg)
         _st33(cov_gamma, ps, cg)
         if not (_fin3(mg) and _fin33(cg)):
             return _BAD_GAMMA, k, 0, loglik
     return _OK, -1, -1, loglik
-
-
-@njit(cache=True)
-def _add_outer_pair(a, b, c, d):
-    """a b^T + c d^T (3-vectors)."""
-    return (
-        a[0] * b[0] + c[0] * d[0], a[0] * b[1] + c[0] * d[1], a[0] * b[2] + c[0] * d[2],
-        a[1] * b[0] + c[1] * d[0], a[1] * b[1] + c[1] * d[1], a[1] * b[2] + c[1] * d[2],
-        a[2] * b[0] + c[2] * d[0], a[2] * b[1] + c[2] * d[1], a[2] * b[2] + c[2] * d[2],
-    )  # fmt: skip
 
 
 # ----------------------------------------------------------------------------------------------
@@ -613,10 +743,13 @@ def smooth_compiled(params: Params, batch: Batch, gate: float | None = None, out
         info_delta = np.empty((n, 3, 3))
         vec_delta = np.empty((n, 3))
         mahal2 = np.empty(n)
+    # cos/sin of the forward headings, reused by the backward pass (per-thread, reused across calls)
+    cos_th = _scratch("estep_cos", (n_poses,))
+    sin_th = _scratch("estep_sin", (n_poses,))
     status, k, j, loglik = _smooth_kernel(
         actions, obs, beacon_xy, used, frame_start, disp, sig_a, coef, var_h, var_a,
         init_mean, init_cov, use_gate, gate_v,
-        mu_alpha, cov_alpha, mu_gamma, cov_gamma, info_delta, vec_delta, mahal2,
+        mu_alpha, cov_alpha, mu_gamma, cov_gamma, info_delta, vec_delta, mahal2, cos_th, sin_th,
     )  # fmt: skip
     _raise(status, k, j, batch)
     if not math.isfinite(loglik):
@@ -693,49 +826,6 @@ def sensor_points_fast(params: Params, batch: Batch, post: Posterior, rng, metho
 # Sigma is shared by all frames, so sum_i C*_i = Sigma sum_i K_i (I + Y'_i P1_i): one 3x3 sum.
 # Pass 1 (per frame): mu*_i (kept, (N, 3)), per-action sums and counts, sum_i K_i (I + Y'_i P1_i);
 # pass 2 (only with learn_noise): sum_i r_i r_i^T, r_i = mu*_i - disp_new[a_i].
-
-
-# cos/sin to ~1 ulp for |x| < 1e5 (fdlibm's kernels after a 3-part Cody-Waite reduction by pi/2),
-# branch-free so the loop over all headings vectorizes; larger or non-finite x fall back to libm.
-_SIN1, _SIN2, _SIN3, _SIN4, _SIN5, _SIN6 = (
-    -1.66666666666666324348e-01, 8.33333333332248946124e-03, -1.98412698298579493134e-04,
-    2.75573137070700676789e-06, -2.50507602534068634195e-08, 1.58969099521155010221e-10,
-)
-_COS1, _COS2, _COS3, _COS4, _COS5, _COS6 = (
-    4.16666666666666019037e-02, -1.38888888888741095749e-03, 2.48015872894767294178e-05,
-    -2.75573143513906633035e-07, 2.08757232129817482790e-09, -1.13596475577881948265e-11,
-)
-_INVPIO2 = 6.36619772367581382433e-01
-_PIO2_1 = 1.57079632673412561417e00  # first 33 bits of pi/2
-_PIO2_2 = 6.07710050630396597660e-11  # next 33 bits
-_PIO2_3 = 2.02226624871116645580e-21  # next 33 bits
-
-
-@njit(cache=True, error_model="numpy")
-def _cos_sin_all(x, cos_out, sin_out):
-    """cos_out[i], sin_out[i] = cos(x[i]), sin(x[i]) (|error| <= ~1 ulp; 1.2e-16 absolute)."""
-    for i in range(x.shape[0]):
-        xi = x[i]
-        xr = xi if abs(xi) < 1.0e5 else 0.0
-        n = math.floor(xr * _INVPIO2 + 0.5)
-        r = ((xr - n * _PIO2_1) - n * _PIO2_2) - n * _PIO2_3
-        z = r * r
-        ps = r + r * z * (_SIN1 + z * (_SIN2 + z * (_SIN3 + z * (_SIN4 + z * (_SIN5 + z * _SIN6)))))
-        w = z * z
-        rc = z * (_COS1 + z * (_COS2 + z * _COS3)) + w * w * (_COS4 + z * (_COS5 + z * _COS6))
-        hz = 0.5 * z
-        w = 1.0 - hz
-        pc = w + (((1.0 - w) - hz) + z * rc)
-        q = np.int64(n) & 3
-        odd = (q & 1) == 1
-        c0 = ps if odd else pc
-        s0 = pc if odd else ps
-        cos_out[i] = -c0 if (q == 1 or q == 2) else c0
-        sin_out[i] = -s0 if q >= 2 else s0
-    for i in range(x.shape[0]):  # rare: libm for large or non-finite angles
-        if not abs(x[i]) < 1.0e5:
-            cos_out[i] = math.cos(x[i])
-            sin_out[i] = math.sin(x[i])
 
 
 @njit(cache=True)
@@ -898,42 +988,6 @@ def action_update_compiled(params: Params, batch: Batch, post: Posterior, learn_
 # equations of the weighted fit in the Chebyshev basis of u = (2d - (lo + hi)) / (hi - lo) (as
 # ``sensor_mstep.fit_polynomial``); the (degree+1)-square solve and the conversion to powers of d
 # are NumPy's; pass 3: the weighted sum of squared height residuals (Horner, as polyval).
-
-
-# atan2 to ~2 ulp (Cephes' atan rational on [0, tan(pi/8)] after the usual octant reduction),
-# branch-free and about 2.5x faster than libm's in these loops; the sensor M-step needs one per point.
-_AT_P0, _AT_P1, _AT_P2, _AT_P3, _AT_P4 = (
-    -8.750608600031904122785e-1, -1.615753718733365076637e1, -7.500855792314704667340e1,
-    -1.228866684490136173410e2, -6.485021904942025371773e1,
-)
-_AT_Q0, _AT_Q1, _AT_Q2, _AT_Q3, _AT_Q4 = (
-    2.485846490142306297962e1, 1.650270098316988542046e2, 4.328810604912902668951e2,
-    4.853903996359136964868e2, 1.945506571482613964425e2,
-)
-_TAN_PI8 = 0.41421356237309504880
-_MOREBITS = 6.123233995736765886130e-17  # pi/2 - fl(pi/2)
-
-
-@njit(cache=True, error_model="numpy")
-def _atan2(y, x):
-    """atan2(y, x) in [-pi, pi] (signed zeros and NaN as libm; |error| <= 3 ulp, 4.5e-16 rad)."""
-    ax = abs(x)
-    ay = abs(y)
-    swap = ay > ax
-    num = ay if swap else ax
-    den = ax if swap else ay
-    t = den / num if num != 0.0 else 0.0  # in [0, 1]
-    tb = (den - num) / (den + num) if num != 0.0 else 0.0
-    big = t > _TAN_PI8
-    t = tb if big else t
-    z = t * t
-    pp = (((_AT_P0 * z + _AT_P1) * z + _AT_P2) * z + _AT_P3) * z + _AT_P4
-    qq = ((((z + _AT_Q0) * z + _AT_Q1) * z + _AT_Q2) * z + _AT_Q3) * z + _AT_Q4
-    r = t * (z * pp / qq) + t
-    r = (0.25 * math.pi + 0.5 * _MOREBITS) + r if big else r
-    r = (0.5 * math.pi + _MOREBITS) - r if swap else r
-    r = (math.pi + 2.0 * _MOREBITS) - r if math.copysign(1.0, x) < 0.0 else r
-    return math.copysign(r, y)
 
 
 @njit(cache=True, error_model="numpy")
