@@ -18,7 +18,7 @@ equality with a textbook Kalman filter + RTS smoother). ``smooth`` wires the aib
 Deviation (named, see the spec): the log-likelihood uses the full one-step predictive
 covariance S = H P- H^T + R_obs, not the paper's J Sigma_alpha,t-1 J^T.
 
-This module is the reference for the compiled twin in ``kernels.py``; it favours clarity
+This module is the reference for the compiled twin in ``kernels/estep.py``; it favours clarity
 over speed.
 """
 
