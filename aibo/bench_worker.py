@@ -21,17 +21,21 @@ def _peak_bytes() -> int:
 
 
 def compile_cmd() -> dict:
+    """Seconds to import and run the compiled E-step and M-step once (numba compiles them)."""
     from learners.em.data import Batch
     from learners.em.params import paper_start
 
     n = 100
-    batch = Batch(np.zeros(n, np.int64), np.full((n, 2), np.nan), np.full((n, 2), np.nan), np.zeros(n, bool),
-                  np.array([0, n]), 1 / 30)
+    xy = np.tile([1350.0, 1950.0], (n, 1))
+    obs = np.tile([20.0, 0.5], (n, 1))
+    batch = Batch(np.zeros(n, np.int64), obs, xy, np.ones(n, bool), np.array([0, n]), 1 / 30)
     t0 = time.perf_counter()
-    from learners.em.kernels import action_statistics_compiled, smooth_compiled
+    from learners.em.fit import EMOptions, e_step, m_step
 
-    post = smooth_compiled(paper_start(1 / 30), batch)
-    action_statistics_compiled(paper_start(1 / 30), batch, post)
+    params = paper_start(1 / 30)
+    for method in ("cubature", "sample"):
+        m_step(params, batch, e_step(params, batch, "compiled"), np.random.default_rng(0),
+               EMOptions(sensor_method=method))
     return {"compile_s": time.perf_counter() - t0}
 
 

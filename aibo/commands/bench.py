@@ -3,7 +3,8 @@
 Figures (all also in ``--json``):
 - E-step frames/s, compiled (numba) and the NumPy per-step reference, on the same 27,000-frame
   log in the same run, and their ratio;
-- first-call compile time (a fresh process with an empty numba cache);
+- M-step time, compiled and NumPy reference, on the same E-step output;
+- first-call compile time of the E-step and M-step kernels (a fresh process, empty numba cache);
 - a paper-scale fit (27,000 frames, paper start, to convergence): iterations, time per iteration,
   wall time (compile excluded), final log-likelihood;
 - scaling at 2,700 / 27,000 / 270,000 / 1,000,000 frames: E-step + M-step time and peak memory,
@@ -65,6 +66,23 @@ def estep_speed(tr) -> dict:
             "compiled_frames_per_s": n / t_c, "numpy_frames_per_s": n / t_np, "speedup": t_np / t_c}
 
 
+def mstep_speed(tr) -> dict:
+    """Compiled vs NumPy reference M-step (default options) on the same E-step output."""
+    from learners.em.data import make_batch
+    from learners.em.fit import EMOptions, e_step, m_step
+    from learners.em.params import paper_start
+
+    batch = make_batch([tr])
+    params = paper_start(tr.dt)
+    post = e_step(params, batch, "compiled")
+    rng = np.random.default_rng(0)
+    fast, ref = EMOptions(), EMOptions(estep="numpy")
+    m_step(params, batch, post, rng, fast)  # warm-up
+    t_c = _median_time(lambda: m_step(params, batch, post, rng, fast), 21)
+    t_np = _median_time(lambda: m_step(params, batch, post, rng, ref), 3)
+    return {"frames": batch.n_frames, "compiled_s": t_c, "numpy_s": t_np, "speedup": t_np / t_c}
+
+
 def compile_time() -> float:
     """Seconds of the first E-step call in a fresh process with an empty numba cache."""
     with tempfile.TemporaryDirectory() as cache:
@@ -123,6 +141,9 @@ def run(args) -> int:
     print(f"  compiled {1000 * e['compiled_s']:.1f} ms ({e['compiled_frames_per_s']:,.0f} frames/s; "
           f"{1000 * e['compiled_reuse_s']:.1f} ms reusing its buffers as EM does), "
           f"NumPy {1000 * e['numpy_s']:.0f} ms ({e['numpy_frames_per_s']:,.0f} frames/s): {e['speedup']:.0f}x")
+    report["mstep"] = m = mstep_speed(paper)
+    print(f"M-step (default options): compiled {1000 * m['compiled_s']:.1f} ms, NumPy {1000 * m['numpy_s']:.0f} ms: "
+          f"{m['speedup']:.0f}x")
     report["compile_s"] = compile_time()
     print(f"  first-call compile time {report['compile_s']:.1f} s")
 

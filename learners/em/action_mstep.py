@@ -65,15 +65,13 @@ def action_statistics(params: Params, batch: Batch, post: Posterior):
     return mu_star, C_star
 
 
-def update_action_model(params: Params, batch: Batch, post: Posterior, learn_noise: bool = False,
-                        statistics=action_statistics) -> ActionModel:
+def update_action_model(params: Params, batch: Batch, post: Posterior, learn_noise: bool = False) -> ActionModel:
     """New ActionModel: disp[A] = mean of mu*_i over frames with action A (eq. (5)); actions
     never executed keep their previous value. With ``learn_noise`` (a deviation, off in the
     paper) Sigma_A = mean over all frames of C*_i + (mu*_i - mu_A(i))(mu*_i - mu_A(i))^T with
-    the NEW means mu_A; otherwise Sigma_A is kept. ``statistics`` computes (mu*, C*): this
-    module's NumPy version or ``kernels.action_statistics_compiled``.
+    the NEW means mu_A; otherwise Sigma_A is kept.
     """
-    mu_star, C_star = statistics(params, batch, post)
+    mu_star, C_star = action_statistics(params, batch, post)
     old = np.asarray(params.action.disp, dtype=float)
     n_act = old.shape[0]
     counts = np.bincount(batch.actions, minlength=n_act).astype(float)

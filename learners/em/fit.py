@@ -14,11 +14,11 @@ from typing import Callable
 import numpy as np
 
 from learners.em.accel import Packer, squarem_step
-from learners.em.action_mstep import action_statistics, update_action_model
+from learners.em.action_mstep import update_action_model
 from learners.em.data import Batch
-from learners.em.params import InitialState, Params
+from learners.em.params import ActionModel, InitialState, Params, SensorModel
 from learners.em.posterior import Posterior
-from learners.em.sensor_mstep import sensor_points, update_sensor_model
+from learners.em.sensor_mstep import update_sensor_model
 
 #: First-iteration outlier gate on the innovation's Mahalanobis^2 (2 dof: p = 1.4e-11). Not the
 #: chi-square 0.999 quantile (13.8): with the paper's very poor start that prunes ~12% of honest
@@ -102,7 +102,6 @@ def m_step(params: Params, batch: Batch, post: Posterior, rng: np.random.Generat
     """
     if opts.estep == "compiled":
         from learners.em.kernels import action_update_compiled, sensor_update_compiled
-        from learners.em.params import ActionModel, SensorModel
 
         disp, cov = action_update_compiled(params, batch, post, learn_noise=opts.learn_motion_noise)
         action = ActionModel(disp, cov, params.action.dt)
@@ -110,10 +109,9 @@ def m_step(params: Params, batch: Batch, post: Posterior, rng: np.random.Generat
             params, batch, post, rng, method=opts.sensor_method, n_samples=opts.n_samples, degree=opts.degree)
         sensor = SensorModel(coef, sigma_h, sigma_a, drange)
     else:
-        action = update_action_model(params, batch, post, learn_noise=opts.learn_motion_noise,
-                                     statistics=action_statistics)
+        action = update_action_model(params, batch, post, learn_noise=opts.learn_motion_noise)
         sensor = update_sensor_model(params, batch, post, rng, method=opts.sensor_method,
-                                     n_samples=opts.n_samples, degree=opts.degree, points=sensor_points)
+                                     n_samples=opts.n_samples, degree=opts.degree)
     first = batch.pose_start[:-1]
     init = tuple(InitialState(post.mu_gamma[p].copy(), post.cov_gamma[p].copy()) for p in first)
     return Params(action, sensor, init)

@@ -91,13 +91,12 @@ def fit_polynomial(d, h, w, degree: int = 3) -> np.ndarray:
 
 
 def update_sensor_model(params: Params, batch: Batch, post: Posterior, rng: np.random.Generator,
-                        method: str = "sample", n_samples: int = 1, degree: int = 3,
-                        points=sensor_points) -> SensorModel:
+                        method: str = "sample", n_samples: int = 1, degree: int = 3) -> SensorModel:
     """New SensorModel from the used sightings: f by ``fit_polynomial``, sigma_height =
     sqrt(weighted mean of (f(d) - o1)^2), sigma_angle = sqrt(weighted mean of
     wrap(bearing - o2)^2), distance_range_mm = (min, max) of the distances at the smoothed means.
     """
-    dist, bearing, obs, w = points(params, batch, post, rng, method, n_samples)
+    dist, bearing, obs, w = sensor_points(params, batch, post, rng, method, n_samples)
     coef = fit_polynomial(dist, obs[:, 0], w, degree)
     wsum = w.sum()
     res_h = np.polynomial.polynomial.polyval(dist, coef) - obs[:, 0]

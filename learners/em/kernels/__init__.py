@@ -13,21 +13,13 @@ Layout (one concept per module; import the public functions from this package):
 - ``fasttrig``: branch-free cos/sin (``_cos_sin*``) and ``_atan2``, with their constants;
 - ``estep``: the E-step kernel (forward EKF, backward information filter, combination) and
   its wrapper ``smooth_compiled``;
-- ``mstep``: the M-step kernels and wrappers: ``action_statistics_compiled``,
-  ``action_update_compiled``, ``sensor_points_compiled``, ``sensor_points_fast``,
+- ``mstep``: the fused M-step kernels and wrappers: ``action_update_compiled``,
   ``sensor_update_compiled``.
 """
 
 from __future__ import annotations
 
 from learners.em.kernels.estep import smooth_compiled
-from learners.em.kernels.mstep import (
-    action_statistics_compiled,
-    action_update_compiled,
-    sensor_points_compiled,
-    sensor_points_fast,
-    sensor_update_compiled,
-)
+from learners.em.kernels.mstep import action_update_compiled, sensor_update_compiled
 
-__all__ = ["smooth_compiled", "action_statistics_compiled", "sensor_points_compiled", "action_update_compiled",
-           "sensor_update_compiled", "sensor_points_fast"]
+__all__ = ["smooth_compiled", "action_update_compiled", "sensor_update_compiled"]

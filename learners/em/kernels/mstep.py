@@ -1,8 +1,7 @@
-"""Compiled (numba) M-step: action statistics (``_action_kernel``, ``action_statistics_compiled``),
-the fused action update (``_action_update_kernel``, ``action_update_compiled``), the cubature
-points of the sensor M-step (``_cubature_kernel``, ``sensor_points_compiled``, ``sensor_points_fast``)
-and the fused sensor update (``_sensor_*`` kernels, ``sensor_update_compiled``).
-Twins of ``action_mstep`` / ``sensor_mstep``; docs/em-math.md is the specification."""
+"""Compiled (numba) M-step: the fused action update (``_action_update_kernel``,
+``action_update_compiled``) and the fused sensor update (``_sensor_*`` kernels,
+``sensor_update_compiled``). Twins of ``action_mstep.update_action_model`` /
+``sensor_mstep.update_sensor_model``; docs/em-math.md is the specification."""
 
 from __future__ import annotations
 
@@ -14,7 +13,7 @@ from numba import njit
 from learners.em.data import Batch
 from learners.em.kernels.algebra import (
     _BAD_ACTION, _OK, _TWO_PI, _ZERO33, _add, _f64, _fin3, _fin33, _fpft, _inv, _inv_i_plus, _ld3, _ld33, _mm,
-    _mmT, _mv, _raise, _scratch, _st3, _st33, _sym, _wrap,
+    _mv, _raise, _scratch, _st3, _st33, _sym,
 )
 from learners.em.kernels.fasttrig import _atan2, _cos_sin_all
 from learners.em.params import Params
@@ -22,185 +21,10 @@ from learners.em.posterior import Posterior
 
 
 # ----------------------------------------------------------------------------------------------
-# action statistics kernel
-# ----------------------------------------------------------------------------------------------
-
-
-@njit(cache=True)
-def _action_kernel(actions, frame_start, disp, sig_a, mu_alpha, cov_alpha, mu_gamma, info_delta, vec_delta,
-                   mu_star, c_star):  # fmt: skip
-    """Returns (status, log index, frame index within the log)."""
-    Sinv, det = _inv(_ld33(sig_a.reshape(1, 3, 3), 0))
-    if not (math.isfinite(det) and det != 0.0):
-        return _BAD_ACTION, -1, -1
-    n_logs = frame_start.shape[0] - 1
-    for k in range(n_logs):
-        f0 = frame_start[k]
-        f1 = frame_start[k + 1]
-        ps = f0 + k
-        for j in range(f1 - f0):
-            i = f0 + j
-            p = ps + j
-            g0 = _ld3(mu_gamma, p)
-            g1 = _ld3(mu_gamma, p + 1)
-            th = g0[2]
-            c = math.cos(th)
-            s = math.sin(th)
-            dx = g1[0] - g0[0]
-            dy = g1[1] - g0[1]
-            # d = R(-theta)(s1 - s0); L2 = R(-theta); L1 = -R(-theta) with column 2 = dd/dtheta_p
-            d = (c * dx + s * dy, -s * dx + c * dy, g1[2] - g0[2])
-            L2 = (c, s, 0.0, -s, c, 0.0, 0.0, 0.0, 1.0)
-            L1 = (-c, -s, -s * dx + c * dy, s, -c, -c * dx - s * dy, 0.0, 0.0, -1.0)
-            a1 = _mv(L1, g0)
-            a2 = _mv(L2, g1)
-            m = (d[0] - a1[0] - a2[0], d[1] - a1[1] - a2[1], d[2] - a1[2] - a2[2])
-            # Y' = L2^-T Y_delta L2^-1 = L2 Y_delta L2^T (L2 orthogonal), y' = L2 y_delta
-            Yp = _sym(_mmT(_mm(L2, _ld33(info_delta, i)), L2))
-            yp = _mv(L2, _ld3(vec_delta, i))
-            # P1 = L1 P_alpha,p L1^T, m1 = L1 mu_alpha,p + m
-            P1 = _mmT(_mm(L1, _ld33(cov_alpha, p)), L1)
-            b = _mv(L1, _ld3(mu_alpha, p))
-            m1 = (b[0] + m[0], b[1] + m[1], b[2] + m[2])
-            # Y_d = (I + Y' P1)^-1 Y', y_d = (I + Y' P1)^-1 (y' + Y' m1)
-            B = _inv_i_plus(_mm(Yp, P1))
-            Yd = _sym(_mm(B, Yp))
-            b = _mv(Yp, m1)
-            yd = _mv(B, (yp[0] + b[0], yp[1] + b[1], yp[2] + b[2]))
-            # C* = (Sigma^-1 + Y_d)^-1, mu* = mu_hat + C* (y_d - Y_d mu_hat)
-            Cs = _sym(_inv(_add(Sinv, Yd))[0])
-            a = actions[i]
-            mh = (disp[a, 0], disp[a, 1], disp[a, 2])
-            b = _mv(Yd, mh)
-            w = _mv(Cs, (yd[0] - b[0], yd[1] - b[1], yd[2] - b[2]))
-            ms = (mh[0] + w[0], mh[1] + w[1], mh[2] + w[2])
-            _st3(mu_star, i, ms)
-            _st33(c_star, i, Cs)
-            if not (_fin3(ms) and _fin33(Cs)):
-                return _BAD_ACTION, k, j
-    return _OK, -1, -1
-
-
-# ----------------------------------------------------------------------------------------------
-# sensor M-step points (cubature)
-# ----------------------------------------------------------------------------------------------
-
-
-@njit(cache=True)
-def _cubature_kernel(frame_idx, pose_idx, mu_gamma, cov_gamma, beacon_xy, dist, bearing):
-    """For each listed sighting: the 6 cubature points mu + sqrt(3) L e_0, e_1, e_2, then
-    mu - sqrt(3) L e_0, e_1, e_2 (L = Cholesky of Sigma_gamma), their distance to the beacon
-    and wrapped bearing.
-    Returns -1 on success, else the row whose covariance is not positive definite."""
-    r3 = math.sqrt(3.0)
-    pt = np.empty(3)
-    for n in range(frame_idx.shape[0]):
-        i = frame_idx[n]
-        p = pose_idx[n]
-        S = cov_gamma[p]
-        l00 = S[0, 0]
-        if not l00 > 0.0:
-            return n
-        l00 = math.sqrt(l00)
-        l10 = S[1, 0] / l00
-        l20 = S[2, 0] / l00
-        t = S[1, 1] - l10 * l10
-        if not t > 0.0:
-            return n
-        l11 = math.sqrt(t)
-        l21 = (S[2, 1] - l20 * l10) / l11
-        t = S[2, 2] - l20 * l20 - l21 * l21
-        if not t > 0.0:
-            return n
-        l22 = math.sqrt(t)
-        bx = beacon_xy[i, 0]
-        by = beacon_xy[i, 1]
-        for jj in range(6):
-            col = jj % 3
-            sgn = r3 if jj < 3 else -r3
-            if col == 0:
-                e0, e1, e2 = l00, l10, l20
-            elif col == 1:
-                e0, e1, e2 = 0.0, l11, l21
-            else:
-                e0, e1, e2 = 0.0, 0.0, l22
-            pt[0] = mu_gamma[p, 0] + sgn * e0
-            pt[1] = mu_gamma[p, 1] + sgn * e1
-            pt[2] = mu_gamma[p, 2] + sgn * e2
-            ddx = bx - pt[0]
-            ddy = by - pt[1]
-            dist[n, jj] = math.sqrt(ddx * ddx + ddy * ddy)
-            bearing[n, jj] = _wrap(math.atan2(ddy, ddx) - pt[2])
-    return -1
-
-
-# ----------------------------------------------------------------------------------------------
-# Python wrappers
-# ----------------------------------------------------------------------------------------------
-
-
-def action_statistics_compiled(params: Params, batch: Batch, post: Posterior) -> tuple[np.ndarray, np.ndarray]:
-    """Compiled twin of ``action_mstep.action_statistics``: (mu_star (N, 3), C_star (N, 3, 3)).
-
-    mu*_i, C*_i: the previous action model N(disp[a_i], Sigma_A) times the linearized belief
-    over the displacement d_i from alpha (start pose) and delta (end pose) (docs/em-math.md).
-    """
-    n = batch.n_frames
-    mu_star = np.empty((n, 3))
-    c_star = np.empty((n, 3, 3))
-    status, k, j = _action_kernel(
-        np.ascontiguousarray(batch.actions, dtype=np.int64),
-        np.ascontiguousarray(batch.frame_start, dtype=np.int64),
-        _f64(params.action.disp),
-        _f64(params.action.cov, (3, 3)),
-        _f64(post.mu_alpha),
-        _f64(post.cov_alpha),
-        _f64(post.mu_gamma),
-        _f64(post.info_delta),
-        _f64(post.vec_delta),
-        mu_star,
-        c_star,
-    )
-    _raise(status, k, j, batch)
-    return mu_star, c_star
-
-
-def sensor_points_compiled(batch: Batch, post: Posterior) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Cubature points of the sensor M-step (method="cubature") for every used sighting.
-
-    Returns (frames (M,), dist (M, 6) mm, bearing (M, 6) rad, wrapped to (-pi, pi]).
-    Points are mu + sqrt(3) L e_0, e_1, e_2, then mu - sqrt(3) L e_0, e_1, e_2 (L the Cholesky
-    factor of Sigma_gamma of the end pose), the order of ``sensor_mstep.sensor_points``, so
-    ``dist.ravel()`` / ``bearing.ravel()`` are its ``dist`` / ``bearing``. Weights (1/6) are the caller's.
-    """
-    frames = np.flatnonzero(np.asarray(batch.used, bool)).astype(np.int64)
-    poses = np.ascontiguousarray(batch.frame_to_pose[frames] + 1, dtype=np.int64)
-    dist = np.empty((frames.size, 6))
-    bearing = np.empty((frames.size, 6))
-    bad = _cubature_kernel(frames, poses, _f64(post.mu_gamma), _f64(post.cov_gamma), _f64(batch.beacon_xy),
-                           dist, bearing)  # fmt: skip
-    if bad >= 0:
-        raise np.linalg.LinAlgError(f"smoothed covariance of batch frame {int(frames[bad])} is not positive definite")
-    return frames, dist, bearing
-
-
-def sensor_points_fast(params: Params, batch: Batch, post: Posterior, rng, method: str = "sample", n_samples: int = 1):
-    """Drop-in for ``sensor_mstep.sensor_points``: compiled for ``cubature``, NumPy for ``sample``
-    (sampling is already vectorized and must draw from ``rng`` exactly as the reference does)."""
-    from learners.em.sensor_mstep import sensor_points
-
-    if method != "cubature":
-        return sensor_points(params, batch, post, rng, method, n_samples)
-    frames, dist, bearing = sensor_points_compiled(batch, post)
-    obs = np.repeat(batch.obs[frames], 6, axis=0)
-    return dist.ravel(), bearing.ravel(), obs, np.full(dist.size, 1.0 / 6.0)
-
-
-# ----------------------------------------------------------------------------------------------
 # fused M-step kernels (used by fit.m_step on the compiled path)
 # ----------------------------------------------------------------------------------------------
 #
-# Action update: the same mu*_i, C*_i as ``_action_kernel``, rearranged so that each frame needs
+# Action update: the mu*_i, C*_i of ``action_mstep.action_statistics``, rearranged so that each frame needs
 # ONE 3x3 inverse and C*_i is never stored. With B = (I + Y'P1)^-1, Y_d = B Y', y_d = B (y' + Y' m1):
 #     I + Y_d Sigma = B (I + Y' (P1 + Sigma))  =>  with K = (I + Y' (P1 + Sigma))^-1:
 #     C*_i = (Sigma^-1 + Y_d)^-1 = Sigma (I + Y_d Sigma)^-1 = Sigma K (I + Y' P1),
