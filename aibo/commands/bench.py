@@ -116,7 +116,8 @@ def scaling(log_path: Path, sizes) -> list[dict]:
             continue
         row = json.loads(out.stdout)
         rows.append(row)
-        print(f"  {n:>9,d} frames: E-step {1000 * row['estep_s']:8.1f} ms, M-step {1000 * row['mstep_s']:8.1f} ms, "
+        print(f"  {n:>9,d} frames: E-step {1000 * row['estep_s']:8.1f} ms, M-step {1000 * row['mstep_s']:8.1f} ms "
+              f"(again: {1000 * row['estep_reuse_s']:.1f} + {1000 * row['mstep_again_s']:.1f} ms), "
               f"peak {row['peak_mb']:.1f} MB ({row['bytes_per_frame']:.0f} B/frame), process max RSS {row['max_rss_mb']:.0f} MB",
               flush=True)
     return rows
