@@ -144,3 +144,26 @@ def test_bench_quick_writes_every_figure(tmp_path):
     assert fit["iterations"] >= 1 and fit["wall_s"] > 0 and fit["per_iteration_ms"] > 0
     assert [row["frames"] for row in rep["scaling"]] == [2700, 9000]
     assert all(row["peak_mb"] >= 0 and row["estep_s"] > 0 for row in rep["scaling"])
+
+
+def test_learn_resumes_an_interrupted_run(log_path, tmp_path, capsys):
+    """An interrupted `aibo learn` leaves OUT.checkpoint.npz; the same command resumes from it."""
+    from aibo.cli import build_parser
+    from aibo.commands.learn import make_learner
+
+    out = tmp_path / "model.json"
+    argv = ["learn", str(log_path), "--out", str(out), "--max-iter", "40", "--paper-recipe"]
+    learner = make_learner(build_parser().parse_args(argv))
+    learner.checkpoint_every = 5
+
+    def interrupt(rec):
+        if rec.iteration == 12:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        learner.fit([trajectory.load(log_path)], progress=interrupt)
+    assert (tmp_path / "model.json.checkpoint.npz").exists() and not out.exists()
+    assert main(argv) == 0
+    assert "resumed from the checkpoint at iteration 10" in capsys.readouterr().out
+    assert json.loads(out.read_text())["iterations"] <= 40
+    assert not (tmp_path / "model.json.checkpoint.npz").exists()

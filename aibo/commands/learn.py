@@ -44,6 +44,8 @@ def run(args) -> int:
     result = learner.fit(logs, init=init, progress=progress)
     progress.close()
     model_file.save(result, args.out)
+    if result.info.get("resumed_from"):
+        print(f"resumed from the checkpoint at iteration {result.info['resumed_from']}")
     print(f"wrote {args.out}: {result.iterations} iterations, converged={result.converged}, "
           f"{result.pruned_observations} sightings pruned as outliers")
     if all(tr.truth is not None and tr.pose is not None for tr in logs):
