@@ -60,10 +60,10 @@ class EMLearner:
     def fit(self, logs: list[Trajectory], init: Params | None = None, progress: ProgressFn | None = None) -> LearnResult:
         batch = make_batch(logs)
         start = self.start_params(logs, init)
-        state = self._load_or_start(batch, start)
+        fp = checkpoint.fingerprint(batch, start, options_json(self.options)) if self.checkpoint_path else ""
+        state = self._load_or_start(batch, start, fp)
         resumed_from = state.iteration
         history: list[IterationRecord] = []
-        fp = checkpoint.fingerprint(batch, start, options_json(self.options))
 
         def on_iteration(st: EMState, params: Params, loglik: float) -> None:
             rec = IterationRecord(st.iteration, loglik, st.seconds[-1], params)
@@ -90,9 +90,8 @@ class EMLearner:
         return LearnResult("em", state.best, state.iteration, state.converged, list(state.loglik),
                            state.pruned, history, info)
 
-    def _load_or_start(self, batch: Batch, start: Params) -> EMState:
+    def _load_or_start(self, batch: Batch, start: Params, fp: str) -> EMState:
         if self.checkpoint_path and self.resume:
-            fp = checkpoint.fingerprint(batch, start, options_json(self.options))
             saved = checkpoint.load(self.checkpoint_path, fp)
             if saved is not None:
                 return saved
