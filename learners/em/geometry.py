@@ -38,19 +38,6 @@ def rot(theta):
     return out
 
 
-def rot3(theta):
-    """3x3 rotation acting on (x, y) by theta (rad) and leaving the heading alone; ``(..., 3, 3)``."""
-    theta = np.asarray(theta, dtype=float)
-    c, s = np.cos(theta), np.sin(theta)
-    out = np.zeros(theta.shape + (3, 3))
-    out[..., 0, 0] = c
-    out[..., 0, 1] = -s
-    out[..., 1, 0] = s
-    out[..., 1, 1] = c
-    out[..., 2, 2] = 1.0
-    return out
-
-
 def motion(mean, disp):
     """Motion function g(s) = s + R(theta) u and its linearization.
 
@@ -99,18 +86,6 @@ def motion(mean, disp):
     return g, F, R3
 
 
-def _horner(coef, d):
-    """sum_k coef[k] d**k (ascending powers) by Horner's rule; works on scalars and arrays."""
-    if len(coef) == 0:
-        return np.zeros_like(d)
-    if len(coef) == 1:
-        return np.zeros_like(d) + coef[0]
-    out = coef[-1] * d + coef[-2]
-    for ck in coef[-3::-1]:
-        out = out * d + ck
-    return out
-
-
 def observe(mean, beacon_xy, sensor):
     """Observation function h(s) = (f(dist), bearing) and its Jacobian.
 
@@ -129,14 +104,12 @@ def observe(mean, beacon_xy, sensor):
     """
     mean = np.asarray(mean, dtype=float)
     b = np.asarray(beacon_xy, dtype=float)
-    coef = np.asarray(sensor.coef, dtype=float)
     dx = b[..., 0] - mean[..., 0]
     dy = b[..., 1] - mean[..., 1]
     q = dx * dx + dy * dy
     d = np.sqrt(q)
-    f = _horner(coef, d)
-    dcoef = coef[1:] * np.arange(1, len(coef))
-    fp = _horner(dcoef, d) if len(dcoef) else np.zeros_like(d)
+    f = sensor.height(d)
+    fp = sensor.dheight(d)
     shape = np.broadcast_shapes(mean.shape[:-1], b.shape[:-1])
     h = np.empty(shape + (2,))
     h[..., 0] = f
