@@ -152,10 +152,3 @@ def load_params(path: str | os.PathLike, n_logs: int | None = None) -> Params:
         SensorModel(coef, sh, sa, rng),
         tuple(init) if init else (DEFAULT_INITIAL,),
     )
-
-
-def load_json(path: str | os.PathLike) -> dict[str, Any]:
-    """The raw JSON of a model file (after the same validation as load_params)."""
-    load_params(path)
-    with open(path, encoding="utf-8") as f:
-        return json.load(f)

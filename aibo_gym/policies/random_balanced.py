@@ -82,7 +82,6 @@ class RandomBalancedPolicy:
                 self.ekf.reset([0.0, 0.0, 0.0], [hl, hw, math.pi])
             else:
                 self.ekf.reset(sp, [50.0, 50.0, 0.05])
-        self._info_pose = None if info is None else info.get("pose")
 
     def act(self, obs: np.ndarray, info: dict[str, Any] | None = None) -> int:
         """The action for this frame, given the last observation and info."""
