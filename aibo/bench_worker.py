@@ -39,21 +39,13 @@ def compile_cmd() -> dict:
     return {"compile_s": time.perf_counter() - t0}
 
 
-def _head(full, k: int):
-    """The first k frames of a log, as a new log (copies, so the full log can be freed)."""
-    from aibo_gym.trajectory import Trajectory
-
-    return Trajectory(full.dt, full.actions[:k].copy(), full.obs[:k].copy(), full.beacon[:k].copy(),
-                      full.head_pan[:k].copy(), full.beacons, full.field, full.attempted)
-
-
 def scale_cmd(path: str, n: int) -> dict:
     """Time one E-step and one M-step on the first ``n`` frames; peak memory of the batch, the
     posterior and the M-step (NumPy allocations, traced with tracemalloc; the kernels allocate
     nothing large themselves)."""
     import tracemalloc
 
-    from aibo_gym import trajectory
+    from aibo_core import trajectory
     from learners.em.data import make_batch
     from learners.em.fit import EMOptions, e_step, m_step
     from learners.em.params import paper_start
@@ -61,7 +53,7 @@ def scale_cmd(path: str, n: int) -> dict:
     full = trajectory.load(path)
     if n > full.n_frames:
         raise SystemExit(f"{path} has only {full.n_frames} frames")
-    tr, small = _head(full, n), make_batch([_head(full, min(n, 500))])
+    tr, small = trajectory.head(full, n), make_batch([trajectory.head(full, min(n, 500))])
     del full
     params, opts, rng = paper_start(tr.dt), EMOptions(), np.random.default_rng(0)
     m_step(params, small, e_step(params, small, "compiled"), rng, opts)  # load the kernels first

@@ -14,7 +14,7 @@ import argparse
 import json
 import sys
 
-from aibo_gym.trajectory import TrajectoryError
+from aibo_core.trajectory import TrajectoryError
 
 
 class CLIError(Exception):

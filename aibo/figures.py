@@ -12,7 +12,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from aibo_gym.trajectory import atomic_write  # noqa: E402
+from aibo_core.atomic import atomic_write  # noqa: E402
 from learners.em.params import SensorModel  # noqa: E402
 
 

@@ -1,4 +1,4 @@
-"""Collect an ``aibo-trajectory/1`` log by running ``AiboBeacons-v0`` with an exploration policy."""
+"""Collect an ``aibo-trajectory/2`` log by running ``AiboBeacons-v0`` with an exploration policy."""
 
 from __future__ import annotations
 
@@ -8,10 +8,10 @@ from typing import Any
 import numpy as np
 
 from . import ENV_ID, __version__
-from .actions import attempted_velocities
+from aibo_core.actions import attempted_velocities
 from .envs.aibo_beacons import AiboBeaconsEnv
 from .policies import POLICIES
-from .trajectory import Trajectory
+from aibo_core.trajectory import Trajectory
 
 
 def truth_of(env: AiboBeaconsEnv) -> dict[str, Any]:
@@ -62,8 +62,9 @@ def collect(
     obs, info = env.reset(seed=seed)
     pol.reset(info)
     actions = np.empty(steps, dtype=np.int64)
-    sights = np.full((steps, 2), np.nan)
-    beacon = np.full(steps, -1, dtype=np.int64)
+    s_frame: list[int] = []
+    s_landmark: list[int] = []
+    s_value: list[tuple[float, float]] = []
     pan = np.empty(steps)
     pose = np.empty((steps + 1, 3))
     pose[0] = info["pose"]
@@ -79,8 +80,9 @@ def collect(
         actions[t] = a
         s = info["sighting"]
         if s is not None:
-            beacon[t] = s["beacon"]
-            sights[t, 0], sights[t, 1] = s["height"], s["angle"]
+            s_frame.append(t)
+            s_landmark.append(s["beacon"])
+            s_value.append((s["height"], s["angle"]))
         pan[t] = info["head_pan"]
         pose[t + 1] = info["pose"]
         n = t + 1
@@ -101,13 +103,15 @@ def collect(
     }
     return Trajectory(
         dt=env.dt,
+        landmarks=np.asarray(env.config["beacons"], dtype=float),
+        sighting_frame=np.asarray(s_frame, dtype=np.int64),
+        sighting_landmark=np.asarray(s_landmark, dtype=np.int64),
+        sighting_value=np.asarray(s_value, dtype=float).reshape(-1, 2),
+        sensor_kind="height_px",
         actions=actions[:n],
-        obs=sights[:n],
-        beacon=beacon[:n],
-        head_pan=pan[:n],
-        beacons=np.asarray(env.config["beacons"], dtype=float),
-        field=np.asarray(env.config["field"], dtype=float),
         attempted=attempted_velocities(),
+        head_pan=pan[:n],
+        field=np.asarray(env.config["field"], dtype=float),
         pose=pose[: n + 1],
         meta=meta,
     )

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from .actions import attempted_velocities
+from aibo_core.actions import attempted_velocities
 from .config import make_config
 
 

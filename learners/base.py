@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from typing import Any, Callable, Protocol
 
-from aibo_gym.trajectory import Trajectory
+from aibo_core.trajectory import Trajectory
 from learners.em.params import Params
 
 ENTRY_POINT_GROUP = "aibo.learners"

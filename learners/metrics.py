@@ -74,9 +74,8 @@ def observed_distance_range(logs) -> tuple[float, float]:
     for tr in logs:
         if tr.pose is None:
             continue
-        seen = tr.beacon >= 0
-        xy = tr.pose[1:][seen, :2]
-        ds.append(np.hypot(*(tr.beacons[tr.beacon[seen]] - xy).T))
+        xy = tr.pose[tr.sighting_frame + 1, :2]
+        ds.append(np.hypot(*(tr.landmarks[tr.sighting_landmark] - xy).T))
     if not ds:
         raise ValueError("no log with true poses")
     d = np.concatenate(ds)

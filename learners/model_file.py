@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from aibo_gym.trajectory import atomic_write
+from aibo_core.atomic import atomic_write
 from learners.base import LearnResult
 from learners.em.params import DEFAULT_INITIAL, N_ACTIONS, ActionModel, InitialState, Params, SensorModel
 

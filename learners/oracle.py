@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from aibo_gym.trajectory import Trajectory
+from aibo_core.trajectory import Trajectory
 from learners.base import LearnResult, ProgressFn
-from learners.em.geometry import rel_disp, wrap
+from aibo_core.geometry import rel_disp, wrap
 from learners.em.params import N_ACTIONS, ActionModel, InitialState, Params, SensorModel
 from learners.em.sensor_mstep import fit_polynomial
 
@@ -41,12 +41,11 @@ class OracleLearner:
 
         d, h, ang_res = [], [], []
         for tr in logs:
-            seen = tr.beacon >= 0
-            pose = tr.pose[1:][seen]
-            delta = tr.beacons[tr.beacon[seen]] - pose[:, :2]
+            pose = tr.pose[tr.sighting_frame + 1]
+            delta = tr.landmarks[tr.sighting_landmark] - pose[:, :2]
             d.append(np.hypot(delta[:, 0], delta[:, 1]))
-            h.append(tr.obs[seen, 0])
-            ang_res.append(wrap(tr.obs[seen, 1] - (np.arctan2(delta[:, 1], delta[:, 0]) - pose[:, 2])))
+            h.append(tr.sighting_value[:, 0])
+            ang_res.append(wrap(tr.sighting_value[:, 1] - (np.arctan2(delta[:, 1], delta[:, 0]) - pose[:, 2])))
         d, h, ang_res = np.concatenate(d), np.concatenate(h), np.concatenate(ang_res)
         coef = fit_polynomial(d, h, np.ones_like(d), self.degree)
         sh = float(np.sqrt(np.mean((np.polynomial.polynomial.polyval(d, coef) - h) ** 2)))

@@ -11,3 +11,16 @@ from aibo_gym.collect import collect
 def sim_log(steps: int = 6000, seed: int = 3, noise: str = "paper-sim", robot_seed: int = 0):
     """A random-balanced log with ground truth (returns the same object per arguments: do not mutate)."""
     return collect({"noise": noise, "robot_seed": robot_seed}, steps=steps, seed=seed)
+
+
+def frame_view(tr):
+    """The /1 view of a log with at most one sighting per frame: (obs (T, 2) NaN where none,
+    beacon (T,) -1 where none)."""
+    import numpy as np
+
+    assert len(np.unique(tr.sighting_frame)) == tr.n_sightings, "several sightings in one frame"
+    obs = np.full((tr.n_frames, 2), np.nan)
+    beacon = np.full(tr.n_frames, -1)
+    obs[tr.sighting_frame] = tr.sighting_value
+    beacon[tr.sighting_frame] = tr.sighting_landmark
+    return obs, beacon

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from aibo.cli import main
-from aibo_gym import trajectory
+from aibo_core import trajectory
 
 
 def aibo(*args: str) -> subprocess.CompletedProcess:

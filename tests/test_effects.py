@@ -14,11 +14,11 @@ def test_height_bias_shifts_heights_by_exactly_its_offset():
     base = collect(None, 3000, seed=7)
     biased = collect({"effects": {"height_bias": {"offset_px": 2.5}}}, 3000, seed=7)
     np.testing.assert_array_equal(base.pose, biased.pose)
-    np.testing.assert_array_equal(base.beacon, biased.beacon)
-    seen = base.beacon >= 0
-    assert seen.sum() > 500
-    np.testing.assert_allclose(biased.obs[seen, 0] - base.obs[seen, 0], 2.5, atol=1e-12)
-    np.testing.assert_array_equal(biased.obs[seen, 1], base.obs[seen, 1])
+    np.testing.assert_array_equal(base.sighting_frame, biased.sighting_frame)
+    np.testing.assert_array_equal(base.sighting_landmark, biased.sighting_landmark)
+    assert base.n_sightings > 500
+    np.testing.assert_allclose(biased.sighting_value[:, 0] - base.sighting_value[:, 0], 2.5, atol=1e-12)
+    np.testing.assert_array_equal(biased.sighting_value[:, 1], base.sighting_value[:, 1])
     assert biased.truth["effects"] == {"height_bias": {"offset_px": 2.5}}
     assert base.truth["effects"] == {}
 
@@ -63,7 +63,6 @@ def test_a_new_effect_plugs_in_by_name():
     try:
         base = collect(None, 2000, seed=1)
         mirrored = collect({"effects": {"test_mirror": {}}}, 2000, seed=1)
-        seen = base.beacon >= 0
-        np.testing.assert_allclose(mirrored.obs[seen, 1], -base.obs[seen, 1], atol=1e-12)
+        np.testing.assert_allclose(mirrored.sighting_value[:, 1], -base.sighting_value[:, 1], atol=1e-12)
     finally:
         EFFECTS.pop("test_mirror")

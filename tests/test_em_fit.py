@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aibo_gym.trajectory import blind
+from aibo_core.trajectory import blind
 from learners.em.fit import EMOptions
 from learners.em.learner import EMDivergedError, EMLearner
 from learners.em.params import SensorModel, paper_start

@@ -14,13 +14,14 @@ from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import aibo_gym
-from aibo_gym.actions import A_TURN, B_DIRECTION, action_index, attempted_velocities
+from aibo_core.actions import A_TURN, B_DIRECTION, action_index, attempted_velocities
 from aibo_gym.collect import collect
 from aibo_gym.config import default_config, make_config
 from aibo_gym.envs import AiboBeaconsEnv
 from aibo_gym.policies import RandomBalancedPolicy
 from aibo_gym.robot import nominal_velocities, true_velocities
-from aibo_gym.trajectory import save
+from aibo_core.trajectory import save
+from tests._logs import frame_view
 
 
 # ---------------------------------------------------------------- checkers and registration
@@ -153,7 +154,7 @@ def test_collect_equals_stepping_through_gym_make():
         heights.append(np.nan if info["sighting"] is None else info["sighting"]["height"])
     np.testing.assert_array_equal(tr.actions, actions)
     np.testing.assert_array_equal(tr.pose, np.array(poses))
-    np.testing.assert_array_equal(tr.obs[:, 0], np.array(heights))
+    np.testing.assert_array_equal(frame_view(tr)[0][:, 0], np.array(heights))
 
 
 # ---------------------------------------------------------------- actions and action model

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from learners.em import action_mstep as am
-from learners.em import geometry as geo
+from aibo_core import geometry as geo
 from learners.em import sensor_mstep as sms
 from learners.em.data import Batch
 from learners.em.params import ActionModel, InitialState, Params, SensorModel

@@ -88,16 +88,16 @@ def test_head_pan():
 
 def test_env_sightings_match_true_geometry_without_noise():
     tr = collect(EXACT, 3000, seed=0)
-    seen = np.flatnonzero(tr.beacon >= 0)
+    seen = tr.sighting_frame
     assert len(seen) > 1000
     pose = tr.pose[seen + 1]  # sighting of frame t is of pose t+1
-    b = tr.beacons[tr.beacon[seen]]
+    b = tr.landmarks[tr.sighting_landmark]
     d = np.hypot(b[:, 0] - pose[:, 0], b[:, 1] - pose[:, 1])
     bearing = np.arctan2(b[:, 1] - pose[:, 1], b[:, 0] - pose[:, 0]) - pose[:, 2]
-    np.testing.assert_allclose(tr.obs[seen, 0], 57000.0 / d, rtol=1e-9)
-    np.testing.assert_allclose(np.angle(np.exp(1j * (tr.obs[seen, 1] - bearing))), 0.0, atol=1e-9)
+    np.testing.assert_allclose(tr.sighting_value[:, 0], 57000.0 / d, rtol=1e-9)
+    np.testing.assert_allclose(np.angle(np.exp(1j * (tr.sighting_value[:, 1] - bearing))), 0.0, atol=1e-9)
     assert np.all((d >= 1275) & (d <= 4175))
-    off = np.angle(np.exp(1j * (tr.obs[seen, 1] - tr.head_pan[seen])))
+    off = np.angle(np.exp(1j * (tr.sighting_value[:, 1] - tr.head_pan[seen])))
     assert np.all(np.abs(off) <= 0.99 / 2 + 1e-9)
     np.testing.assert_allclose(tr.head_pan, 1.4 * np.sin(2 * np.pi * (np.arange(1, 3001) / 30) / 3.0), atol=1e-12)
 
@@ -105,13 +105,13 @@ def test_env_sightings_match_true_geometry_without_noise():
 @pytest.mark.parametrize("preset, sh, sa", [("paper-sim", 1.0, 0.5), ("aibo", 1.59, 0.0267)])
 def test_noise_presets(preset, sh, sa):
     tr = collect({"noise": preset}, 12000, seed=1)
-    seen = np.flatnonzero(tr.beacon >= 0)
+    seen = tr.sighting_frame
     pose = tr.pose[seen + 1]
-    b = tr.beacons[tr.beacon[seen]]
+    b = tr.landmarks[tr.sighting_landmark]
     d = np.hypot(b[:, 0] - pose[:, 0], b[:, 1] - pose[:, 1])
     bearing = np.arctan2(b[:, 1] - pose[:, 1], b[:, 0] - pose[:, 0]) - pose[:, 2]
-    rh = tr.obs[seen, 0] - 57000.0 / d
-    ra = np.angle(np.exp(1j * (tr.obs[seen, 1] - bearing)))
+    rh = tr.sighting_value[:, 0] - 57000.0 / d
+    ra = np.angle(np.exp(1j * (tr.sighting_value[:, 1] - bearing)))
     assert np.std(rh) == pytest.approx(sh, rel=0.05)
     assert np.std(ra) == pytest.approx(sa, rel=0.06)  # wrapping barely matters at 0.5 rad
     assert abs(np.mean(rh)) < 0.05 * sh
@@ -126,6 +126,7 @@ def test_detect_prob_fraction():
     tr = collect({"detect_prob": 0.5}, 6000, seed=3)
     full = collect({"detect_prob": 1.0}, 6000, seed=3)
     assert np.array_equal(tr.pose, full.pose)  # detection does not change the random stream
-    visible = full.beacon >= 0
-    assert np.all(tr.beacon[~visible] == -1)
-    assert np.mean(tr.beacon[visible] >= 0) == pytest.approx(0.5, abs=0.03)
+    visible = np.isin(np.arange(6000), full.sighting_frame)
+    seen = np.isin(np.arange(6000), tr.sighting_frame)
+    assert not np.any(seen & ~visible)
+    assert np.mean(seen[visible]) == pytest.approx(0.5, abs=0.03)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from learners.em import geometry as geo
+from aibo_core import geometry as geo
 from learners.em import smoother as sm
 from learners.em.data import Batch
 from learners.em.params import ActionModel, InitialState, Params, SensorModel

@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from aibo_gym import trajectory
-from aibo_gym.trajectory import atomic_write
+from aibo_core import trajectory
+from aibo_core.atomic import atomic_write
 
 SIZES = (2_700, 27_000, 270_000, 1_000_000)
 QUICK_SIZES = (2_700, 9_000)

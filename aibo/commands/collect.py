@@ -6,7 +6,7 @@ import sys
 import time
 
 from aibo.cli import CLIError
-from aibo_gym import trajectory
+from aibo_core import trajectory
 
 
 def run(args) -> int:
@@ -28,7 +28,7 @@ def run(args) -> int:
     if args.blind:
         tr = trajectory.blind(tr)
     trajectory.save(tr, args.out)
-    seen = (tr.beacon >= 0).mean()
+    seen = (trajectory.sightings_per_frame(tr) > 0).mean()
     print(f"wrote {args.out}: {tr.n_frames} frames ({tr.n_frames * tr.dt / 60:.1f} min), "
           f"{seen:.0%} with a sighting, {tr.n_frames / seconds:,.0f} frames/s"
           + (f"; figure {args.plot}" if args.plot else ""))

@@ -8,7 +8,7 @@ import numpy as np
 
 from aibo.cli import CLIError
 from aibo.report import Progress, error_table
-from aibo_gym import trajectory
+from aibo_core import trajectory
 from learners import model_file
 from learners.base import LearnResult, get_learner
 from learners.em.fit import EMOptions

@@ -12,8 +12,8 @@ from pathlib import Path
 
 from aibo.commands.learn import write_plots
 from aibo.report import Progress, error_table
-from aibo_gym import trajectory
-from aibo_gym.trajectory import atomic_write
+from aibo_core import trajectory
+from aibo_core.atomic import atomic_write
 from learners import model_file
 from learners.em.fit import EMOptions
 from learners.em.learner import EMLearner

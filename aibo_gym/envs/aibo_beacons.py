@@ -9,7 +9,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from ..actions import N_ACTIONS, attempted_velocities
+from aibo_core.actions import N_ACTIONS, attempted_velocities
 from ..camera import Camera, head_pan
 from ..config import START_MARGIN_MM, make_config, sensor_sigmas
 from ..effects import build_effects

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import geometry
+from aibo_core import geometry
 from .data import Batch
 from .params import ActionModel, Params
 from .posterior import Posterior

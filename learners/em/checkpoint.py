@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aibo_gym.trajectory import atomic_write
+from aibo_core.atomic import atomic_write
 from learners.em.data import Batch
 from learners.em.fit import EMState
 from learners.em.params import ActionModel, InitialState, Params, SensorModel

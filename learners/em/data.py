@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from aibo_gym.trajectory import Trajectory
+from aibo_core.trajectory import Trajectory
 
 
 @dataclass
@@ -56,13 +56,15 @@ def make_batch(logs: list[Trajectory]) -> Batch:
         raise ValueError(f"all logs must share one dt, got {sorted(dts)}")
     lengths = [tr.n_frames for tr in logs]
     frame_start = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
-    beacon_xy = []
+    beacon_xy, obs = [], []
     for tr in logs:
         xy = np.full((tr.n_frames, 2), np.nan)
-        seen = tr.beacon >= 0
-        xy[seen] = tr.beacons[tr.beacon[seen]]
+        z = np.full((tr.n_frames, 2), np.nan)
+        xy[tr.sighting_frame] = tr.landmarks[tr.sighting_landmark]
+        z[tr.sighting_frame] = tr.sighting_value
         beacon_xy.append(xy)
-    obs = np.concatenate([tr.obs for tr in logs]).astype(np.float64)
+        obs.append(z)
+    obs = np.concatenate(obs)
     return Batch(
         actions=np.concatenate([tr.actions for tr in logs]).astype(np.int64),
         obs=obs,

@@ -7,7 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from aibo_gym.trajectory import Trajectory
+from aibo_core.trajectory import Trajectory
 from learners.base import IterationRecord, LearnResult, ProgressFn
 from learners.em import checkpoint
 from learners.em.data import Batch, make_batch
@@ -27,6 +27,17 @@ def off_field_fraction(mu: np.ndarray, field: np.ndarray, margin: float = OFF_FI
     """Share of poses (x, y in mm) further than ``margin`` outside the field rectangle."""
     half = np.asarray(field, float) / 2 + margin
     return float(np.mean((np.abs(mu[:, 0]) > half[0]) | (np.abs(mu[:, 1]) > half[1])))
+
+
+def plausible_area(tr: Trajectory) -> tuple[np.ndarray, np.ndarray]:
+    """(centre, size) in mm of the rectangle a log's poses should stay in: the field when the log
+    has one; otherwise the landmarks' bounding box grown on every side by half its larger side
+    (real logs carry no field; the landmarks are what the robot walks among)."""
+    if tr.field is not None:
+        return np.zeros(2), np.asarray(tr.field, float)
+    lo, hi = tr.landmarks.min(axis=0), tr.landmarks.max(axis=0)
+    grow = max(float((hi - lo).max()), 1000.0)
+    return (lo + hi) / 2, hi - lo + grow
 
 
 class EMLearner:
@@ -99,8 +110,11 @@ class EMLearner:
 
     def _check(self, batch: Batch, best: Params, logs: list[Trajectory]) -> float:
         post = e_step(best, batch, self.options.estep)
-        frac = max(off_field_fraction(post.mu_gamma[a:b], tr.field)
-                   for tr, a, b in zip(logs, batch.pose_start[:-1], batch.pose_start[1:]))
+        fracs = []
+        for tr, a, b in zip(logs, batch.pose_start[:-1], batch.pose_start[1:]):
+            centre, size = plausible_area(tr)
+            fracs.append(off_field_fraction(post.mu_gamma[a:b, :2] - centre, size))
+        frac = max(fracs)
         if self.check_field and frac > MAX_OFF_FIELD:
             raise EMDivergedError(
                 f"EM converged to a world that does not fit the field: {frac:.0%} of smoothed poses lie more "

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import geometry
+from aibo_core import geometry
 from .data import Batch
 from .params import Params, SensorModel
 from .posterior import Posterior

@@ -29,7 +29,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from . import geometry
+from aibo_core import geometry
 from .data import Batch
 from .params import Params
 from .posterior import Posterior

@@ -1,0 +1,10 @@
+"""aibo_core: the NumPy-only foundation shared by the simulator and the learners.
+
+- ``trajectory``: the log format ``aibo-trajectory/2`` (``/1`` read and converted) and its I/O;
+- ``npzfile``: strict ``.npz`` reading (headers checked before any data is read);
+- ``atomic``: atomic file writes;
+- ``geometry``: angle wrapping, the motion and observation functions with their Jacobians;
+- ``actions``: the paper's table of 40 walk actions.
+
+It imports neither gymnasium, numba, the simulator (``aibo_gym``) nor the learners.
+"""
