@@ -1,0 +1,75 @@
+"""The model "lowered" to per-frame and per-sighting arrays: everything inference sees.
+
+Model components (``learners.model``) write these arrays in NumPy; the E-step (reference and
+compiled) and the M-step statistics read only these, so a new effect or a continuous command never
+touches a kernel. Units: displacements per frame (mm, mm, rad); sizes in the log's unit (px or mm).
+
+Motion of frame i (pose s -> s'):   s' = s + R(theta) disp[i] + offset[i] + w,
+                                    w ~ N(0, cov_scale[i] R(theta) cov R(theta)^T).
+Sighting j (of the end pose s'):    size    = size_scale[j] f(d) + size_offset[j] + e1,
+                                    bearing = wrap(atan2(dy, dx) - theta + bearing_offset[j]) + e2,
+    e1 ~ N(0, sigma_size^2 size_var_factor[j]), e2 ~ N(0, sigma_bearing^2), d the distance (mm) to
+    the landmark, f(d) = sum_k coef[k] x^k with x = d (``basis == BASIS_POWER``) or x = 1/d
+    (``basis == BASIS_INVERSE``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+BASIS_POWER = 0  # f(d) = sum_k coef[k] d^k   (the paper's cubic: degree 3)
+BASIS_INVERSE = 1  # f(d) = sum_k coef[k] d^-k  (pinhole-like: c0 + c1/d + c2/d^2)
+
+
+@dataclass
+class Lowered:
+    """Per-frame (N rows), per-sighting (S rows) and per-log (L rows) arrays of one model on one Batch."""
+
+    disp: np.ndarray  # (N, 3) robot-frame mean displacement (mm, mm, rad per frame)
+    offset: np.ndarray  # (N, 3) world-frame offset added after the rotation (mm, mm, rad per frame)
+    cov: np.ndarray  # (3, 3) motion covariance Sigma_A (robot frame, per frame)
+    cov_scale: np.ndarray  # (N,) per-frame scale of cov
+    basis: int  # BASIS_POWER or BASIS_INVERSE
+    coef: np.ndarray  # (m,) sensor curve coefficients in that basis
+    sigma_size: float  # size noise std (px or mm) at size_var_factor 1
+    sigma_bearing: float  # bearing noise std (rad)
+    size_scale: np.ndarray  # (S,) multiplies f(d)
+    size_offset: np.ndarray  # (S,) added to the size (px or mm)
+    size_var_factor: np.ndarray  # (S,) multiplies sigma_size^2
+    bearing_offset: np.ndarray  # (S,) added to the predicted bearing (rad)
+    init_mean: np.ndarray  # (L, 3) first pose mean per log (mm, mm, rad)
+    init_cov: np.ndarray  # (L, 3, 3)
+
+    @staticmethod
+    def plain(disp: np.ndarray, cov: np.ndarray, basis: int, coef: np.ndarray, sigma_size: float,
+              sigma_bearing: float, init_mean: np.ndarray, init_cov: np.ndarray, n_sightings: int) -> "Lowered":
+        """The arrays with no effect: zero offsets, unit scales."""
+        n = len(disp)
+        return Lowered(
+            disp=np.ascontiguousarray(disp, dtype=float), offset=np.zeros((n, 3)),
+            cov=np.asarray(cov, dtype=float), cov_scale=np.ones(n), basis=int(basis),
+            coef=np.asarray(coef, dtype=float), sigma_size=float(sigma_size), sigma_bearing=float(sigma_bearing),
+            size_scale=np.ones(n_sightings), size_offset=np.zeros(n_sightings),
+            size_var_factor=np.ones(n_sightings), bearing_offset=np.zeros(n_sightings),
+            init_mean=np.asarray(init_mean, dtype=float).reshape(-1, 3),
+            init_cov=np.asarray(init_cov, dtype=float).reshape(-1, 3, 3),
+        )
+
+    def curve(self, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(f(d), f'(d)) for distances d (mm): the size curve and its derivative."""
+        return curve(self.basis, self.coef, d)
+
+
+def curve(basis: int, coef: np.ndarray, d) -> tuple[np.ndarray, np.ndarray]:
+    """(f(d), f'(d)) of the sensor curve ``sum_k coef[k] x^k``, x = d or 1/d (see the module docstring)."""
+    d = np.asarray(d, dtype=float)
+    P = np.polynomial.polynomial
+    coef = np.asarray(coef, dtype=float)
+    if basis == BASIS_POWER:
+        return P.polyval(d, coef), P.polyval(d, P.polyder(coef))
+    if basis == BASIS_INVERSE:
+        x = 1.0 / d
+        return P.polyval(x, coef), -P.polyval(x, P.polyder(coef)) * x * x
+    raise ValueError(f"unknown sensor basis {basis}")
