@@ -148,6 +148,8 @@ class AiboBeaconsEnv(gym.Env):
         self.walls = make_walls(cfg)
         self.effects = EffectChain(cfg)
         self.max_sightings = self.effects.max_sightings
+        k = self.max_sightings
+        self._no_sightings = (np.full(k, -1, dtype=np.int64), np.zeros(k), np.zeros(k), np.zeros(k, dtype=bool))
         self.dt = float(cfg["dt"])
         self._disp = (self.velocities * self.dt).tolist()  # per-frame displacement per action
         self._attempted = self.attempted.tolist()
@@ -192,9 +194,7 @@ class AiboBeaconsEnv(gym.Env):
         return obs, info
 
     def step(self, action):
-        if not self.action_space.contains(action):
-            raise ValueError(f"action {action!r}: not in the action space Discrete({N_ACTIONS}) (an integer 0..{N_ACTIONS - 1})")
-        a = int(action)
+        a = self._check_action(action)
         rng = self.np_random
         z = rng.standard_normal(8).tolist()
         u = rng.random(2).tolist()
@@ -253,6 +253,14 @@ class AiboBeaconsEnv(gym.Env):
         hw = 0.5 * self.config["field"][1] - START_MARGIN_MM
         r = self.np_random.uniform([-hl, -hw, -math.pi], [hl, hw, math.pi])
         return float(r[0]), float(r[1]), float(r[2])
+
+    def _check_action(self, action: Any) -> int:
+        """``action`` as an int; ValueError for anything ``action_space.contains`` rejects."""
+        if type(action) is int and 0 <= action < N_ACTIONS:  # the common case, without the space's checks
+            return action
+        if not self.action_space.contains(action):
+            raise ValueError(f"action {action!r}: not in the action space Discrete({N_ACTIONS}) (an integer 0..{N_ACTIONS - 1})")
+        return int(action)
 
     def _frame(self, a: int, pan: float) -> Frame | None:
         """Track the command; the frame context for the effects (None without effects)."""
@@ -319,9 +327,7 @@ class AiboBeaconsEnv(gym.Env):
 
     def _sightings_info(self, sightings: list[Sighting]) -> dict[str, Any]:
         """``info["sightings"]``: fixed-shape arrays of ``max_sightings`` rows and a count."""
-        k = self.max_sightings
-        beacon, height = np.full(k, -1, dtype=np.int64), np.zeros(k)
-        angle, spurious = np.zeros(k), np.zeros(k, dtype=bool)
+        beacon, height, angle, spurious = (a.copy() for a in self._no_sightings)
         for j, s in enumerate(sightings):
             beacon[j], height[j], angle[j], spurious[j] = s.beacon, s.height, s.angle, s.spurious
         return {"count": len(sightings), "beacon": beacon, "height": height, "angle": angle, "spurious": spurious}
