@@ -1,6 +1,9 @@
 """aibo-gym: a simulated Aibo on a beacon field, for learning action and sensor models.
 
-Importing this package registers ``AiboBeacons-v0`` with Gymnasium (idempotently).
+Importing this package registers ``AiboBeacons-v0`` with Gymnasium (idempotently), with
+``max_episode_steps`` = the default config ``max_steps`` (27000), so ``gym.make`` adds a
+``TimeLimit`` and ``env.spec.max_episode_steps`` is set. In processes that do not import this
+package (``SubprocVecEnv`` workers, async vector envs), use the id ``"aibo_gym:AiboBeacons-v0"``.
 The simulator never imports ``learners``.
 """
 
@@ -14,8 +17,14 @@ ENV_ID = "AiboBeacons-v0"
 def _register() -> None:
     from gymnasium.envs.registration import register, registry
 
+    from .config import default_config
+
     if ENV_ID not in registry:
-        register(id=ENV_ID, entry_point="aibo_gym.envs.aibo_beacons:AiboBeaconsEnv")
+        register(
+            id=ENV_ID,
+            entry_point="aibo_gym.envs.aibo_beacons:AiboBeaconsEnv",
+            max_episode_steps=default_config()["max_steps"],
+        )
 
 
 _register()

@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from .robot import wrap_angle
+from .context import Sighting, wrap_angle
 
 
 def head_pan(t: float, amplitude: float, period: float) -> float:
@@ -52,8 +52,8 @@ class Camera:
 
     def sight(
         self, x: float, y: float, theta: float, pan: float, u: float, z_height: float, z_angle: float
-    ) -> tuple[int, float, float, float] | None:
-        """One frame's sighting (index, height px, angle rad, distance mm) or None.
+    ) -> Sighting | None:
+        """One frame's sighting, or None; ``theta`` the heading, ``pan`` the head pan (rad).
 
         ``u`` ~ U(0, 1) decides detection; ``z_height``, ``z_angle`` ~ N(0, 1) are the noises.
         """
@@ -61,6 +61,7 @@ class Camera:
         if seen is None or u >= self.detect_prob:
             return None
         i, d, bearing = seen
-        height = self.height_px_mm / d + self.sigma_height * z_height
+        true_height = self.height_px_mm / d
+        height = true_height + self.sigma_height * z_height
         angle = wrap_angle(bearing + self.sigma_angle * z_angle)
-        return i, height, angle, d
+        return Sighting(i, height, angle, d, bearing, wrap_angle(bearing - pan), true_height)

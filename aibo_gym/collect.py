@@ -14,16 +14,18 @@ from .policies import POLICIES
 from aibo_core.trajectory import Trajectory
 
 
-def truth_of(env: AiboBeaconsEnv) -> dict[str, Any]:
+def truth_of(env: AiboBeaconsEnv, spurious: list[int] | None = None) -> dict[str, Any]:
     """The ground truth of a (reset) env, as recorded in ``meta["truth"]`` (a contract: keep keys).
 
     velocities: 40 x 3 true velocities (mm/s, mm/s, rad/s); motion_noise_std: per-frame
     robot-frame slip std (mm, mm, rad); big_slip_prob; sensor: pinhole model with
     height_px_mm = focal_px * beacon_height_mm (height px = height_px_mm / d mm);
-    sigma_height px; sigma_angle rad; effects: validated effect parameters; start_pose.
+    sigma_height px; sigma_angle rad; effects: validated effect parameters; start_pose;
+    spurious_sightings (only when an enabled effect can create sightings, ``env.max_sightings`` > 1):
+    the indices into the log's sighting arrays of the spurious (false) sightings.
     """
     cfg = env.config
-    return {
+    truth = {
         "velocities": env.velocities.tolist(),
         "motion_noise_std": list(cfg["slip_std"]),
         "big_slip_prob": cfg["big_slip_prob"],
@@ -33,6 +35,22 @@ def truth_of(env: AiboBeaconsEnv) -> dict[str, Any]:
         "effects": copy.deepcopy(cfg["effects"]),
         "start_pose": [float(v) for v in env.start_pose],
     }
+    if env.max_sightings > 1:
+        truth["spurious_sightings"] = [] if spurious is None else [int(i) for i in spurious]
+    return truth
+
+
+def _record_sightings(
+    sightings: dict[str, Any], t: int, frame: list[int], landmark: list[int],
+    value: list[tuple[float, float]], spurious: list[int],
+) -> None:
+    """Append every sighting of frame ``t`` (``info["sightings"]``) to the log's lists, in report order."""
+    for j in range(sightings["count"]):
+        if sightings["spurious"][j]:
+            spurious.append(len(frame))
+        frame.append(t)
+        landmark.append(int(sightings["beacon"][j]))
+        value.append((float(sightings["height"][j]), float(sightings["angle"][j])))
 
 
 def make_policy(policy: str, config: dict[str, Any], seed: int, localizer: str):
@@ -65,6 +83,7 @@ def collect(
     s_frame: list[int] = []
     s_landmark: list[int] = []
     s_value: list[tuple[float, float]] = []
+    s_spurious: list[int] = []
     pan = np.empty(steps)
     pose = np.empty((steps + 1, 3))
     pose[0] = info["pose"]
@@ -78,11 +97,7 @@ def collect(
         a = pol.act(obs, info)
         obs, _, terminated, truncated, info = env.step(a)
         actions[t] = a
-        s = info["sighting"]
-        if s is not None:
-            s_frame.append(t)
-            s_landmark.append(s["beacon"])
-            s_value.append((s["height"], s["angle"]))
+        _record_sightings(info["sightings"], t, s_frame, s_landmark, s_value, s_spurious)
         pan[t] = info["head_pan"]
         pose[t + 1] = info["pose"]
         n = t + 1
@@ -99,7 +114,7 @@ def collect(
         "policy": policy,
         "localizer": localizer,
         "config": copy.deepcopy(env.config),
-        "truth": truth_of(env),
+        "truth": truth_of(env, s_spurious),
     }
     return Trajectory(
         dt=env.dt,

@@ -33,7 +33,8 @@ sigma_angle       None                                rad; overrides the preset 
 walls             "clamp"                             "clamp", "pymunk" or "none"
 robot_radius      150                                 robot body radius for walls="pymunk", mm
 pymunk_substeps   4                                   fixed physics substeps per frame
-effects           {}                                  {name: {param: value}}, see aibo_gym.effects
+effects           {}                                  {name: {param: value}}, see aibo_gym.effects and
+                                                      aibo_gym.catalogue
 reward            "none"                              only "none" (reward 0) for now
 start_pose        [0, 0, 0]                           (x mm, y mm, theta rad) or "random"
 ================  ==================================  ==============================================
@@ -47,7 +48,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .effects import validate_effects
+from .effects import finalize_effects, validate_effects
 
 NOISE_PRESETS: dict[str, dict[str, float]] = {
     "paper-sim": {"sigma_height": 1.0, "sigma_angle": 0.5},  # the paper's simulation
@@ -279,6 +280,7 @@ def make_config(config: dict[str, Any] | None = None) -> dict[str, Any]:
         cfg[key] = copy.deepcopy(value)
     out = {key: CHECKS[key](key, value) for key, value in cfg.items()}
     _cross_checks(out)
+    out["effects"] = finalize_effects(out["effects"], out)
     return out
 
 

@@ -119,9 +119,10 @@ class Renderer:
         img = self.background.copy()
         x, y, th = env.pose
         self._camera_zone(img, x, y, th + env.head_pan)
-        if env.last_sighting is not None:
-            bx, by = env.config["beacons"][env.last_sighting["beacon"]]
-            self._disk(img, bx, by, 170.0, (255, 255, 255), ring=True)
+        for sighting in env.last_sightings:
+            if not sighting.spurious:
+                bx, by = env.config["beacons"][sighting.beacon]
+                self._disk(img, bx, by, 170.0, (255, 255, 255), ring=True)
         if self.trail:
             pts = np.array(self.trail)
             cols = np.round((pts[:, 0] - self.x0) * self.s).astype(int)

@@ -25,6 +25,7 @@ import numpy as np
 
 from aibo_core.actions import attempted_velocities
 from .config import make_config
+from .context import wrap_angle  # noqa: F401  (re-exported: its historical home)
 
 
 def nominal_velocities(nominal_max: Any = (355.0, 420.0, math.pi / 2)) -> np.ndarray:
@@ -62,9 +63,3 @@ def move(x: float, y: float, theta: float, dx: float, dy: float, dtheta: float) 
     """Pose after a robot-frame displacement (mm, mm, rad): pose + R(theta) disp (theta unwrapped)."""
     c, s = math.cos(theta), math.sin(theta)
     return x + c * dx - s * dy, y + s * dx + c * dy, theta + dtheta
-
-
-def wrap_angle(a: float) -> float:
-    """Angle wrapped to (-pi, pi], rad."""
-    r = math.remainder(a, 2.0 * math.pi)
-    return math.pi if r <= -math.pi else r

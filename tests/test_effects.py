@@ -57,8 +57,10 @@ def test_a_new_effect_plugs_in_by_name():
         name = "test_mirror"
         defaults = {"scale": 1.0}
 
-        def sense(self, height, angle, distance, rng):
-            return height, -self.params["scale"] * angle
+        def sense(self, sightings, frame):
+            for s in sightings:
+                s.angle = -self.params["scale"] * s.angle
+            return sightings
 
     try:
         base = collect(None, 2000, seed=1)

@@ -11,7 +11,6 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env as gym_check_env
-from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import aibo_gym
 from aibo_core.actions import A_TURN, B_DIRECTION, action_index, attempted_velocities
@@ -35,6 +34,9 @@ def test_gymnasium_env_checker(walls):
 
 @pytest.mark.parametrize("walls", ["clamp", "pymunk"])
 def test_sb3_env_checker(walls):
+    pytest.importorskip("stable_baselines3", reason="SB3's check_env needs the 'agents' extra")
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
     sb3_check_env(AiboBeaconsEnv({"walls": walls}), warn=True)
 
 
@@ -42,7 +44,7 @@ def test_make_with_module_prefix_and_make_vec():
     env = gym.make("aibo_gym:AiboBeacons-v0")
     obs, info = env.reset(seed=0)
     assert env.observation_space.contains(obs)
-    assert set(info) >= {"pose", "sighting", "head_pan", "action_velocity"}
+    assert set(info) == {"pose", "sightings", "head_pan", "action_velocity", "wall_contact"}
     vec = gym.make_vec("AiboBeacons-v0", num_envs=2, vectorization_mode="sync")
     obs, _ = vec.reset(seed=[1, 2])
     assert obs.shape == (2, 11)
@@ -54,7 +56,7 @@ def test_make_with_module_prefix_and_make_vec():
 def test_step_outputs_and_observation_layout():
     env = gym.make("AiboBeacons-v0", config={"detect_prob": 1.0})
     obs, info = env.reset(seed=3)
-    assert np.all(obs == 0) and info["sighting"] is None
+    assert np.all(obs == 0) and info["sightings"]["count"] == 0
     seen = 0
     for t in range(300):
         obs, reward, term, trunc, info = env.step(t % 40)
@@ -63,16 +65,17 @@ def test_step_outputs_and_observation_layout():
         assert obs[7] == pytest.approx(info["head_pan"], abs=1e-6)
         np.testing.assert_allclose(obs[8:11], attempted_velocities()[t % 40], atol=1e-6)
         assert -math.pi < info["pose"][2] <= math.pi
-        s = info["sighting"]
-        if s is None:
-            assert obs[:7].tolist() == [0.0] * 7
+        s = info["sightings"]
+        assert s["count"] in (0, 1) and s["beacon"].shape == (1,) and not s["spurious"][0]
+        if s["count"] == 0:
+            assert obs[:7].tolist() == [0.0] * 7 and s["beacon"][0] == -1
         else:
             seen += 1
             onehot = np.zeros(4)
-            onehot[s["beacon"]] = 1
+            onehot[s["beacon"][0]] = 1
             np.testing.assert_array_equal(obs[:4], onehot)
-            assert obs[4] == pytest.approx(s["height"], rel=1e-6)
-            assert obs[5] == pytest.approx(s["angle"], abs=1e-6)
+            assert obs[4] == pytest.approx(s["height"][0], rel=1e-6)
+            assert obs[5] == pytest.approx(s["angle"][0], abs=1e-6)
             assert obs[6] == 1.0
     assert seen > 50
 
@@ -82,6 +85,42 @@ def test_truncation_at_max_steps():
     env.reset(seed=0)
     flags = [env.step(0)[3] for _ in range(5)]
     assert flags == [False, False, False, False, True]
+
+
+def test_spec_has_the_time_limit_and_time_aware_observation_works():
+    env = gym.make("AiboBeacons-v0")
+    assert env.spec.max_episode_steps == default_config()["max_steps"] == 27000
+    timed = gym.wrappers.TimeAwareObservation(gym.make("AiboBeacons-v0"))
+    obs, _ = timed.reset(seed=0)
+    assert obs.shape == (12,) and obs[-1] == 0.0
+    for t in range(1, 4):
+        obs = timed.step(16)[0]
+        assert obs[-1] == t and timed.observation_space.contains(obs)
+    # make's max_episode_steps sets the spec and truncates; a shorter config max_steps truncates first
+    short = gym.make("AiboBeacons-v0", max_episode_steps=3)
+    short.reset(seed=0)
+    assert short.spec.max_episode_steps == 3
+    assert [short.step(0)[3] for _ in range(3)] == [False, False, True]
+    shorter = gym.make("AiboBeacons-v0", config={"max_steps": 2}, max_episode_steps=3)
+    shorter.reset(seed=0)
+    assert [shorter.step(0)[3] for _ in range(2)] == [False, True]
+
+
+@pytest.mark.parametrize("action", [1.5, 1.0, -1, 40, np.float64(2.0), "3", np.array([3]), None])
+def test_actions_outside_the_action_space_are_rejected(action):
+    env = gym.make("AiboBeacons-v0")
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"action .*Discrete\(40\)"):
+        env.step(action)
+
+
+@pytest.mark.parametrize("action", [3, np.int64(3), np.int32(3), np.uint8(3), np.array(3)])
+def test_integer_actions_are_accepted(action):
+    env = AiboBeaconsEnv()
+    env.reset(seed=0)
+    reference = AiboBeaconsEnv()
+    reference.reset(seed=0)
+    np.testing.assert_array_equal(env.step(action)[0], reference.step(3)[0])
 
 
 def test_random_start_pose_is_seeded_and_on_field():
@@ -151,7 +190,8 @@ def test_collect_equals_stepping_through_gym_make():
         obs, _, _, _, info = env.step(a)
         actions.append(a)
         poses.append(info["pose"])
-        heights.append(np.nan if info["sighting"] is None else info["sighting"]["height"])
+        s = info["sightings"]
+        heights.append(s["height"][0] if s["count"] else np.nan)
     np.testing.assert_array_equal(tr.actions, actions)
     np.testing.assert_array_equal(tr.pose, np.array(poses))
     np.testing.assert_array_equal(frame_view(tr)[0][:, 0], np.array(heights))

@@ -26,11 +26,19 @@ def polar(d, bearing):
 
 def test_pinhole_height_and_straight_ahead_angle():
     for d in (1300.0, 2000.0, 4100.0):
-        i, h, a, dist = camera([polar(d, 0.0)]).sight(0, 0, 0, 0, 0.0, 0.0, 0.0)
-        assert (i, a) == (0, 0.0)
-        assert h == pytest.approx(57000.0 / d) and dist == pytest.approx(d)
+        s = camera([polar(d, 0.0)]).sight(0, 0, 0, 0, 0.0, 0.0, 0.0)
+        assert (s.beacon, s.angle, s.spurious) == (0, 0.0, False)
+        assert s.height == pytest.approx(57000.0 / d) == s.true_height and s.distance == pytest.approx(d)
     cam = camera([[2000.0, 0.0]], focal_px=100.0, beacon_height_mm=200.0)
-    assert cam.sight(0, 0, 0, 0, 0.0, 0.0, 0.0)[1] == pytest.approx(10.0)
+    assert cam.sight(0, 0, 0, 0, 0.0, 0.0, 0.0).height == pytest.approx(10.0)
+
+
+def test_sighting_truth_fields():
+    cam = Camera(make_config({"beacons": [polar(2000, 0.3)]}), 1.0, 0.1)
+    s = cam.sight(0, 0, 0, 0.5, 0.0, 2.0, -1.0)  # noises: +2 sigma height, -1 sigma angle
+    assert s.height == pytest.approx(57000.0 / 2000 + 2.0) and s.true_height == pytest.approx(57000.0 / 2000)
+    assert s.angle == pytest.approx(0.2) and s.bearing == pytest.approx(0.3)
+    assert s.image_angle == pytest.approx(-0.2)  # the beacon is 0.2 rad right of the image centre
 
 
 def test_outside_fov_not_seen():
@@ -40,8 +48,7 @@ def test_outside_fov_not_seen():
     assert camera([polar(2000, -half - 0.01)]).nearest_visible(0, 0, 0, 0) is None
     assert camera([polar(2000, math.pi)]).nearest_visible(0, 0, 0, 0) is None
     # the head pan moves the field of view; the angle stays relative to the body
-    i, h, a, _ = camera([polar(2000, 1.0)]).sight(0, 0, 0, 0.8, 0.0, 0.0, 0.0)
-    assert a == pytest.approx(1.0)
+    assert camera([polar(2000, 1.0)]).sight(0, 0, 0, 0.8, 0.0, 0.0, 0.0).angle == pytest.approx(1.0)
     assert camera([polar(2000, 1.0)]).nearest_visible(0, 0, 0, 0.4) is None
 
 
@@ -54,24 +61,23 @@ def test_outside_range_not_seen():
 def test_nearest_to_image_centre_is_chosen():
     # beacon 0 is closer in distance but further from the image centre
     cam = camera([polar(1500, 0.3), polar(3500, -0.1), polar(2500, 0.2)])
-    i, h, a, d = cam.sight(0, 0, 0, 0, 0.0, 0.0, 0.0)
-    assert i == 1 and a == pytest.approx(-0.1) and h == pytest.approx(57000 / 3500)
-    i, *_ = cam.sight(0, 0, 0, 0.22, 0.0, 0.0, 0.0)  # pan toward +0.22: beacon 2 (0.2) is nearest
-    assert i == 2
+    s = cam.sight(0, 0, 0, 0, 0.0, 0.0, 0.0)
+    assert s.beacon == 1 and s.angle == pytest.approx(-0.1) and s.height == pytest.approx(57000 / 3500)
+    assert cam.sight(0, 0, 0, 0.22, 0.0, 0.0, 0.0).beacon == 2  # pan toward +0.22: beacon 2 (0.2) is nearest
 
 
 def test_angle_is_ccw_positive_from_body_heading():
     cam = camera([[0.0, 2000.0], [0.0, -2000.0]])
-    i, _, a, _ = cam.sight(0, 0, 0, math.pi / 2, 0.0, 0.0, 0.0)
-    assert i == 0 and a == pytest.approx(math.pi / 2)  # left of the robot: positive
-    i, _, a, _ = cam.sight(0, 0, 0, -math.pi / 2, 0.0, 0.0, 0.0)
-    assert i == 1 and a == pytest.approx(-math.pi / 2)
+    s = cam.sight(0, 0, 0, math.pi / 2, 0.0, 0.0, 0.0)
+    assert s.beacon == 0 and s.angle == pytest.approx(math.pi / 2)  # left of the robot: positive
+    s = cam.sight(0, 0, 0, -math.pi / 2, 0.0, 0.0, 0.0)
+    assert s.beacon == 1 and s.angle == pytest.approx(-math.pi / 2)
     # robot facing +y, beacon to its right (+x): negative angle
     cam = camera([[2000.0, 0.0]])
-    assert cam.sight(0, 0, math.pi / 2, -math.pi / 2, 0.0, 0.0, 0.0)[2] == pytest.approx(-math.pi / 2)
+    assert cam.sight(0, 0, math.pi / 2, -math.pi / 2, 0.0, 0.0, 0.0).angle == pytest.approx(-math.pi / 2)
     # angles are wrapped: beacon behind-left of a robot facing -x
     cam = camera([polar(2000, math.pi - 0.2)])
-    assert cam.sight(0, 0, math.pi - 0.1, 0.0, 0.0, 0.0, 0.0)[2] == pytest.approx(-0.1)
+    assert cam.sight(0, 0, math.pi - 0.1, 0.0, 0.0, 0.0, 0.0).angle == pytest.approx(-0.1)
 
 
 def test_detection_probability_draw():

@@ -12,18 +12,20 @@ from gymnasium import spaces
 from aibo_core.actions import N_ACTIONS, attempted_velocities
 from ..camera import Camera, head_pan
 from ..config import START_MARGIN_MM, make_config, sensor_sigmas
-from ..effects import build_effects
+from ..context import NO_COMMAND, Frame, Motion, Sighting
+from ..effects import EffectChain
 from ..robot import move, true_velocities, wrap_angle
 from ..walls import make_walls
 
 HEIGHT_BOUND_PX = 1000.0  # observation bound for the beacon height; raw values are in info
+WALL_CONTACT_TOL_MM = 1e-6  # the walls moved the robot by more than this: a wall contact
 
 
 class AiboBeaconsEnv(gym.Env):
     """A legged robot with a scanning camera, walking among known beacons (Stronger & Stone, IV).
 
     The robot executes one of 40 walk actions per frame (``dt`` = 1/30 s) and, with its head
-    panning side to side, sees at most one beacon per frame. Its true action model (the actual
+    panning side to side, its camera reports at most one beacon per frame (effects may add more). Its true action model (the actual
     velocity of each action) is hidden; learning it, and the sensor model, from a log is the task.
 
     ## Action space
@@ -53,18 +55,38 @@ class AiboBeaconsEnv(gym.Env):
     The sighting is taken at the end of the frame (after the move). The reset observation has no
     sighting.
 
+    The observation carries the frame's first sighting (row 0 of ``info["sightings"]``).
+
     ## Info
 
-    ``pose``: true pose after the step, ndarray (x mm, y mm, theta rad in (-pi, pi]);
-    ``sighting``: None or ``{"beacon": int, "height": px, "angle": rad}`` (unclipped float64);
-    ``head_pan``: rad; ``action_velocity``: ndarray, the true velocity of the action executed
-    (mm/s, mm/s, rad/s; zeros after reset).
+    Every key has the same type and shape on every step (vector envs stack them; nothing is None):
+
+    ==================  ============================================  ==============================
+    key                 value                                         units
+    ==================  ============================================  ==============================
+    pose                ndarray float64 (3,): true pose after step    mm, mm, rad in (-pi, pi]
+    head_pan            float                                         rad, relative to the body
+    action_velocity     ndarray float64 (3,): true velocity of the    mm/s, mm/s, rad/s
+                        action executed (zeros after reset)
+    wall_contact        bool: the walls changed this frame's move     -
+    sightings           dict of K-row arrays, K = ``max_sightings``   see below
+    ==================  ============================================  ==============================
+
+    ``info["sightings"]``: ``count`` (int, 0..K: rows in use, in report order), ``beacon`` (int64 (K,),
+    -1 in unused rows), ``height`` (float64 (K,), px, unclipped, 0 unused), ``angle`` (float64 (K,),
+    rad from the body heading, 0 unused), ``spurious`` (bool (K,), ground truth: a false sighting).
+    K is fixed per env: 1 without effects that create sightings (``env.max_sightings``).
 
     ## Motion
 
     Robot-frame displacement per frame = v dt + N(0, diag(slip_std^2)) (+ a large slip
-    N(0, diag(big_slip_std^2)) with probability ``big_slip_prob``), then motion effects;
-    new pose = pose + R(theta) disp, then the wall model (``walls``).
+    N(0, diag(big_slip_std^2)) with probability ``big_slip_prob``), then the motion effects;
+    new pose = pose + R(theta) disp + (effects' world-frame offset), then the wall model (``walls``).
+
+    ## Effects
+
+    ``config={"effects": {name: {param: value}}}`` (:mod:`aibo_gym.effects`, catalogue in
+    :mod:`aibo_gym.catalogue`): hooks on the motion and on the sightings, given a frame context.
 
     ## Rewards
 
@@ -81,9 +103,20 @@ class AiboBeaconsEnv(gym.Env):
     * terminated: only with ``walls="none"``, when the robot leaves the field;
     * truncated: after ``max_steps`` frames (default 27000 = 15 min).
 
+    The id is registered with ``max_episode_steps=27000`` (the default ``max_steps``), so
+    ``gym.make`` adds a ``TimeLimit`` and ``env.spec.max_episode_steps`` is set (``TimeAwareObservation``
+    etc. read it). Both limits apply and the earlier ends the episode: the env's own ``max_steps``
+    (so the unwrapped env and ``collect`` stand alone) and the wrapper's. For another episode length
+    through ``gym.make`` pass ``max_episode_steps=N`` (the spec then says N); a config ``max_steps``
+    above it changes nothing there, one below it truncates before the spec's limit.
+
     ## Arguments
 
-    ``gym.make("AiboBeacons-v0", config={...}, render_mode=None | "rgb_array" | "human")``;
+    ``gym.make("aibo_gym:AiboBeacons-v0", config={...}, render_mode=None | "rgb_array" | "human")``;
+    the ``aibo_gym:`` prefix imports the package (and so registers the id) in any process, e.g. the
+    workers of ``SubprocVecEnv`` or ``gym.make_vec(..., vectorization_mode="async")``; plain
+    ``"AiboBeacons-v0"`` works after ``import aibo_gym``. Actions outside ``action_space`` (e.g. 1.5)
+    raise ValueError; Python and NumPy integers are accepted.
     see :mod:`aibo_gym.config` for every key (unknown keys or bad values raise ValueError).
     ``"rgb_array"`` returns a top-down uint8 image; ``"human"`` shows it with matplotlib when a
     display exists, else warns once and shows nothing.
@@ -91,7 +124,11 @@ class AiboBeaconsEnv(gym.Env):
     ## Seeding
 
     Everything random uses ``self.np_random`` from ``reset(seed=...)``: each frame draws exactly
-    8 normals and 2 uniforms, whatever happens. The true action model depends only on ``robot_seed``.
+    8 normals then 2 uniforms, whatever happens: normals 0-2 the slip (x, y, theta), 3-5 the large
+    slip, 6-7 the height and angle noise; uniform 0 decides the large slip, uniform 1 the detection.
+    ``start_pose="random"`` draws 3 uniforms at reset before any frame. Effects never draw from it:
+    each has its own stream (:mod:`aibo_gym.effects`), so enabling one leaves the rest unchanged.
+    The true action model depends only on ``robot_seed``.
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 30}
@@ -104,16 +141,22 @@ class AiboBeaconsEnv(gym.Env):
         cfg = self.config
         self.n_beacons = len(cfg["beacons"])
         self.velocities = true_velocities(cfg)
+        self.velocities.flags.writeable = False  # effects see it through Frame.velocities
         self.attempted = attempted_velocities()
         self.sigma_height, self.sigma_angle = sensor_sigmas(cfg)
         self.camera = Camera(cfg, self.sigma_height, self.sigma_angle)
         self.walls = make_walls(cfg)
-        self.motion_effects, self.sense_effects = build_effects(cfg["effects"])
+        self.effects = EffectChain(cfg)
+        self.max_sightings = self.effects.max_sightings
+        k = self.max_sightings
+        self._no_sightings = (np.full(k, -1, dtype=np.int64), np.zeros(k), np.zeros(k), np.zeros(k, dtype=bool))
         self.dt = float(cfg["dt"])
         self._disp = (self.velocities * self.dt).tolist()  # per-frame displacement per action
         self._attempted = self.attempted.tolist()
         self._slip = list(cfg["slip_std"])
         self._big = list(cfg["big_slip_std"])
+        self._beacons = np.asarray(cfg["beacons"], dtype=float)
+        self._beacons.flags.writeable = False
         self.action_space = spaces.Discrete(N_ACTIONS)
         b = self.n_beacons
         low = np.concatenate([np.zeros(b), [-HEIGHT_BOUND_PX, -np.pi, 0.0, -np.pi, -1.0, -1.0, -1.0]])
@@ -122,22 +165,27 @@ class AiboBeaconsEnv(gym.Env):
         self.pose = (0.0, 0.0, 0.0)
         self.start_pose = [0.0, 0.0, 0.0]
         self.steps = 0
-        self.last_sighting: dict[str, Any] | None = None
+        self.last_sightings: list[Sighting] = []
         self.head_pan = 0.0
+        self._episode = -1  # resets since the last seeded one (effects' streams)
+        self._command, self._previous_command, self._command_start = NO_COMMAND, NO_COMMAND, 0
         self._renderer = None
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
+        self._episode = 0 if seed is not None else self._episode + 1
+        self.effects.reset(max(self.np_random_seed, 0), self._episode)
         x, y, th = self._draw_start()
         x, y = self.walls.reset(x, y)
         self.pose = (x, y, wrap_angle(th))
         self.start_pose = list(self.pose)
         self.steps = 0
         self.head_pan = head_pan(0.0, self.config["pan_amplitude"], self.config["pan_period"])
-        self.last_sighting = None
-        obs = self._observation(None, self.head_pan, None)
-        info = self._info(None, np.zeros(3))
+        self.last_sightings = []
+        self._command, self._previous_command, self._command_start = NO_COMMAND, NO_COMMAND, 0
+        obs = self._observation([], self.head_pan, None)
+        info = self._info([], np.zeros(3), False)
         if self.render_mode is not None:
             self._get_renderer().reset()
             self._renderer.record(self.pose)
@@ -146,26 +194,27 @@ class AiboBeaconsEnv(gym.Env):
         return obs, info
 
     def step(self, action):
-        a = int(action)
-        if not 0 <= a < N_ACTIONS:
-            raise ValueError(f"action {action!r} outside 0..{N_ACTIONS - 1}")
+        a = self._check_action(action)
         rng = self.np_random
         z = rng.standard_normal(8).tolist()
         u = rng.random(2).tolist()
-        x, y, th = self.pose
-        dx, dy, dth = self._displacement(a, z, u[0])
-        nx, ny, nth = move(x, y, th, dx, dy, dth)
-        nx, ny, left = self.walls.move(x, y, nx, ny, self.dt)
-        nth = wrap_angle(nth)
-        self.pose = (nx, ny, nth)
-        self.steps += 1
         cfg = self.config
-        pan = head_pan(self.steps * self.dt, cfg["pan_amplitude"], cfg["pan_period"])
+        pan = head_pan((self.steps + 1) * self.dt, cfg["pan_amplitude"], cfg["pan_period"])
+        frame = self._frame(a, pan)
+        x, y, th = self.pose
+        dx, dy, dth, wx, wy = self._displacement(a, z, u[0], frame)
+        nx, ny, nth = move(x, y, th, dx, dy, dth)
+        if wx or wy:
+            nx, ny = nx + wx, ny + wy
+        cx, cy, left = self.walls.move(x, y, nx, ny, self.dt)
+        contact = abs(cx - nx) + abs(cy - ny) > WALL_CONTACT_TOL_MM
+        self.pose = (cx, cy, wrap_angle(nth))
+        self.steps += 1
         self.head_pan = pan
-        sighting = self._sense(nx, ny, nth, pan, u[1], z[6], z[7])
-        self.last_sighting = sighting
-        obs = self._observation(sighting, pan, a)
-        info = self._info(sighting, self.velocities[a].copy())
+        sightings = self._sense(u[1], z[6], z[7], frame, contact)
+        self.last_sightings = sightings
+        obs = self._observation(sightings, pan, a)
+        info = self._info(sightings, self.velocities[a].copy(), contact)
         truncated = self.steps >= cfg["max_steps"]
         if self._renderer is not None:
             self._renderer.record(self.pose)
@@ -205,49 +254,80 @@ class AiboBeaconsEnv(gym.Env):
         r = self.np_random.uniform([-hl, -hw, -math.pi], [hl, hw, math.pi])
         return float(r[0]), float(r[1]), float(r[2])
 
-    def _displacement(self, a: int, z: list[float], u_big: float) -> tuple[float, float, float]:
-        """Robot-frame displacement of one frame (mm, mm, rad), noise and motion effects included."""
+    def _check_action(self, action: Any) -> int:
+        """``action`` as an int; ValueError for anything ``action_space.contains`` rejects."""
+        if type(action) is int and 0 <= action < N_ACTIONS:  # the common case, without the space's checks
+            return action
+        if not self.action_space.contains(action):
+            raise ValueError(f"action {action!r}: not in the action space Discrete({N_ACTIONS}) (an integer 0..{N_ACTIONS - 1})")
+        return int(action)
+
+    def _frame(self, a: int, pan: float) -> Frame | None:
+        """Track the command; the frame context for the effects (None without effects)."""
+        if a != self._command:
+            self._previous_command, self._command, self._command_start = self._command, a, self.steps
+        if not self.effects.effects:
+            return None
+        field = self.config["field"]
+        return Frame(
+            index=self.steps, time=self.steps * self.dt, dt=self.dt, command=a,
+            previous_command=self._previous_command, command_start=self._command_start,
+            pose_before=self.pose, pose_after=None, head_pan=pan, wall_contact=False,
+            field=(field[0], field[1]), beacons=self._beacons, velocities=self.velocities,
+        )
+
+    def _displacement(self, a: int, z: list[float], u_big: float, frame: Frame | None):
+        """Robot-frame displacement (mm, mm, rad) and world-frame offset (mm, mm) of one frame."""
         vx, vy, vth = self._disp[a]
         s = self._slip
         dx, dy, dth = vx + s[0] * z[0], vy + s[1] * z[1], vth + s[2] * z[2]
         if u_big < self.config["big_slip_prob"]:
             b = self._big
             dx, dy, dth = dx + b[0] * z[3], dy + b[1] * z[4], dth + b[2] * z[5]
-        if self.motion_effects:
-            disp = np.array([dx, dy, dth])
-            pose = np.array(self.pose)
-            for effect in self.motion_effects:
-                disp = effect.motion(disp, a, pose, self.np_random)
-            dx, dy, dth = (float(v) for v in disp)
-        return dx, dy, dth
+        if frame is None or not self.effects.motion_effects:
+            return dx, dy, dth, 0.0, 0.0
+        m = self.effects.move(Motion(np.array([dx, dy, dth]), self.velocities[a].copy()), frame)
+        return float(m.disp[0]), float(m.disp[1]), float(m.disp[2]), float(m.world[0]), float(m.world[1])
 
-    def _sense(self, x: float, y: float, th: float, pan: float, u: float, zh: float, za: float):
-        s = self.camera.sight(x, y, th, pan, u, zh, za)
-        if s is None:
-            return None
-        i, height, angle, d = s
-        for effect in self.sense_effects:
-            height, angle = effect.sense(height, angle, d, self.np_random)
-            angle = wrap_angle(float(angle))
-        return {"beacon": i, "height": float(height), "angle": float(angle)}
+    def _sense(self, u: float, zh: float, za: float, frame: Frame | None, contact: bool) -> list[Sighting]:
+        """The sightings of the frame's end pose: the camera's, then the sensing effects."""
+        x, y, th = self.pose
+        s = self.camera.sight(x, y, th, self.head_pan, u, zh, za)
+        sightings = [] if s is None else [s]
+        if frame is None:
+            return sightings
+        frame.pose_after, frame.wall_contact = self.pose, contact
+        sightings = self.effects.sense(sightings, frame)
+        for s in sightings:
+            s.angle = wrap_angle(float(s.angle))
+        return sightings
 
-    def _observation(self, sighting: dict[str, Any] | None, pan: float, action: int | None) -> np.ndarray:
+    def _observation(self, sightings: list[Sighting], pan: float, action: int | None) -> np.ndarray:
         b = self.n_beacons
         obs = np.zeros(b + 7, dtype=np.float32)
-        if sighting is not None:
-            obs[sighting["beacon"]] = 1.0
-            obs[b] = min(max(sighting["height"], -HEIGHT_BOUND_PX), HEIGHT_BOUND_PX)
-            obs[b + 1] = sighting["angle"]
+        if sightings:
+            s = sightings[0]
+            obs[s.beacon] = 1.0
+            obs[b] = min(max(s.height, -HEIGHT_BOUND_PX), HEIGHT_BOUND_PX)
+            obs[b + 1] = s.angle
             obs[b + 2] = 1.0
         obs[b + 3] = pan
         if action is not None:
             obs[b + 4 : b + 7] = self._attempted[action]
         return obs
 
-    def _info(self, sighting: dict[str, Any] | None, velocity: np.ndarray) -> dict[str, Any]:
+    def _info(self, sightings: list[Sighting], velocity: np.ndarray, contact: bool) -> dict[str, Any]:
         return {
             "pose": np.array(self.pose),
-            "sighting": sighting,
             "head_pan": self.head_pan,
             "action_velocity": velocity,
+            "wall_contact": bool(contact),
+            "sightings": self._sightings_info(sightings),
         }
+
+    def _sightings_info(self, sightings: list[Sighting]) -> dict[str, Any]:
+        """``info["sightings"]``: fixed-shape arrays of ``max_sightings`` rows and a count."""
+        beacon, height, angle, spurious = (a.copy() for a in self._no_sightings)
+        for j, s in enumerate(sightings):
+            beacon[j], height[j], angle[j], spurious[j] = s.beacon, s.height, s.angle, s.spurious
+        return {"count": len(sightings), "beacon": beacon, "height": height, "angle": angle, "spurious": spurious}

@@ -1,0 +1,254 @@
+"""Simulator twins of the effect catalogue (issue 9). Names and parameter names are a contract.
+
+Every effect is neutral at its defaults (an exact no-op: the same seed gives the same numbers as
+without it). The residual signature of an effect is the variable on which the residuals of a model
+that lacks it depend; a learner-side twin looks for it there.
+
+=========================  ================================================  ==============================
+name                       parameters (units)                                residual signature
+=========================  ================================================  ==============================
+actuation_lag              lag_s (s)                                         time since the last command change
+floor_drift                drift_mm_s ([x, y] mm/s, world frame)             world heading
+velocity_fade              fade_per_min (fraction of speed lost per minute)  elapsed time
+wall_contact               (none)                                            distance to the walls
+angle_bias                 bias_rad (rad)                                    none: a constant bearing offset
+beacon_height_scale        scale (one factor per beacon)                     beacon identity
+off_center_shrink          k (height x (1 - k phi^2), phi rad in the image)  position in the image
+distance_dependent_noise   exponent (sigma ~ (d / 2500 mm)^exponent)         distance (the height variance)
+false_sightings            rate (fraction of sightings, <= 0.5)              none: outliers anywhere in the image
+=========================  ================================================  ==============================
+
+Physical effects on heights (height scale, off-centre shrink, distance noise) act on the beacon's
+true height and leave the pixel noise additive; they leave spurious sightings alone. Camera
+calibration effects (``height_bias``, ``angle_bias``) act on every sighting.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from typing import Any
+
+import numpy as np
+
+from .context import NO_COMMAND, Frame, Motion, Sighting, wrap_angle
+from .effects import Effect, register_effect
+
+REFERENCE_DISTANCE_MM = 2500.0  # distance_dependent_noise: the noise equals the preset sigma here
+
+
+@register_effect
+class ActuationLag(Effect):
+    """A new command takes effect only after ``lag_s`` (s); the previous one continues until then.
+
+    The executed command of frame t is the one commanded at frame t - n, n = ceil(lag_s / dt)
+    frames (the robot stands still for the first n frames after reset). Slip noise is unchanged.
+    Residual signature: time since the last command change.
+    """
+
+    name = "actuation_lag"
+    defaults = {"lag_s": 0.0}
+    bounds = {"lag_s": (0.0, math.inf)}
+
+    def reset(self, rng: np.random.Generator) -> None:
+        super().reset(rng)
+        self.history: deque[int] = deque()
+
+    def motion(self, m: Motion, frame: Frame) -> Motion:
+        n = math.ceil(self.params["lag_s"] / frame.dt - 1e-9)
+        if n == 0:
+            return m
+        self.history.append(frame.command)
+        executed = self.history.popleft() if len(self.history) > n else NO_COMMAND
+        if executed != frame.command:
+            v = np.zeros(3) if executed == NO_COMMAND else frame.velocities[executed]
+            m.set_velocity(v, frame.dt)
+        return m
+
+
+@register_effect
+class FloorDrift(Effect):
+    """A sloped or grained floor: a constant world-frame drift ``drift_mm_s`` ([x, y] mm/s).
+
+    Each frame the pose moves by ``drift_mm_s * dt`` in the world frame, whatever the command.
+    Residual signature: world heading (the robot-frame residual turns with the heading).
+    """
+
+    name = "floor_drift"
+    defaults = {"drift_mm_s": [0.0, 0.0]}
+
+    def motion(self, m: Motion, frame: Frame) -> Motion:
+        drift = self.params["drift_mm_s"]
+        if drift[0] or drift[1]:
+            m.world = m.world + np.asarray(drift) * frame.dt
+        return m
+
+
+@register_effect
+class VelocityFade(Effect):
+    """A draining battery: every walking velocity shrinks linearly with elapsed time.
+
+    velocity x max(0, 1 - fade_per_min * t / 60 s), t = ``frame.time`` (s at the frame's start);
+    ``fade_per_min`` is the fraction of speed lost per minute. Slip noise is unchanged.
+    Residual signature: elapsed time.
+    """
+
+    name = "velocity_fade"
+    defaults = {"fade_per_min": 0.0}
+    bounds = {"fade_per_min": (0.0, math.inf)}
+
+    def motion(self, m: Motion, frame: Frame) -> Motion:
+        factor = max(0.0, 1.0 - self.params["fade_per_min"] * frame.time / 60.0)
+        if factor != 1.0:
+            m.set_velocity(m.velocity * factor, frame.dt)
+        return m
+
+
+@register_effect
+class WallContact(Effect):
+    """The walls stop the robot where a wall-free motion model would let it pass.
+
+    In the simulator this is the wall model itself (``walls="clamp"`` or ``"pymunk"``), so the
+    effect has no hook; enabling it with ``walls="none"`` is an error. ``Frame.wall_contact`` and
+    ``info["wall_contact"]`` tell when the walls acted. Residual signature: distance to the walls.
+    """
+
+    name = "wall_contact"
+    defaults: dict[str, Any] = {}
+
+    @classmethod
+    def finalize(cls, params: dict[str, Any], cfg: dict[str, Any]) -> dict[str, Any]:
+        if cfg["walls"] == "none":
+            raise ValueError("effect 'wall_contact': needs config key 'walls' 'clamp' or 'pymunk', got 'none'")
+        return super().finalize(params, cfg)
+
+
+@register_effect
+class AngleBias(Effect):
+    """A mis-mounted camera: a constant offset ``bias_rad`` (rad) in every observed bearing.
+
+    Residual signature: none (a constant mean of the bearing residuals).
+    """
+
+    name = "angle_bias"
+    defaults = {"bias_rad": 0.0}
+    bounds = {"bias_rad": (-math.pi, math.pi)}
+
+    def sense(self, sightings: list[Sighting], frame: Frame) -> list[Sighting]:
+        bias = self.params["bias_rad"]
+        if bias:
+            for s in sightings:
+                s.angle = wrap_angle(s.angle + bias)
+        return sightings
+
+
+@register_effect
+class BeaconHeightScale(Effect):
+    """Beacons differ in physical height: beacon i casts ``scale[i]`` times the nominal height.
+
+    ``scale``: one factor per beacon (default all 1). Residual signature: beacon identity.
+    """
+
+    name = "beacon_height_scale"
+    defaults = {"scale": []}
+    per_beacon = {"scale": 1.0}
+    bounds = {"scale": (1e-6, math.inf)}
+
+    def sense(self, sightings: list[Sighting], frame: Frame) -> list[Sighting]:
+        for s in sightings:
+            f = self.params["scale"][s.beacon]
+            if f != 1.0 and not s.spurious:
+                s.height = s.height + (f - 1.0) * s.true_height
+                s.true_height = f * s.true_height
+        return sightings
+
+
+@register_effect
+class OffCenterShrink(Effect):
+    """Lens falloff: the apparent height shrinks away from the image centre.
+
+    height = true height x (1 - k phi^2) + noise, phi = ``Sighting.image_angle`` = bearing - head pan
+    (rad). ``k`` >= 0 with 1 - k (fov/2)^2 > 0. Residual signature: position in the image.
+    """
+
+    name = "off_center_shrink"
+    defaults = {"k": 0.0}
+    bounds = {"k": (0.0, math.inf)}
+
+    @classmethod
+    def finalize(cls, params: dict[str, Any], cfg: dict[str, Any]) -> dict[str, Any]:
+        limit = 1.0 / (0.5 * cfg["fov"]) ** 2
+        if params["k"] >= limit:
+            raise ValueError(f"effect 'off_center_shrink': parameter 'k' must be < {limit:.4g} "
+                             f"(1 / (fov/2)^2, heights stay positive), got {params['k']!r}")
+        return super().finalize(params, cfg)
+
+    def sense(self, sightings: list[Sighting], frame: Frame) -> list[Sighting]:
+        k = self.params["k"]
+        for s in sightings:
+            if k and not s.spurious:
+                shrink = k * s.image_angle * s.image_angle
+                s.height = s.height - shrink * s.true_height
+                s.true_height = (1.0 - shrink) * s.true_height
+        return sightings
+
+
+@register_effect
+class DistanceDependentNoise(Effect):
+    """Height noise grows with distance: sigma_height(d) = sigma_height * (d / 2500 mm)^exponent.
+
+    The preset (or configured) ``sigma_height`` holds at the reference distance 2500 mm
+    (``REFERENCE_DISTANCE_MM``); the height's deviation from the true height is scaled, so no
+    extra random draw is made. Residual signature: distance (the variance of the height residuals).
+    """
+
+    name = "distance_dependent_noise"
+    defaults = {"exponent": 0.0}
+
+    def sense(self, sightings: list[Sighting], frame: Frame) -> list[Sighting]:
+        e = self.params["exponent"]
+        for s in sightings:
+            if e and not s.spurious:
+                gain = (s.distance / REFERENCE_DISTANCE_MM) ** e
+                s.height = s.true_height + (s.height - s.true_height) * gain
+        return sightings
+
+
+@register_effect
+class FalseSightings(Effect):
+    """A fraction ``rate`` of all sightings are spurious (no beacon there), ``rate`` <= 0.5.
+
+    Each real sighting is joined, with probability rate / (1 - rate), by one spurious sighting in
+    the same frame, before or after it at random: a beacon label uniform over the beacons, a
+    position uniform in the image (``|image_angle|`` <= fov/2 around the head pan) and a height
+    uniform over the heights of a beacon within ``range_mm`` (focal * H / d, with the nearer end at
+    least a tenth of the farther). All from the effect's own stream. Residual signature: none (outliers anywhere in the image).
+    """
+
+    name = "false_sightings"
+    defaults = {"rate": 0.0}
+    bounds = {"rate": (0.0, 0.5)}
+
+    def capacity(self, n: int) -> int:
+        return 2 * n
+
+    def sense(self, sightings: list[Sighting], frame: Frame) -> list[Sighting]:
+        rate = self.params["rate"]
+        if not rate:
+            return sightings
+        out: list[Sighting] = []
+        for s in sightings:
+            out.append(s)
+            if not s.spurious and self.rng.random() < rate / (1.0 - rate):
+                out.insert(len(out) - int(self.rng.random() < 0.5), self._spurious(frame))
+        return out
+
+    def _spurious(self, frame: Frame) -> Sighting:
+        cfg = self.cfg
+        k = cfg["focal_px"] * cfg["beacon_height_mm"]
+        rmin, rmax = cfg["range_mm"]
+        beacon = int(self.rng.integers(len(cfg["beacons"])))
+        image_angle = float(self.rng.uniform(-0.5 * cfg["fov"], 0.5 * cfg["fov"]))
+        height = float(self.rng.uniform(k / rmax, k / max(rmin, 0.1 * rmax)))
+        bearing = wrap_angle(frame.head_pan + image_angle)
+        return Sighting(beacon, height, bearing, math.nan, bearing, image_angle, math.nan, spurious=True)

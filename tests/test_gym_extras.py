@@ -1,0 +1,61 @@
+"""Torch stays out of the core: the tests run without torch and Stable-Baselines3."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+tomllib = pytest.importorskip("tomllib", reason="reading pyproject.toml needs Python 3.11+")
+
+ROOT = Path(__file__).resolve().parents[1]
+
+BLOCKED_RUN = """
+import sys, importlib.abc
+class Block(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] in ("torch", "stable_baselines3"):
+            raise ModuleNotFoundError(f"No module named {name!r} (blocked)")
+        return None
+sys.meta_path.insert(0, Block())
+import pytest
+sys.exit(pytest.main(sys.argv[1:]))
+"""
+
+
+def _section(readme: str, title: str) -> str:
+    start = readme.index(f"## {title}")
+    return readme[start : readme.index("\n## ", start + 1)]
+
+
+def test_extras_keep_sb3_out_of_the_test_extra():
+    extras = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"]
+    assert not any(re.match(r"(stable[-_]baselines3|torch)\b", d) for d in extras["test"])
+    assert any(d.startswith("stable-baselines3") for d in extras["agents"])
+
+
+def test_quick_start_does_not_name_torch_and_ci_installs_both_extras():
+    readme = (ROOT / "README.md").read_text()
+    assert "torch" not in _section(readme, "Quick start").lower()
+    env_section = _section(readme, "The environment")
+    assert "pip install torch --index-url https://download.pytorch.org/whl/cpu" in env_section
+    assert 'pip install -e ".[agents]"' in env_section and "torch==2.13.0" in env_section
+    ci = (ROOT / ".ci" / "run").read_text()
+    assert ci.index("torch==2.13.0") < ci.index('-e ".[test,agents]"') < ci.index("python -m pytest")
+
+
+def test_every_test_module_imports_without_torch_and_sb3():
+    """Collect the whole suite (and run the SB3 tests: they must skip) with both packages blocked."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"}
+    args = ["-q", "-p", "no:cacheprovider", "-rs", "tests/test_gym_sb3.py", "tests/test_env.py::test_sb3_env_checker"]
+    collect = subprocess.run([sys.executable, "-c", BLOCKED_RUN, "--collect-only", "-q", "-p", "no:cacheprovider",
+                              "tests"], cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    assert collect.returncode == 0, collect.stdout[-3000:]
+    run = subprocess.run([sys.executable, "-c", BLOCKED_RUN, *args], cwd=ROOT, env=env,
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stdout[-3000:]
+    assert run.stdout.count("SKIPPED [") == 2 and "'agents' extra" in run.stdout  # SB3 tests skip, clearly
