@@ -15,7 +15,7 @@ from learners.em.kernels.algebra import (
     _BAD_ACTION, _OK, _TWO_PI, _ZERO33, _add, _f64, _fin3, _fin33, _fpft, _inv, _inv_i_plus, _ld3, _ld33, _mm,
     _mv, _raise, _scratch, _st3, _st33, _sym,
 )
-from learners.em.kernels.fasttrig import _atan2, _cos_sin_all
+from learners.inference.kernels.fasttrig import _atan2, _cos_sin_all
 from learners.em.params import Params
 from learners.em.posterior import Posterior
 
