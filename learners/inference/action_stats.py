@@ -1,18 +1,20 @@
-"""Action M-step (paper section III-A; docs/em-math.md "Action M-step"), vectorized over frames.
+"""Action M-step statistics (paper section III-A; docs/em-math.md "Action M-step"), vectorized.
 
 For frame i (start pose p, end pose p+1) the joint f_alpha,delta over (s_p, s_{p+1}) is
 alpha_p (mean mu_alpha,p, cov P_alpha,p) times delta_i (information Y_delta, y_delta),
-block-diagonal (eq. (6)). The relative displacement d(s_p, s_{p+1}) = R(-theta_p)(s_{p+1} - s_p)
-is linearized at the SMOOTHED means (named choice: mu_delta may not exist):
-d ~ L1 s_p + L2 s_{p+1} + m. Its belief under f_alpha,delta, in information form:
+block-diagonal (eq. (6)). The robot-frame displacement NET OF the world offset,
+d(s_p, s_{p+1}) = R(-theta_p)(s_{p+1} - s_p - offset_i) (heading: theta_{p+1} - theta_p - offset_i[2]),
+is d_0(s_p, s'') of s'' = s_{p+1} - offset_i, whose delta factor is (Y_delta, y_delta - Y_delta offset_i).
+It is linearized at the SMOOTHED means (named choice: mu_delta may not exist):
+d ~ L1 s_p + L2 s'' + m. Its belief under f_alpha,delta, in information form:
 
-    Y' = L2^-T Y_delta L2^-1, y' = L2^-T y_delta    (L2 = R3(-theta) is a rotation: L2^-1 = L2^T)
+    Y' = L2^-T Y_delta L2^-1, y' = L2^-T y''         (L2 = R3(-theta) is a rotation: L2^-1 = L2^T)
     P1 = L1 P_alpha,p L1^T, m1 = L1 mu_alpha,p + m
     Y_d = (I + Y' P1)^-1 Y', y_d = (I + Y' P1)^-1 (y' + Y' m1)
 
-multiplied by the previous action model N(mu_hat_A, Sigma_hat_A) (footnote 3):
+multiplied by the frame's prior N(disp_i, cov_scale_i Sigma_A) (footnote 3, with the prior per frame):
 
-    C*_i = (Sigma_hat_A^-1 + Y_d)^-1, mu*_i = mu_hat_A + C*_i (y_d - Y_d mu_hat_A).
+    C*_i = ((cov_scale_i Sigma_A)^-1 + Y_d)^-1, mu*_i = disp_i + C*_i (y_d - Y_d disp_i).
 
 Units: displacements per frame (mm, mm, rad) in the frame of the start pose.
 """
@@ -22,8 +24,8 @@ from __future__ import annotations
 import numpy as np
 
 from aibo_core import geometry
-from .data import Batch
-from .params import ActionModel, Params
+from .batch import Batch
+from .lowered import Lowered
 from .posterior import Posterior
 
 
@@ -35,20 +37,23 @@ def _sym(A):
     return 0.5 * (A + np.swapaxes(A, -1, -2))
 
 
-def action_statistics(params: Params, batch: Batch, post: Posterior):
-    """Per-frame posterior of the relative displacement times the previous action model.
+def action_statistics(lo: Lowered, batch: Batch, post: Posterior, need_cov: bool):
+    """Per-frame posterior mean of the displacement (net of the offset) times the frame's prior.
 
-    Returns ``mu_star`` (N, 3) and ``C_star`` (N, 3, 3) (mm, mm, rad per frame).
+    Returns ``mu_star`` (N, 3) (mm, mm, rad per frame) and, if ``need_cov``, ``C_sum`` (3, 3) =
+    sum_i C*_i / cov_scale_i (else None).
     """
     p = batch.frame_to_pose
-    mu_hat = np.asarray(params.action.disp, dtype=float)[batch.actions]  # (N, 3)
-    sig_hat = np.asarray(params.action.cov, dtype=float)
+    mu_hat = np.asarray(lo.disp, dtype=float)  # (N, 3)
+    off = np.asarray(lo.offset, dtype=float)
+    scale = np.asarray(lo.cov_scale, dtype=float)
+    sig_inv = np.linalg.inv(np.asarray(lo.cov, dtype=float))
     eye = np.eye(3)
 
-    L1, L2, m = geometry.rel_disp_jac(post.mu_gamma[p], post.mu_gamma[p + 1])
+    L1, L2, m = geometry.rel_disp_jac(post.mu_gamma[p], post.mu_gamma[p + 1] - off)
     L2T = np.swapaxes(L2, 1, 2)  # = L2^-1 (rotation)
     Yp = _sym(L2 @ post.info_delta @ L2T)  # L2^-T Y_delta L2^-1
-    yp = _mv(L2, post.vec_delta)  # L2^-T y_delta
+    yp = _mv(L2, post.vec_delta - _mv(post.info_delta, off))  # L2^-T y''
     P1 = L1 @ post.cov_alpha[p] @ np.swapaxes(L1, 1, 2)
     m1 = _mv(L1, post.mu_alpha[p]) + m
     M = eye + Yp @ P1
@@ -57,30 +62,16 @@ def action_statistics(params: Params, batch: Batch, post: Posterior):
     Yd = _sym(X[:, :, :3])
     yd = X[:, :, 3]
 
-    C_star = _sym(np.linalg.inv(np.linalg.inv(sig_hat) + Yd))
+    C_star = _sym(np.linalg.inv(sig_inv / scale[:, None, None] + Yd))
     mu_star = mu_hat + _mv(C_star, yd - _mv(Yd, mu_hat))
     if not (np.isfinite(mu_star).all() and np.isfinite(C_star).all()):
         bad = int(np.flatnonzero(~np.isfinite(mu_star).all(axis=1) | ~np.isfinite(C_star).all(axis=(1, 2)))[0])
         raise FloatingPointError(f"action M-step: non-finite statistics at batch frame {bad}")
-    return mu_star, C_star
+    C_sum = (C_star / scale[:, None, None]).sum(axis=0) if need_cov else None
+    return mu_star, C_sum
 
 
-def update_action_model(params: Params, batch: Batch, post: Posterior, learn_noise: bool = False) -> ActionModel:
-    """New ActionModel: disp[A] = mean of mu*_i over frames with action A (eq. (5)); actions
-    never executed keep their previous value. With ``learn_noise`` (a deviation, off in the
-    paper) Sigma_A = mean over all frames of C*_i + (mu*_i - mu_A(i))(mu*_i - mu_A(i))^T with
-    the NEW means mu_A; otherwise Sigma_A is kept.
-    """
-    mu_star, C_star = action_statistics(params, batch, post)
-    old = np.asarray(params.action.disp, dtype=float)
-    n_act = old.shape[0]
-    counts = np.bincount(batch.actions, minlength=n_act).astype(float)
-    sums = np.stack([np.bincount(batch.actions, weights=mu_star[:, k], minlength=n_act) for k in range(3)], axis=1)
-    disp = old.copy()
-    seen = counts > 0
-    disp[seen] = sums[seen] / counts[seen, None]
-    cov = np.array(params.action.cov, dtype=float)
-    if learn_noise and len(mu_star):
-        r = mu_star - disp[batch.actions]
-        cov = _sym(C_star.mean(axis=0) + r.T @ r / len(r))
-    return ActionModel(disp, cov, params.action.dt)
+def residual_cov(mu_star: np.ndarray, pred: np.ndarray, cov_scale: np.ndarray) -> np.ndarray:
+    """sum_i (mu*_i - pred_i)(mu*_i - pred_i)^T / cov_scale_i, (3, 3) (mm^2, mm rad, rad^2 per frame^2)."""
+    r = np.asarray(mu_star, dtype=float) - np.asarray(pred, dtype=float)
+    return (r / np.asarray(cov_scale, dtype=float)[:, None]).T @ r

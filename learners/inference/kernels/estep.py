@@ -21,12 +21,12 @@ from numba import njit
 
 from learners.inference.batch import Batch
 from learners.inference.kernels.algebra import (
-    _BAD_BACKWARD, _BAD_FORWARD, _BAD_GAMMA, _LOG_2PI, _OK, _ZERO3, _ZERO33, _f64, _fin3, _fin33, _inv_i_plus,
+    _add, _BAD_BACKWARD, _BAD_FORWARD, _BAD_GAMMA, _LOG_2PI, _OK, _ZERO3, _ZERO33, _f64, _fin3, _fin33, _inv_i_plus,
     _ld3, _ld33, _mm, _mv, _raise, _scratch, _st3, _st33, _sym, _wrap,
 )
 from learners.inference.kernels.fasttrig import _cos_sin
 from learners.inference.kernels.structured import (
-    _FMA, _combine_fast, _fpft_sym, _ftyf_sym, _observe_h, _rot_sym, _scaled_add, _symm,
+    _FMA, _combine_fast, _fpft_sym, _ftyf_sym, _observe_h, _rot_sym, _scale_sym, _symm,
 )
 from learners.inference.lowered import BASIS_INVERSE, BASIS_POWER, Lowered
 from learners.inference.posterior import Posterior
@@ -88,10 +88,7 @@ def _backward_log(k, f0, ps, n, disp, offset, cov_scale, sig, mu_alpha, cov_alph
         fb = c * ux - s * uy
         th = mu_alpha[p, 2]
         cv = (fb - fa * th + offset[i, 0], -fa - fb * th + offset[i, 1], disp[i, 2] + offset[i, 2])
-        YQ = _mm(Y, _rot_sym(c, s, sig))  # Y_delta R Sigma_A R^T; Q = cov_scale of that
-        w = cov_scale[i]
-        B = _inv_i_plus((w * YQ[0], w * YQ[1], w * YQ[2], w * YQ[3], w * YQ[4], w * YQ[5], w * YQ[6], w * YQ[7],
-                         w * YQ[8]))  # (I + Y_delta Q)^-1  # fmt: skip
+        B = _inv_i_plus(_mm(Y, _rot_sym(c, s, _scale_sym(cov_scale[i], sig))))  # (I + Y_delta Q)^-1
         # Ytil = B Y_delta (symmetric: upper triangle), ytil = B y_delta
         Yt = _symm(B[0] * Y[0] + B[1] * Y[3] + B[2] * Y[6], B[0] * Y[1] + B[1] * Y[4] + B[2] * Y[7],
                    B[0] * Y[2] + B[1] * Y[5] + B[2] * Y[8], B[3] * Y[1] + B[4] * Y[4] + B[5] * Y[7],
@@ -149,7 +146,7 @@ def _smooth_kernel(
             fb = c * ux - s * uy  # F[1,2]
             mu = (mu[0] + c * ux - s * uy + offset[i, 0], mu[1] + s * ux + c * uy + offset[i, 1],
                   mu[2] + disp[i, 2] + offset[i, 2])  # fmt: skip
-            P = _scaled_add(_fpft_sym(P, fa, fb), cov_scale[i], _rot_sym(c, s, sig))  # P- = F P F^T + Q
+            P = _add(_fpft_sym(P, fa, fb), _rot_sym(c, s, _scale_sym(cov_scale[i], sig)))  # P- = F P F^T + Q
             for q in range(sight_start[i], sight_start[i + 1]):
                 mahal2[q] = np.nan
                 if not used[q]:

@@ -34,9 +34,10 @@ def _rot_sym(c, s, A):
 
 
 @njit(cache=True, fastmath=_FMA)
-def _scaled_add(P, w, Q):
-    """P + w Q for symmetric P, Q (upper triangle, mirrored); w = 1 gives P + Q exactly."""
-    return _symm(P[0] + w * Q[0], P[1] + w * Q[1], P[2] + w * Q[2], P[4] + w * Q[4], P[5] + w * Q[5], P[8] + w * Q[8])
+def _scale_sym(w, A):
+    """w A for symmetric A (upper triangle, mirrored). Scaling Sigma_A before the rotation keeps the
+    rotation's FMA contractions those of the unscaled kernel (w = 1 gives A exactly)."""
+    return _symm(w * A[0], w * A[1], w * A[2], w * A[4], w * A[5], w * A[8])
 
 
 @njit(cache=True, fastmath=_FMA)
