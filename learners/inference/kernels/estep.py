@@ -49,7 +49,8 @@ from learners.inference.posterior import Posterior
 # - the E-step's own functions may fuse a * b + c into one FMA (``_FMA``): fewer instructions on
 #   the forward pass's serial chain, rounding-level differences only;
 # - offsets (+ 0.0) and scales (* 1.0) are exact, so a model without effects gives the numbers of
-#   the table-indexed kernel it replaces, bit for bit.
+#   the table-indexed kernel it replaces: the forward pass (alpha, mahal2, loglik) bit for bit; the
+#   backward pass and gamma bit for bit with a diagonal Sigma_A, to ~1e-13 relative otherwise.
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FMA, inline="never")
@@ -58,8 +59,10 @@ def _backward_log(k, f0, ps, n, disp, offset, cov_scale, sig, mu_alpha, cov_alph
     """Backward information filter + combination of log k (frames f0 .. f0+n-1, poses ps .. ps+n).
     info_delta / vec_delta hold the observation information parked by the forward pass; they are
     overwritten with Y_delta, y_delta. Returns (status, frame index within the log).
-    (A separate, never-inlined function: its code, hence its FMA contractions, do not depend on
-    the forward pass, and are those of the table-indexed kernel it replaces.)"""
+    (A separate, never-inlined function, so that its FMA contractions do not depend on the forward
+    pass. With a diagonal Sigma_A it gives the table-indexed kernel's numbers bit for bit; with a
+    non-diagonal one they differ by rounding, ~1e-13 relative, as LLVM fuses some products of
+    R Sigma_A R^T differently than in the old single kernel.)"""
     Y = _ZERO33
     y = _ZERO3
     for j in range(n - 1, -1, -1):
