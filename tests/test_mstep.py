@@ -1,135 +1,92 @@
-"""Tests of the action and sensor M-steps (learners.em.action_mstep, learners.em.sensor_mstep)."""
+"""Tests of the M-step statistics (learners.inference.action_stats, learners.inference.sensor_stats)
+on exact and smoothed posteriors of synthetic logs (tests/_synth.py)."""
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from learners.em import action_mstep as am
 from aibo_core import geometry as geo
-from learners.em import sensor_mstep as sms
-from learners.em.data import Batch
-from learners.em.params import ActionModel, InitialState, Params, SensorModel
-from learners.em.posterior import Posterior
-from learners.em.smoother import smooth
-
-DT = 1.0 / 30.0
-STD = np.array([5.0, 5.0, 0.03])
-BEACONS = np.array([[-2700.0, -1800.0], [2700.0, -1800.0], [-2700.0, 1800.0], [2700.0, 1800.0]])
-PINHOLE = lambda d: 57000.0 / d  # noqa: E731
+from learners.inference import action_stats as ast
+from learners.inference import sensor_stats as sst
+from learners.inference.lowered import BASIS_INVERSE, BASIS_POWER, curve
+from learners.inference.posterior import Posterior
+from learners.inference.reference import smooth
+from tests._synth import pinhole_coef, simulate, true_table
 
 
-def pinhole_cubic(sh=1.5, sa=0.05) -> SensorModel:
-    d = np.linspace(1000.0, 4500.0, 200)
-    return SensorModel(np.polynomial.Polynomial.fit(d, PINHOLE(d), 3).convert().coef, sh, sa)
-
-
-def simulate(rng, T, vel, seg=30, p_seen=0.6, sensor=None, height=None):
-    """Random trajectory: (actions, obs, beacon_xy, seen, true poses). ``height(d)`` overrides f."""
-    sensor = sensor or pinhole_cubic()
-    actions = np.repeat(rng.integers(0, len(vel), T // seg + 1), seg)[:T].astype(np.int64)
-    pose = np.zeros((T + 1, 3))
-    noise = rng.standard_normal((T, 3)) * STD
-    for i in range(T):
-        pose[i + 1] = geo.motion(pose[i], vel[actions[i]] * DT + noise[i])[0]
-    b = rng.integers(0, len(BEACONS), T)
-    h, _, d = geo.observe(pose[1:], BEACONS[b], sensor)
-    seen = (rng.random(T) < p_seen) & (d >= 1275.0) & (d <= 4175.0)  # the recognizable range
-    if height is not None:
-        h[:, 0] = height(d)
-    obs = h + rng.standard_normal((T, 2)) * [sensor.sigma_height, sensor.sigma_angle]
-    obs[:, 1] = geo.wrap(obs[:, 1])
-    obs[~seen] = np.nan
-    return actions, obs, np.where(seen[:, None], BEACONS[b], np.nan), seen, pose
-
-
-def batch_of(log) -> Batch:
-    return Batch(log[0], log[1], log[2], log[3].copy(), np.array([0, len(log[0])], np.int64), DT)
-
-
-def params_of(disp, sensor=None) -> Params:
-    init = InitialState(np.zeros(3), np.diag([30.0**2, 30.0**2, 0.05**2]))
-    return Params(ActionModel(np.asarray(disp, float), np.diag(STD**2), DT), sensor or pinhole_cubic(), (init,))
-
-
-def exact_posterior(pose, eps=1e-9) -> Posterior:
+def exact_posterior(batch, pose, eps=1e-9) -> Posterior:
     """Posterior concentrated on the true poses (covariance eps I, delta information I/eps)."""
-    P, N = len(pose), len(pose) - 1
+    P, N = len(pose), batch.n_frames
     cov = np.broadcast_to(eps * np.eye(3), (P, 3, 3)).copy()
-    return Posterior(pose.copy(), cov, pose.copy(), cov.copy(),
-                     np.broadcast_to(np.eye(3) / eps, (N, 3, 3)).copy(), pose[1:] / eps, 0.0, np.full(N, np.nan))
+    end = batch.frame_to_pose + 1
+    return Posterior(pose.copy(), cov, pose.copy(), cov.copy(), np.broadcast_to(np.eye(3) / eps, (N, 3, 3)).copy(),
+                     pose[end] / eps, 0.0, np.full(batch.n_sightings, np.nan))  # fmt: skip
 
 
-def per_action_true_mean(log, n_act):
-    d = geo.rel_disp(log[4][:-1], log[4][1:])
-    return np.array([d[log[0] == a].mean(axis=0) if (log[0] == a).any() else np.full(3, np.nan) for a in range(n_act)])
+def true_net_disp(batch, lo, pose):
+    """R(-theta_i)(s_{i+1} - s_i - offset_i) of the true poses, (N, 3)."""
+    p = batch.frame_to_pose
+    return geo.rel_disp(pose[p], pose[p + 1] - lo.offset)
 
 
 @pytest.fixture(scope="module")
 def synth():
     rng = np.random.default_rng(21)
-    n_act = 12
-    vel = np.column_stack([rng.uniform(-250, 250, n_act), rng.uniform(-250, 250, n_act), rng.uniform(-1.5, 1.5, n_act)])
-    log = simulate(rng, 6000, vel)
-    return vel, log
+    table = true_table(rng)
+    batch, lo, pose = simulate(rng, [3000, 1500], table, effects=True, max_per_frame=2)
+    return table, batch, lo, pose
 
 
-# --------------------------------------------------------------------------- action M-step
+# --------------------------------------------------------------------------- action statistics
 
 
-def test_action_mstep_exact_posterior_recovers_true_displacements(synth):
-    vel, log = synth
-    n_act = 40
-    start = np.zeros((n_act, 3))
-    start[30] = [1.0, 2.0, 0.3]  # never executed: must be kept
-    params = params_of(start)
-    post = exact_posterior(log[4])
-    new = am.update_action_model(params, batch_of(log), post)
-    truth = per_action_true_mean(log, n_act)
-    ex = np.unique(log[0])
-    np.testing.assert_allclose(new.disp[ex], truth[ex], rtol=1e-5, atol=1e-6)
-    np.testing.assert_array_equal(new.disp[30], start[30])
-    np.testing.assert_array_equal(new.cov, params.action.cov)
-    assert new.dt == DT
-    # learned noise: the spread of the true displacements about their per-action means
-    new2 = am.update_action_model(params, batch_of(log), post, learn_noise=True)
-    np.testing.assert_allclose(np.sqrt(np.diag(new2.cov)), STD, rtol=0.05)
-    np.testing.assert_array_equal(new2.disp, new.disp)
+def test_action_statistics_exact_posterior_recover_the_displacements(synth):
+    table, batch, lo, pose = synth
+    start = replace(lo, disp=np.zeros_like(lo.disp))  # the prior hardly matters with an exact posterior
+    mu, C_sum = ast.action_statistics(start, batch, exact_posterior(batch, pose), True)
+    np.testing.assert_allclose(mu, true_net_disp(batch, lo, pose), rtol=1e-4, atol=2e-5)  # prior pull ~ eps / var
+    assert np.abs(C_sum).max() < 1e-6 * batch.n_frames * lo.cov.max()  # vs the prior's n Sigma
+    # the noise: residuals about the true table, normalized by the cov scales
+    R = ast.residual_cov(mu, table[batch.actions], lo.cov_scale) / batch.n_frames
+    np.testing.assert_allclose(np.sqrt(np.diag(R)), np.sqrt(np.diag(lo.cov)), rtol=0.05)
+    # ignoring the offsets biases the statistics by R(-theta) offset
+    mu0, _ = ast.action_statistics(replace(start, offset=np.zeros_like(lo.offset)), batch,
+                                   exact_posterior(batch, pose), False)  # fmt: skip
+    assert np.abs(mu0 - mu).max() > 1.0
 
 
-def test_action_statistics_prior_pull():
-    """With an uninformative delta the statistics fall back to the previous action model."""
-    rng = np.random.default_rng(0)
-    vel = np.array([[100.0, 50.0, 0.5]])
-    log = simulate(rng, 60, vel)
-    post = exact_posterior(log[4], eps=1e-9)
+def test_action_statistics_prior_pull(synth):
+    """With an uninformative delta the statistics are the prior: mu* = disp, C*_i = cov_scale_i Sigma."""
+    table, batch, lo, pose = synth
+    post = exact_posterior(batch, pose)
     post.info_delta[:] = 0.0
     post.vec_delta[:] = 0.0
-    params = params_of(vel * DT)
-    mu, C = am.action_statistics(params, batch_of(log), post)
-    np.testing.assert_allclose(mu, np.broadcast_to(vel * DT, mu.shape), atol=1e-12)
-    np.testing.assert_allclose(C, np.broadcast_to(params.action.cov, C.shape), rtol=1e-12)
+    mu, C_sum = ast.action_statistics(lo, batch, post, True)
+    np.testing.assert_allclose(mu, lo.disp, atol=1e-12)
+    np.testing.assert_allclose(C_sum, batch.n_frames * lo.cov, rtol=1e-12)
 
 
-def test_action_mstep_from_smoother_stays_near_truth(synth):
-    vel, log = synth
-    n_act = len(vel)
-    params = params_of(vel * DT)
-    batch = batch_of(log)
-    post = smooth(params, batch)
-    new = am.update_action_model(params, batch, post)
-    truth = per_action_true_mean(log, n_act)  # what the true poses say
-    err = np.abs(new.disp - vel * DT) / DT  # mm/s, mm/s, rad/s vs the true velocities
-    yard = np.abs(truth - vel * DT) / DT
-    rms = np.sqrt((err**2).mean(axis=0))
-    rms_yard = np.sqrt((yard**2).mean(axis=0))
-    assert (rms < np.maximum(3.0 * rms_yard, [10.0, 10.0, 0.03])).all(), (rms, rms_yard)
-    # and far closer to the truth than a zero-velocity start is
-    zero = am.update_action_model(params_of(np.zeros((n_act, 3))), batch, post)
-    assert np.sqrt(((zero.disp - vel * DT) ** 2).mean()) > np.sqrt(((new.disp - vel * DT) ** 2).mean())
+def test_action_statistics_from_smoother_stay_near_truth(synth):
+    table, batch, lo, pose = synth
+    post = smooth(lo, batch)
+    mu, _ = ast.action_statistics(lo, batch, post, False)
+    truth = true_net_disp(batch, lo, pose)
+    n_act = len(table)
+    means = np.array([mu[batch.actions == a].mean(0) if (batch.actions == a).any() else table[a] for a in range(n_act)])
+    yard = np.array([truth[batch.actions == a].mean(0) if (batch.actions == a).any() else table[a]
+                     for a in range(n_act)])  # fmt: skip
+    err = np.sqrt(((means - table) ** 2).mean(0))
+    err_yard = np.sqrt(((yard - table) ** 2).mean(0))
+    assert (err < np.maximum(3.0 * err_yard, [0.3, 0.3, 1e-3])).all(), (err, err_yard)
+    # and far closer to the truth than the zero-displacement prior
+    mu0, _ = ast.action_statistics(replace(lo, disp=np.zeros_like(lo.disp)), batch, post, False)
+    assert np.sqrt(((mu0 - truth) ** 2).mean()) > np.sqrt(((mu - truth) ** 2).mean())
 
 
-# --------------------------------------------------------------------------- sensor M-step
+# --------------------------------------------------------------------------- sensor curve
 
 
 def test_fit_polynomial_well_conditioned_exact_cubic():
@@ -137,96 +94,71 @@ def test_fit_polynomial_well_conditioned_exact_cubic():
     d = np.linspace(1275.0, 4175.0, 300)
     h = np.polynomial.polynomial.polyval(d, coef)
     w = np.full_like(d, 0.7)
-    got = sms.fit_polynomial(d, h, w, 3)
-    np.testing.assert_allclose(got, coef, rtol=1e-8)
-    # lower degree is zero-padded, weights matter
-    lin = sms.fit_polynomial(d, 3.0 + 0.01 * d, w, 3)
+    np.testing.assert_allclose(sst.fit_polynomial(d, h, w, 3), coef, rtol=1e-8)
+    lin = sst.fit_polynomial(d, 3.0 + 0.01 * d, w, 3)  # lower degree is zero-padded
     np.testing.assert_allclose(lin, [3.0, 0.01, 0.0, 0.0], atol=1e-9)
     h2 = h.copy()
     h2[::2] += 5.0
-    w2 = np.where(np.arange(len(d)) % 2 == 0, 1e-12, 1.0)
-    np.testing.assert_allclose(sms.fit_polynomial(d, h2, w2, 3), coef, rtol=1e-6)
+    w2 = np.where(np.arange(len(d)) % 2 == 0, 1e-12, 1.0)  # weights matter
+    np.testing.assert_allclose(sst.fit_polynomial(d, h2, w2, 3), coef, rtol=1e-6)
+    # a column scale s: fits s f(d) = h
+    s = np.linspace(0.8, 1.2, len(d))
+    np.testing.assert_allclose(sst.fit_polynomial(d, s * h, w, 3, scale=s), coef, rtol=1e-8)
     # weights act on SQUARED residuals: weight k == the point repeated k times
     rng = np.random.default_rng(0)
     dr = rng.uniform(1275.0, 4175.0, 40)
     hr = 57000.0 / dr + rng.standard_normal(40)
     k = rng.integers(1, 5, 40)
-    np.testing.assert_allclose(sms.fit_polynomial(dr, hr, k.astype(float), 3),
-                               sms.fit_polynomial(np.repeat(dr, k), np.repeat(hr, k), np.ones(k.sum()), 3), rtol=1e-8)
+    np.testing.assert_allclose(sst.fit_polynomial(dr, hr, k.astype(float), 3),
+                               sst.fit_polynomial(np.repeat(dr, k), np.repeat(hr, k), np.ones(k.sum()), 3), rtol=1e-8)
 
 
-def _sensor_case(rng, T, sensor, height=None):
-    vel = np.column_stack([rng.uniform(-250, 250, 12), rng.uniform(-250, 250, 12), rng.uniform(-1.5, 1.5, 12)])
-    log = simulate(rng, T, vel, sensor=sensor, height=height)
-    return params_of(vel * DT, PAPER_LIKE), batch_of(log), exact_posterior(log[4], eps=1e-10), log
+@pytest.mark.parametrize("basis", [BASIS_POWER, BASIS_INVERSE])
+@pytest.mark.parametrize("effects", [False, True])
+def test_sensor_curve_recovers_truth(basis, effects):
+    rng = np.random.default_rng(4 + basis + 2 * effects)
+    batch, lo, pose = simulate(rng, [8000], true_table(rng), basis=basis, effects=effects, max_per_frame=2,
+                               sigma=(1.2, 0.04))  # fmt: skip
+    post = exact_posterior(batch, pose, eps=1e-10)
+    start = replace(lo, coef=np.array([40.0, -0.005]), sigma_size=10.0, sigma_bearing=0.2)  # does not matter
+    coef, s_s, s_b, rng_d = sst.update_sensor_curve(start, batch, post, np.random.default_rng(0))
+    d = np.linspace(*rng_d, 50)
+    assert np.abs(curve(basis, coef, d)[0] - curve(basis, pinhole_coef(basis), d)[0]).max() < 0.5
+    assert s_s == pytest.approx(1.2, rel=0.04) and s_b == pytest.approx(0.04, rel=0.04)
+    dm = np.hypot(*(batch.sight_xy - pose[batch.sight_pose, :2]).T)
+    assert rng_d == pytest.approx((dm.min(), dm.max()))
+    if effects:  # a fit that ignores the per-sighting effects is visibly worse
+        plain = replace(start, size_scale=np.ones_like(lo.size_scale), size_offset=np.zeros_like(lo.size_offset),
+                        size_var_factor=np.ones_like(lo.size_var_factor),
+                        bearing_offset=np.zeros_like(lo.bearing_offset))  # fmt: skip
+        _, s_s0, s_b0, _ = sst.update_sensor_curve(plain, batch, post, np.random.default_rng(0))
+        assert s_s0 > 1.5 * s_s and s_b0 > 1.2 * s_b
 
 
-PAPER_LIKE = SensorModel(np.array([40.0, -0.005]), 10.0, 0.2)  # the previous model does not matter
-
-
-def test_sensor_mstep_recovers_cubic_and_sigmas():
-    rng = np.random.default_rng(4)
-    true = SensorModel(np.array([80.0, -0.04, 8.0e-6, -6.0e-10]), 1.2, 0.04)
-    params, batch, post, log = _sensor_case(rng, 20000, true)
-    new = sms.update_sensor_model(params, batch, post, np.random.default_rng(0))
-    d = np.linspace(*new.distance_range_mm, 50)
-    assert np.abs(new.height(d) - true.height(d)).max() < 0.25  # ~6600 sightings, sigma 1.2 px
-    assert new.sigma_height == pytest.approx(true.sigma_height, rel=0.03)
-    assert new.sigma_angle == pytest.approx(true.sigma_angle, rel=0.03)
-    dm = np.hypot(*(batch.beacon_xy[batch.used] - log[4][1:][batch.used, :2]).T)
-    assert new.distance_range_mm == pytest.approx((dm.min(), dm.max()))
-    # without height noise the coefficients themselves come back
-    quiet = SensorModel(true.coef, 1e-6, 0.04)
-    params, batch, post, log = _sensor_case(np.random.default_rng(5), 3000, quiet)
-    new = sms.update_sensor_model(params, batch, post, np.random.default_rng(0))
-    np.testing.assert_allclose(new.coef, true.coef, rtol=1e-5)
-    assert new.sigma_height < 1e-5
-
-
-def test_sensor_mstep_pinhole_curve():
-    rng = np.random.default_rng(8)
-    true = pinhole_cubic(sh=1.0, sa=0.03)
-    params, batch, post, log = _sensor_case(rng, 20000, true, height=PINHOLE)
-    new = sms.update_sensor_model(params, batch, post, np.random.default_rng(1))
-    lo, hi = new.distance_range_mm
-    d = np.linspace(lo, hi, 200)
-    rms = np.sqrt(np.mean((new.height(d) - PINHOLE(d)) ** 2))
-    assert rms < 0.35  # a cubic cannot do much better than ~0.2 px on 1275-4175 mm
-    assert 0.98 * true.sigma_height < new.sigma_height < 1.1 * true.sigma_height  # noise + cubic misfit
-    assert new.sigma_angle == pytest.approx(true.sigma_angle, rel=0.03)
-
-
-def test_sensor_points_methods_agree_on_average():
-    rng = np.random.default_rng(6)
-    vel = np.column_stack([rng.uniform(-250, 250, 12), rng.uniform(-250, 250, 12), rng.uniform(-1.5, 1.5, 12)])
-    log = simulate(rng, 3000, vel)
-    params = params_of(vel * DT)
-    batch = batch_of(log)
-    post = smooth(params, batch)
+def test_sensor_points_methods_agree_on_average(synth):
+    table, batch, lo, pose = synth
+    post = smooth(lo, batch)
     n_used = int(batch.used.sum())
-    d1, b1, o1, w1 = sms.sensor_points(params, batch, post, np.random.default_rng(0), "sample", n_samples=1)
-    assert d1.shape == (n_used,) and o1.shape == (n_used, 2) and np.allclose(w1, 1.0)
-    dc, bc, oc, wc = sms.sensor_points(params, batch, post, None, "cubature")
+    d1, b1, i1, w1 = sst.sensor_points(lo, batch, post, np.random.default_rng(0), "sample", n_samples=1)
+    assert d1.shape == (n_used,) and np.allclose(w1, 1.0)
+    dc, bc, ic, wc = sst.sensor_points(lo, batch, post, None, "cubature")
     assert dc.shape == (6 * n_used,) and np.allclose(wc, 1 / 6)
-    np.testing.assert_array_equal(oc[::6], batch.obs[batch.used])
-    ds, bs, os_, ws = sms.sensor_points(params, batch, post, np.random.default_rng(1), "sample", n_samples=200)
-    # per-sighting weighted means of the distance agree (to Monte-Carlo error)
+    np.testing.assert_array_equal(ic[::6], np.flatnonzero(batch.used))
+    ds, bs, is_, ws = sst.sensor_points(lo, batch, post, np.random.default_rng(1), "sample", n_samples=200)
     mean_c = (dc * wc).reshape(n_used, 6).sum(1)
     mean_s = (ds * ws).reshape(n_used, 200).sum(1)
     sd = np.sqrt((wc * (dc - np.repeat(mean_c, 6)) ** 2).reshape(n_used, 6).sum(1))
     assert np.abs(mean_s - mean_c).mean() < 0.1 * sd.mean()
     var_s = (ws * (ds - np.repeat(mean_s, 200)) ** 2).reshape(n_used, 200).sum(1)
     assert np.sqrt(var_s).mean() == pytest.approx(sd.mean(), rel=0.05)
-    m_s = sms.update_sensor_model(params, batch, post, np.random.default_rng(2), "sample", n_samples=50)
-    m_c = sms.update_sensor_model(params, batch, post, None, "cubature")
-    dd = np.linspace(*m_c.distance_range_mm, 50)
-    assert np.abs(m_s.height(dd) - m_c.height(dd)).max() < 0.1
-    assert m_s.sigma_height == pytest.approx(m_c.sigma_height, rel=0.02)
-    assert m_s.sigma_angle == pytest.approx(m_c.sigma_angle, rel=0.02)
-    assert m_s.distance_range_mm == m_c.distance_range_mm
-    # one sample per sighting (the paper) is reproducible with the same seed
-    a = sms.update_sensor_model(params, batch, post, np.random.default_rng(3))
-    b = sms.update_sensor_model(params, batch, post, np.random.default_rng(3))
-    np.testing.assert_array_equal(a.coef, b.coef)
+    m_s = sst.update_sensor_curve(lo, batch, post, np.random.default_rng(2), "sample", n_samples=50)
+    m_c = sst.update_sensor_curve(lo, batch, post, None, "cubature")
+    dd = np.linspace(*m_c[3], 50)
+    assert np.abs(curve(lo.basis, m_s[0], dd)[0] - curve(lo.basis, m_c[0], dd)[0]).max() < 0.1
+    assert m_s[1] == pytest.approx(m_c[1], rel=0.02) and m_s[2] == pytest.approx(m_c[2], rel=0.02)
+    assert m_s[3] == m_c[3]
+    a = sst.update_sensor_curve(lo, batch, post, np.random.default_rng(3))
+    b = sst.update_sensor_curve(lo, batch, post, np.random.default_rng(3))
+    np.testing.assert_array_equal(a[0], b[0])
     with pytest.raises(ValueError):
-        sms.sensor_points(params, batch, post, np.random.default_rng(0), "unscented")
+        sst.sensor_points(lo, batch, post, np.random.default_rng(0), "unscented")

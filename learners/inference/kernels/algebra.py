@@ -1,5 +1,5 @@
 """Shared pieces of the compiled kernels: constants, kernel status codes, small 3x3 algebra on
-tuples, angle wrapping, Horner's rule, and the Python-side helpers every wrapper uses
+tuples, angle wrapping, Horner's rule and the sensor curve ``_curve`` in either basis, and the Python-side helpers every wrapper uses
 (``_f64`` contiguous float64 views, ``_raise`` status-to-exception, ``_scratch`` per-thread buffers).
 """
 
@@ -11,7 +11,7 @@ import threading
 import numpy as np
 from numba import njit
 
-from learners.em.data import Batch
+from learners.inference.batch import Batch
 
 _TWO_PI = 2.0 * math.pi
 _LOG_2PI = math.log(2.0 * math.pi)
@@ -55,6 +55,18 @@ def _horner(coef, d):
     for k in range(n - 2, 0, -1):
         g = g * d + k * coef[k]
     return f, g
+
+
+@njit(cache=True)
+def _curve(basis, coef, d):
+    """(f(d), f'(d)) of the sensor curve f(d) = sum_k coef[k] x^k with x = d (basis 0,
+    ``lowered.BASIS_POWER``) or x = 1/d (basis 1, ``BASIS_INVERSE``); d in mm. Another basis is
+    another branch here."""
+    if basis == 0:
+        return _horner(coef, d)
+    x = 1.0 / d
+    f, g = _horner(coef, x)
+    return f, -g * x * x  # df/dd = df/dx * dx/dd, dx/dd = -x^2
 
 
 @njit(cache=True)

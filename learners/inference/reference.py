@@ -3,17 +3,20 @@ filter (beta, delta) and their combination (gamma), as specified in docs/em-math
 
 The generic pieces (``ekf_predict`` ... ``combine``, ``forward_pass``, ``backward_pass``,
 ``two_filter_smooth``) know nothing about the robot: they take a (linearized) model as
-callables
+callables and a CSR layout of the observations (frame i has observations
+``obs_start[i]:obs_start[i+1]``, any number, applied one after the other):
 
     motion(i, mean)  -> (g, F, Q)            # g = g_i(mean), F = dg_i/ds at mean, Q noise cov
-    observe(i, mean) -> None | (h, H, R, z, angle_mask)
-                                             # h = h_i(mean), H = dh_i/ds, R obs noise cov,
-                                             # z the observation, angle_mask marks the
-                                             # components whose innovation is wrapped
+    observe(j, mean) -> None | (h, H, R, z, angle_mask)
+                                             # observation j (None: not used): h = h_j(mean),
+                                             # H = dh_j/ds, R obs noise cov, z the observation,
+                                             # angle_mask marks the components whose innovation
+                                             # is wrapped
 
 so a linear-Gaussian system runs through the very same code (tests/test_smoother.py shows
-equality with a textbook Kalman filter + RTS smoother). ``smooth`` wires the aibo model
-(``geometry.motion`` / ``geometry.observe``) into them, log by log.
+equality with a textbook Kalman filter + RTS smoother). ``smooth`` wires the lowered aibo model
+(``Lowered``: per-frame displacement, offset, noise scale; per-sighting size scale/offset/variance
+factor and bearing offset; the sensor curve in its basis) into them, log by log.
 
 Deviation (named, see the spec): the log-likelihood uses the full one-step predictive
 covariance S = H P- H^T + R_obs, not the paper's J Sigma_alpha,t-1 J^T.
@@ -30,17 +33,17 @@ from typing import Callable, Optional
 import numpy as np
 
 from aibo_core import geometry
-from .data import Batch
-from .params import Params
+from .batch import Batch
+from .lowered import Lowered
 from .posterior import Posterior
 
 LOG_2PI = float(np.log(2.0 * np.pi))
 
-#: aibo observation: (height px, angle rad); only the angle innovation is wrapped.
+#: aibo observation: (size px or mm, bearing rad); only the bearing innovation is wrapped.
 AIBO_ANGLE_MASK = np.array([False, True])
 
 MotionFn = Callable[[int, np.ndarray], tuple]
-ObserveFn = Callable[[int, np.ndarray], Optional[tuple]]
+ObserveFn = Callable[[int, np.ndarray], Optional[tuple]]  # (observation index j, mean)
 
 
 def sym(A: np.ndarray) -> np.ndarray:
@@ -131,16 +134,16 @@ def combine(mu_alpha, cov_alpha, Y, y):
 
 @dataclass
 class ForwardResult:
-    """Output of ``forward_pass`` over T frames (T + 1 poses)."""
+    """Output of ``forward_pass`` over T frames (T + 1 poses) with M observations."""
 
-    mu: np.ndarray  # (T+1, n) filtered means
+    mu: np.ndarray  # (T+1, n) filtered means (after all of a frame's applied observations)
     cov: np.ndarray  # (T+1, n, n) filtered covariances
     g: np.ndarray  # (T, n) motion linearization at mu[i]: g_i(mu[i])
     F: np.ndarray  # (T, n, n) Jacobians at mu[i]
     Q: np.ndarray  # (T, n, n) motion noise at mu[i]
-    loglik: float  # sum of applied sightings' predictive log densities
-    mahal2: np.ndarray  # (T,) v^T S^-1 v, NaN where no observation
-    applied: np.ndarray  # (T,) bool: the observation was applied (present and not gated)
+    loglik: float  # sum of applied observations' sequential predictive log densities
+    mahal2: np.ndarray  # (M,) v^T S^-1 v, NaN where the observation is not used
+    applied: np.ndarray  # (M,) bool: the observation was applied (used and not gated)
 
 
 @dataclass
@@ -158,25 +161,30 @@ def _fail(where: str, i: int, what: str):
     raise FloatingPointError(f"{where}frame {i}: {what}")
 
 
-def forward_pass(mu0, P0, n_frames: int, motion: MotionFn, observe: ObserveFn,
+def forward_pass(mu0, P0, obs_start, motion: MotionFn, observe: ObserveFn,
                  gate: float | None = None, where: str = "") -> ForwardResult:
-    """Forward EKF over ``n_frames`` frames from N(mu0, P0).
+    """Forward EKF over ``len(obs_start) - 1`` frames from N(mu0, P0).
 
-    Frame i predicts pose i+1 from pose i (``motion(i, mu_alpha_i)``), then, if
-    ``observe(i, mu-)`` is not None, updates with that observation (Joseph form). A sighting
-    with ``gate is not None and mahal2 > gate`` is not applied and adds no likelihood term;
-    its mahal2 is still reported. Raises FloatingPointError (message starts with ``where``
-    and names the frame) when a non-finite value appears.
+    Frame i predicts pose i+1 from pose i (``motion(i, mu_alpha_i)``), then applies its
+    observations j = obs_start[i] .. obs_start[i+1]-1 one after the other: ``observe(j, m)``
+    is linearized at the CURRENT mean m (after the previous updates of the frame); None means
+    "not used". Update in Joseph form. An observation with ``gate is not None and mahal2 > gate``
+    is not applied and adds no likelihood term; its mahal2 is still reported. Raises
+    FloatingPointError (message starts with ``where`` and names the frame) when a non-finite
+    value appears.
     """
     mu0 = np.asarray(mu0, dtype=float)
+    obs_start = np.asarray(obs_start, dtype=np.int64)
     n = len(mu0)
+    n_frames = len(obs_start) - 1
+    n_obs = int(obs_start[-1])
     mu = np.empty((n_frames + 1, n))
     cov = np.empty((n_frames + 1, n, n))
     gs = np.empty((n_frames, n))
     Fs = np.empty((n_frames, n, n))
     Qs = np.empty((n_frames, n, n))
-    mahal2 = np.full(n_frames, np.nan)
-    applied = np.zeros(n_frames, dtype=bool)
+    mahal2 = np.full(n_obs, np.nan)
+    applied = np.zeros(n_obs, dtype=bool)
     loglik = 0.0
     mu[0] = mu0
     cov[0] = sym(np.asarray(P0, dtype=float))
@@ -188,18 +196,20 @@ def forward_pass(mu0, P0, n_frames: int, motion: MotionFn, observe: ObserveFn,
             g, F, Q = motion(i, mu[i])
             gs[i], Fs[i], Qs[i] = g, F, Q
             m, P = ekf_predict(cov[i], g, F, Q)
-            ob = observe(i, m)
-            if ob is not None:
+            for j in range(obs_start[i], obs_start[i + 1]):
+                ob = observe(j, m)
+                if ob is None:
+                    continue
                 h, H, R, z, amask = ob
                 v, S = ekf_innovation(P, h, H, R, z, amask)
                 ll, d2 = gaussian_loglik(v, S)
                 if not (np.isfinite(ll) and np.isfinite(d2)):
                     _fail(where, i, f"non-finite innovation {v} / likelihood in the forward pass")
-                mahal2[i] = d2
+                mahal2[j] = d2
                 if gate is None or d2 <= gate:
                     m, P = ekf_update(m, P, H, R, v, S)
                     loglik += ll
-                    applied[i] = True
+                    applied[j] = True
             if not (np.isfinite(m).all() and np.isfinite(P).all()):
                 _fail(where, i, "non-finite filtered mean/covariance in the forward pass")
             mu[i + 1] = m
@@ -209,20 +219,23 @@ def forward_pass(mu0, P0, n_frames: int, motion: MotionFn, observe: ObserveFn,
     return ForwardResult(mu, cov, gs, Fs, Qs, loglik, mahal2, applied)
 
 
-def observation_information(mu_alpha, observe: ObserveFn, applied):
-    """Per-frame observation information for the backward pass, h linearized at the filtered
-    mean mu_alpha[i+1]: dY[i] = H^T R^-1 H, dy[i] = H^T R^-1 (v + H mu_alpha[i+1]) where
-    ``applied[i]``, zero elsewhere (v the wrapped innovation). Returns (dY (T,n,n), dy (T,n))."""
+def observation_information(mu_alpha, observe: ObserveFn, obs_start, applied):
+    """Per-frame observation information for the backward pass: the sum over frame i's applied
+    observations j of H_j^T R_j^-1 H_j and H_j^T R_j^-1 (v_j + H_j mu_alpha[i+1]), each
+    linearized at the frame's FINAL filtered mean mu_alpha[i+1] (v_j the wrapped innovation);
+    zero for frames without one. Returns (dY (T,n,n), dy (T,n))."""
     mu_alpha = np.asarray(mu_alpha, dtype=float)
-    T = len(applied)
+    obs_start = np.asarray(obs_start, dtype=np.int64)
+    T = len(obs_start) - 1
     n = mu_alpha.shape[1]
     dY = np.zeros((T, n, n))
     dy = np.zeros((T, n))
-    zY, zy = np.zeros((n, n)), np.zeros(n)
-    for i in np.flatnonzero(applied):
+    for i in range(T):
         ml = mu_alpha[i + 1]
-        h, H, R, z, amask = observe(int(i), ml)
-        dY[i], dy[i] = info_observe(zY, zy, H, R, innovation(h, z, amask), ml)
+        for j in range(obs_start[i], obs_start[i + 1]):
+            if applied[j]:
+                h, H, R, z, amask = observe(int(j), ml)
+                dY[i], dy[i] = info_observe(dY[i], dy[i], H, R, innovation(h, z, amask), ml)
     return dY, dy
 
 
@@ -230,10 +243,10 @@ def backward_pass(mu_alpha, g, F, Q, dY, dy, where: str = ""):
     """Backward information filter, Sigma_beta,T = infinity (Y = 0, y = 0 at the last pose).
 
     For frame i = T-1 .. 0: observation update Y_delta = Y + dY[i], y_delta = y + dy[i]
-    (``observation_information``: h linearized at mu_alpha[i+1]; zero for frames without an
-    applied sighting), stored as delta for frame i; then the time update to pose i through
-    the motion linearized at mu_alpha[i] (``g[i], F[i], Q[i]`` from the forward pass,
-    c = g[i] - F[i] mu_alpha[i]).
+    (``observation_information``: all of frame i's applied observations, linearized at
+    mu_alpha[i+1]; zero for frames without one), stored as delta for frame i; then the time
+    update to pose i through the motion linearized at mu_alpha[i] (``g[i], F[i], Q[i]`` from the
+    forward pass, c = g[i] - F[i] mu_alpha[i]).
 
     Returns (Y (T+1,n,n), y (T+1,n), Y_delta (T,n,n), y_delta (T,n)).
     """
@@ -264,17 +277,18 @@ def backward_pass(mu_alpha, g, F, Q, dY, dy, where: str = ""):
     return Y, y, Yd, yd
 
 
-def two_filter_smooth(mu0, P0, n_frames: int, motion: MotionFn, observe: ObserveFn,
+def two_filter_smooth(mu0, P0, obs_start, motion: MotionFn, observe: ObserveFn,
                       gate: float | None = None, where: str = "",
                       obs_info: Callable | None = None) -> SmootherResult:
-    """Forward EKF + backward information filter + combination for one sequence.
+    """Forward EKF + backward information filter + combination for one sequence of
+    ``len(obs_start) - 1`` frames (observations of frame i: ``obs_start[i]:obs_start[i+1]``).
 
-    ``obs_info(mu_alpha, applied) -> (dY, dy)`` may replace the per-frame
+    ``obs_info(mu_alpha, applied) -> (dY, dy)`` may replace the per-observation
     ``observation_information`` loop by an equivalent vectorized computation.
     """
-    fw = forward_pass(mu0, P0, n_frames, motion, observe, gate, where)
+    fw = forward_pass(mu0, P0, obs_start, motion, observe, gate, where)
     if obs_info is None:
-        dY, dy = observation_information(fw.mu, observe, fw.applied)
+        dY, dy = observation_information(fw.mu, observe, obs_start, fw.applied)
     else:
         dY, dy = obs_info(fw.mu, fw.applied)
     Y, y, Yd, yd = backward_pass(fw.mu, fw.g, fw.F, fw.Q, dY, dy, where)
@@ -292,83 +306,122 @@ def two_filter_smooth(mu0, P0, n_frames: int, motion: MotionFn, observe: Observe
 # --------------------------------------------------------------------------- the aibo model
 
 
-def aibo_model(params: Params, actions, obs, beacon_xy, used):
-    """The aibo model of one log as (motion, observe, obs_info) callables for ``two_filter_smooth``.
+def sighting_model(lo: Lowered, mean, xy, idx):
+    """The lowered observation function of sightings ``idx`` (S' indices) at poses ``mean`` (S', 3).
 
-    ``actions`` (T,), ``obs`` (T, 2), ``beacon_xy`` (T, 2), ``used`` (T,) are the log's frames.
+    h = (size_scale f(d) + size_offset, wrap(atan2(dy, dx) - theta + bearing_offset)) and its
+    Jacobian H (S', 2, 3): row 0 = size_scale f'(d) (-dx/d, -dy/d, 0), row 1 = (dy/q, -dx/q, -1),
+    with (dx, dy) = landmark - (x, y) in mm, q = dx^2 + dy^2, d = sqrt(q). Returns (h, H, R_diag)
+    with R_diag (S', 2) = (sigma_size^2 size_var_factor, sigma_bearing^2).
     """
-    disp = params.action.disp[np.asarray(actions)]
-    sigA = np.asarray(params.action.cov, dtype=float)
-    sensor = params.sensor
-    R_obs = np.diag([sensor.sigma_height**2, sensor.sigma_angle**2])
+    mean = np.asarray(mean, dtype=float)
+    dx = xy[:, 0] - mean[:, 0]
+    dy = xy[:, 1] - mean[:, 1]
+    q = dx * dx + dy * dy
+    d = np.sqrt(q)
+    f, fp = lo.curve(d)
+    sc = lo.size_scale[idx]
+    h = np.empty((len(idx), 2))
+    h[:, 0] = sc * f + lo.size_offset[idx]
+    h[:, 1] = geometry.wrap(np.arctan2(dy, dx) - mean[:, 2] + lo.bearing_offset[idx])
+    H = np.zeros((len(idx), 2, 3))
+    H[:, 0, 0] = -sc * fp * dx / d
+    H[:, 0, 1] = -sc * fp * dy / d
+    H[:, 1, 0] = dy / q
+    H[:, 1, 1] = -dx / q
+    H[:, 1, 2] = -1.0
+    rd = np.empty((len(idx), 2))
+    rd[:, 0] = lo.sigma_size**2 * lo.size_var_factor[idx]
+    rd[:, 1] = lo.sigma_bearing**2
+    return h, H, rd
+
+
+def aibo_model(lo: Lowered, batch: Batch, k: int):
+    """The lowered aibo model of log k as (obs_start, motion, observe, obs_info) for
+    ``two_filter_smooth`` (frame and observation indices local to the log).
+
+    Motion of frame i: g(s) = s + R(theta) disp[i] + offset[i], Q = cov_scale[i] R Sigma_A R^T.
+    """
+    f0, f1 = int(batch.frame_start[k]), int(batch.frame_start[k + 1])
+    s0 = int(batch.sight_start[f0])
+    obs_start = batch.sight_start[f0 : f1 + 1] - s0
+    disp = lo.disp[f0:f1]
+    offset = lo.offset[f0:f1]
+    scale = lo.cov_scale[f0:f1]
+    sigA = np.asarray(lo.cov, dtype=float)
+    n_s = int(obs_start[-1])
+    gidx = np.arange(s0, s0 + n_s)  # global sighting indices
+    xy = batch.sight_xy[gidx]
+    z = batch.sight_value[gidx]
+    used = batch.used[gidx]
 
     def motion(i, mean):
         g, F, R3 = geometry.motion(mean, disp[i])
-        return g, F, R3 @ sigA @ R3.T
+        return g + offset[i], F, scale[i] * (R3 @ sigA @ R3.T)
 
-    def observe(i, mean):
-        if not used[i]:
+    def observe(j, mean):
+        if not used[j]:
             return None
-        h, H, _ = geometry.observe(mean, beacon_xy[i], sensor)
-        return h, H, R_obs, obs[i], AIBO_ANGLE_MASK
+        h, H, rd = sighting_model(lo, mean[None], xy[j : j + 1], gidx[j : j + 1])
+        return h[0], H[0], np.diag(rd[0]), z[j], AIBO_ANGLE_MASK
 
     def obs_info(mu_alpha, applied):
-        """Vectorized ``observation_information`` for the aibo model (same numbers)."""
-        T = len(applied)
+        """Vectorized ``observation_information`` for the aibo model (same sums, any order)."""
+        T = len(obs_start) - 1
         dY = np.zeros((T, 3, 3))
         dy = np.zeros((T, 3))
         idx = np.flatnonzero(applied)
         if len(idx):
-            ml = mu_alpha[idx + 1]
-            h, H, _ = geometry.observe(ml, beacon_xy[idx], sensor)
-            v = innovation(h, obs[idx], AIBO_ANGLE_MASK)
-            HtRi = np.swapaxes(H, 1, 2) / np.diag(R_obs)  # H^T R^-1, R_obs diagonal
-            dY[idx] = sym(HtRi @ H)
-            dy[idx] = np.einsum("tij,tj->ti", HtRi, v + np.einsum("tij,tj->ti", H, ml))
+            fr = np.searchsorted(obs_start, idx, side="right") - 1  # local frame of each sighting
+            ml = mu_alpha[fr + 1]
+            h, H, rd = sighting_model(lo, ml, xy[idx], gidx[idx])
+            v = innovation(h, z[idx], AIBO_ANGLE_MASK)
+            HtRi = np.swapaxes(H, 1, 2) / rd[:, None, :]  # H^T R^-1, R diagonal
+            np.add.at(dY, fr, sym(HtRi @ H))
+            np.add.at(dy, fr, np.einsum("tij,tj->ti", HtRi, v + np.einsum("tij,tj->ti", H, ml)))
         return dY, dy
 
-    return motion, observe, obs_info
+    return obs_start, motion, observe, obs_info
 
 
-def smooth(params: Params, batch: Batch, gate: float | None = None) -> Posterior:
+def smooth(lo: Lowered, batch: Batch, gate: float | None = None) -> Posterior:
     """Reference E-step for every log of ``batch`` (see docs/em-math.md, "E-step").
 
-    Each log k starts from ``params.init[k]``. With ``gate``, a used sighting whose squared
-    Mahalanobis innovation exceeds ``gate`` is neither applied (forward nor backward) nor
-    counted in the likelihood; its mahal2 is still stored, so the caller prunes
-    ``batch.used & (post.mahal2 > gate)``. Raises FloatingPointError naming the log and frame
-    if a non-finite value appears.
+    Log k starts from N(lo.init_mean[k], lo.init_cov[k]). A frame's used sightings are applied in
+    order, each linearized at the mean updated by the previous ones. With ``gate``, a used
+    sighting whose squared Mahalanobis innovation exceeds ``gate`` is neither applied (forward
+    nor backward) nor counted in the likelihood; its mahal2 is still stored, so the caller prunes
+    ``batch.used & (post.mahal2 > gate)``. Raises FloatingPointError naming the log and frame if
+    a non-finite value appears.
     """
-    S = batch.n_logs
-    if len(params.init) != S:
-        raise ValueError(f"params.init has {len(params.init)} entries, batch has {S} logs")
+    L = batch.n_logs
+    if len(lo.init_mean) != L or len(lo.init_cov) != L:
+        raise ValueError(f"lowered model has {len(lo.init_mean)} initial states, batch has {L} logs")
     N = batch.n_frames
-    P = N + S
+    P = N + L
     mu_alpha = np.empty((P, 3))
     cov_alpha = np.empty((P, 3, 3))
     mu_gamma = np.empty((P, 3))
     cov_gamma = np.empty((P, 3, 3))
     info_delta = np.empty((N, 3, 3))
     vec_delta = np.empty((N, 3))
-    mahal2 = np.full(N, np.nan)
+    mahal2 = np.full(batch.n_sightings, np.nan)
     loglik = 0.0
     fstart = batch.frame_start
     pstart = batch.pose_start
-    for k in range(S):
+    for k in range(L):
         f0, f1 = int(fstart[k]), int(fstart[k + 1])
         p0, p1 = int(pstart[k]), int(pstart[k + 1])
-        motion_fn, observe_fn, obs_info = aibo_model(
-            params, batch.actions[f0:f1], batch.obs[f0:f1], batch.beacon_xy[f0:f1], batch.used[f0:f1]
-        )
-        init = params.init[k]
-        r = two_filter_smooth(init.mean, init.cov, f1 - f0, motion_fn, observe_fn, gate, where=f"log {k}, ",
-                              obs_info=obs_info)
+        s0, s1 = int(batch.sight_start[f0]), int(batch.sight_start[f1])
+        obs_start, motion_fn, observe_fn, obs_info = aibo_model(lo, batch, k)
+        r = two_filter_smooth(lo.init_mean[k], lo.init_cov[k], obs_start, motion_fn, observe_fn, gate,
+                              where=f"log {k}, ", obs_info=obs_info)  # fmt: skip
         mu_alpha[p0:p1] = r.forward.mu
         cov_alpha[p0:p1] = r.forward.cov
         mu_gamma[p0:p1] = r.mu
         cov_gamma[p0:p1] = r.cov
         info_delta[f0:f1] = r.Y_delta
         vec_delta[f0:f1] = r.y_delta
-        mahal2[f0:f1] = r.forward.mahal2
+        mahal2[s0:s1] = r.forward.mahal2
         loglik += r.forward.loglik
     return Posterior(mu_alpha, cov_alpha, mu_gamma, cov_gamma, info_delta, vec_delta, float(loglik), mahal2)
