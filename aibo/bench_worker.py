@@ -22,17 +22,19 @@ def _peak_bytes() -> int:
 
 def compile_cmd() -> dict:
     """Seconds to import and run the compiled E-step and M-step once (numba compiles them)."""
-    from learners.em.data import Batch
-    from learners.em.params import paper_start
+    from aibo_core.actions import attempted_velocities
+    from aibo_core.trajectory import Trajectory
+    from learners.inference.batch import make_batch
+    from learners.model.model import start_model
 
     n = 100
-    xy = np.tile([1350.0, 1950.0], (n, 1))
-    obs = np.tile([20.0, 0.5], (n, 1))
-    batch = Batch(np.zeros(n, np.int64), obs, xy, np.ones(n, bool), np.array([0, n]), 1 / 30)
+    tr = Trajectory(1 / 30, np.array([[1350.0, 1950.0]]), np.arange(n), np.zeros(n, np.int64),
+                    np.tile([20.0, 0.5], (n, 1)), actions=np.zeros(n, np.int64), attempted=attempted_velocities())
+    batch = make_batch([tr])
     t0 = time.perf_counter()
     from learners.em.fit import EMOptions, e_step, m_step
 
-    params = paper_start(1 / 30)
+    params = start_model(batch, tr.dt)
     for method in ("cubature", "sample"):
         m_step(params, batch, e_step(params, batch, "compiled"), np.random.default_rng(0),
                EMOptions(sensor_method=method))
@@ -46,16 +48,16 @@ def scale_cmd(path: str, n: int) -> dict:
     import tracemalloc
 
     from aibo_core import trajectory
-    from learners.em.data import make_batch
     from learners.em.fit import EMOptions, e_step, m_step
-    from learners.em.params import paper_start
+    from learners.inference.batch import make_batch
+    from learners.model.model import start_model
 
     full = trajectory.load(path)
     if n > full.n_frames:
         raise SystemExit(f"{path} has only {full.n_frames} frames")
     tr, small = trajectory.head(full, n), make_batch([trajectory.head(full, min(n, 500))])
     del full
-    params, opts, rng = paper_start(tr.dt), EMOptions(), np.random.default_rng(0)
+    params, opts, rng = start_model(small, tr.dt), EMOptions(), np.random.default_rng(0)
     m_step(params, small, e_step(params, small, "compiled"), rng, opts)  # load the kernels first
     tracemalloc.start()
     batch = make_batch([tr])

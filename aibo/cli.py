@@ -59,6 +59,9 @@ def build_parser() -> argparse.ArgumentParser:
     lr.add_argument("--patience", type=int, default=50, help="stop after N iterations without a new best likelihood")
     lr.add_argument("--seed", type=int, default=0)
     lr.add_argument("--init", help="start from this model file instead of the paper's start")
+    lr.add_argument("--action-model", choices=["table", "features"], default=None,
+                    help="table: one velocity per discrete command (default for discrete logs); features: "
+                         "velocity = features(command) x weights (the only choice for continuous commands)")
     lr.add_argument("--plots", help="write learning-curve and sensor-model PNGs to this folder")
     lr.add_argument("--paper-recipe", action="store_true",
                     help="the paper's recipe as written: fixed motion noise, one sample per sighting, plain EM")
@@ -92,7 +95,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     from learners.em.learner import EMDivergedError
-    from learners.model_file import ModelFileError
+    from learners.model.io import ModelFileError
 
     try:
         return int(args.run(args) or 0)

@@ -13,7 +13,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from aibo_core.atomic import atomic_write  # noqa: E402
-from learners.em.params import SensorModel  # noqa: E402
+from learners.model.sensor import SensorModel  # noqa: E402
 
 
 def _save(fig, path: str | Path) -> None:
@@ -32,7 +32,7 @@ def sensor_models(path, d_range: tuple[float, float], curves: dict[str, SensorMo
         ax.scatter(points[0], points[1], s=2, c="0.75", label="sightings (true distance)", rasterized=True)
     styles = {"start": ("tab:red", "--"), "learned": ("tab:blue", "-"), "true": ("k", ":"), "oracle": ("tab:green", "-.")}
     for name, model in curves.items():
-        y = model.height(d) if isinstance(model, SensorModel) else np.asarray(model)
+        y = model.mean(d) if isinstance(model, SensorModel) else np.asarray(model)
         color, ls = styles.get(name.split()[0], (None, "-"))
         ax.plot(d, y, color=color, ls=ls, lw=2, label=name)
     ax.set_xlabel("distance to beacon (mm)")

@@ -1,6 +1,6 @@
 """The learner plugin interface and registry.
 
-A learner turns a list of logs (aibo-trajectory/1) into learned models:
+A learner turns a list of logs (aibo-trajectory/2) into a learned ``learners.model.Model``:
 
     learner = get_learner("em")(**options)
     result = learner.fit(logs, init=None, progress=callback)
@@ -16,7 +16,7 @@ from importlib.metadata import entry_points
 from typing import Any, Callable, Protocol
 
 from aibo_core.trajectory import Trajectory
-from learners.em.params import Params
+from learners.model.model import Model
 
 ENTRY_POINT_GROUP = "aibo.learners"
 
@@ -28,7 +28,7 @@ class IterationRecord:
     iteration: int
     loglik: float
     seconds: float
-    params: Params
+    params: Model
 
 
 @dataclass
@@ -36,7 +36,7 @@ class LearnResult:
     """What every learner returns."""
 
     learner: str
-    params: Params
+    params: Model
     iterations: int
     converged: bool
     loglik: list[float] = field(default_factory=list)
@@ -51,7 +51,7 @@ ProgressFn = Callable[[IterationRecord], None]
 class Learner(Protocol):
     name: str
 
-    def fit(self, logs: list[Trajectory], init: Params | None = None, progress: ProgressFn | None = None) -> LearnResult:
+    def fit(self, logs: list[Trajectory], init: Model | None = None, progress: ProgressFn | None = None) -> LearnResult:
         ...
 
 

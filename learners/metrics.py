@@ -13,7 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from learners.em.params import Params, SensorModel
+from learners.model.model import Model
+from learners.model.sensor import SensorModel
 
 #: The paper's simulated results (section IV-B), for side-by-side tables.
 PAPER_SIM = {
@@ -65,7 +66,7 @@ def velocity_errors(learned: np.ndarray, true: np.ndarray, executed: np.ndarray 
 def sensor_rms(sensor: SensorModel, truth: dict[str, Any], d_range: tuple[float, float], n: int = 400) -> float:
     """RMS (px) of learned minus true mean height on a uniform grid over ``d_range`` (mm)."""
     d = np.linspace(d_range[0], d_range[1], n)
-    return float(np.sqrt(np.mean((sensor.height(d) - true_height(truth, d)) ** 2)))
+    return float(np.sqrt(np.mean((sensor.mean(d) - true_height(truth, d)) ** 2)))
 
 
 def observed_distance_range(logs) -> tuple[float, float]:
@@ -82,12 +83,12 @@ def observed_distance_range(logs) -> tuple[float, float]:
     return float(d.min()), float(d.max())
 
 
-def model_errors(params: Params, logs) -> ModelErrors:
+def model_errors(params: Model, logs) -> ModelErrors:
     """All errors of ``params`` against the truth of ``logs`` (simulated, same robot)."""
     truth = logs[0].truth
     if truth is None:
         raise ValueError("log has no ground truth (meta['truth'])")
-    executed = np.zeros(40, bool)
+    executed = np.zeros(len(params.action.weights), bool)
     for tr in logs:
         executed[np.unique(tr.actions)] = True
     v = velocity_errors(params.action.velocities, np.asarray(truth["velocities"]), executed)
@@ -95,9 +96,9 @@ def model_errors(params: Params, logs) -> ModelErrors:
     s = params.sensor
     return ModelErrors(
         **v,
-        sigma_height=s.sigma_height,
-        sigma_angle=s.sigma_angle,
-        sigma_height_rel=abs(s.sigma_height - sh) / sh,
-        sigma_angle_rel=abs(s.sigma_angle - sa) / sa,
+        sigma_height=s.sigma_size,
+        sigma_angle=s.sigma_bearing,
+        sigma_height_rel=abs(s.sigma_size - sh) / sh,
+        sigma_angle_rel=abs(s.sigma_bearing - sa) / sa,
         sensor_rms_px=sensor_rms(s, truth, observed_distance_range(logs)),
     )

@@ -8,7 +8,8 @@ import pytest
 from aibo_core.trajectory import blind
 from learners.em.fit import EMOptions
 from learners.em.learner import EMDivergedError, EMLearner
-from learners.em.params import SensorModel, paper_start
+from learners.model.model import paper_start
+from learners.model.sensor import SensorModel
 from learners.metrics import model_errors
 from learners.oracle import OracleLearner
 from tests._logs import sim_log
@@ -32,7 +33,7 @@ def test_em_learns_from_paper_start_on_a_blind_log():
     tr = sim_log(9000, seed=3)  # 5 minutes, paper-sim noise; EM never sees pose or truth
     res = EMLearner(EMOptions(seed=0)).fit([blind(tr)])
     err = model_errors(res.params, [tr])
-    start = model_errors(paper_start(tr.dt), [tr])
+    start = model_errors(paper_start([tr]), [tr])
     assert err.vx_rel < 0.05 and err.vy_rel < 0.05 and err.vtheta_rel < 0.03, err
     assert err.sensor_rms_px < 0.4 < 5 < start.sensor_rms_px
     assert err.sigma_height_rel < 0.05 and err.sigma_angle_rel < 0.05
@@ -120,8 +121,8 @@ def test_a_checkpoint_of_other_inputs_is_refused(tmp_path):
 
 def test_a_start_that_puts_beacons_off_the_field_fails_loudly():
     tr = sim_log()
-    start = paper_start(tr.dt)
+    start = paper_start([tr])
     # height = 45 - 0.004 d implies beacons ~8 m away: EM settles in a wrong world (see docs/em-math.md)
-    bad = start.with_(sensor=SensorModel(np.array([45.0, -0.004]), 10.0, 0.2))
+    bad = start.with_(sensor=SensorModel(np.array([45.0, -0.004, 0.0, 0.0]), 10.0, 0.2))
     with pytest.raises(EMDivergedError, match="does not fit the field"):
         EMLearner(EMOptions(max_iter=60, patience=20)).fit([tr], init=bad)

@@ -1,4 +1,4 @@
-"""aibo-model/1: round trip, atomic writes, and every validation error of load_params."""
+"""aibo-model/1: round trip, atomic writes, and every validation error of load_model."""
 
 from __future__ import annotations
 
@@ -7,51 +7,54 @@ import json
 import numpy as np
 import pytest
 
-from learners import model_file
+from learners import load_model
 from learners.base import LearnResult
-from learners.em.params import paper_start
-from learners.model_file import ModelFileError
+from learners.model.io import ModelFileError, save_result
+from tests._logs import sim_log
+from learners.model.model import paper_start
 
 
 def _result() -> LearnResult:
-    p = paper_start(1 / 30)
+    p = paper_start([sim_log(300)])
     rng = np.random.default_rng(0)
-    p = p.with_(action=p.action.__class__(rng.normal(size=(40, 3)), p.action.cov, p.action.dt))
+    p = p.with_(action=p.action.with_values(weights=rng.normal(size=(40, 3))))
     return LearnResult("em", p, iterations=7, converged=True, loglik=[-3.0, -2.0, -2.5], pruned_observations=4)
 
 
 def test_round_trip_keeps_contract_keys(tmp_path):
     res = _result()
     path = tmp_path / "m.json"
-    model_file.save(res, path)
+    save_result(res, path)
     doc = json.loads(path.read_text())
     assert doc["format"] == "aibo-model/1" and doc["learner"] == "em"
     for key in ("iterations", "converged", "loglik", "pruned_observations", "effects"):
         assert key in doc
     assert np.asarray(doc["action_model"]["velocities"]).shape == (40, 3)
-    assert doc["sensor_model"]["coef"] == [40.0, -0.005]
-    assert doc["effects"] == {}
-    back = model_file.load_params(path)
+    assert doc["sensor_model"]["coef"] == [40.0, -0.005, 0.0, 0.0]
+    assert doc["effects"] == [] and doc["action_model"]["feature_map"] == "table"
+    assert doc["sensor_model"]["kind"] == "height_px" and doc["sensor_model"]["basis"] == "power"
+    back = load_model(path)
     np.testing.assert_allclose(back.action.velocities, res.params.action.velocities, rtol=1e-12)
+    assert back.max_abs_difference(res.params)["action.weights"] < 1e-12
     np.testing.assert_allclose(back.action.cov, res.params.action.cov)
-    assert back.sensor.sigma_height == 10.0 and back.sensor.sigma_angle == 0.2
+    assert back.sensor.sigma_size == 10.0 and back.sensor.sigma_bearing == 0.2
 
 
 def test_nan_is_refused_and_old_file_kept(tmp_path):
     path = tmp_path / "m.json"
-    model_file.save(_result(), path)
+    save_result(_result(), path)
     before = path.read_bytes()
     bad = _result()
-    bad.params.action.disp[3, 1] = np.nan
+    bad.params.action.weights[3, 1] = np.nan
     with pytest.raises(FloatingPointError):
-        model_file.save(bad, path)
+        save_result(bad, path)
     assert path.read_bytes() == before
     assert [p.name for p in tmp_path.iterdir()] == ["m.json"]
 
 
 def _write(tmp_path, mutate):
     path = tmp_path / "m.json"
-    model_file.save(_result(), path)
+    save_result(_result(), path)
     doc = json.loads(path.read_text())
     mutate(doc)
     path.write_text(json.dumps(doc))
@@ -63,7 +66,7 @@ def _write(tmp_path, mutate):
     [
         (lambda d: d.update(format="aibo-model/0"), "format"),
         (lambda d: d["action_model"].pop("velocities"), "action_model.velocities"),
-        (lambda d: d["action_model"].update(velocities=[[0, 0, 0]] * 39), "action_model.velocities"),
+        (lambda d: d["action_model"].update(velocities=[[0, 0]] * 40), "action_model.velocities"),
         (lambda d: d["action_model"].update(dt=-1), "action_model.dt"),
         (lambda d: d["action_model"].update(motion_cov=[[1, 2, 0], [0, 1, 0], [0, 0, 1]]), "action_model.motion_cov"),
         (lambda d: d["sensor_model"].update(coef=[]), "sensor_model.coef"),
@@ -76,7 +79,7 @@ def _write(tmp_path, mutate):
 def test_bad_model_files_name_file_and_field(tmp_path, mutate, field):
     path = _write(tmp_path, mutate)
     with pytest.raises(ModelFileError) as exc:
-        model_file.load_params(path)
+        load_model(path)
     assert str(path) in str(exc.value) and field in str(exc.value)
 
 
@@ -84,6 +87,31 @@ def test_not_json_and_missing(tmp_path):
     p = tmp_path / "x.json"
     p.write_text("{nope")
     with pytest.raises(ModelFileError, match="not valid JSON"):
-        model_file.load_params(p)
+        load_model(p)
     with pytest.raises(ModelFileError, match="file not found"):
-        model_file.load_params(tmp_path / "absent.json")
+        load_model(tmp_path / "absent.json")
+
+
+def test_same_model_same_bytes_without_wall_clock_timings(tmp_path):
+    """Model files keep no timings (issue 8, item 19): the same result writes the same bytes."""
+    res = _result()
+    res.info.update(seconds_per_iteration=0.01, first_iteration_seconds=3.0, best_iteration=5)
+    save_result(res, tmp_path / "a.json")
+    res.info.update(seconds_per_iteration=0.02, first_iteration_seconds=9.0)
+    save_result(res, tmp_path / "b.json")
+    assert (tmp_path / "a.json").read_bytes() == (tmp_path / "b.json").read_bytes()
+    assert json.loads((tmp_path / "a.json").read_text())["info"] == {"best_iteration": 5}
+
+
+@pytest.mark.parametrize("initial, field", [(5, "initial_state"), ([{"mean": [0, 0, 0], "cov": 5}], "initial_state.0.cov")])
+def test_malformed_initial_state_names_the_field(tmp_path, initial, field):
+    path = _write(tmp_path, lambda d: d.update(initial_state=initial))
+    with pytest.raises(ModelFileError, match=field.replace(".", r"\.")):
+        load_model(path)
+
+
+def test_deeply_nested_json_is_one_line(tmp_path):
+    path = tmp_path / "deep.json"
+    path.write_text("[" * 100000 + "]" * 100000)
+    with pytest.raises(ModelFileError, match="not valid JSON|top level"):
+        load_model(path)

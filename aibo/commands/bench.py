@@ -49,13 +49,13 @@ def machine() -> dict:
 
 def estep_speed(tr) -> dict:
     """Compiled vs NumPy reference E-step on the same log, after warm-up."""
-    from learners.em.data import make_batch
-    from learners.em.kernels import smooth_compiled
-    from learners.em.params import paper_start
-    from learners.em.smoother import smooth
+    from learners.inference.batch import make_batch
+    from learners.inference.kernels import smooth_compiled
+    from learners.inference.reference import smooth
+    from learners.model.model import start_model
 
     batch = make_batch([tr])
-    params = paper_start(tr.dt)
+    params = start_model(batch, tr.dt).lower(batch)
     smooth_compiled(params, batch)  # warm-up (numba compile or cache load)
     t_c = _median_time(lambda: smooth_compiled(params, batch), 7)
     spent = smooth_compiled(params, batch)
@@ -68,12 +68,12 @@ def estep_speed(tr) -> dict:
 
 def mstep_speed(tr) -> dict:
     """Compiled vs NumPy reference M-step (default options) on the same E-step output."""
-    from learners.em.data import make_batch
     from learners.em.fit import EMOptions, e_step, m_step
-    from learners.em.params import paper_start
+    from learners.inference.batch import make_batch
+    from learners.model.model import start_model
 
     batch = make_batch([tr])
-    params = paper_start(tr.dt)
+    params = start_model(batch, tr.dt)
     post = e_step(params, batch, "compiled")
     rng = np.random.default_rng(0)
     fast, ref = EMOptions(), EMOptions(estep="numpy")

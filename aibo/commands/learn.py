@@ -9,7 +9,7 @@ import numpy as np
 from aibo.cli import CLIError
 from aibo.report import Progress, error_table
 from aibo_core import trajectory
-from learners import model_file
+from learners.model import io as model_io
 from learners.base import LearnResult, get_learner
 from learners.em.fit import EMOptions
 from learners.metrics import model_errors, observed_distance_range, true_height, velocity_errors
@@ -38,12 +38,14 @@ def run(args) -> int:
     if Path(args.out).is_dir():
         raise CLIError(f"--out {args.out}: is a folder; give a file name such as model.json")
     logs = [trajectory.load(p) for p in args.logs]
-    init = model_file.load_params(args.init, len(logs)) if args.init else None
+    init = model_io.load_model(args.init) if args.init else None
     learner = make_learner(args)
     progress = Progress(args.learner)
-    result = learner.fit(logs, init=init, progress=progress)
+    result = learner.fit(logs, init=init, progress=progress, action_model=args.action_model)
     progress.close()
-    model_file.save(result, args.out)
+    model_io.save_result(result, args.out)
+    if hasattr(learner, "discard_checkpoint"):
+        learner.discard_checkpoint()  # only now that the model is safely on disk
     if result.info.get("resumed_from"):
         print(f"resumed from the checkpoint at iteration {result.info['resumed_from']}")
     print(f"wrote {args.out}: {result.iterations} iterations, converged={result.converged}, "
@@ -59,7 +61,7 @@ def run(args) -> int:
 def write_plots(folder: Path, result: LearnResult, logs, start=None, oracle=None, prefix: str = "") -> list[Path]:
     """Learning curves and sensor models; velocity-error curves when the logs carry truth."""
     from aibo import figures
-    from learners.em.params import PAPER_START_SENSOR
+    from learners.model.sensor import SensorModel
 
     paths = []
     best = result.info.get("best_iteration")
@@ -68,14 +70,15 @@ def write_plots(folder: Path, result: LearnResult, logs, start=None, oracle=None
         figures.loglik_curve(paths[-1], result.loglik, best)
     truth = logs[0].truth if logs[0].pose is not None else None
     d_range = observed_distance_range(logs) if truth else result.params.sensor.distance_range_mm
-    curves = {"start": (start.sensor if start else PAPER_START_SENSOR), f"learned ({result.learner})": result.params.sensor}
+    start_sensor = start.sensor if start else SensorModel.start(logs[0].sensor_kind)
+    curves = {"start": start_sensor, f"learned ({result.learner})": result.params.sensor}
     if oracle is not None:
         curves["oracle"] = oracle.sensor
     if truth:
         curves["true (pinhole)"] = true_height(truth, np.linspace(*d_range, 300))
     paths.append(folder / f"{prefix}sensor_model.png")
     figures.sensor_models(paths[-1], d_range, curves)
-    if truth and result.history:
+    if truth and result.history and result.params.action.discrete:
         true_vel = np.asarray(truth["velocities"])
         series: dict[str, list[float]] = {"vx": [], "vy": [], "vtheta": []}
         for rec in result.history:

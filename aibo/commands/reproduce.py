@@ -14,10 +14,10 @@ from aibo.commands.learn import write_plots
 from aibo.report import Progress, error_table
 from aibo_core import trajectory
 from aibo_core.atomic import atomic_write
-from learners import model_file
+from learners.model import io as model_io
 from learners.em.fit import EMOptions
 from learners.em.learner import EMLearner
-from learners.em.params import PAPER_START_SENSOR, paper_start
+from learners.inference.batch import make_batch
 from learners.metrics import PAPER_SIM, model_errors, sensor_rms, observed_distance_range
 from learners.oracle import OracleLearner
 
@@ -53,19 +53,19 @@ def run(args) -> int:
     logs = [tr]
 
     oracle = OracleLearner().fit(logs)
-    model_file.save(oracle, out / "model_oracle.json")
+    model_io.save_result(oracle, out / "model_oracle.json")
 
     opts = em_options(args)
-    start = paper_start(tr.dt)
-    print(f"EM from the paper's start (zero velocities, height = {PAPER_START_SENSOR.coef[0]:g} "
-          f"{PAPER_START_SENSOR.coef[1]:+g} d px): motion noise {'learned' if opts.learn_motion_noise else 'fixed'}, "
+    start = EMLearner(opts).start_params(logs, None, make_batch(logs))
+    print(f"EM from the paper's start (zero velocities, height = {start.sensor.coef[0]:g} "
+          f"{start.sensor.coef[1]:+g} d px): motion noise {'learned' if opts.learn_motion_noise else 'fixed'}, "
           f"sensor step '{opts.sensor_method}', acceleration '{opts.accel}'")
     progress = Progress("EM", every=50)
     t0 = time.perf_counter()
     em = EMLearner(opts, checkpoint_path=out / "model_em.json.checkpoint.npz").fit(logs, init=start, progress=progress)
     wall = time.perf_counter() - t0
     progress.close()
-    model_file.save(em, out / "model_em.json")
+    model_io.save_result(em, out / "model_em.json")
 
     errs = {"EM": model_errors(em.params, logs).as_dict(), "oracle": model_errors(oracle.params, logs).as_dict()}
     errs["EM"]["iterations"] = em.iterations

@@ -13,46 +13,32 @@ from pathlib import Path
 
 import numpy as np
 
-from aibo_core.atomic import atomic_write
-from learners.em.data import Batch
+from aibo_core.atomic import save_npz
+from aibo_core.npzfile import FileFormatError, read_npz
 from learners.em.fit import EMState
-from learners.em.params import ActionModel, InitialState, Params, SensorModel
+from learners.inference.batch import Batch
+from learners.model.io import model_from_json, model_to_json
+from learners.model.model import Model
 
-FORMAT = "aibo-em-checkpoint/1"
+FORMAT = "aibo-em-checkpoint/2"
 
 
-def fingerprint(batch: Batch, start: Params, options_json: str) -> str:
-    """SHA-256 over the data, the start parameters and the options."""
+def _model_text(model: Model) -> str:
+    """The model as JSON text: Python writes floats as their shortest round-trip repr, so reading it
+    back gives the very same bits (a resumed fit continues exactly)."""
+    return json.dumps({"format": "aibo-model/1", **model_to_json(model)}, sort_keys=True)
+
+
+def fingerprint(batch: Batch, start: Model, options_json: str) -> str:
+    """SHA-256 over the data, the start model and the options."""
     h = hashlib.sha256()
-    for a in (batch.actions, batch.obs, batch.beacon_xy, batch.frame_start):
-        h.update(np.ascontiguousarray(a).tobytes())
-    for k, v in sorted(_params_arrays("p", start).items()):
-        h.update(k.encode())
-        h.update(np.ascontiguousarray(v).tobytes())
+    for a in (batch.frame_start, batch.actions, batch.controls, batch.sight_start, batch.sight_landmark,
+              batch.sight_value, batch.landmarks):
+        if a is not None:
+            h.update(np.ascontiguousarray(a).tobytes())
+    h.update(_model_text(start).encode())
     h.update(options_json.encode())
     return h.hexdigest()
-
-
-def _params_arrays(prefix: str, p: Params) -> dict[str, np.ndarray]:
-    out = {
-        f"{prefix}.disp": p.action.disp, f"{prefix}.cov": p.action.cov, f"{prefix}.dt": np.array(p.action.dt),
-        f"{prefix}.coef": p.sensor.coef,
-        f"{prefix}.sigmas": np.array([p.sensor.sigma_height, p.sensor.sigma_angle]),
-        f"{prefix}.range": np.array(p.sensor.distance_range_mm),
-        f"{prefix}.init_mean": np.array([s.mean for s in p.init]),
-        f"{prefix}.init_cov": np.array([s.cov for s in p.init]),
-    }
-    return {k: np.asarray(v, float) for k, v in out.items()}
-
-
-def _params_from(prefix: str, d) -> Params:
-    sig = d[f"{prefix}.sigmas"]
-    rng = d[f"{prefix}.range"]
-    return Params(
-        ActionModel(d[f"{prefix}.disp"], d[f"{prefix}.cov"], float(d[f"{prefix}.dt"])),
-        SensorModel(d[f"{prefix}.coef"], float(sig[0]), float(sig[1]), (float(rng[0]), float(rng[1]))),
-        tuple(InitialState(m, c) for m, c in zip(d[f"{prefix}.init_mean"], d[f"{prefix}.init_cov"])),
-    )
 
 
 def save(path: str | os.PathLike, state: EMState, fp: str) -> None:
@@ -61,12 +47,12 @@ def save(path: str | os.PathLike, state: EMState, fp: str) -> None:
         "best_iteration": state.best_iteration, "pruned": state.pruned, "rng_state": state.rng_state,
         "converged": state.converged, "record_iteration": state.record_iteration,
     }
-    arrays = {**_params_arrays("cur", state.params), **_params_arrays("best", state.best)}
+    arrays = {"cur": np.array(_model_text(state.params)), "best": np.array(_model_text(state.best))}
     arrays["loglik"] = np.asarray(state.loglik, float)
     arrays["seconds"] = np.asarray(state.seconds, float)
     arrays["used"] = state.used
     arrays["scalars"] = np.array(json.dumps(scalars))
-    atomic_write(path, lambda f: np.savez(f, **arrays))
+    save_npz(path, arrays)
 
 
 def load(path: str | os.PathLike, fp: str) -> EMState | None:
@@ -75,20 +61,23 @@ def load(path: str | os.PathLike, fp: str) -> EMState | None:
     if not path.exists():
         return None
     try:
-        with np.load(path, allow_pickle=False) as d:
-            scalars = json.loads(str(d["scalars"]))
-            if scalars.get("format") != FORMAT:
-                raise ValueError(f"{path}: not an EM checkpoint")
-            if scalars["fingerprint"] != fp:
-                raise ValueError(f"{path}: checkpoint is for other logs, start model or options "
-                                 "(delete it or pass --no-resume)")
-            best_ll = float(scalars["best_loglik"])
-            return EMState(
-                iteration=int(scalars["iteration"]), params=_params_from("cur", d), best=_params_from("best", d),
-                best_loglik=best_ll, best_iteration=int(scalars["best_iteration"]),
-                loglik=d["loglik"].tolist(), used=d["used"].astype(bool), pruned=int(scalars["pruned"]),
-                rng_state=scalars["rng_state"], converged=bool(scalars["converged"]), seconds=d["seconds"].tolist(),
-                record_iteration=int(scalars["record_iteration"]),
-            )
-    except (KeyError, OSError, json.JSONDecodeError) as exc:
-        raise ValueError(f"{path}: unreadable checkpoint ({exc}); delete it or pass --no-resume") from None
+        d = read_npz(path)
+        scalars = json.loads(str(d["scalars"]))
+        if scalars.get("format") != FORMAT:
+            raise ValueError(f"{path}: not an EM checkpoint")
+        if scalars["fingerprint"] != fp:
+            raise ValueError(f"{path}: checkpoint is for other logs, start model or options "
+                             "(delete it or pass --no-resume)")
+        best_ll = float(scalars["best_loglik"])
+        return EMState(
+            iteration=int(scalars["iteration"]), params=model_from_json(json.loads(str(d["cur"])), str(path)),
+            best=model_from_json(json.loads(str(d["best"])), str(path)),
+            best_loglik=best_ll, best_iteration=int(scalars["best_iteration"]),
+            loglik=d["loglik"].tolist(), used=d["used"].astype(bool), pruned=int(scalars["pruned"]),
+            rng_state=scalars["rng_state"], converged=bool(scalars["converged"]), seconds=d["seconds"].tolist(),
+            record_iteration=int(scalars["record_iteration"]),
+        )
+    except (FileFormatError, KeyError, TypeError, OSError, json.JSONDecodeError, ValueError) as exc:
+        if str(exc).startswith(f"{path}: checkpoint is for other"):
+            raise
+        raise ValueError(f"{path}: broken checkpoint ({str(exc)[:200]}); pass --no-resume to start over") from None

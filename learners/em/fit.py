@@ -1,7 +1,8 @@
 """The EM loop: E-step, M-step, first-iteration outlier gating, the paper's stop rule, resumable state.
 
-Inference (``smoother``/``kernels``) and the M-steps (``action_mstep``/``sensor_mstep``) are pure
-functions of (params, data); this module only sequences them and keeps the books.
+Inference (``learners.inference``) works on the model lowered to arrays (``Model.lower``); the
+M-step (``mstep``) turns its statistics into new components. Both are pure functions of
+(model, data); this module only sequences them and keeps the books.
 """
 
 from __future__ import annotations
@@ -14,11 +15,10 @@ from typing import Callable
 import numpy as np
 
 from learners.em.accel import Packer, squarem_step
-from learners.em.action_mstep import update_action_model
-from learners.em.data import Batch
-from learners.em.params import ActionModel, InitialState, Params, SensorModel
-from learners.em.posterior import Posterior
-from learners.em.sensor_mstep import update_sensor_model
+from learners.inference.batch import Batch
+from learners.inference.posterior import Posterior
+from learners.model.initial import InitialState
+from learners.model.model import Model
 
 #: First-iteration outlier gate on the innovation's Mahalanobis^2 (2 dof: p = 1.4e-11). Not the
 #: chi-square 0.999 quantile (13.8): with the paper's very poor start that prunes ~12% of honest
@@ -67,8 +67,8 @@ class EMState:
     """Everything a fit needs to continue: saved in checkpoints."""
 
     iteration: int  # E-steps done
-    params: Params  # parameters for the next E-step
-    best: Params
+    params: Model  # parameters for the next E-step
+    best: Model
     best_loglik: float
     best_iteration: int  # iteration (0-based) of ``best``, the highest likelihood so far
     loglik: list[float]
@@ -80,44 +80,27 @@ class EMState:
     record_iteration: int = -1  # last iteration that beat the best by more than min_improvement
 
 
-def e_step(params: Params, batch: Batch, estep: str, gate: float | None = None,
+def e_step(params: Model, batch: Batch, estep: str, gate: float | None = None,
            reuse: Posterior | None = None) -> Posterior:
     """The E-step; ``reuse``: a spent Posterior whose memory the compiled kernel may overwrite."""
+    lo = params.lower(batch)
     if estep == "compiled":
-        from learners.em.kernels import smooth_compiled
+        from learners.inference.kernels import smooth_compiled
 
-        return smooth_compiled(params, batch, gate, out=reuse)
-    from learners.em.smoother import smooth
+        return smooth_compiled(lo, batch, gate, out=reuse)
+    from learners.inference.reference import smooth
 
-    return smooth(params, batch, gate)
-
-
-def m_step(params: Params, batch: Batch, post: Posterior, rng: np.random.Generator, opts: EMOptions) -> Params:
-    """New (a, b, pi) from the E-step's beliefs (paper section III).
-
-    ``opts.estep == "numpy"``: the NumPy reference (``update_action_model`` with ``action_statistics``,
-    ``update_sensor_model`` with ``sensor_points``). ``"compiled"``: the fused numba kernels
-    ``kernels.action_update_compiled`` / ``kernels.sensor_update_compiled`` (same numbers to rounding;
-    ``sample`` draws the same normals from ``rng``).
-    """
-    if opts.estep == "compiled":
-        from learners.em.kernels import action_update_compiled, sensor_update_compiled
-
-        disp, cov = action_update_compiled(params, batch, post, learn_noise=opts.learn_motion_noise)
-        action = ActionModel(disp, cov, params.action.dt)
-        coef, sigma_h, sigma_a, drange = sensor_update_compiled(
-            params, batch, post, rng, method=opts.sensor_method, n_samples=opts.n_samples, degree=opts.degree)
-        sensor = SensorModel(coef, sigma_h, sigma_a, drange)
-    else:
-        action = update_action_model(params, batch, post, learn_noise=opts.learn_motion_noise)
-        sensor = update_sensor_model(params, batch, post, rng, method=opts.sensor_method,
-                                     n_samples=opts.n_samples, degree=opts.degree)
-    first = batch.pose_start[:-1]
-    init = tuple(InitialState(post.mu_gamma[p].copy(), post.cov_gamma[p].copy()) for p in first)
-    return Params(action, sensor, init)
+    return smooth(lo, batch, gate)
 
 
-def initial_state(start: Params, batch: Batch, opts: EMOptions) -> EMState:
+def m_step(params: Model, batch: Batch, post: Posterior, rng: np.random.Generator, opts: EMOptions) -> Model:
+    """New model from the E-step's beliefs (paper section III; ``mstep``)."""
+    from learners.em.mstep import maximize
+
+    return maximize(params, batch, post, rng, opts)
+
+
+def initial_state(start: Model, batch: Batch, opts: EMOptions) -> EMState:
     return EMState(
         iteration=0, params=start, best=start, best_loglik=-np.inf, best_iteration=-1, loglik=[],
         used=batch.used.copy(), pruned=0, rng_state=np.random.default_rng(opts.seed).bit_generator.state,
@@ -139,7 +122,7 @@ class _Loop:
     def done(self) -> bool:
         return self.state.converged or self.state.iteration >= self.opts.max_iter
 
-    def evaluate(self, params: Params) -> tuple[Posterior, float]:
+    def evaluate(self, params: Model) -> tuple[Posterior, float]:
         """E-step at ``params``; the first one prunes outliers (paper section IV-A)."""
         st, opts = self.state, self.opts
         first = st.iteration == 0
@@ -167,10 +150,10 @@ class _Loop:
             self.on_iteration(st, params, ll)
         return post, ll
 
-    def m(self, params: Params, post: Posterior) -> Params:
+    def m(self, params: Model, post: Posterior) -> Model:
         return m_step(params, self.batch, post, self.rng, self.opts)
 
-    def end_cycle(self, next_params: Params) -> None:
+    def end_cycle(self, next_params: Model) -> None:
         self.state.params = next_params
         self.state.rng_state = self.rng.bit_generator.state
         if self.on_cycle is not None:
@@ -204,7 +187,7 @@ def run(
     batch: Batch,
     state: EMState,
     opts: EMOptions,
-    on_iteration: Callable[[EMState, Params, float], None] | None = None,
+    on_iteration: Callable[[EMState, Model, float], None] | None = None,
     on_cycle: Callable[[EMState], None] | None = None,
 ) -> EMState:
     """Iterate EM from ``state`` until the stop rule; returns the final state (best params in ``best``).
@@ -214,7 +197,7 @@ def run(
     """
     opts.validate()
     loop = _Loop(batch, state, opts, on_iteration, on_cycle)
-    packer = Packer(opts.learn_motion_noise, opts.degree) if opts.accel == "squarem" else None
+    packer = Packer(opts) if opts.accel == "squarem" else None
     while not loop.done():
         if packer is None:
             loop.em_cycle()

@@ -10,9 +10,10 @@ import numpy as np
 from aibo_core.trajectory import Trajectory
 from learners.base import IterationRecord, LearnResult, ProgressFn
 from learners.em import checkpoint
-from learners.em.data import Batch, make_batch
 from learners.em.fit import EMOptions, EMState, e_step, initial_state, options_json, run
-from learners.em.params import DEFAULT_INITIAL, Params, paper_start
+from learners.inference.batch import Batch, make_batch
+from learners.model.initial import DEFAULT_INITIAL
+from learners.model.model import Model, start_model
 
 #: A fit whose smoothed path spends more than this share of poses far outside the field is refused.
 MAX_OFF_FIELD = 0.05
@@ -58,25 +59,49 @@ class EMLearner:
         self.checkpoint_every = checkpoint_every
         self.check_field = check_field
 
-    def start_params(self, logs: list[Trajectory], init: Params | None) -> Params:
-        start = init or paper_start(logs[0].dt, len(logs))
+    def start_params(self, logs: list[Trajectory], init: Model | None, batch: Batch,
+                     action_model: str | None = None) -> Model:
+        """``init`` fitted to these logs (dt, number of logs, sensor degree), or the paper's start
+        (``start_model``: zero velocities, a very poor sensor line suited to the sensor kind)."""
+        tr = logs[0]
+        names = tuple(tr.control_names or ())
+        n_commands = len(tr.attempted) if tr.discrete else None
+        fmap = None if action_model in (None, "table") else ("diff_drive" if len(names) == 2 else "linear")
+        if action_model == "table" and not tr.discrete:
+            raise ValueError("this log has continuous commands ('controls'): use --action-model features")
+        if action_model == "features" and tr.discrete:
+            raise ValueError("--action-model features needs continuous commands ('controls'); this log has "
+                             "discrete actions (use --action-model table)")
+        start = init or start_model(batch, tr.dt, tr.sensor_kind, n_commands, names, fmap,
+                                    degree=self.options.degree)
+        if tr.discrete and start.action.discrete and len(start.action.weights) != len(tr.attempted):
+            raise ValueError(f"the start model has {len(start.action.weights)} commands, the log "
+                             f"{len(tr.attempted)}")
+        if start.action.discrete != tr.discrete:
+            raise ValueError("the start model's action model does not fit this log's kind of commands")
+        if start.sensor.kind != tr.sensor_kind:
+            raise ValueError(f"the start model's sensor measures {start.sensor.kind}, the log {tr.sensor_kind}")
+        start = start.with_(sensor=start.sensor.with_degree(self.options.degree))
         if len(start.init) != len(logs):
             start = replace(start, init=tuple(start.init[0] if len(start.init) == 1 else DEFAULT_INITIAL
                                               for _ in logs))
-        if not np.isclose(start.action.dt, logs[0].dt):
-            disp = start.action.velocities * logs[0].dt
-            start = replace(start, action=replace(start.action, disp=disp, dt=logs[0].dt))
+        if not np.isclose(start.action.dt, tr.dt):
+            weights = start.action.weights / start.action.dt * tr.dt
+            start = replace(start, action=replace(start.action, weights=weights, dt=tr.dt))
         return start
 
-    def fit(self, logs: list[Trajectory], init: Params | None = None, progress: ProgressFn | None = None) -> LearnResult:
+    def fit(self, logs: list[Trajectory], init: Model | None = None, progress: ProgressFn | None = None,
+            action_model: str | None = None) -> LearnResult:
+        """Fit by EM. The checkpoint (if any) is left in place: the caller deletes it once the model
+        is safely written (``discard_checkpoint``), so a failed final write loses nothing."""
         batch = make_batch(logs)
-        start = self.start_params(logs, init)
+        start = self.start_params(logs, init, batch, action_model)
         fp = checkpoint.fingerprint(batch, start, options_json(self.options)) if self.checkpoint_path else ""
         state = self._load_or_start(batch, start, fp)
         resumed_from = state.iteration
         history: list[IterationRecord] = []
 
-        def on_iteration(st: EMState, params: Params, loglik: float) -> None:
+        def on_iteration(st: EMState, params: Model, loglik: float) -> None:
             rec = IterationRecord(st.iteration, loglik, st.seconds[-1], params)
             history.append(rec)
             if progress is not None:
@@ -96,19 +121,22 @@ class EMLearner:
                 "seconds_per_iteration": float(np.median(state.seconds[1:])) if len(state.seconds) > 1 else 0.0,
                 "options": self.options.__dict__.copy()}
         info["off_field_fraction"] = self._check(batch.with_used(state.used), state.best, logs)
-        if self.checkpoint_path and os.path.exists(self.checkpoint_path):
-            os.unlink(self.checkpoint_path)
         return LearnResult("em", state.best, state.iteration, state.converged, list(state.loglik),
                            state.pruned, history, info)
 
-    def _load_or_start(self, batch: Batch, start: Params, fp: str) -> EMState:
+    def discard_checkpoint(self) -> None:
+        """Delete the checkpoint (call after the model is on disk)."""
+        if self.checkpoint_path and os.path.exists(self.checkpoint_path):
+            os.unlink(self.checkpoint_path)
+
+    def _load_or_start(self, batch: Batch, start: Model, fp: str) -> EMState:
         if self.checkpoint_path and self.resume:
             saved = checkpoint.load(self.checkpoint_path, fp)
             if saved is not None:
                 return saved
         return initial_state(start, batch, self.options)
 
-    def _check(self, batch: Batch, best: Params, logs: list[Trajectory]) -> float:
+    def _check(self, batch: Batch, best: Model, logs: list[Trajectory]) -> float:
         post = e_step(best, batch, self.options.estep)
         fracs = []
         for tr, a, b in zip(logs, batch.pose_start[:-1], batch.pose_start[1:]):

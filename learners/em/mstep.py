@@ -1,0 +1,66 @@
+"""The M-step: new components from the E-step's statistics (paper section III; docs/em-math.md).
+
+- Action model: the per-frame displacement estimates mu*_i (``action_statistics``: posterior of the
+  robot-frame displacement times the previous model, footnote 3) regressed on the command features
+  (``ActionModel.regress``: the paper's per-action mean for the table); with ``learn_motion_noise``
+  Sigma_A = (sum_i C*_i + sum_i r_i r_i^T) / N, r_i = mu*_i - features_i weights_new.
+- Sensor model: weighted least squares of the sizes on the basis functions of distance over the
+  smoothed pose beliefs, and the noise variances (``update_sensor_curve``).
+- pi: the smoothed first pose of each log.
+- Effects: each effect's conditional maximization, in order (ECM), after the base model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from learners.inference.batch import Batch
+from learners.inference.posterior import Posterior
+from learners.model.initial import InitialState
+from learners.model.model import Model
+
+if TYPE_CHECKING:
+    from learners.em.fit import EMOptions
+
+
+def _sym(A: np.ndarray) -> np.ndarray:
+    return 0.5 * (A + A.T)
+
+
+def _statistics(compiled: bool):
+    """(action_statistics, residual_cov, sensor update) of the compiled or the NumPy path."""
+    if compiled:
+        from learners.inference import kernels as k
+
+        return k.action_statistics_compiled, k.residual_cov_compiled, k.sensor_update_compiled
+    from learners.inference.action_stats import action_statistics, residual_cov
+    from learners.inference.sensor_stats import update_sensor_curve
+
+    return action_statistics, residual_cov, update_sensor_curve
+
+
+def maximize(model: Model, batch: Batch, post: Posterior, rng: np.random.Generator, opts: "EMOptions") -> Model:
+    """The new model (see the module docstring); ``opts.estep`` picks the compiled or NumPy statistics."""
+    action_stats, resid_cov, sensor_update = _statistics(opts.estep == "compiled")
+    lo = model.lower(batch)
+    commands = batch.actions if batch.actions is not None else batch.controls
+    mu_star, C_sum = action_stats(lo, batch, post, opts.learn_motion_noise)
+    weights = model.action.regress(commands, mu_star)
+    action = model.action.with_values(weights=weights)
+    if opts.learn_motion_noise and len(mu_star):
+        inv_n = 1.0 / len(mu_star)
+        R = resid_cov(mu_star, action.displacements(commands), lo.cov_scale)
+        action = action.with_values(cov=_sym(C_sum * inv_n + R * inv_n))
+    coef, sigma_size, sigma_bearing, drange = sensor_update(
+        lo, batch, post, rng, method=opts.sensor_method, n_samples=opts.n_samples, degree=opts.degree)
+    sensor = replace(model.sensor, coef=coef, sigma_size=sigma_size, sigma_bearing=sigma_bearing,
+                     distance_range_mm=(float(drange[0]), float(drange[1])))
+    first = batch.pose_start[:-1]
+    init = tuple(InitialState(post.mu_gamma[p].copy(), post.cov_gamma[p].copy()) for p in first)
+    new = model.with_(action=action, sensor=sensor, init=init)
+    for effect in model.effects:
+        new = new.effect(effect.name).maximize(new, batch, post)
+    return new

@@ -1,0 +1,138 @@
+"""The action model: mean robot-frame displacement per frame = features(command) x weights.
+
+Feature maps (``feature_map``; the model file records the name and, for continuous commands, the
+log's ``control_names`` and units):
+
+=============  =====================  ========================================================
+name           command                features (F)
+=============  =====================  ========================================================
+``table``      discrete index a       one-hot of a (F = number of commands): the paper's table
+                                      of 40 velocities; weights[a] = displacement of command a
+``diff_drive`` (v mm/s, omega rad/s)  [v, omega, v |omega|, |omega|, 1]: linear gains and
+                                      cross-coupling, forward speed lost while turning either
+                                      way (v |omega|), a turn-size-dependent drift (|omega|)
+                                      and a constant offset
+``linear``     any k numbers          [c_1, ..., c_k, 1]
+=============  =====================  ========================================================
+
+``weights`` (F, 3) are per-frame displacements (mm, mm, rad) per unit feature; velocities are
+displacements / dt (mm/s, mm/s, rad/s; x forward, y left, CCW positive). ``cov`` (3, 3) is the
+per-frame displacement covariance Sigma_A (mm^2, rad^2), shared by all frames.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, ClassVar
+
+import numpy as np
+
+from learners.model.parameters import Component, Param
+
+#: The paper's fixed per-frame motion noise: 10 mm, 10 mm, 0.1 rad standard deviations (footnote 2).
+PAPER_MOTION_STD = (10.0, 10.0, 0.1)
+
+
+def _diff_drive(c: np.ndarray) -> np.ndarray:
+    v, w = c[:, 0], c[:, 1]
+    aw = np.abs(w)
+    return np.stack([v, w, v * aw, aw, np.ones_like(v)], axis=1)
+
+
+def _linear(c: np.ndarray) -> np.ndarray:
+    return np.concatenate([c, np.ones((len(c), 1))], axis=1)
+
+
+#: name -> (features of (N, k) continuous commands, number of features for k inputs)
+FEATURE_MAPS: dict[str, tuple[Callable[[np.ndarray], np.ndarray], Callable[[int], int]]] = {
+    "diff_drive": (_diff_drive, lambda k: 5 if k == 2 else -1),
+    "linear": (_linear, lambda k: k + 1),
+}
+
+
+@dataclass(frozen=True)
+class ActionModel(Component):
+    """features(command) x weights, with a shared per-frame noise covariance (module docstring)."""
+
+    weights: np.ndarray  # (F, 3) per-frame displacement per unit feature (mm, mm, rad)
+    cov: np.ndarray  # (3, 3) Sigma_A (mm^2, rad^2 per frame)
+    dt: float  # s per frame
+    feature_map: str = "table"
+    control_names: tuple[str, ...] = ()
+
+    PARAMS: ClassVar[dict[str, Param]] = {
+        "weights": Param("mm, mm, rad per frame per unit feature", "scaled", PAPER_MOTION_STD),
+        "cov": Param("mm^2, rad^2 per frame", "logchol", order=1),
+    }
+
+    @property
+    def discrete(self) -> bool:
+        return self.feature_map == "table"
+
+    @property
+    def disp(self) -> np.ndarray:
+        """(A, 3) displacement per frame of each discrete command (table models only)."""
+        if not self.discrete:
+            raise ValueError(f"a '{self.feature_map}' action model has no table of displacements")
+        return self.weights
+
+    @property
+    def velocities(self) -> np.ndarray:
+        """(A, 3) velocity of each discrete command: vx mm/s, vy mm/s, vtheta rad/s (table models)."""
+        return self.disp / self.dt
+
+    def features(self, commands: np.ndarray) -> np.ndarray:
+        """(N, F) features of continuous commands (N, k)."""
+        fn, n_features = FEATURE_MAPS[self.feature_map]
+        c = np.asarray(commands, dtype=float)
+        if c.ndim != 2 or n_features(c.shape[1]) != len(self.weights):
+            raise ValueError(f"feature map '{self.feature_map}' with {len(self.weights)} features cannot take "
+                             f"commands of shape {c.shape}")
+        return fn(c)
+
+    def displacements(self, commands: np.ndarray) -> np.ndarray:
+        """(N, 3) mean per-frame displacement (mm, mm, rad) for discrete indices (N,) or continuous (N, k)."""
+        if self.discrete:
+            idx = np.asarray(commands)
+            if idx.ndim != 1 or idx.dtype.kind not in "iu":
+                raise ValueError(f"a table action model takes command indices of shape (N,), got {idx.shape}")
+            if idx.size and (idx.min() < 0 or idx.max() >= len(self.weights)):
+                raise ValueError(f"command index outside 0..{len(self.weights) - 1}")
+            return self.weights[idx]
+        return self.features(commands) @ self.weights
+
+    def velocity(self, commands: np.ndarray) -> np.ndarray:
+        """(N, 3) velocities [forward mm/s, lateral mm/s, turn rad/s] for discrete command indices (N,)
+        or continuous commands (N, k) in the units the log declared (public API)."""
+        return self.displacements(commands) / self.dt
+
+    def regress(self, commands: np.ndarray, mu_star: np.ndarray) -> np.ndarray:
+        """New weights: least squares of the per-frame displacement estimates ``mu_star`` (N, 3) on the
+        features. ``table``: the mean over the frames of each command (commands never executed keep
+        their weights); otherwise ordinary least squares over all frames (equal weights: one shared
+        noise covariance)."""
+        if self.discrete:
+            n_act = len(self.weights)
+            counts = np.bincount(commands, minlength=n_act).astype(float)
+            sums = np.stack([np.bincount(commands, weights=mu_star[:, k], minlength=n_act) for k in range(3)], axis=1)
+            out = np.array(self.weights, dtype=float)
+            seen = counts > 0
+            out[seen] = sums[seen] / counts[seen, None]
+            return out
+        phi = self.features(commands)
+        return np.linalg.lstsq(phi, mu_star, rcond=None)[0]
+
+    def determined(self, commands: np.ndarray) -> np.ndarray:
+        """(F,) bool: which weights the commands of a log determine (table: the commands executed;
+        features: all, when the feature matrix has full column rank)."""
+        if self.discrete:
+            return np.bincount(commands, minlength=len(self.weights)) > 0
+        phi = self.features(commands)
+        return np.full(len(self.weights), np.linalg.matrix_rank(phi) == phi.shape[1])
+
+    @staticmethod
+    def zeros(n_features: int, dt: float, feature_map: str = "table", control_names: tuple[str, ...] = (),
+              std=PAPER_MOTION_STD) -> "ActionModel":
+        """All displacements zero (the paper's start), noise ``std`` (mm, mm, rad per frame)."""
+        return ActionModel(np.zeros((n_features, 3)), np.diag(np.square(np.asarray(std, float))), float(dt),
+                           feature_map, tuple(control_names))

@@ -1,0 +1,131 @@
+"""Effects: model components for real-world effects the base model lacks (the learner's twins of
+the simulator's ``aibo_gym.effects``, registered under the same names).
+
+An effect is a ``Component`` that
+- ``lower(lo, batch)``: writes itself into the lowered arrays (``learners.inference.lowered``),
+  e.g. a per-sighting size scale; no kernel changes;
+- ``maximize(model, batch, post)``: its conditional M-step (ECM: the other parameters held at
+  their newest values), returning the new Model (it may also re-normalize another component);
+- ``start(batch)``: its neutral value sized for the data (the effect switched off).
+
+Register one with ``@register_effect``; ``EFFECT_MODELS`` maps names to classes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import numpy as np
+
+from learners.inference.batch import Batch
+from learners.inference.lowered import Lowered
+from learners.inference.posterior import Posterior
+from learners.model.parameters import Component, Param
+
+if TYPE_CHECKING:
+    from learners.model.model import Model
+
+
+class EffectModel(Component):
+    """Base of the effect components (module docstring)."""
+
+    name: ClassVar[str] = ""
+
+    def lower(self, lo: Lowered, batch: Batch) -> None:
+        raise NotImplementedError
+
+    def maximize(self, model: "Model", batch: Batch, post: Posterior) -> "Model":
+        raise NotImplementedError
+
+    @classmethod
+    def start(cls, batch: Batch) -> "EffectModel":
+        raise NotImplementedError
+
+    def to_json(self) -> dict[str, Any]:
+        return {"name": self.name, "parameters": {k: v.tolist() for k, v in self.values().items()}}
+
+
+EFFECT_MODELS: dict[str, type[EffectModel]] = {}
+
+
+def register_effect(cls: type[EffectModel]) -> type[EffectModel]:
+    """Class decorator: make ``cls`` available under ``cls.name``."""
+    if not cls.name:
+        raise ValueError(f"effect class {cls.__name__} has no name")
+    EFFECT_MODELS[cls.name] = cls
+    return cls
+
+
+def effect_from_json(doc: Any, source: str) -> EffectModel:
+    """An effect from its model-file entry ``{"name": ..., "parameters": {...}}``."""
+    if not isinstance(doc, dict) or doc.get("name") not in EFFECT_MODELS:
+        valid = ", ".join(sorted(EFFECT_MODELS))
+        raise ValueError(f"{source}: field 'effects': unknown effect {doc!r} (valid choices: {valid})")
+    cls = EFFECT_MODELS[doc["name"]]
+    params = doc.get("parameters")
+    if not isinstance(params, dict) or set(params) != set(cls.PARAMS):
+        raise ValueError(f"{source}: field 'effects.{cls.name}.parameters': expected keys {sorted(cls.PARAMS)}")
+    values = {}
+    for key, value in params.items():
+        arr = np.asarray(value, dtype=float)
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f"{source}: field 'effects.{cls.name}.parameters.{key}': non-finite value")
+        values[key] = float(arr) if arr.shape == () else arr
+    return cls(**values)
+
+
+def cubature_distances(batch: Batch, post: Posterior) -> tuple[np.ndarray, np.ndarray]:
+    """(sighting indices (n,), distances (n, 6) mm) of the used sightings at the 6 cubature points of
+    the smoothed pose beliefs (mu +- sqrt(3) L e_j, L = chol(Sigma_gamma)), as the sensor M-step."""
+    idx = np.flatnonzero(batch.used)
+    pose = batch.sight_pose[idx]
+    L = np.linalg.cholesky(post.cov_gamma[pose])
+    s3L = np.sqrt(3.0) * np.swapaxes(L, 1, 2)
+    mu = post.mu_gamma[pose]
+    pts = np.concatenate([mu[:, None, :] + s3L, mu[:, None, :] - s3L], axis=1)
+    d = np.hypot(batch.sight_xy[idx, None, 0] - pts[..., 0], batch.sight_xy[idx, None, 1] - pts[..., 1])
+    return idx, d
+
+
+@register_effect
+@dataclass(frozen=True)
+class BeaconHeightScale(EffectModel):
+    """Beacons differ in physical height: the size of landmark b is ``scale[b] * f(d)``.
+
+    ``scale`` (one factor per landmark) is normalized to geometric mean 1: a common factor is
+    absorbed by the sensor curve. Residual signature without it: size residuals depend on the
+    landmark's identity.
+    """
+
+    scale: np.ndarray  # (B,) dimensionless
+
+    name: ClassVar[str] = "beacon_height_scale"
+    PARAMS: ClassVar[dict[str, Param]] = {"scale": Param("factor per landmark", "log")}
+
+    @classmethod
+    def start(cls, batch: Batch) -> "BeaconHeightScale":
+        return cls(np.ones(len(batch.landmarks)))
+
+    def lower(self, lo: Lowered, batch: Batch) -> None:
+        lo.size_scale *= self.scale[batch.sight_landmark]
+
+    def maximize(self, model: "Model", batch: Batch, post: Posterior) -> "Model":
+        """Closed form given the curve: scale[b] = sum f z / sum f^2 over landmark b's sightings
+        (cubature points, weights 1 / size_var_factor); then normalized, the common factor moved
+        into the curve's coefficients (f(d) g scale/g is the same prediction)."""
+        lo = model.lower(batch)
+        idx, d = cubature_distances(batch, post)
+        f = model.sensor.mean(d) * (lo.size_scale[idx] / self.scale[batch.sight_landmark[idx]])[:, None]
+        z = (batch.sight_value[idx, 0] - lo.size_offset[idx])[:, None]
+        w = 1.0 / lo.size_var_factor[idx][:, None]
+        B = len(self.scale)
+        lm = batch.sight_landmark[idx]
+        num = np.bincount(lm, weights=(w * f * z).sum(axis=1), minlength=B)
+        den = np.bincount(lm, weights=(w * f * f).sum(axis=1), minlength=B)
+        scale = np.where(den > 0, num / np.where(den > 0, den, 1.0), self.scale)
+        if np.any(scale <= 0):
+            return model
+        g = float(np.exp(np.mean(np.log(scale))))
+        sensor = model.sensor.with_values(coef=np.asarray(model.sensor.coef) * g)
+        return model.with_effect(BeaconHeightScale(scale / g)).with_(sensor=sensor)

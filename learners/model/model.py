@@ -1,0 +1,147 @@
+"""The robot model: named components (action, sensor, initial states, effects) and the generic
+operations over them: lowering to the inference arrays, packing for acceleration, comparison.
+
+``Model`` is what every learner returns and what ``learners.load_model(path)`` gives back.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Iterator
+
+import numpy as np
+
+from learners.inference.batch import Batch
+from learners.inference.lowered import Lowered
+from learners.model.action import ActionModel
+from learners.model.effects import EffectModel
+from learners.model.initial import DEFAULT_INITIAL, InitialState
+from learners.model.parameters import Component
+from learners.model.sensor import SensorModel
+
+
+@dataclass(frozen=True)
+class Model:
+    """lambda = (action model, sensor model, pi per log, effects): everything a learner estimates."""
+
+    action: ActionModel
+    sensor: SensorModel
+    init: tuple[InitialState, ...]
+    effects: tuple[EffectModel, ...] = ()
+
+    def with_(self, **kw) -> "Model":
+        return replace(self, **kw)
+
+    def components(self) -> Iterator[tuple[str, Component]]:
+        """(name, component) of the parts acceleration extrapolates: action, sensor, effects (the
+        initial states come from the last EM step)."""
+        yield "action", self.action
+        yield "sensor", self.sensor
+        for e in self.effects:
+            yield f"effects.{e.name}", e
+
+    def effect(self, name: str) -> EffectModel | None:
+        return next((e for e in self.effects if e.name == name), None)
+
+    def with_effect(self, effect: EffectModel) -> "Model":
+        """The model with ``effect`` added, or replacing the one of the same name (order kept)."""
+        names = [e.name for e in self.effects]
+        if effect.name in names:
+            return replace(self, effects=tuple(effect if e.name == effect.name else e for e in self.effects))
+        return replace(self, effects=self.effects + (effect,))
+
+    # ------------------------------------------------------------------ inference arrays
+    def lower(self, batch: Batch) -> Lowered:
+        """The per-frame and per-sighting arrays of this model on ``batch`` (base model, then effects)."""
+        if len(self.init) != batch.n_logs:
+            raise ValueError(f"model has {len(self.init)} initial states for {batch.n_logs} logs")
+        commands = batch.actions if batch.actions is not None else batch.controls
+        lo = Lowered.plain(
+            self.action.displacements(commands), self.action.cov, self.sensor.basis_id, self.sensor.coef,
+            self.sensor.sigma_size, self.sensor.sigma_bearing, np.stack([s.mean for s in self.init]),
+            np.stack([s.cov for s in self.init]), batch.n_sightings,
+        )
+        for e in self.effects:
+            e.lower(lo, batch)
+        return lo
+
+    # ------------------------------------------------------------------ packing (SQUAREM)
+    def _slots(self, fixed: frozenset[str]) -> list[tuple[int, str, str, Component]]:
+        slots = []
+        for cname, comp in self.components():
+            for pname, p in comp.PARAMS.items():
+                if p.trainable and f"{cname}.{pname}" not in fixed:
+                    slots.append((p.order, cname, pname, comp))
+        return sorted(slots, key=lambda s: s[0])  # stable: declaration order within one order
+
+    def pack(self, fixed: frozenset[str] = frozenset()) -> np.ndarray:
+        """The trainable parameters (except ``fixed``, dotted names) as one scaled, unconstrained vector."""
+        return np.concatenate([comp.pack_param(pname) for _, _, pname, comp in self._slots(fixed)])
+
+    def unpack(self, x: np.ndarray, fixed: frozenset[str] = frozenset()) -> "Model":
+        """Inverse of ``pack``: this model with the packed parameters read from ``x``."""
+        new: dict[str, dict] = {}
+        at = 0
+        for _, cname, pname, comp in self._slots(fixed):
+            value, n = comp.unpack_param(pname, x[at:])
+            new.setdefault(cname, {})[pname] = value
+            at += n
+        if at != len(x):
+            raise ValueError(f"packed vector has {len(x)} entries, the model {at}")
+        model = self
+        for cname, values in new.items():
+            comp = dict(self.components())[cname].with_values(**values)
+            model = model.with_effect(comp) if cname.startswith("effects.") else replace(model, **{cname: comp})
+        return model
+
+    # ------------------------------------------------------------------ printing and comparison
+    def describe(self) -> str:
+        """Every component's parameters, one per line, with units."""
+        lines = []
+        for cname, comp in self.components():
+            lines += [f"{cname}.{line}" for line in comp.describe()]
+        return "\n".join(lines)
+
+    def max_abs_difference(self, other: "Model") -> dict[str, float]:
+        """Largest absolute difference per parameter (dotted names) between two models of one structure."""
+        mine, theirs = dict(self.components()), dict(other.components())
+        if mine.keys() != theirs.keys():
+            raise ValueError(f"models differ in components: {sorted(mine)} vs {sorted(theirs)}")
+        out = {}
+        for cname, comp in mine.items():
+            for pname, value in comp.values().items():
+                out[f"{cname}.{pname}"] = float(np.max(np.abs(value - theirs[cname].values()[pname]), initial=0.0))
+        return out
+
+
+def start_model(batch: Batch, dt: float, sensor_kind: str = "height_px", n_commands: int | None = None,
+                control_names: tuple[str, ...] = (), feature_map: str | None = None, basis: str = "power",
+                degree: int = 3) -> Model:
+    """The paper's start: no action model (all displacements zero, 10 mm / 10 mm / 0.1 rad noise) and
+    a very poor sensor model suited to the sensor kind (``SensorModel.start``)."""
+    if batch.actions is not None:
+        fmap = feature_map or "table"
+        n = n_commands if n_commands is not None else int(batch.actions.max()) + 1
+    else:
+        fmap = feature_map or ("diff_drive" if batch.controls.shape[1] == 2 else "linear")
+        from learners.model.action import FEATURE_MAPS
+
+        n = FEATURE_MAPS[fmap][1](batch.controls.shape[1])
+        if n < 1:
+            raise ValueError(f"feature map '{fmap}' does not take {batch.controls.shape[1]} controls")
+    if fmap == "table" and batch.actions is None:
+        raise ValueError("a table action model needs discrete actions; use --action-model features")
+    return Model(
+        ActionModel.zeros(n, dt, fmap, control_names),
+        SensorModel.start(sensor_kind, basis, degree),
+        tuple(DEFAULT_INITIAL for _ in range(batch.n_logs)),
+    )
+
+
+def paper_start(logs: list, degree: int = 3) -> Model:
+    """``start_model`` for a list of logs (aibo_core.trajectory.Trajectory): the paper's start."""
+    from learners.inference.batch import make_batch
+
+    tr = logs[0]
+    return start_model(make_batch(logs), tr.dt, tr.sensor_kind, len(tr.attempted) if tr.discrete else None,
+                       tuple(tr.control_names or ()), degree=degree)

@@ -1,0 +1,102 @@
+"""Parameters as small containers with properties (in the spirit of dynamax's ``ParameterProperties``).
+
+A model component is a frozen dataclass; ``PARAMS`` declares which of its fields are parameters
+and their properties, so that acceleration (packing), checkpoints, the model file, printing and
+comparison are generic loops over components:
+
+- ``unit``: printed and documented unit (e.g. ``"mm/s"``);
+- ``transform``: how the parameter is mapped to the unconstrained, scaled vector SQUAREM
+  extrapolates: ``"scaled"`` (value / scale), ``"log"`` (positive), ``"logchol"`` (symmetric
+  positive definite: log-Cholesky), or a component's own (``pack_<name>`` / ``unpack_<name>``);
+- ``scale``: the typical size of one unit of the parameter (a "noise width");
+- ``trainable``: estimated by EM (False: kept fixed);
+- ``order``: noise covariances (order 1) are packed after the curves (order 0).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields, replace
+from typing import Any, ClassVar
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Param:
+    """Properties of one parameter array of a component."""
+
+    unit: str
+    transform: str = "scaled"
+    scale: float | tuple[float, ...] = 1.0
+    trainable: bool = True
+    order: int = 0  # packing order: parameters are packed by (order, component, declaration)
+
+
+def chol_vec(cov: np.ndarray) -> np.ndarray:
+    """Log-Cholesky vector of a 3x3 SPD matrix: log of the diagonal, then the lower triangle."""
+    L = np.linalg.cholesky(cov)
+    return np.array([np.log(L[0, 0]), np.log(L[1, 1]), np.log(L[2, 2]), L[1, 0], L[2, 0], L[2, 1]])
+
+
+def chol_mat(v: np.ndarray) -> np.ndarray:
+    """Inverse of ``chol_vec``."""
+    L = np.diag(np.exp(v[:3]))
+    L[1, 0], L[2, 0], L[2, 1] = v[3], v[4], v[5]
+    return L @ L.T
+
+
+class Component:
+    """Base of every model component: generic access to the declared parameters."""
+
+    PARAMS: ClassVar[dict[str, Param]] = {}
+
+    def values(self) -> dict[str, np.ndarray]:
+        """Every declared parameter as a float array."""
+        return {name: np.asarray(getattr(self, name), dtype=float) for name in self.PARAMS}
+
+    def with_values(self, **values: Any):
+        """A copy with some parameters replaced (arrays keep their shape)."""
+        return replace(self, **values)
+
+    def config(self) -> dict[str, Any]:
+        """The non-parameter fields (structure: feature map, basis, units, ...)."""
+        return {f.name: getattr(self, f.name) for f in fields(self) if f.name not in self.PARAMS}
+
+    def pack_param(self, name: str) -> np.ndarray:
+        """Parameter ``name`` in the unconstrained, scaled space SQUAREM extrapolates (1-d)."""
+        p = self.PARAMS[name]
+        value = np.asarray(getattr(self, name), dtype=float)
+        own = getattr(self, f"pack_{p.transform}", None)
+        if own is not None:
+            return np.ravel(own(value))
+        if p.transform == "log":
+            return np.log(np.ravel(value))
+        if p.transform == "logchol":
+            return chol_vec(value)
+        return np.ravel(value / np.asarray(p.scale, dtype=float))
+
+    def unpack_param(self, name: str, x: np.ndarray) -> tuple[Any, int]:
+        """(value of parameter ``name`` read from the start of ``x``, number of entries used)."""
+        p = self.PARAMS[name]
+        old = np.asarray(getattr(self, name), dtype=float)
+        n = 6 if p.transform == "logchol" else old.size
+        chunk = x[:n]
+        own = getattr(self, f"unpack_{p.transform}", None)
+        if own is not None:
+            value = own(chunk, old)
+        elif p.transform == "log":
+            value = np.exp(chunk).reshape(old.shape)
+        elif p.transform == "logchol":
+            value = chol_mat(chunk)
+        else:
+            value = chunk.reshape(old.shape) * np.asarray(p.scale, dtype=float)
+        return (float(value) if old.shape == () else value), n
+
+    def describe(self) -> list[str]:
+        """Lines ``name = value unit`` for printing."""
+        lines = []
+        for name, p in self.PARAMS.items():
+            v = np.asarray(getattr(self, name), dtype=float)
+            text = f"{float(v):.6g}" if v.shape == () else np.array2string(v, precision=4, max_line_width=100)
+            lines.append(f"{name} = {text} {p.unit}".rstrip())
+        return lines

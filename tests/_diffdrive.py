@@ -1,0 +1,66 @@
+"""A second, independent log generator: a wheeled differential-drive robot with continuous
+(v mm/s, omega rad/s) commands and a range-and-bearing sensor seeing several landmarks per frame.
+
+It shares nothing with ``aibo_gym`` (no head pan, no field, no walls, other noise, other rates), so
+a learner that works on its logs does not depend on our simulator's choices.
+
+True motion per frame (robot frame, dt s): velocity = FEATURES(v, omega) @ TRUE_W, with
+FEATURES = [v, omega, v |omega|, |omega|, 1] (the ``diff_drive`` feature map); plus Gaussian slip.
+Sensor: range = d + N(0, 40 mm), bearing = true bearing + N(0, 0.02 rad), for landmarks within
+4 m and 0.9 rad of the heading, each seen with probability 0.4 per frame.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from aibo_core.geometry import wrap
+from aibo_core.trajectory import Trajectory
+
+#: rows: v, omega, v|omega|, |omega|, 1; columns: vx mm/s, vy mm/s, vtheta rad/s
+TRUE_W = np.array([
+    [0.92, 0.015, 0.0002],
+    [0.0, 12.0, 0.95],
+    [-0.12, 0.0, 0.0],
+    [0.0, 0.0, 0.01],
+    [4.0, -2.0, 0.003],
+])
+
+
+def velocity(commands: np.ndarray) -> np.ndarray:
+    """(N, 3) true velocities (mm/s, mm/s, rad/s) for commands (N, 2) = (v mm/s, omega rad/s)."""
+    v, w = commands[:, 0], commands[:, 1]
+    return np.stack([v, w, v * np.abs(w), np.abs(w), np.ones_like(v)], axis=1) @ TRUE_W
+
+
+def diff_drive_log(seconds: float = 600.0, dt: float = 0.05, seed: int = 0) -> Trajectory:
+    """A log of ``seconds`` with commands held 1-3 s, wandering among 8 landmarks in a 6 m square."""
+    rng = np.random.default_rng(seed)
+    T = int(round(seconds / dt))
+    landmarks = rng.uniform(-3000.0, 3000.0, size=(8, 2))
+    pose = np.zeros((T + 1, 3))
+    controls = np.zeros((T, 2))
+    frames, marks, values = [], [], []
+    cmd, hold = np.zeros(2), 0
+    for t in range(T):
+        x, y, th = pose[t]
+        if hold <= 0:
+            home = wrap(np.arctan2(-y, -x) - th) if np.hypot(x, y) > 2000 else rng.uniform(-1, 1)
+            cmd = np.array([rng.uniform(-100.0, 400.0), np.clip(home + rng.normal(0, 0.3), -1.2, 1.2)])
+            hold = int(rng.integers(20, 60))
+        hold -= 1
+        controls[t] = cmd
+        vel = velocity(cmd[None])[0] * dt + rng.normal(0.0, [2.0, 2.0, 0.005])
+        c, s = np.cos(th), np.sin(th)
+        pose[t + 1] = (x + c * vel[0] - s * vel[1], y + s * vel[0] + c * vel[1], th + vel[2])
+        dx, dy = (landmarks - pose[t + 1, :2]).T
+        d = np.hypot(dx, dy)
+        bearing = wrap(np.arctan2(dy, dx) - pose[t + 1, 2])
+        for b in np.flatnonzero((d > 300) & (d < 4000) & (np.abs(bearing) < 0.9) & (rng.random(8) < 0.4)):
+            frames.append(t)
+            marks.append(b)
+            values.append((d[b] + rng.normal(0, 40.0), wrap(bearing[b] + rng.normal(0, 0.02))))
+    return Trajectory(dt=dt, landmarks=landmarks, sighting_frame=np.array(frames), sighting_landmark=np.array(marks),
+                      sighting_value=np.array(values).reshape(-1, 2), sensor_kind="range_mm", controls=controls,
+                      control_names=("v_mm_s", "omega_rad_s"), pose=pose,
+                      meta={"generator": "tests/_diffdrive.py", "seed": seed})

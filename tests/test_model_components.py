@@ -1,0 +1,112 @@
+"""The model vocabulary: components with declared parameters, lowering, packing, the public API,
+a new component added without touching inference (per-beacon height scale), and continuous
+commands with a range sensor on logs from another generator."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from learners import load_model
+from learners.em.fit import EMOptions
+from learners.em.learner import EMLearner
+from learners.inference.batch import make_batch
+from learners.model.effects import EFFECT_MODELS, BeaconHeightScale
+from learners.model.io import save_result
+from learners.model.model import paper_start
+from tests._diffdrive import diff_drive_log, velocity
+from tests._logs import sim_log
+
+
+def test_pack_unpack_round_trip_with_an_effect():
+    tr = sim_log(600)
+    batch = make_batch([tr])
+    model = paper_start([tr]).with_effect(BeaconHeightScale(np.array([1.1, 0.9, 1.2, 1 / (1.1 * 0.9 * 1.2)])))
+    rng = np.random.default_rng(1)
+    model = model.with_(action=model.action.with_values(weights=rng.normal(size=(40, 3))))
+    x = model.pack()
+    assert len(x) == 40 * 3 + 4 + 2 + 4 + 6  # weights, curve at 4 nodes, 2 log sigmas, 4 log scales, log-chol
+    back = model.unpack(x)
+    assert max(model.max_abs_difference(back).values()) < 1e-9
+    assert len(model.pack(frozenset({"action.cov"}))) == len(x) - 6
+    lo = model.lower(batch)
+    np.testing.assert_allclose(lo.size_scale, model.effects[0].scale[batch.sight_landmark])
+
+
+def test_public_api_on_a_model_file(tmp_path):
+    tr = sim_log(3000)
+    res = EMLearner(EMOptions(max_iter=30)).fit([tr])
+    save_result(res, tmp_path / "m.json")
+    m = load_model(tmp_path / "m.json")
+    v = m.action.velocity(np.array([0, 5, 39]))
+    assert v.shape == (3, 3)
+    np.testing.assert_allclose(v, res.params.action.velocities[[0, 5, 39]])
+    assert m.sensor.mean(np.array([1500.0, 3000.0])).shape == (2,)
+    assert m.sensor.std(np.array([1500.0, 3000.0])).shape == (2, 2)
+    with pytest.raises(ValueError, match="command index"):
+        m.action.velocity(np.array([40]))
+
+
+@pytest.mark.slow
+def test_new_component_per_beacon_height_scale_is_recovered():
+    """The worked example: one component file (learners/model/effects.py) and its simulator twin;
+    EM estimates it with nothing changed in inference, the loop, packing, checkpoint or model file."""
+    from aibo_gym.collect import collect
+
+    scale = np.array([1.15, 0.9, 1.05, 0.95])
+    tr = collect({"noise": "paper-sim", "effects": {"beacon_height_scale": {"scale": scale.tolist()}}}, 9000, seed=2)
+    start = paper_start([tr]).with_effect(BeaconHeightScale.start(make_batch([tr])))
+    res = EMLearner(EMOptions()).fit([tr], init=start)
+    got = res.params.effect("beacon_height_scale").scale
+    expected = scale / np.exp(np.mean(np.log(scale)))  # normalized to geometric mean 1
+    np.testing.assert_allclose(got, expected, atol=0.01)
+    plain = EMLearner(EMOptions()).fit([tr])
+    assert res.loglik[res.info["best_iteration"]] > plain.loglik[plain.info["best_iteration"]] + 50
+
+
+@pytest.mark.slow
+def test_continuous_commands_and_range_sensor_from_another_generator():
+    """A differential-drive log (tests/_diffdrive.py: continuous (v, omega), range/bearing, up to 4
+    sightings per frame) learned by the same EM with the feature action model and a range sensor."""
+    tr = diff_drive_log(600.0, seed=0)
+    res = EMLearner(EMOptions()).fit([tr], action_model="features")
+    m = res.params
+    assert m.action.feature_map == "diff_drive" and m.sensor.kind == "range_mm"
+    grid = np.array([[v, w] for v in np.linspace(-100, 400, 11) for w in np.linspace(-1.2, 1.2, 13)])
+    err = m.action.velocity(grid) - velocity(grid)
+    span = np.ptp(velocity(grid), axis=0)
+    rel = np.sqrt(np.mean(err**2, axis=0)) / span
+    assert np.all(rel < 0.02), rel  # within 2% of each component's range
+    d = np.linspace(500, 4000, 50)
+    assert np.max(np.abs(m.sensor.mean(d) - d)) < 30.0  # mm; the true curve is range = d
+    assert m.sensor.sigma_size == pytest.approx(40.0, rel=0.1)
+    assert m.sensor.sigma_bearing == pytest.approx(0.02, rel=0.1)
+
+
+def test_learner_effect_names_are_simulator_effect_names():
+    """Pairing rule: every learner-side effect has a simulator twin of the same name."""
+    from aibo_gym.effects import EFFECTS
+
+    assert set(EFFECT_MODELS) <= set(EFFECTS)
+
+
+def test_learners_work_without_gymnasium(tmp_path):
+    """``import learners``, loading a log and an EM fit, with gymnasium blocked."""
+    from aibo_core.trajectory import save
+
+    save(sim_log(1200), tmp_path / "log.npz")
+    code = (
+        "import sys; sys.modules['gymnasium'] = None\n"
+        "import learners\n"
+        "from aibo_core.trajectory import load\n"
+        "from learners.em.learner import EMLearner\n"
+        "from learners.em.fit import EMOptions\n"
+        f"res = EMLearner(EMOptions(max_iter=5)).fit([load({str(tmp_path / 'log.npz')!r})])\n"
+        "assert res.iterations == 5 and 'aibo_gym' not in sys.modules\n"
+        "print('ok')\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-2000:]
