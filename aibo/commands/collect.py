@@ -5,15 +5,14 @@ from __future__ import annotations
 import sys
 import time
 
-from aibo.cli import CLIError
+from aibo.paths import check_files
 from aibo_core import trajectory
 
 
 def run(args) -> int:
     from aibo_gym.collect import collect
 
-    if args.steps < 1:
-        raise CLIError(f"--steps must be >= 1, got {args.steps}")
+    check_files(inputs=[], outputs=[("--out", args.out)] + ([("--plot", args.plot)] if args.plot else []))
     config = dict(args.config)
     if args.preset:
         config["noise"] = args.preset
