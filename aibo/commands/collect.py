@@ -11,9 +11,11 @@ from aibo_core import trajectory
 
 def run(args) -> int:
     from aibo_gym.collect import collect
+    from aibo_gym.config import default_config
 
     check_files(inputs=[], outputs=[("--out", args.out)] + ([("--plot", args.plot)] if args.plot else []))
-    config = dict(args.config)
+    # --steps frames, also past the default episode limit, unless --config sets max_steps
+    config = {"max_steps": max(args.steps, default_config()["max_steps"]), **args.config}
     if args.preset:
         config["noise"] = args.preset
     t0 = time.perf_counter()
