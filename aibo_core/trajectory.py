@@ -193,6 +193,9 @@ def _header_check(source: str, allowed: tuple[str, ...]):
     """Checks of the declared shapes, before any data is read."""
 
     def check(headers: dict[str, Header]) -> None:
+        if "format" not in headers:
+            held = ", ".join(sorted(headers)[:5]) + (", ..." if len(headers) > 5 else "")
+            _fail(source, "format", f"missing: not an aibo-trajectory log (its members: {held or 'none'})")
         for key in headers:
             if key not in allowed:
                 _fail(source, key, f"unknown key (allowed: {', '.join(allowed)})")
