@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -50,6 +51,8 @@ def check_learn_files(args) -> None:
 def run(args) -> int:
     check_learn_files(args)
     logs = [trajectory.load(p) for p in args.logs]
+    for warning in trajectory.check_compatible(logs, list(args.logs)):
+        print(f"aibo: warning: {warning}", file=sys.stderr)
     init = model_file.load_params(args.init, len(logs)) if args.init else None
     learner = make_learner(args)
     progress = Progress(args.learner)
