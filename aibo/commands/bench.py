@@ -124,8 +124,8 @@ def scaling(log_path: Path, sizes) -> list[dict]:
 
 
 def run(args) -> int:
-    from aibo_gym.collect import collect
     from aibo.paths import check_files
+    from aibo_gym.collect import collect
 
     check_files([], [("--json", args.json)] if args.json else [])
 
