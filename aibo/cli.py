@@ -11,9 +11,9 @@ Bad input ends with one line ``aibo: error: ...`` and exit status 2 (``--debug``
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 
+from aibo.options import finite, integer, json_object, steps
 from aibo_core.trajectory import TrajectoryError
 
 
@@ -21,32 +21,30 @@ class CLIError(Exception):
     """A user error: printed as one line, exit status 2."""
 
 
-def _json_arg(text: str) -> dict:
-    try:
-        value = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise argparse.ArgumentTypeError(f"--config is not valid JSON ({exc.msg})") from None
-    if not isinstance(value, dict):
-        raise argparse.ArgumentTypeError("--config must be a JSON object")
-    return value
+class _Parser(argparse.ArgumentParser):
+    """argparse, with its usage errors as one line ``aibo: error: ...`` (exit status 2) like all others."""
+
+    def error(self, message: str):
+        self.exit(2, f"aibo: error: {message} (see '{self.prog} --help')\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
     from aibo import commands
 
-    p = argparse.ArgumentParser(prog="aibo", description=__doc__.split("\n\n")[0])
+    p = _Parser(prog="aibo", description=__doc__.split("\n\n")[0])
     p.add_argument("--debug", action="store_true", help="show tracebacks of errors")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     c = sub.add_parser("collect", help="simulate and write an aibo-trajectory/1 log")
-    c.add_argument("--steps", type=int, default=27000, help="frames to simulate (default 27000 = 15 min at 30 Hz)")
-    c.add_argument("--seed", type=int, default=0)
+    c.add_argument("--steps", type=steps, default=27000, help="frames to simulate (default 27000 = 15 min at 30 Hz; at most 10^8, "
+                   "or what half the memory holds at 160 bytes/frame)")
+    c.add_argument("--seed", type=integer(0), default=0)
     c.add_argument("--policy", default="random-balanced", choices=["random-balanced"])
     c.add_argument("--localizer", default="truth", choices=["truth", "ekf"],
                    help="pose estimate the policy steers with (default: the true pose)")
     c.add_argument("--out", required=True, help="log file to write (.npz)")
     c.add_argument("--preset", choices=["paper-sim", "aibo"], help="sensor noise preset")
-    c.add_argument("--config", type=_json_arg, default={}, help="JSON object of env config overrides")
+    c.add_argument("--config", type=json_object, default={}, help="JSON object of env config overrides")
     c.add_argument("--blind", action="store_true", help="leave out pose and truth, as a real robot's log")
     c.add_argument("--plot", help="also draw the trajectory on the field to this PNG")
     c.set_defaults(run=commands.run_collect)
@@ -55,9 +53,9 @@ def build_parser() -> argparse.ArgumentParser:
     lr.add_argument("logs", nargs="+", help="aibo-trajectory/1 logs (.npz) of one robot")
     lr.add_argument("--out", required=True, help="model file to write (aibo-model/1 JSON)")
     lr.add_argument("--learner", default="em", help="em (default), oracle, or an installed plugin")
-    lr.add_argument("--max-iter", type=int, default=3000)
-    lr.add_argument("--patience", type=int, default=50, help="stop after N iterations without a new best likelihood")
-    lr.add_argument("--seed", type=int, default=0)
+    lr.add_argument("--max-iter", type=integer(1), default=3000)
+    lr.add_argument("--patience", type=integer(1), default=50, help="stop after N iterations without a new best likelihood")
+    lr.add_argument("--seed", type=integer(0), default=0)
     lr.add_argument("--init", help="start from this model file instead of the paper's start")
     lr.add_argument("--action-model", choices=["table", "features"], default=None,
                     help="table: one velocity per discrete command (default for discrete logs); features: "
@@ -70,7 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
     lr.add_argument("--learn-motion-noise", action=argparse.BooleanOptionalAction, default=None,
                     help="re-estimate Sigma_A in the M-step (default on; off in the paper)")
     lr.add_argument("--accel", choices=["none", "squarem"], help="EM acceleration (default squarem; paper: none)")
-    lr.add_argument("--gate", type=float, help="first-iteration outlier gate on Mahalanobis^2 (default 50; 0 = off)")
+    lr.add_argument("--gate", type=finite(0), help="first-iteration outlier gate on Mahalanobis^2 (default 50; 0 = off)")
     lr.add_argument("--estep", choices=["compiled", "numpy"], default="compiled",
                     help="numba kernels (default) or the plain NumPy reference")
     lr.add_argument("--no-resume", action="store_true", help="ignore a checkpoint left by an interrupted run")
@@ -79,7 +77,7 @@ def build_parser() -> argparse.ArgumentParser:
     rp = sub.add_parser("reproduce", help="the paper's simulated experiment, end to end")
     rp.add_argument("--quick", action="store_true", help="a short log and fewer iterations, for a first look")
     rp.add_argument("--out", default="runs/reproduce", help="folder for the log, models, report and figures")
-    rp.add_argument("--seed", type=int, default=1)
+    rp.add_argument("--seed", type=integer(0), default=1)
     rp.add_argument("--paper-recipe", action="store_true",
                     help="use the paper's exact recipe (fixed motion noise, one sample per frame)")
     rp.set_defaults(run=commands.run_reproduce)
@@ -103,6 +101,11 @@ def main(argv: list[str] | None = None) -> int:
         if args.debug:
             raise
         print(f"aibo: error: {exc}", file=sys.stderr)
+        return 2
+    except MemoryError:
+        if args.debug:
+            raise
+        print("aibo: error: out of memory (use a shorter log or fewer logs)", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("aibo: interrupted (a learn run resumes from its checkpoint)", file=sys.stderr)

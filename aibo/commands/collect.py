@@ -5,16 +5,17 @@ from __future__ import annotations
 import sys
 import time
 
-from aibo.cli import CLIError
+from aibo.paths import check_files
 from aibo_core import trajectory
 
 
 def run(args) -> int:
     from aibo_gym.collect import collect
+    from aibo_gym.config import default_config
 
-    if args.steps < 1:
-        raise CLIError(f"--steps must be >= 1, got {args.steps}")
-    config = dict(args.config)
+    check_files(inputs=[], outputs=[("--out", args.out)] + ([("--plot", args.plot)] if args.plot else []))
+    # --steps frames, also past the default episode limit, unless --config sets max_steps
+    config = {"max_steps": max(args.steps, default_config()["max_steps"]), **args.config}
     if args.preset:
         config["noise"] = args.preset
     t0 = time.perf_counter()

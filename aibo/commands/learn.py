@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
 
-from aibo.cli import CLIError
+from aibo.paths import check_files, checkpoint_path
 from aibo.report import Progress, error_table
 from aibo_core import trajectory
 from learners.model import io as model_io
@@ -30,14 +31,28 @@ def em_options(args) -> EMOptions:
 def make_learner(args):
     cls = get_learner(args.learner)
     if args.learner == "em":
-        return cls(em_options(args), checkpoint_path=f"{args.out}.checkpoint.npz", resume=not args.no_resume)
+        return cls(em_options(args), checkpoint_path=checkpoint_path(args.out), resume=not args.no_resume)
     return cls()
 
 
+#: The figures ``write_plots`` may draw into ``--plots`` (without a prefix).
+PLOT_NAMES = ("loglik.png", "sensor_model.png", "velocity_error.png")
+
+
+def check_learn_files(args) -> None:
+    """Refuse outputs (model, checkpoint, figures) that are an input (logs, --init) or each other."""
+    inputs = [("log", p) for p in args.logs] + ([("--init", args.init)] if args.init else [])
+    outputs = [("--out", args.out), ("checkpoint", checkpoint_path(args.out))]
+    if args.plots:
+        outputs += [("--plots figure", Path(args.plots) / name) for name in PLOT_NAMES]
+    check_files(inputs, outputs, folders=[("--plots", args.plots)] if args.plots else [])
+
+
 def run(args) -> int:
-    if Path(args.out).is_dir():
-        raise CLIError(f"--out {args.out}: is a folder; give a file name such as model.json")
+    check_learn_files(args)
     logs = [trajectory.load(p) for p in args.logs]
+    for warning in trajectory.check_compatible(logs, list(args.logs)):
+        print(f"aibo: warning: {warning}", file=sys.stderr)
     init = model_io.load_model(args.init) if args.init else None
     learner = make_learner(args)
     progress = Progress(args.learner)
@@ -66,7 +81,7 @@ def write_plots(folder: Path, result: LearnResult, logs, start=None, oracle=None
     paths = []
     best = result.info.get("best_iteration")
     if result.loglik:
-        paths.append(folder / f"{prefix}loglik.png")
+        paths.append(folder / f"{prefix}{PLOT_NAMES[0]}")
         figures.loglik_curve(paths[-1], result.loglik, best)
     truth = logs[0].truth if logs[0].pose is not None else None
     d_range = observed_distance_range(logs) if truth else result.params.sensor.distance_range_mm
@@ -76,7 +91,7 @@ def write_plots(folder: Path, result: LearnResult, logs, start=None, oracle=None
         curves["oracle"] = oracle.sensor
     if truth:
         curves["true (pinhole)"] = true_height(truth, np.linspace(*d_range, 300))
-    paths.append(folder / f"{prefix}sensor_model.png")
+    paths.append(folder / f"{prefix}{PLOT_NAMES[1]}")
     figures.sensor_models(paths[-1], d_range, curves)
     if truth and result.history and result.params.action.discrete:
         true_vel = np.asarray(truth["velocities"])
@@ -89,6 +104,6 @@ def write_plots(folder: Path, result: LearnResult, logs, start=None, oracle=None
         if oracle is not None:
             e = velocity_errors(oracle.action.velocities, true_vel)
             ref = {k: e[f"{k}_rel"] for k in series}
-        paths.append(folder / f"{prefix}velocity_error.png")
+        paths.append(folder / f"{prefix}{PLOT_NAMES[2]}")
         figures.velocity_error_curves(paths[-1], series, ref)
     return paths

@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 from aibo.commands.learn import write_plots
+from aibo.paths import check_files, checkpoint_path
 from aibo.report import Progress, error_table
 from aibo_core import trajectory
 from aibo_core.atomic import atomic_write
@@ -41,6 +42,7 @@ def em_options(args) -> EMOptions:
 
 def run(args) -> int:
     out = Path(args.out)
+    check_files([], [], folders=[("--out", out)])
     out.mkdir(parents=True, exist_ok=True)
     from aibo_gym.collect import collect
     from aibo_gym.plot import plot_trajectory
@@ -62,7 +64,7 @@ def run(args) -> int:
           f"sensor step '{opts.sensor_method}', acceleration '{opts.accel}'")
     progress = Progress("EM", every=50)
     t0 = time.perf_counter()
-    em = EMLearner(opts, checkpoint_path=out / "model_em.json.checkpoint.npz").fit(logs, init=start, progress=progress)
+    em = EMLearner(opts, checkpoint_path=checkpoint_path(out / "model_em.json")).fit(logs, init=start, progress=progress)
     wall = time.perf_counter() - t0
     progress.close()
     model_io.save_result(em, out / "model_em.json")

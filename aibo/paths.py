@@ -1,0 +1,92 @@
+"""File safety shared by every command: nothing a user had is lost, and legal names work.
+
+Every command calls ``check_files(inputs, outputs)`` before any work. It refuses
+
+- an output that is the same file as an input: the same path, a symlink to it or a hard link
+  (``os.path.samefile``: same device and inode), so an input is never overwritten;
+- two outputs that are the same file (one would clobber the other);
+- an output that is an existing folder, or whose name is longer than the file system allows.
+
+``checkpoint_path(out)`` derives the checkpoint file name beside a model file so that it never
+exceeds the file system's NAME_MAX, however long the model's name is.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from pathlib import Path
+from typing import Sequence
+
+from aibo.cli import CLIError
+
+#: (what the user calls it, e.g. "--out" or "log", path)
+Named = tuple[str, "str | os.PathLike"]
+
+CHECKPOINT_SUFFIX = ".checkpoint.npz"
+_DEFAULT_NAME_MAX = 255
+
+
+def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    """True when ``a`` and ``b`` name one file (symlinks followed, hard links by inode).
+
+    When either does not exist yet, their fully resolved paths are compared.
+    """
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return os.path.realpath(a) == os.path.realpath(b)
+
+
+def name_max(folder: str | os.PathLike) -> int:
+    """Longest file name (bytes) allowed in ``folder`` (or its nearest existing ancestor)."""
+    folder = Path(os.path.abspath(folder))
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    try:
+        return int(os.pathconf(folder, "PC_NAME_MAX"))
+    except (OSError, ValueError, AttributeError):
+        return _DEFAULT_NAME_MAX
+
+
+def check_files(inputs: Sequence[Named], outputs: Sequence[Named], folders: Sequence[Named] = ()) -> None:
+    """Refuse (CLIError, one line naming both) outputs that would overwrite an input or each other.
+
+    ``folders``: output folders (created when missing) that must not be existing files.
+    """
+    for label, path in folders:
+        if os.path.exists(path) and not os.path.isdir(path):
+            raise CLIError(f"{label} {path}: is a file, not a folder")
+    for i, (label, path) in enumerate(outputs):
+        _check_output_name(label, path)
+        for in_label, in_path in inputs:
+            if same_file(path, in_path):
+                raise CLIError(f"{label} {path} is the same file as the {in_label} {in_path}: an input is never "
+                               "overwritten; choose another output name")
+        for other_label, other in outputs[:i]:
+            if same_file(path, other):
+                raise CLIError(f"{label} {path} is the same file as {other_label} {other}: choose another name")
+
+
+def _check_output_name(label: str, path: str | os.PathLike) -> None:
+    if os.path.isdir(path):
+        raise CLIError(f"{label} {path}: is a folder; give a file name")
+    name = os.fsencode(Path(path).name)
+    limit = name_max(Path(path).parent)
+    if len(name) > limit:
+        raise CLIError(f"{label} {path}: the file name is {len(name)} bytes; this file system allows at most {limit}")
+
+
+def checkpoint_path(out: str | os.PathLike) -> Path:
+    """``OUT.checkpoint.npz`` beside ``out``; for names too long for that, a truncated name with an
+    8-hex-digit hash of the full name (``PREFIX~HASH.checkpoint.npz``), within NAME_MAX bytes."""
+    out = Path(out)
+    name = os.fsencode(out.name)
+    limit = name_max(out.parent)
+    if len(name) + len(CHECKPOINT_SUFFIX) <= limit:
+        return out.with_name(out.name + CHECKPOINT_SUFFIX)
+    digest = "~" + hashlib.sha256(name).hexdigest()[:8]
+    keep = max(limit - len(CHECKPOINT_SUFFIX) - len(digest), 1)
+    while keep > 1 and name[keep] & 0xC0 == 0x80:  # do not cut a UTF-8 character in two
+        keep -= 1
+    return out.with_name(os.fsdecode(name[:keep]) + digest + CHECKPOINT_SUFFIX)

@@ -1,0 +1,81 @@
+"""Option values are checked up front: one line naming the option, exit status 2, no work done."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from aibo import options
+from aibo.cli import main
+from aibo_core import trajectory
+
+LEARN = ["learn", "no-such-log.npz", "--out", "m.json"]  # the option is refused before the log is read
+COLLECT = ["collect", "--out", "c.npz"]
+
+BAD = [
+    (LEARN + ["--gate", "nan"], "--gate", "finite"),
+    (LEARN + ["--gate", "inf"], "--gate", "finite"),
+    (LEARN + ["--gate=-inf"], "--gate", "finite"),
+    (LEARN + ["--gate", "-1"], "--gate", ">= 0"),
+    (LEARN + ["--gate", "lots"], "--gate", "expected a number"),
+    (LEARN + ["--seed", "-1"], "--seed", ">= 0"),
+    (LEARN + ["--max-iter", "0"], "--max-iter", ">= 1"),
+    (LEARN + ["--patience", "0"], "--patience", ">= 1"),
+    (LEARN + ["--max-iter", "1.5"], "--max-iter", "expected an integer"),
+    (COLLECT + ["--steps", "0"], "--steps", ">= 1"),
+    (COLLECT + ["--steps", "-5"], "--steps", ">= 1"),
+    (COLLECT + ["--seed", "-1"], "--seed", ">= 0"),
+    (COLLECT + ["--steps", "1000000000000"], "--steps", "more than"),
+    (COLLECT + ["--config", '{"sigma_height": NaN}'], "--config", "non-finite number NaN"),
+    (COLLECT + ["--config", '{"slip_std": [1, Infinity, 0.1]}'], "--config", "non-finite number Infinity"),
+    (COLLECT + ["--config", "[1]"], "--config", "JSON object"),
+    (["reproduce", "--seed", "-1", "--out", "r"], "--seed", ">= 0"),
+]
+
+
+@pytest.mark.parametrize("argv, option, what", BAD, ids=[f"{b[0][0]} {' '.join(b[0][-2:])}" for b in BAD])
+def test_bad_option_is_one_line_before_any_work(argv, option, what, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as stop:
+        main(argv)
+    assert stop.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"aibo: error: argument {option}") and what in err[0], err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_huge_step_count_is_refused_at_once_in_a_fresh_process(tmp_path):
+    r = subprocess.run([sys.executable, "-m", "aibo.cli", "collect", "--steps", "1000000000000", "--out",
+                        str(tmp_path / "c.npz")], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and r.stdout == "" and "Traceback" not in r.stderr
+    assert r.stderr.count("\n") == 1 and "argument --steps" in r.stderr and "more than" in r.stderr
+
+
+def test_step_limit_follows_memory(monkeypatch):
+    """At most MAX_STEPS; fewer when half the machine's memory holds fewer (160 bytes/frame)."""
+    assert 0 < options.max_steps() <= options.MAX_STEPS
+    pages = {"SC_PHYS_PAGES": 2**20, "SC_PAGE_SIZE": 4096}  # a 4 GiB machine
+    monkeypatch.setattr(options.os, "sysconf", pages.__getitem__)
+    assert options.max_steps() == 2**31 // options.COLLECT_BYTES_PER_FRAME
+    with pytest.raises(Exception, match="half of this machine's memory"):
+        options.steps(str(options.max_steps() + 1))
+    assert options.steps(str(options.max_steps())) == options.max_steps()
+
+
+def test_gate_zero_still_means_off(tmp_path):
+    from aibo.cli import build_parser
+    from aibo.commands.learn import em_options
+
+    args = build_parser().parse_args(LEARN + ["--gate", "0"])
+    assert em_options(args).gate is None
+
+
+def test_collect_gives_the_frames_asked_for_past_the_episode_limit(tmp_path):
+    """--steps above the env's default episode limit (27000 frames) is honoured."""
+    out = tmp_path / "c.npz"
+    assert main(["collect", "--steps", "27300", "--out", str(out)]) == 0
+    assert trajectory.load(out).n_frames == 27300
+    assert main(["collect", "--steps", "300", "--out", str(out), "--config", '{"max_steps": 100}']) == 0
+    assert trajectory.load(out).n_frames == 100  # an explicit episode limit still ends the episode
