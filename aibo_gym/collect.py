@@ -7,11 +7,12 @@ from typing import Any
 
 import numpy as np
 
-from . import ENV_ID, __version__
 from aibo_core.actions import attempted_velocities
+from aibo_core.trajectory import Trajectory
+
+from . import ENV_ID, __version__
 from .envs.aibo_beacons import AiboBeaconsEnv
 from .policies import POLICIES
-from aibo_core.trajectory import Trajectory
 
 
 def truth_of(env: AiboBeaconsEnv, spurious: list[int] | None = None) -> dict[str, Any]:

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+
 def wrap_angle(a: float) -> float:
     """Angle wrapped to (-pi, pi], rad."""
     r = math.remainder(a, 2.0 * math.pi)

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from aibo_core.actions import attempted_velocities
+
 from .config import make_config
 from .context import wrap_angle  # noqa: F401  (re-exported: its historical home)
 

@@ -95,7 +95,7 @@ def test_learn_bad_input_one_line_and_out_untouched(case, log_path, tmp_path):
     elif case == "bad_init":
         (tmp_path / "init.json").write_text('{"format": "aibo-model/1"}')
         args += ["--init", str(tmp_path / "init.json")]
-        expect = "action_model.velocities"
+        expect = "field 'action_model': missing"
     elif case == "unknown_learner":
         args += ["--learner", "magic"]
         expect = "unknown learner 'magic'"
@@ -167,3 +167,17 @@ def test_learn_resumes_an_interrupted_run(log_path, tmp_path, capsys):
     assert "resumed from the checkpoint at iteration 10" in capsys.readouterr().out
     assert json.loads(out.read_text())["iterations"] <= 40
     assert not (tmp_path / "model.json.checkpoint.npz").exists()
+
+
+def test_failed_model_write_keeps_the_checkpoint(log_path, tmp_path, monkeypatch):
+    """Issue 8, item 13: the checkpoint is deleted only after the model is on disk."""
+    import learners.model.io as model_io
+
+    def disk_full(*a, **k):
+        raise OSError("No space left on device")
+
+    monkeypatch.setattr(model_io, "save_model", disk_full)
+    out = tmp_path / "model.json"
+    assert main(["learn", str(log_path), "--out", str(out), "--max-iter", "25"]) == 2
+    assert not out.exists()
+    assert (tmp_path / "model.json.checkpoint.npz").exists()

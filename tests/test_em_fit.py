@@ -8,9 +8,9 @@ import pytest
 from aibo_core.trajectory import blind
 from learners.em.fit import EMOptions
 from learners.em.learner import EMDivergedError, EMLearner
+from learners.metrics import model_errors
 from learners.model.model import paper_start
 from learners.model.sensor import SensorModel
-from learners.metrics import model_errors
 from learners.oracle import OracleLearner
 from tests._logs import sim_log
 
@@ -97,11 +97,23 @@ def test_resume_after_interruption_gives_the_same_fit(tmp_path, opts, saved_at):
     with pytest.raises(KeyboardInterrupt):
         EMLearner(opts, checkpoint_path=ckpt, checkpoint_every=4).fit([tr], progress=stop_at_9)
     assert ckpt.exists()
-    resumed = EMLearner(opts, checkpoint_path=ckpt, checkpoint_every=4).fit([tr])
+    learner = EMLearner(opts, checkpoint_path=ckpt, checkpoint_every=4)
+    resumed = learner.fit([tr])
     assert resumed.info["resumed_from"] == saved_at if saved_at else 4 <= resumed.info["resumed_from"] < 9
     np.testing.assert_allclose(resumed.loglik, full.loglik, rtol=1e-12)
     np.testing.assert_allclose(resumed.params.action.disp, full.params.action.disp, rtol=1e-12)
+    assert ckpt.exists()  # kept until the caller has the model safely on disk (issue 8, item 13)
+    learner.discard_checkpoint()
     assert not ckpt.exists()
+
+
+@pytest.mark.parametrize("damage", [b"", b"PK\x03\x04 truncated", b"not an npz at all"])
+def test_broken_checkpoint_names_the_file_and_no_resume(tmp_path, damage):
+    """Issue 8, item 12: a corrupt checkpoint is one line naming it and --no-resume."""
+    ckpt = tmp_path / "m.json.checkpoint.npz"
+    ckpt.write_bytes(damage)
+    with pytest.raises(ValueError, match="broken checkpoint.*--no-resume"):
+        EMLearner(EMOptions(max_iter=2), checkpoint_path=ckpt).fit([sim_log(600)])
 
 
 def test_a_checkpoint_of_other_inputs_is_refused(tmp_path):

@@ -14,12 +14,12 @@ from gymnasium.utils.env_checker import check_env as gym_check_env
 
 import aibo_gym
 from aibo_core.actions import A_TURN, B_DIRECTION, action_index, attempted_velocities
+from aibo_core.trajectory import save
 from aibo_gym.collect import collect
 from aibo_gym.config import default_config, make_config
 from aibo_gym.envs import AiboBeaconsEnv
 from aibo_gym.policies import RandomBalancedPolicy
 from aibo_gym.robot import nominal_velocities, true_velocities
-from aibo_core.trajectory import save
 from tests._logs import frame_view
 
 

@@ -17,7 +17,10 @@ import pytest
 
 from learners.inference import action_stats, sensor_stats
 from learners.inference.kernels import (
-    action_statistics_compiled, residual_cov_compiled, sensor_update_compiled, smooth_compiled,
+    action_statistics_compiled,
+    residual_cov_compiled,
+    sensor_update_compiled,
+    smooth_compiled,
 )
 from learners.inference.lowered import BASIS_POWER, curve
 from learners.inference.reference import smooth

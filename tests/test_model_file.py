@@ -10,8 +10,8 @@ import pytest
 from learners import load_model
 from learners.base import LearnResult
 from learners.model.io import ModelFileError, save_result
-from tests._logs import sim_log
 from learners.model.model import paper_start
+from tests._logs import sim_log
 
 
 def _result() -> LearnResult:

@@ -10,7 +10,8 @@ import pytest
 from aibo_core import geometry as geo
 from learners.inference import reference as sm
 from learners.inference.lowered import BASIS_POWER
-from tests._synth import LANDMARKS as BEACONS, pinhole_coef, simulate, true_table
+from tests._synth import LANDMARKS as BEACONS
+from tests._synth import pinhole_coef, simulate, true_table
 
 
 class _Cubic:

@@ -9,7 +9,7 @@ import zipfile
 import numpy as np
 import pytest
 
-from aibo_core.trajectory import FORMAT, Trajectory, TrajectoryError, blind, head, load, save, to_arrays
+from aibo_core.trajectory import Trajectory, TrajectoryError, blind, head, load, save, to_arrays
 from aibo_gym.collect import collect
 from tests._logs import frame_view
 

@@ -10,10 +10,10 @@ import numpy as np
 from aibo.paths import check_files, checkpoint_path
 from aibo.report import Progress, error_table
 from aibo_core import trajectory
-from learners.model import io as model_io
 from learners.base import LearnResult, get_learner
 from learners.em.fit import EMOptions
 from learners.metrics import model_errors, observed_distance_range, true_height, velocity_errors
+from learners.model import io as model_io
 
 
 def em_options(args) -> EMOptions:

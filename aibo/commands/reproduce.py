@@ -15,11 +15,11 @@ from aibo.paths import check_files, checkpoint_path
 from aibo.report import Progress, error_table
 from aibo_core import trajectory
 from aibo_core.atomic import atomic_write
-from learners.model import io as model_io
 from learners.em.fit import EMOptions
 from learners.em.learner import EMLearner
 from learners.inference.batch import make_batch
-from learners.metrics import PAPER_SIM, model_errors, sensor_rms, observed_distance_range
+from learners.metrics import PAPER_SIM, model_errors, observed_distance_range, sensor_rms
+from learners.model import io as model_io
 from learners.oracle import OracleLearner
 
 FULL_STEPS = 27000  # 15 minutes at 30 Hz, as in the paper

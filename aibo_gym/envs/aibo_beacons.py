@@ -10,6 +10,7 @@ import numpy as np
 from gymnasium import spaces
 
 from aibo_core.actions import N_ACTIONS, attempted_velocities
+
 from ..camera import Camera, head_pan
 from ..config import START_MARGIN_MM, make_config, sensor_sigmas
 from ..context import NO_COMMAND, Frame, Motion, Sighting

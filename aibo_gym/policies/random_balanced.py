@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from aibo_core.actions import N_ACTIONS
+
 from ..config import make_config, sensor_sigmas
 from ..robot import nominal_velocities
 from .localizer import EKFLocalizer

@@ -17,6 +17,7 @@ from aibo_core.atomic import save_npz
 from aibo_core.npzfile import FileFormatError, read_npz
 from learners.em.fit import EMState
 from learners.inference.batch import Batch
+from learners.model.initial import InitialState
 from learners.model.io import model_from_json, model_to_json
 from learners.model.model import Model
 
@@ -24,9 +25,28 @@ FORMAT = "aibo-em-checkpoint/2"
 
 
 def _model_text(model: Model) -> str:
-    """The model as JSON text: Python writes floats as their shortest round-trip repr, so reading it
-    back gives the very same bits (a resumed fit continues exactly)."""
+    """The model's structure and values as JSON text (the exact arrays are stored beside it)."""
     return json.dumps({"format": "aibo-model/1", **model_to_json(model)}, sort_keys=True)
+
+
+def _arrays(prefix: str, model: Model) -> dict[str, np.ndarray]:
+    """Every parameter array, bit for bit (the JSON text keeps the structure; velocities = weights / dt
+    would not round-trip exactly)."""
+    out = {f"{prefix}.{c}.{p}": v for c, comp in model.components() for p, v in comp.values().items()}
+    out[f"{prefix}.init_mean"] = np.array([s.mean for s in model.init])
+    out[f"{prefix}.init_cov"] = np.array([s.cov for s in model.init])
+    return out
+
+
+def _restore(prefix: str, d: dict[str, np.ndarray], source: str) -> Model:
+    model = model_from_json(json.loads(str(d[prefix])), source)
+    for cname, comp in model.components():
+        values = {p: (float(d[f"{prefix}.{cname}.{p}"]) if d[f"{prefix}.{cname}.{p}"].shape == ()
+                      else d[f"{prefix}.{cname}.{p}"]) for p in comp.PARAMS}
+        new = comp.with_values(**values)
+        model = model.with_effect(new) if cname.startswith("effects.") else model.with_(**{cname: new})
+    init = tuple(InitialState(m, c) for m, c in zip(d[f"{prefix}.init_mean"], d[f"{prefix}.init_cov"]))
+    return model.with_(init=init)
 
 
 def fingerprint(batch: Batch, start: Model, options_json: str) -> str:
@@ -47,7 +67,8 @@ def save(path: str | os.PathLike, state: EMState, fp: str) -> None:
         "best_iteration": state.best_iteration, "pruned": state.pruned, "rng_state": state.rng_state,
         "converged": state.converged, "record_iteration": state.record_iteration,
     }
-    arrays = {"cur": np.array(_model_text(state.params)), "best": np.array(_model_text(state.best))}
+    arrays = {"cur": np.array(_model_text(state.params)), "best": np.array(_model_text(state.best)),
+              **_arrays("cur", state.params), **_arrays("best", state.best)}
     arrays["loglik"] = np.asarray(state.loglik, float)
     arrays["seconds"] = np.asarray(state.seconds, float)
     arrays["used"] = state.used
@@ -70,8 +91,8 @@ def load(path: str | os.PathLike, fp: str) -> EMState | None:
                              "(delete it or pass --no-resume)")
         best_ll = float(scalars["best_loglik"])
         return EMState(
-            iteration=int(scalars["iteration"]), params=model_from_json(json.loads(str(d["cur"])), str(path)),
-            best=model_from_json(json.loads(str(d["best"])), str(path)),
+            iteration=int(scalars["iteration"]), params=_restore("cur", d, str(path)),
+            best=_restore("best", d, str(path)),
             best_loglik=best_ll, best_iteration=int(scalars["best_iteration"]),
             loglik=d["loglik"].tolist(), used=d["used"].astype(bool), pruned=int(scalars["pruned"]),
             rng_state=scalars["rng_state"], converged=bool(scalars["converged"]), seconds=d["seconds"].tolist(),

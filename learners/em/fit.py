@@ -17,7 +17,6 @@ import numpy as np
 from learners.em.accel import Packer, squarem_step
 from learners.inference.batch import Batch
 from learners.inference.posterior import Posterior
-from learners.model.initial import InitialState
 from learners.model.model import Model
 
 #: First-iteration outlier gate on the innovation's Mahalanobis^2 (2 dof: p = 1.4e-11). Not the

@@ -24,6 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from aibo_core import geometry
+
 from .batch import Batch
 from .lowered import Lowered
 from .posterior import Posterior

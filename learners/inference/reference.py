@@ -33,6 +33,7 @@ from typing import Callable, Optional
 import numpy as np
 
 from aibo_core import geometry
+
 from .batch import Batch
 from .lowered import Lowered
 from .posterior import Posterior

@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from aibo_core import geometry
+
 from .batch import Batch
 from .lowered import BASIS_INVERSE, BASIS_POWER, Lowered
 from .posterior import Posterior

@@ -20,8 +20,23 @@ from numba import njit
 
 from learners.inference.batch import Batch
 from learners.inference.kernels.algebra import (
-    _BAD_ACTION, _OK, _ZERO33, _add, _f64, _fin3, _fin33, _fpft, _inv, _inv_i_plus, _ld3, _ld33, _mm, _mv, _raise,
-    _scratch, _st3,
+    _BAD_ACTION,
+    _OK,
+    _ZERO33,
+    _add,
+    _f64,
+    _fin3,
+    _fin33,
+    _fpft,
+    _inv,
+    _inv_i_plus,
+    _ld3,
+    _ld33,
+    _mm,
+    _mv,
+    _raise,
+    _scratch,
+    _st3,
 )
 from learners.inference.kernels.fasttrig import _cos_sin_all
 from learners.inference.lowered import Lowered

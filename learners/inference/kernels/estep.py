@@ -21,12 +21,39 @@ from numba import njit
 
 from learners.inference.batch import Batch
 from learners.inference.kernels.algebra import (
-    _add, _BAD_BACKWARD, _BAD_FORWARD, _BAD_GAMMA, _LOG_2PI, _OK, _ZERO3, _ZERO33, _f64, _fin3, _fin33, _inv_i_plus,
-    _ld3, _ld33, _mm, _mv, _raise, _scratch, _st3, _st33, _sym, _wrap,
+    _BAD_BACKWARD,
+    _BAD_FORWARD,
+    _BAD_GAMMA,
+    _LOG_2PI,
+    _OK,
+    _ZERO3,
+    _ZERO33,
+    _add,
+    _f64,
+    _fin3,
+    _fin33,
+    _inv_i_plus,
+    _ld3,
+    _ld33,
+    _mm,
+    _mv,
+    _raise,
+    _scratch,
+    _st3,
+    _st33,
+    _sym,
+    _wrap,
 )
 from learners.inference.kernels.fasttrig import _cos_sin
 from learners.inference.kernels.structured import (
-    _FMA, _combine_fast, _fpft_sym, _ftyf_sym, _observe_h, _rot_sym, _scale_sym, _symm,
+    _FMA,
+    _combine_fast,
+    _fpft_sym,
+    _ftyf_sym,
+    _observe_h,
+    _rot_sym,
+    _scale_sym,
+    _symm,
 )
 from learners.inference.lowered import BASIS_INVERSE, BASIS_POWER, Lowered
 from learners.inference.posterior import Posterior

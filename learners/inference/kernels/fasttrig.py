@@ -8,7 +8,6 @@ import math
 import numpy as np
 from numba import njit
 
-
 # ----------------------------------------------------------------------------------------------
 # fast trig (E-step and M-steps): libm's sin/cos/atan2 are a large share of the per-frame cost
 # ----------------------------------------------------------------------------------------------

@@ -15,7 +15,6 @@ from learners.inference.kernels.fasttrig import _atan2
 from learners.inference.lowered import BASIS_INVERSE, BASIS_POWER, Lowered
 from learners.inference.posterior import Posterior
 
-
 # Pass 1 over the used sightings (Cholesky of Sigma_gamma, the 6 cubature points or mu + L z for the
 # given normals z, their distances (kept), the bearing residuals' sum of squares, min/max of the
 # smoothed-mean distances), then x = d or 1/d and its min/max; pass 2: the normal equations of the
