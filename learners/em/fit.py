@@ -16,6 +16,7 @@ import numpy as np
 
 from learners.em.accel import Packer, squarem_step
 from learners.inference.batch import Batch
+from learners.inference.lowered import Lowered
 from learners.inference.posterior import Posterior
 from learners.model.model import Model
 
@@ -80,9 +81,10 @@ class EMState:
 
 
 def e_step(params: Model, batch: Batch, estep: str, gate: float | None = None,
-           reuse: Posterior | None = None) -> Posterior:
-    """The E-step; ``reuse``: a spent Posterior whose memory the compiled kernel may overwrite."""
-    lo = params.lower(batch)
+           reuse: Posterior | None = None, lo: Lowered | None = None) -> Posterior:
+    """The E-step; ``reuse``: a spent Posterior whose memory the compiled kernel may overwrite;
+    ``lo``: ``params.lower(batch)`` if the caller has it."""
+    lo = params.lower(batch) if lo is None else lo
     if estep == "compiled":
         from learners.inference.kernels import smooth_compiled
 
@@ -92,11 +94,12 @@ def e_step(params: Model, batch: Batch, estep: str, gate: float | None = None,
     return smooth(lo, batch, gate)
 
 
-def m_step(params: Model, batch: Batch, post: Posterior, rng: np.random.Generator, opts: EMOptions) -> Model:
+def m_step(params: Model, batch: Batch, post: Posterior, rng: np.random.Generator, opts: EMOptions,
+           lo: Lowered | None = None) -> Model:
     """New model from the E-step's beliefs (paper section III; ``mstep``)."""
     from learners.em.mstep import maximize
 
-    return maximize(params, batch, post, rng, opts)
+    return maximize(params, batch, post, rng, opts, lo)
 
 
 def initial_state(start: Model, batch: Batch, opts: EMOptions) -> EMState:
@@ -117,6 +120,7 @@ class _Loop:
         self.on_iteration, self.on_cycle = on_iteration, on_cycle
         self.tick = time.perf_counter()
         self.spent: Posterior | None = None
+        self.lowered: tuple[Model | None, Lowered | None] = (None, None)
 
     def done(self) -> bool:
         return self.state.converged or self.state.iteration >= self.opts.max_iter
@@ -125,7 +129,9 @@ class _Loop:
         """E-step at ``params``; the first one prunes outliers (paper section IV-A)."""
         st, opts = self.state, self.opts
         first = st.iteration == 0
-        post = e_step(params, self.batch, opts.estep, opts.gate if first else None, reuse=self.spent)
+        self.lowered = (params, params.lower(self.batch))
+        post = e_step(params, self.batch, opts.estep, opts.gate if first else None, reuse=self.spent,
+                      lo=self.lowered[1])
         self.spent = post  # its M-step runs before the next E-step, which may then overwrite it
         if first and opts.gate is not None:
             pruned = self.batch.used & (post.mahal2 > opts.gate)
@@ -150,7 +156,8 @@ class _Loop:
         return post, ll
 
     def m(self, params: Model, post: Posterior) -> Model:
-        return m_step(params, self.batch, post, self.rng, self.opts)
+        lo = self.lowered[1] if self.lowered[0] is params else None  # lowered by the E-step just run
+        return m_step(params, self.batch, post, self.rng, self.opts, lo)
 
     def end_cycle(self, next_params: Model) -> None:
         self.state.params = next_params

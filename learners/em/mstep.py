@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from learners.inference.batch import Batch
+from learners.inference.lowered import Lowered
 from learners.inference.posterior import Posterior
 from learners.model.initial import InitialState
 from learners.model.model import Model
@@ -42,10 +43,12 @@ def _statistics(compiled: bool):
     return action_statistics, residual_cov, update_sensor_curve
 
 
-def maximize(model: Model, batch: Batch, post: Posterior, rng: np.random.Generator, opts: "EMOptions") -> Model:
-    """The new model (see the module docstring); ``opts.estep`` picks the compiled or NumPy statistics."""
+def maximize(model: Model, batch: Batch, post: Posterior, rng: np.random.Generator, opts: "EMOptions",
+             lo: Lowered | None = None) -> Model:
+    """The new model (see the module docstring); ``opts.estep`` picks the compiled or NumPy statistics;
+    ``lo``: ``model.lower(batch)`` if the caller has it."""
     action_stats, resid_cov, sensor_update = _statistics(opts.estep == "compiled")
-    lo = model.lower(batch)
+    lo = model.lower(batch) if lo is None else lo
     commands = batch.actions if batch.actions is not None else batch.controls
     mu_star, C_sum = action_stats(lo, batch, post, opts.learn_motion_noise)
     weights = model.action.regress(commands, mu_star)

@@ -45,14 +45,16 @@ class Lowered:
     @staticmethod
     def plain(disp: np.ndarray, cov: np.ndarray, basis: int, coef: np.ndarray, sigma_size: float,
               sigma_bearing: float, init_mean: np.ndarray, init_cov: np.ndarray, n_sightings: int) -> "Lowered":
-        """The arrays with no effect: zero offsets, unit scales."""
+        """The arrays with no effect: zero offsets, unit scales. These neutral arrays are shared and
+        READ-ONLY (made once per size: EM lowers its model twice per iteration); an effect replaces
+        an array (``lo.size_scale = lo.size_scale * s``), never writes into it."""
         n = len(disp)
         return Lowered(
-            disp=np.ascontiguousarray(disp, dtype=float), offset=np.zeros((n, 3)),
-            cov=np.asarray(cov, dtype=float), cov_scale=np.ones(n), basis=int(basis),
+            disp=np.ascontiguousarray(disp, dtype=float), offset=_constant((n, 3), 0.0),
+            cov=np.asarray(cov, dtype=float), cov_scale=_constant((n,), 1.0), basis=int(basis),
             coef=np.asarray(coef, dtype=float), sigma_size=float(sigma_size), sigma_bearing=float(sigma_bearing),
-            size_scale=np.ones(n_sightings), size_offset=np.zeros(n_sightings),
-            size_var_factor=np.ones(n_sightings), bearing_offset=np.zeros(n_sightings),
+            size_scale=_constant((n_sightings,), 1.0), size_offset=_constant((n_sightings,), 0.0),
+            size_var_factor=_constant((n_sightings,), 1.0), bearing_offset=_constant((n_sightings,), 0.0),
             init_mean=np.asarray(init_mean, dtype=float).reshape(-1, 3),
             init_cov=np.asarray(init_cov, dtype=float).reshape(-1, 3, 3),
         )
@@ -60,6 +62,21 @@ class Lowered:
     def curve(self, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(f(d), f'(d)) for distances d (mm): the size curve and its derivative."""
         return curve(self.basis, self.coef, d)
+
+
+_CONSTANTS: dict[tuple, np.ndarray] = {}
+
+
+def _constant(shape: tuple[int, ...], value: float) -> np.ndarray:
+    """A shared read-only array of ``shape`` filled with ``value`` (the last few sizes are kept)."""
+    key = (shape, value)
+    arr = _CONSTANTS.get(key)
+    if arr is None:
+        if len(_CONSTANTS) > 16:
+            _CONSTANTS.clear()
+        arr = _CONSTANTS[key] = np.full(shape, value)
+        arr.flags.writeable = False
+    return arr
 
 
 def curve(basis: int, coef: np.ndarray, d) -> tuple[np.ndarray, np.ndarray]:

@@ -114,7 +114,9 @@ class ActionModel(Component):
         if self.discrete:
             n_act = len(self.weights)
             counts = np.bincount(commands, minlength=n_act).astype(float)
-            sums = np.stack([np.bincount(commands, weights=mu_star[:, k], minlength=n_act) for k in range(3)], axis=1)
+            # one pass: element (i, k) goes to bin 3 a_i + k; each bin still sums in frame order
+            sums = np.bincount((3 * commands[:, None] + np.arange(3)).ravel(), weights=np.ravel(mu_star),
+                               minlength=3 * n_act).reshape(n_act, 3)
             out = np.array(self.weights, dtype=float)
             seen = counts > 0
             out[seen] = sums[seen] / counts[seen, None]

@@ -3,7 +3,8 @@ the simulator's ``aibo_gym.effects``, registered under the same names).
 
 An effect is a ``Component`` that
 - ``lower(lo, batch)``: writes itself into the lowered arrays (``learners.inference.lowered``),
-  e.g. a per-sighting size scale; no kernel changes;
+  e.g. a per-sighting size scale, by replacing them (the neutral ones are shared, read-only); no
+  kernel changes;
 - ``maximize(model, batch, post)``: its conditional M-step (ECM: the other parameters held at
   their newest values), returning the new Model (it may also re-normalize another component);
 - ``start(batch)``: its neutral value sized for the data (the effect switched off).
@@ -108,7 +109,7 @@ class BeaconHeightScale(EffectModel):
         return cls(np.ones(len(batch.landmarks)))
 
     def lower(self, lo: Lowered, batch: Batch) -> None:
-        lo.size_scale *= self.scale[batch.sight_landmark]
+        lo.size_scale = lo.size_scale * self.scale[batch.sight_landmark]
 
     def maximize(self, model: "Model", batch: Batch, post: Posterior) -> "Model":
         """Closed form given the curve: scale[b] = sum f z / sum f^2 over landmark b's sightings

@@ -128,9 +128,10 @@ def _action_stats_kernel(frame_start, disp, offset, cov_scale, sig_a, mu_alpha, 
 
 def action_statistics_compiled(lo: Lowered, batch: Batch, post: Posterior, need_cov: bool):
     """Compiled twin of ``action_stats.action_statistics``: (mu_star (N, 3), C_sum (3, 3) or None),
-    without forming the (N, 3, 3) C*_i. ``mu_star`` is a fresh array."""
+    without forming the (N, 3, 3) C*_i. ``mu_star`` is a per-thread work array, overwritten by the next
+    call: use it before then (fresh 0.6 MB per EM iteration cost more in page faults than the kernel)."""
     n = batch.n_frames
-    mu_star = np.empty((n, 3))
+    mu_star = _scratch("mu_star", (n, 3))
     cov = np.zeros((3, 3))
     mu_gamma = _f64(post.mu_gamma)
     cos_th = _scratch("cos_th", (mu_gamma.shape[0],))
