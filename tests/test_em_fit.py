@@ -138,3 +138,24 @@ def test_a_start_that_puts_beacons_off_the_field_fails_loudly():
     bad = start.with_(sensor=SensorModel(np.array([45.0, -0.004, 0.0, 0.0]), 10.0, 0.2))
     with pytest.raises(EMDivergedError, match="does not fit the field"):
         EMLearner(EMOptions(max_iter=60, patience=20)).fit([tr], init=bad)
+
+
+@pytest.mark.parametrize("steps", [1, 30, 200])
+def test_too_little_data_is_refused_in_one_line(steps):
+    """Issue 8, item 14: a log too short for the sensor model is refused, saying what is missing."""
+    from aibo_core.trajectory import head
+    from learners.em.support import InsufficientDataError
+
+    tr = head(sim_log(3000), steps)
+    with pytest.raises(InsufficientDataError, match="sightings"):
+        EMLearner(EMOptions(max_iter=5)).fit([tr])
+
+
+def test_commands_never_executed_are_named_undetermined():
+    from aibo_core.trajectory import head
+
+    tr = head(sim_log(6000), 1500)  # 50 s: 10 commands held 5 s each
+    res = EMLearner(EMOptions(max_iter=10)).fit([tr])
+    missing = sorted(set(range(40)) - set(np.unique(tr.actions).tolist()))
+    assert missing and res.info["undetermined"] == [f"action_model.velocities[{i}]" for i in missing]
+    assert any("not determined" in w for w in res.info["warnings"])

@@ -61,6 +61,8 @@ def run(args) -> int:
     model_io.save_result(result, args.out)
     if hasattr(learner, "discard_checkpoint"):
         learner.discard_checkpoint()  # only now that the model is safely on disk
+    for warning in result.info.get("warnings", []):
+        print(f"aibo: warning: {warning}", file=sys.stderr)
     if result.info.get("resumed_from"):
         print(f"resumed from the checkpoint at iteration {result.info['resumed_from']}")
     print(f"wrote {args.out}: {result.iterations} iterations, converged={result.converged}, "

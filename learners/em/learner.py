@@ -11,6 +11,7 @@ from aibo_core.trajectory import Trajectory
 from learners.base import IterationRecord, LearnResult, ProgressFn
 from learners.em import checkpoint
 from learners.em.fit import EMOptions, EMState, e_step, initial_state, options_json, run
+from learners.em.support import check_support, curve_warnings
 from learners.inference.batch import Batch, make_batch
 from learners.model.initial import DEFAULT_INITIAL
 from learners.model.model import Model, start_model
@@ -96,6 +97,7 @@ class EMLearner:
         is safely written (``discard_checkpoint``), so a failed final write loses nothing."""
         batch = make_batch(logs)
         start = self.start_params(logs, init, batch, action_model)
+        undetermined = check_support(batch, start)
         fp = checkpoint.fingerprint(batch, start, options_json(self.options)) if self.checkpoint_path else ""
         state = self._load_or_start(batch, start, fp)
         resumed_from = state.iteration
@@ -121,6 +123,10 @@ class EMLearner:
                 "seconds_per_iteration": float(np.median(state.seconds[1:])) if len(state.seconds) > 1 else 0.0,
                 "options": self.options.__dict__.copy()}
         info["off_field_fraction"] = self._check(batch.with_used(state.used), state.best, logs)
+        info["undetermined"] = undetermined  # parameters the data did not determine (kept at their start)
+        info["warnings"] = curve_warnings(state.best) + (
+            [f"{len(undetermined)} parameter(s) not determined by the data (e.g. {undetermined[0]}): kept at their "
+             "start values"] if undetermined else [])
         return LearnResult("em", state.best, state.iteration, state.converged, list(state.loglik),
                            state.pruned, history, info)
 
