@@ -13,12 +13,9 @@ from __future__ import annotations
 import argparse
 import sys
 
+from aibo.errors import CLIError
 from aibo.options import finite, integer, json_object, steps
 from aibo_core.trajectory import TrajectoryError
-
-
-class CLIError(Exception):
-    """A user error: printed as one line, exit status 2."""
 
 
 class _Parser(argparse.ArgumentParser):

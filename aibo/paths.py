@@ -18,7 +18,7 @@ import os
 from pathlib import Path
 from typing import Sequence
 
-from aibo.cli import CLIError
+from aibo.errors import CLIError
 
 #: (what the user calls it, e.g. "--out" or "log", path)
 Named = tuple[str, "str | os.PathLike"]

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from aibo_core import trajectory
-from aibo_core.trajectory import Trajectory, TrajectoryError, check_compatible
+from aibo_core.compat import check_compatible
+from aibo_core.trajectory import Trajectory, TrajectoryError
 
 
 def _log(**changes) -> Trajectory:

@@ -10,6 +10,7 @@ import numpy as np
 from aibo.paths import check_files, checkpoint_path
 from aibo.report import Progress, error_table
 from aibo_core import trajectory
+from aibo_core.compat import check_compatible
 from learners.base import LearnResult, get_learner
 from learners.em.fit import EMOptions
 from learners.metrics import model_errors, observed_distance_range, true_height, velocity_errors
@@ -51,7 +52,7 @@ def check_learn_files(args) -> None:
 def run(args) -> int:
     check_learn_files(args)
     logs = [trajectory.load(p) for p in args.logs]
-    for warning in trajectory.check_compatible(logs, list(args.logs)):
+    for warning in check_compatible(logs, list(args.logs)):
         print(f"aibo: warning: {warning}", file=sys.stderr)
     init = model_io.load_model(args.init) if args.init else None
     learner = make_learner(args)
