@@ -162,3 +162,23 @@ def test_sensor_points_methods_agree_on_average(synth):
     np.testing.assert_array_equal(a[0], b[0])
     with pytest.raises(ValueError):
         sst.sensor_points(lo, batch, post, np.random.default_rng(0), "unscented")
+
+
+def test_fused_table_regression_equals_the_general_path():
+    """The compiled one-hot fast path gives the very numbers of ActionModel.regress and residual_cov."""
+    from learners.inference.action_stats import residual_cov
+    from learners.inference.kernels import residual_cov_compiled, table_means_compiled, table_residual_cov_compiled
+    from learners.model.action import ActionModel
+
+    rng = np.random.default_rng(5)
+    commands = rng.integers(0, 39, 5000)  # command 39 never executed: keeps its old weights
+    mu_star = rng.normal(size=(5000, 3)) * [10.0, 10.0, 0.1]
+    old = rng.normal(size=(40, 3))
+    model = ActionModel(old, np.eye(3), 1 / 30)
+    w = model.regress(commands, mu_star)
+    np.testing.assert_array_equal(table_means_compiled(commands, mu_star, old), w)
+    assert np.array_equal(w[39], old[39])
+    scale = rng.uniform(0.5, 2.0, 5000)
+    fused = table_residual_cov_compiled(commands, mu_star, w, scale)
+    np.testing.assert_array_equal(fused, residual_cov_compiled(mu_star, w[commands], scale))  # same order
+    np.testing.assert_allclose(fused, residual_cov(mu_star, w[commands], scale), rtol=1e-12)  # BLAS order

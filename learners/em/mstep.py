@@ -51,11 +51,20 @@ def maximize(model: Model, batch: Batch, post: Posterior, rng: np.random.Generat
     lo = model.lower(batch) if lo is None else lo
     commands = batch.actions if batch.actions is not None else batch.controls
     mu_star, C_sum = action_stats(lo, batch, post, opts.learn_motion_noise)
-    weights = model.action.regress(commands, mu_star)
+    fused = opts.estep == "compiled" and model.action.discrete  # the table's fused twin (same sums)
+    if fused:
+        from learners.inference.kernels import table_means_compiled, table_residual_cov_compiled
+
+        weights = table_means_compiled(commands, mu_star, model.action.weights)
+    else:
+        weights = model.action.regress(commands, mu_star)
     action = model.action.with_values(weights=weights)
     if opts.learn_motion_noise and len(mu_star):
         inv_n = 1.0 / len(mu_star)
-        R = resid_cov(mu_star, action.displacements(commands), lo.cov_scale)
+        if fused:
+            R = table_residual_cov_compiled(commands, mu_star, weights, lo.cov_scale)
+        else:
+            R = resid_cov(mu_star, action.displacements(commands), lo.cov_scale)
         action = action.with_values(cov=_sym(C_sum * inv_n + R * inv_n))
     coef, sigma_size, sigma_bearing, drange = sensor_update(
         lo, batch, post, rng, method=opts.sensor_method, n_samples=opts.n_samples, degree=opts.degree)

@@ -22,8 +22,14 @@ Layout (one concept per module; import the public functions from this package):
 
 from __future__ import annotations
 
-from learners.inference.kernels.action import action_statistics_compiled, residual_cov_compiled
+from learners.inference.kernels.action import (
+    action_statistics_compiled,
+    residual_cov_compiled,
+    table_means_compiled,
+    table_residual_cov_compiled,
+)
 from learners.inference.kernels.estep import smooth_compiled
 from learners.inference.kernels.sensor import sensor_update_compiled
 
-__all__ = ["smooth_compiled", "action_statistics_compiled", "residual_cov_compiled", "sensor_update_compiled"]
+__all__ = ["smooth_compiled", "action_statistics_compiled", "residual_cov_compiled", "sensor_update_compiled",
+           "table_means_compiled", "table_residual_cov_compiled"]

@@ -171,3 +171,60 @@ def residual_cov_compiled(mu_star: np.ndarray, pred: np.ndarray, cov_scale: np.n
     r00, r01, r02, r11, r12, r22 = _residual_cov_kernel(_f64(mu_star, (n, 3)), _f64(pred, (n, 3)),
                                                         _f64(cov_scale, (n,)))  # fmt: skip
     return np.array([[r00, r01, r02], [r01, r11, r12], [r02, r12, r22]])
+
+
+# ----------------------------------------------------------------------------------------------
+# the one-hot (table) case of the regression, fused: the paper's per-command means and the residual
+# scatter without materializing the (N, 3) predictions (same sums, in frame order, as the NumPy path)
+# ----------------------------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def _table_means_kernel(commands, mu_star, old, out):
+    """out[a] = mean of mu_star over the frames of command a (old[a] where a is never executed)."""
+    n_act = old.shape[0]
+    sums = np.zeros((n_act, 3))
+    counts = np.zeros(n_act)
+    for i in range(commands.shape[0]):
+        a = commands[i]
+        sums[a, 0] += mu_star[i, 0]
+        sums[a, 1] += mu_star[i, 1]
+        sums[a, 2] += mu_star[i, 2]
+        counts[a] += 1.0
+    for a in range(n_act):
+        for k in range(3):
+            out[a, k] = sums[a, k] / counts[a] if counts[a] > 0 else old[a, k]
+
+
+def table_means_compiled(commands: np.ndarray, mu_star: np.ndarray, old: np.ndarray) -> np.ndarray:
+    """Compiled twin of ``ActionModel.regress`` for a table (one-hot features): (A, 3) per-command means."""
+    out = np.empty_like(old, dtype=np.float64)
+    _table_means_kernel(np.ascontiguousarray(commands, dtype=np.int64), _f64(mu_star), _f64(old), out)
+    return out
+
+
+@njit(cache=True)
+def _table_residual_kernel(commands, mu_star, weights, cov_scale):
+    r00 = r01 = r02 = r11 = r12 = r22 = 0.0
+    for i in range(mu_star.shape[0]):
+        a = commands[i]
+        iw = 1.0 / cov_scale[i]
+        r0 = mu_star[i, 0] - weights[a, 0]
+        r1 = mu_star[i, 1] - weights[a, 1]
+        r2 = mu_star[i, 2] - weights[a, 2]
+        r00 += r0 * r0 * iw
+        r01 += r0 * r1 * iw
+        r02 += r0 * r2 * iw
+        r11 += r1 * r1 * iw
+        r12 += r1 * r2 * iw
+        r22 += r2 * r2 * iw
+    return r00, r01, r02, r11, r12, r22
+
+
+def table_residual_cov_compiled(commands: np.ndarray, mu_star: np.ndarray, weights: np.ndarray,
+                                cov_scale: np.ndarray) -> np.ndarray:
+    """``residual_cov_compiled(mu_star, weights[commands], cov_scale)`` without forming the predictions."""
+    n = len(mu_star)
+    r00, r01, r02, r11, r12, r22 = _table_residual_kernel(np.ascontiguousarray(commands, dtype=np.int64),
+                                                          _f64(mu_star, (n, 3)), _f64(weights), _f64(cov_scale, (n,)))
+    return np.array([[r00, r01, r02], [r01, r11, r12], [r02, r12, r22]])
