@@ -49,22 +49,23 @@ def maximize(model: Model, batch: Batch, post: Posterior, rng: np.random.Generat
     ``lo``: ``model.lower(batch)`` if the caller has it."""
     action_stats, resid_cov, sensor_update = _statistics(opts.estep == "compiled")
     lo = model.lower(batch) if lo is None else lo
-    commands = batch.actions if batch.actions is not None else batch.controls
+    commands, scale = model.effective_commands(batch)
     mu_star, C_sum = action_stats(lo, batch, post, opts.learn_motion_noise)
-    fused = opts.estep == "compiled" and model.action.discrete  # the table's fused twin (same sums)
+    fused = opts.estep == "compiled" and model.action.discrete and scale is None  # the table's fused twin
     if fused:
         from learners.inference.kernels import table_means_compiled, table_residual_cov_compiled
 
         weights = table_means_compiled(commands, mu_star, model.action.weights)
     else:
-        weights = model.action.regress(commands, mu_star)
+        weights = model.action.regress(commands, mu_star, scale)
     action = model.action.with_values(weights=weights)
     if opts.learn_motion_noise and len(mu_star):
         inv_n = 1.0 / len(mu_star)
         if fused:
             R = table_residual_cov_compiled(commands, mu_star, weights, lo.cov_scale)
         else:
-            R = resid_cov(mu_star, action.displacements(commands), lo.cov_scale)
+            pred = action.displacements(commands)
+            R = resid_cov(mu_star, pred if scale is None else pred * scale[:, None], lo.cov_scale)
         action = action.with_values(cov=_sym(C_sum * inv_n + R * inv_n))
     coef, sigma_size, sigma_bearing, drange = sensor_update(
         lo, batch, post, rng, method=opts.sensor_method, n_samples=opts.n_samples, degree=opts.degree)

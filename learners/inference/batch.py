@@ -66,6 +66,22 @@ class Batch:
         return self.frame_to_pose[self.sight_frame] + 1
 
     @cached_property
+    def frame_time(self) -> np.ndarray:
+        """(N,) time (s) at the start of each frame since the start of its log."""
+        return (np.arange(self.n_frames) - np.repeat(self.frame_start[:-1], np.diff(self.frame_start))) * self.dt
+
+    @cached_property
+    def command_start(self) -> np.ndarray:
+        """(N,) frame (batch index) at which the command in force at each frame started (per log)."""
+        cmds = self.actions if self.actions is not None else self.controls
+        change = np.ones(self.n_frames, dtype=bool)
+        if self.n_frames > 1:
+            same = cmds[1:] == cmds[:-1]
+            change[1:] = ~(same if same.ndim == 1 else same.all(axis=1))
+        change[self.frame_start[:-1][np.diff(self.frame_start) > 0]] = True
+        return np.maximum.accumulate(np.where(change, np.arange(self.n_frames), 0))
+
+    @cached_property
     def sight_log(self) -> np.ndarray:
         """(S,) log of each sighting."""
         return np.searchsorted(self.frame_start, self.sight_frame, side="right") - 1

@@ -106,11 +106,18 @@ class ActionModel(Component):
         or continuous commands (N, k) in the units the log declared (public API)."""
         return self.displacements(commands) / self.dt
 
-    def regress(self, commands: np.ndarray, mu_star: np.ndarray) -> np.ndarray:
+    def regress(self, commands: np.ndarray, mu_star: np.ndarray, scale: np.ndarray | None = None) -> np.ndarray:
         """New weights: least squares of the per-frame displacement estimates ``mu_star`` (N, 3) on the
-        features. ``table``: the mean over the frames of each command (commands never executed keep
-        their weights); otherwise ordinary least squares over all frames (equal weights: one shared
-        noise covariance)."""
+        features (times ``scale`` (N,) per frame when an effect scales the motion). ``table``: the mean
+        over the frames of each command (commands never executed keep their weights); otherwise
+        ordinary least squares over all frames (equal weights: one shared noise covariance)."""
+        if scale is not None:
+            phi = self._one_hot(commands) if self.discrete else self.features(commands)
+            phi = phi * scale[:, None]
+            seen = np.abs(phi).sum(axis=0) > 0
+            out = np.array(self.weights, dtype=float)
+            out[seen] = np.linalg.lstsq(phi[:, seen], mu_star, rcond=None)[0]
+            return out
         if self.discrete:
             n_act = len(self.weights)
             counts = np.bincount(commands, minlength=n_act).astype(float)
@@ -123,6 +130,11 @@ class ActionModel(Component):
             return out
         phi = self.features(commands)
         return np.linalg.lstsq(phi, mu_star, rcond=None)[0]
+
+    def _one_hot(self, commands: np.ndarray) -> np.ndarray:
+        phi = np.zeros((len(commands), len(self.weights)))
+        phi[np.arange(len(commands)), commands] = 1.0
+        return phi
 
     def determined(self, commands: np.ndarray) -> np.ndarray:
         """(F,) bool: which weights the commands of a log determine (table: the commands executed;

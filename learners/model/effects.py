@@ -29,15 +29,28 @@ if TYPE_CHECKING:
 
 
 class EffectModel(Component):
-    """Base of the effect components (module docstring)."""
+    """Base of the effect components (module docstring). Every hook is optional."""
 
     name: ClassVar[str] = ""
+    #: Parameters estimated by profile likelihood over a grid (outside EM), e.g. a lag: name -> grid.
+    GRID: ClassVar[dict[str, tuple[float, ...]]] = {}
+    #: What the effect needs from the logs besides commands and sightings (``"head_pan"``, ``"field"``).
+    NEEDS: ClassVar[tuple[str, ...]] = ()
+
+    def commands(self, commands: np.ndarray, batch: Batch) -> np.ndarray:
+        """The commands in force per frame (e.g. delayed by a lag); default: as logged."""
+        return commands
+
+    def disp_scale(self, batch: Batch) -> np.ndarray | None:
+        """(N,) factor on each frame's mean displacement (e.g. a fading battery), or None."""
+        return None
 
     def lower(self, lo: Lowered, batch: Batch) -> None:
-        raise NotImplementedError
+        """Write the effect into the lowered arrays (replacing them); default: nothing."""
 
     def maximize(self, model: "Model", batch: Batch, post: Posterior) -> "Model":
-        raise NotImplementedError
+        """The conditional M-step (ECM); default: nothing (grid parameters are profiled outside EM)."""
+        return model
 
     @classmethod
     def start(cls, batch: Batch) -> "EffectModel":
@@ -130,3 +143,6 @@ class BeaconHeightScale(EffectModel):
         g = float(np.exp(np.mean(np.log(scale))))
         sensor = model.sensor.with_values(coef=np.asarray(model.sensor.coef) * g)
         return model.with_effect(BeaconHeightScale(scale / g)).with_(sensor=sensor)
+
+
+from learners.model import catalogue as _catalogue  # noqa: E402,F401  (registers the catalogue's twins)

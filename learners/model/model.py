@@ -55,15 +55,28 @@ class Model:
         """The per-frame and per-sighting arrays of this model on ``batch`` (base model, then effects)."""
         if len(self.init) != batch.n_logs:
             raise ValueError(f"model has {len(self.init)} initial states for {batch.n_logs} logs")
-        commands = batch.actions if batch.actions is not None else batch.controls
+        commands, scale = self.effective_commands(batch)
+        disp = self.action.displacements(commands)
         lo = Lowered.plain(
-            self.action.displacements(commands), self.action.cov, self.sensor.basis_id, self.sensor.coef,
+            disp if scale is None else disp * scale[:, None], self.action.cov, self.sensor.basis_id, self.sensor.coef,
             self.sensor.sigma_size, self.sensor.sigma_bearing, np.stack([s.mean for s in self.init]),
             np.stack([s.cov for s in self.init]), batch.n_sightings,
         )
         for e in self.effects:
             e.lower(lo, batch)
         return lo
+
+    def effective_commands(self, batch: Batch) -> tuple[np.ndarray, np.ndarray | None]:
+        """(commands in force per frame, (N,) factor on their displacements or None), after the effects
+        that act on commands (a lag) or scale the motion (a fading battery)."""
+        commands = batch.actions if batch.actions is not None else batch.controls
+        scale = None
+        for e in self.effects:
+            commands = e.commands(commands, batch)
+            s = e.disp_scale(batch)
+            if s is not None:
+                scale = s if scale is None else scale * s
+        return commands, scale
 
     # ------------------------------------------------------------------ packing (SQUAREM)
     def _slots(self, fixed: frozenset[str]) -> list[tuple[int, str, str, Component]]:

@@ -1,0 +1,263 @@
+"""Learner-side twins of the effect catalogue (simulator twins: ``aibo_gym/catalogue.py``, same names
+and parameter names, a contract). Each lowers itself into the inference arrays and has a conditional
+M-step (ECM) or, for a lag, a grid searched by profile likelihood outside EM.
+
+=========================  ===========================================  ======================================
+name                       how the model carries it                     its M-step
+=========================  ===========================================  ======================================
+floor_drift                world-frame offset per frame                 generalized least squares of the
+                                                                        smoothed world-frame residual motion
+velocity_fade              factor (1 - fade t) on every displacement    closed form given the action model
+actuation_lag              the commands delayed by ceil(lag / dt)       profile likelihood over ``GRID``
+angle_bias                 offset of every predicted bearing            mean wrapped bearing residual
+off_center_shrink          size x (1 - k phi^2), phi = bearing - pan    closed form given the curve
+distance_dependent_noise   size variance x (d / 2500 mm)^(2 exponent)   1-d maximization over the exponent
+=========================  ===========================================  ======================================
+
+(``beacon_height_scale`` lives in ``effects.py`` as the worked example.) The M-steps use the
+smoothed means where a cubature expectation would change little (first order).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, ClassVar
+
+import numpy as np
+
+from aibo_core.geometry import rel_disp, wrap
+from learners.inference.batch import Batch
+from learners.inference.lowered import Lowered
+from learners.inference.posterior import Posterior
+from learners.model.effects import EffectModel, register_effect
+from learners.model.parameters import Param
+
+if TYPE_CHECKING:
+    from learners.model.model import Model
+
+REFERENCE_DISTANCE_MM = 2500.0  # distance_dependent_noise: the factor is 1 at this distance (as the simulator)
+
+
+def _frame_disp(model: "Model", batch: Batch, post: Posterior) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(start poses (N, 3), smoothed robot-frame displacements (N, 3), model displacements (N, 3))."""
+    p = batch.frame_to_pose
+    lo = model.lower(batch)
+    s0, s1 = post.mu_gamma[p], post.mu_gamma[p + 1]
+    return s0, rel_disp(s0, s1 - lo.offset), lo.disp
+
+
+def _sight_geometry(model: "Model", batch: Batch, post: Posterior):
+    """Used sightings: (indices, distance (mm), predicted bearing without offsets (rad)) at smoothed means."""
+    idx = np.flatnonzero(batch.used)
+    pose = post.mu_gamma[batch.sight_pose[idx]]
+    dx, dy = (batch.sight_xy[idx] - pose[:, :2]).T
+    return idx, np.hypot(dx, dy), wrap(np.arctan2(dy, dx) - pose[:, 2])
+
+
+@register_effect
+@dataclass(frozen=True)
+class FloorDrift(EffectModel):
+    """A constant world-frame drift (sloped or grained floor). Residual signature: world heading."""
+
+    drift_mm_s: np.ndarray  # (2,) mm/s in the world frame
+
+    name: ClassVar[str] = "floor_drift"
+    PARAMS: ClassVar[dict[str, Param]] = {"drift_mm_s": Param("mm/s, world frame", "scaled", (10.0, 10.0))}
+
+    @classmethod
+    def start(cls, batch: Batch) -> "FloorDrift":
+        return cls(np.zeros(2))
+
+    def lower(self, lo: Lowered, batch: Batch) -> None:
+        lo.offset = lo.offset + np.array([self.drift_mm_s[0] * batch.dt, self.drift_mm_s[1] * batch.dt, 0.0])
+
+    def maximize(self, model: "Model", batch: Batch, post: Posterior) -> "Model":
+        """drift dt = (sum Q_i^-1)^-1 sum Q_i^-1 e_i, e_i the smoothed world-frame motion not explained by
+        the commands, Q_i = R(theta_i) Sigma_xy R(theta_i)^T."""
+        p = batch.frame_to_pose
+        lo = model.lower(batch)
+        s0, s1 = post.mu_gamma[p], post.mu_gamma[p + 1]
+        c, s = np.cos(s0[:, 2]), np.sin(s0[:, 2])
+        ux, uy = lo.disp[:, 0], lo.disp[:, 1]
+        e = np.stack([s1[:, 0] - s0[:, 0] - (c * ux - s * uy), s1[:, 1] - s0[:, 1] - (s * ux + c * uy)], axis=1)
+        Wr = np.linalg.inv(np.asarray(model.action.cov)[:2, :2])  # robot-frame information
+        R = np.stack([np.stack([c, -s], 1), np.stack([s, c], 1)], 1)  # (N, 2, 2)
+        W = R @ Wr @ np.swapaxes(R, 1, 2) / lo.cov_scale[:, None, None]
+        drift = np.linalg.solve(W.sum(axis=0), np.einsum("nij,nj->i", W, e)) / batch.dt
+        return model.with_effect(FloorDrift(drift))
+
+
+@register_effect
+@dataclass(frozen=True)
+class VelocityFade(EffectModel):
+    """Every walking velocity shrinks linearly with elapsed time (battery): factor 1 - fade t (t in
+    minutes since the log's start). Residual signature: elapsed time."""
+
+    fade_per_min: float  # fraction of the velocity lost per minute
+
+    name: ClassVar[str] = "velocity_fade"
+    PARAMS: ClassVar[dict[str, Param]] = {"fade_per_min": Param("1/min", "scaled", 0.01)}
+
+    @classmethod
+    def start(cls, batch: Batch) -> "VelocityFade":
+        return cls(0.0)
+
+    def disp_scale(self, batch: Batch) -> np.ndarray:
+        return np.maximum(0.0, 1.0 - self.fade_per_min * batch.frame_time / 60.0)
+
+    def maximize(self, model: "Model", batch: Batch, post: Posterior) -> "Model":
+        """Given the action model: mu_i ~ (1 - f t_i) p_i, so f = sum t p' Sigma^-1 (p - mu) / sum t^2 p' Sigma^-1 p
+        (p_i the undamped displacement, mu_i the smoothed one)."""
+        _, mu, disp = _frame_disp(model, batch, post)
+        scale = self.disp_scale(batch)
+        keep = scale > 0
+        p = disp[keep] / scale[keep, None]
+        t = batch.frame_time[keep] / 60.0
+        Wi = np.linalg.inv(np.asarray(model.action.cov))
+        pw = p @ Wi
+        num = np.sum(t * np.einsum("ij,ij->i", pw, p - mu[keep]))
+        den = np.sum(t * t * np.einsum("ij,ij->i", pw, p))
+        return model.with_effect(VelocityFade(float(num / den)) if den > 0 else self)
+
+
+@register_effect
+@dataclass(frozen=True)
+class ActuationLag(EffectModel):
+    """A new command takes effect only after ``lag_s`` (s): the command in force at frame t is the one
+    logged at t - ceil(lag_s / dt) (the first command before that). Residual signature: time since the
+    last command change. Estimated by profile likelihood over ``GRID`` (a shift of whole frames)."""
+
+    lag_s: float  # s
+
+    name: ClassVar[str] = "actuation_lag"
+    PARAMS: ClassVar[dict[str, Param]] = {"lag_s": Param("s", "scaled", 0.1, trainable=False)}
+    GRID: ClassVar[dict[str, tuple[float, ...]]] = {"lag_s": (0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5)}
+
+    @classmethod
+    def start(cls, batch: Batch) -> "ActuationLag":
+        return cls(0.0)
+
+    def commands(self, commands: np.ndarray, batch: Batch) -> np.ndarray:
+        n = math.ceil(self.lag_s / batch.dt - 1e-9)
+        if n <= 0:
+            return commands
+        out = np.array(commands, copy=True)
+        for a, b in zip(batch.frame_start[:-1], batch.frame_start[1:]):
+            if b - a > n:
+                out[a + n:b] = commands[a:b - n]
+                out[a:a + n] = commands[a]
+        return out
+
+
+@register_effect
+@dataclass(frozen=True)
+class AngleBias(EffectModel):
+    """A constant offset in the observed bearing (a camera mounted askew). With a free action model and
+    an unknown start heading it is NOT identifiable: a heading offset of b with every velocity rotated
+    by b explains the data exactly. Residual signature: none."""
+
+    bias_rad: float
+
+    name: ClassVar[str] = "angle_bias"
+    PARAMS: ClassVar[dict[str, Param]] = {"bias_rad": Param("rad", "scaled", 0.01)}
+
+    @classmethod
+    def start(cls, batch: Batch) -> "AngleBias":
+        return cls(0.0)
+
+    def lower(self, lo: Lowered, batch: Batch) -> None:
+        lo.bearing_offset = lo.bearing_offset + self.bias_rad
+
+    def maximize(self, model: "Model", batch: Batch, post: Posterior) -> "Model":
+        lo = model.lower(batch)
+        idx, _, bearing = _sight_geometry(model, batch, post)
+        other = lo.bearing_offset[idx] - self.bias_rad
+        bias = float(np.mean(wrap(batch.sight_value[idx, 1] - bearing - other)))
+        return model.with_effect(AngleBias(bias))
+
+
+def _size_fit(model: "Model", batch: Batch, post: Posterior, skip: EffectModel):
+    """Used sightings: (indices, distance, prediction without ``skip``'s size scale, observed size less offsets,
+    weights 1 / variance factor)."""
+    lo = model.lower(batch)
+    idx, d, _ = _sight_geometry(model, batch, post)
+    mine = np.ones(len(idx)) if not isinstance(skip, OffCenterShrink) else skip.factor(batch)[idx]
+    f = model.sensor.mean(d) * lo.size_scale[idx] / mine
+    return idx, d, f, batch.sight_value[idx, 0] - lo.size_offset[idx], 1.0 / lo.size_var_factor[idx]
+
+
+@register_effect
+@dataclass(frozen=True)
+class OffCenterShrink(EffectModel):
+    """Apparent height shrinks away from the image centre: size x (1 - k phi^2), phi = bearing - head pan
+    (rad; the observed bearing stands in for the true one). Residual signature: position in the image."""
+
+    k: float
+
+    name: ClassVar[str] = "off_center_shrink"
+    PARAMS: ClassVar[dict[str, Param]] = {"k": Param("1/rad^2", "scaled", 0.05)}
+    NEEDS: ClassVar[tuple[str, ...]] = ("head_pan",)
+
+    @classmethod
+    def start(cls, batch: Batch) -> "OffCenterShrink":
+        return cls(0.0)
+
+    def factor(self, batch: Batch) -> np.ndarray:
+        phi = wrap(batch.sight_value[:, 1] - batch.head_pan[batch.sight_frame])
+        return 1.0 - self.k * phi * phi
+
+    def lower(self, lo: Lowered, batch: Batch) -> None:
+        lo.size_scale = lo.size_scale * self.factor(batch)
+
+    def maximize(self, model: "Model", batch: Batch, post: Posterior) -> "Model":
+        """z = f (1 - k phi^2) is linear in k: k = sum w f phi^2 (f - z) / sum w f^2 phi^4."""
+        idx, _, f, z, w = _size_fit(model, batch, post, self)
+        phi2 = wrap(batch.sight_value[idx, 1] - batch.head_pan[batch.sight_frame[idx]]) ** 2
+        den = np.sum(w * f * f * phi2 * phi2)
+        return model.with_effect(OffCenterShrink(float(np.sum(w * f * phi2 * (f - z)) / den))) if den > 0 else model
+
+
+@register_effect
+@dataclass(frozen=True)
+class DistanceDependentNoise(EffectModel):
+    """Size noise grows with distance: sigma_size x (d / 2500 mm)^exponent. The distances are those of
+    the latest smoothed path (kept in ``distances``, not a parameter). Residual signature: the size
+    residuals' spread depends on distance."""
+
+    exponent: float
+    distances: tuple = ()  # (S,) mm at the latest smoothed means (empty: not known yet)
+
+    name: ClassVar[str] = "distance_dependent_noise"
+    PARAMS: ClassVar[dict[str, Param]] = {"exponent": Param("", "scaled", 0.1)}
+
+    @classmethod
+    def start(cls, batch: Batch) -> "DistanceDependentNoise":
+        return cls(0.0)
+
+    def lower(self, lo: Lowered, batch: Batch) -> None:
+        if len(self.distances) == batch.n_sightings:
+            d = np.asarray(self.distances)
+            lo.size_var_factor = lo.size_var_factor * (d / REFERENCE_DISTANCE_MM) ** (2.0 * self.exponent)
+
+    def maximize(self, model: "Model", batch: Batch, post: Posterior) -> "Model":
+        """The exponent (and sigma_size) maximizing the Gaussian likelihood of the size residuals."""
+        lo = model.lower(batch)
+        idx, d, _ = _sight_geometry(model, batch, post)
+        r2 = (batch.sight_value[idx, 0] - lo.size_offset[idx] - model.sensor.mean(d) * lo.size_scale[idx]) ** 2
+        mine = (d / REFERENCE_DISTANCE_MM) ** (2.0 * self.exponent) if len(self.distances) else 1.0
+        other = lo.size_var_factor[idx] / mine
+        logd = np.log(d / REFERENCE_DISTANCE_MM)
+
+        def profile(e: float) -> tuple[float, float]:
+            v = other * np.exp(2.0 * e * logd)
+            s2 = float(np.mean(r2 / v))
+            return -0.5 * float(np.sum(np.log(s2 * v))) - 0.5 * len(r2), s2
+
+        grid = np.linspace(-1.0, 3.0, 81)
+        e = float(grid[int(np.argmax([profile(g)[0] for g in grid]))])
+        fine = np.linspace(e - 0.05, e + 0.05, 21)
+        e = float(fine[int(np.argmax([profile(g)[0] for g in fine]))])
+        all_d = np.hypot(*(batch.sight_xy - post.mu_gamma[batch.sight_pose][:, :2]).T)
+        sensor = replace(model.sensor, sigma_size=math.sqrt(profile(e)[1]))
+        return model.with_effect(DistanceDependentNoise(e, tuple(all_d.tolist()))).with_(sensor=sensor)
