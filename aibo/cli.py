@@ -79,6 +79,14 @@ def build_parser() -> argparse.ArgumentParser:
                     help="use the paper's exact recipe (fixed motion noise, one sample per frame)")
     rp.set_defaults(run=commands.run_reproduce)
 
+    dg = sub.add_parser("diagnose", help="find where model and data disagree, name the missing effect, refit")
+    dg.add_argument("logs", nargs="+", help="aibo-trajectory/1 or /2 logs of one robot")
+    dg.add_argument("--out", required=True, help="folder for report.html, report.json, model.json and figures")
+    dg.add_argument("--candidates", help="comma-separated effects to try (default: the whole catalogue)")
+    dg.add_argument("--jobs", type=integer(1), default=2, help="worker processes for the candidates (default 2)")
+    dg.add_argument("--seed", type=integer(0), default=0)
+    dg.set_defaults(run=commands.run_diagnose)
+
     b = sub.add_parser("bench", help="measure E-step and fit speed on this machine")
     b.add_argument("--json", help="write all figures to this JSON file")
     b.add_argument("--quick", action="store_true", help="smaller sizes (for a smoke test)")

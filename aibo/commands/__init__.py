@@ -22,6 +22,12 @@ def run_reproduce(args) -> int:
     return run(args)
 
 
+def run_diagnose(args) -> int:
+    from aibo.commands.diagnose import run
+
+    return run(args)
+
+
 def run_bench(args) -> int:
     from aibo.commands.bench import run
 

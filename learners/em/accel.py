@@ -25,13 +25,20 @@ if TYPE_CHECKING:
 A_MAX = 64.0  # steps were pinned at 8 in measurements; 64 cut iterations ~15%
 
 
+def _params_of(effect_name: str) -> tuple[str, ...]:
+    from learners.model.effects import EFFECT_MODELS
+
+    return tuple(EFFECT_MODELS[effect_name].PARAMS) if effect_name in EFFECT_MODELS else ()
+
+
 class Packer:
     """Maps a Model to and from the scaled vector (``Model.pack``: every trainable parameter in its
     component's declared transform; the motion covariance only when it is learned). The scales are
     constants, so a resumed fit extrapolates exactly as an unbroken one."""
 
     def __init__(self, opts: "EMOptions"):
-        self.fixed = frozenset() if opts.learn_motion_noise else frozenset({"action.cov"})
+        fixed = set() if opts.learn_motion_noise else {"action.cov"}
+        self.fixed = frozenset(fixed | {f"effects.{name}.{p}" for name in opts.frozen for p in _params_of(name)})
 
     def pack(self, p: Model) -> np.ndarray:
         return p.pack(self.fixed)

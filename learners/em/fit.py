@@ -42,6 +42,7 @@ class EMOptions:
     accel: str = "squarem"  # paper: "none"; "squarem": extrapolated EM with a monotone safeguard
     min_improvement: float = 0.1  # a new best must beat the old by this (nats); paper: any amount
     seed: int = 0
+    frozen: tuple[str, ...] = ()  # effects held at their values (profile likelihood), by name
 
     @classmethod
     def paper(cls, **overrides) -> "EMOptions":

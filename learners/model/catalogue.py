@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
-from aibo_core.geometry import rel_disp, wrap
+from aibo_core.geometry import wrap
 from learners.inference.batch import Batch
 from learners.inference.lowered import Lowered
 from learners.inference.posterior import Posterior
@@ -37,14 +37,6 @@ if TYPE_CHECKING:
     from learners.model.model import Model
 
 REFERENCE_DISTANCE_MM = 2500.0  # distance_dependent_noise: the factor is 1 at this distance (as the simulator)
-
-
-def _frame_disp(model: "Model", batch: Batch, post: Posterior) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(start poses (N, 3), smoothed robot-frame displacements (N, 3), model displacements (N, 3))."""
-    p = batch.frame_to_pose
-    lo = model.lower(batch)
-    s0, s1 = post.mu_gamma[p], post.mu_gamma[p + 1]
-    return s0, rel_disp(s0, s1 - lo.offset), lo.disp
 
 
 def _sight_geometry(model: "Model", batch: Batch, post: Posterior):
@@ -72,15 +64,16 @@ class FloorDrift(EffectModel):
     def lower(self, lo: Lowered, batch: Batch) -> None:
         lo.offset = lo.offset + np.array([self.drift_mm_s[0] * batch.dt, self.drift_mm_s[1] * batch.dt, 0.0])
 
-    def maximize(self, model: "Model", batch: Batch, post: Posterior) -> "Model":
-        """drift dt = (sum Q_i^-1)^-1 sum Q_i^-1 e_i, e_i the smoothed world-frame motion not explained by
-        the commands, Q_i = R(theta_i) Sigma_xy R(theta_i)^T."""
+    def maximize(self, model: "Model", batch: Batch, post: Posterior, mu_star: np.ndarray) -> "Model":
+        """drift dt = (sum Q_i^-1)^-1 sum Q_i^-1 e_i, with e_i = R(theta_i) (mu*_i - u_i) + o_i the world-frame
+        motion the new action model u_i leaves unexplained (mu*_i net of the previous offset o_i, so the
+        prior's pull keeps frames without sightings near zero: EM-consistent), Q_i = R Sigma_xy R^T."""
         p = batch.frame_to_pose
         lo = model.lower(batch)
-        s0, s1 = post.mu_gamma[p], post.mu_gamma[p + 1]
-        c, s = np.cos(s0[:, 2]), np.sin(s0[:, 2])
-        ux, uy = lo.disp[:, 0], lo.disp[:, 1]
-        e = np.stack([s1[:, 0] - s0[:, 0] - (c * ux - s * uy), s1[:, 1] - s0[:, 1] - (s * ux + c * uy)], axis=1)
+        th = post.mu_gamma[p, 2]
+        c, s = np.cos(th), np.sin(th)
+        r = mu_star[:, :2] - lo.disp[:, :2]
+        e = np.stack([c * r[:, 0] - s * r[:, 1], s * r[:, 0] + c * r[:, 1]], axis=1) + lo.offset[:, :2]
         Wr = np.linalg.inv(np.asarray(model.action.cov)[:2, :2])  # robot-frame information
         R = np.stack([np.stack([c, -s], 1), np.stack([s, c], 1)], 1)  # (N, 2, 2)
         W = R @ Wr @ np.swapaxes(R, 1, 2) / lo.cov_scale[:, None, None]
@@ -106,10 +99,11 @@ class VelocityFade(EffectModel):
     def disp_scale(self, batch: Batch) -> np.ndarray:
         return np.maximum(0.0, 1.0 - self.fade_per_min * batch.frame_time / 60.0)
 
-    def maximize(self, model: "Model", batch: Batch, post: Posterior) -> "Model":
-        """Given the action model: mu_i ~ (1 - f t_i) p_i, so f = sum t p' Sigma^-1 (p - mu) / sum t^2 p' Sigma^-1 p
-        (p_i the undamped displacement, mu_i the smoothed one)."""
-        _, mu, disp = _frame_disp(model, batch, post)
+    def maximize(self, model: "Model", batch: Batch, post: Posterior, mu_star: np.ndarray) -> "Model":
+        """Given the action model: mu*_i ~ (1 - f t_i) p_i (p_i the undamped displacement), so
+        f = sum t p' Sigma^-1 (p - mu*) / sum t^2 p' Sigma^-1 p."""
+        lo = model.lower(batch)
+        disp, mu = lo.disp, mu_star
         scale = self.disp_scale(batch)
         keep = scale > 0
         p = disp[keep] / scale[keep, None]
@@ -132,7 +126,7 @@ class ActuationLag(EffectModel):
 
     name: ClassVar[str] = "actuation_lag"
     PARAMS: ClassVar[dict[str, Param]] = {"lag_s": Param("s", "scaled", 0.1, trainable=False)}
-    GRID: ClassVar[dict[str, tuple[float, ...]]] = {"lag_s": (0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5)}
+    GRID: ClassVar[dict[str, tuple[float, ...]]] = {"lag_s": (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)}
 
     @classmethod
     def start(cls, batch: Batch) -> "ActuationLag":
@@ -169,7 +163,7 @@ class AngleBias(EffectModel):
     def lower(self, lo: Lowered, batch: Batch) -> None:
         lo.bearing_offset = lo.bearing_offset + self.bias_rad
 
-    def maximize(self, model: "Model", batch: Batch, post: Posterior) -> "Model":
+    def maximize(self, model: "Model", batch: Batch, post: Posterior, mu_star: np.ndarray) -> "Model":
         lo = model.lower(batch)
         idx, _, bearing = _sight_geometry(model, batch, post)
         other = lo.bearing_offset[idx] - self.bias_rad
@@ -210,7 +204,7 @@ class OffCenterShrink(EffectModel):
     def lower(self, lo: Lowered, batch: Batch) -> None:
         lo.size_scale = lo.size_scale * self.factor(batch)
 
-    def maximize(self, model: "Model", batch: Batch, post: Posterior) -> "Model":
+    def maximize(self, model: "Model", batch: Batch, post: Posterior, mu_star: np.ndarray) -> "Model":
         """z = f (1 - k phi^2) is linear in k: k = sum w f phi^2 (f - z) / sum w f^2 phi^4."""
         idx, _, f, z, w = _size_fit(model, batch, post, self)
         phi2 = wrap(batch.sight_value[idx, 1] - batch.head_pan[batch.sight_frame[idx]]) ** 2
@@ -240,7 +234,12 @@ class DistanceDependentNoise(EffectModel):
             d = np.asarray(self.distances)
             lo.size_var_factor = lo.size_var_factor * (d / REFERENCE_DISTANCE_MM) ** (2.0 * self.exponent)
 
-    def maximize(self, model: "Model", batch: Batch, post: Posterior) -> "Model":
+    def refresh(self, model: "Model", batch: Batch, post: Posterior) -> "DistanceDependentNoise":
+        """The distances (mm) of every sighting at the latest smoothed means."""
+        d = np.hypot(*(batch.sight_xy - post.mu_gamma[batch.sight_pose][:, :2]).T)
+        return replace(self, distances=tuple(d.tolist()))
+
+    def maximize(self, model: "Model", batch: Batch, post: Posterior, mu_star: np.ndarray) -> "Model":
         """The exponent (and sigma_size) maximizing the Gaussian likelihood of the size residuals."""
         lo = model.lower(batch)
         idx, d, _ = _sight_geometry(model, batch, post)
@@ -258,6 +257,5 @@ class DistanceDependentNoise(EffectModel):
         e = float(grid[int(np.argmax([profile(g)[0] for g in grid]))])
         fine = np.linspace(e - 0.05, e + 0.05, 21)
         e = float(fine[int(np.argmax([profile(g)[0] for g in fine]))])
-        all_d = np.hypot(*(batch.sight_xy - post.mu_gamma[batch.sight_pose][:, :2]).T)
         sensor = replace(model.sensor, sigma_size=math.sqrt(profile(e)[1]))
-        return model.with_effect(DistanceDependentNoise(e, tuple(all_d.tolist()))).with_(sensor=sensor)
+        return model.with_effect(replace(self, exponent=e)).with_(sensor=sensor)

@@ -37,6 +37,18 @@ class EffectModel(Component):
     #: What the effect needs from the logs besides commands and sightings (``"head_pan"``, ``"field"``).
     NEEDS: ClassVar[tuple[str, ...]] = ()
 
+    def dof(self) -> int:
+        """Free numbers the effect adds (for the likelihood-ratio test): grid parameters count one each."""
+        return sum(1 if name in self.GRID else np.size(v) for name, v in self.values().items()) - self.CONSTRAINTS
+
+    #: Constraints among the parameters (e.g. a normalization), subtracted from ``dof``.
+    CONSTRAINTS: ClassVar[int] = 0
+
+    def refresh(self, model: "Model", batch: Batch, post: Posterior) -> "EffectModel":
+        """Keep what the effect needs from the latest smoothed path (e.g. distances), even when its
+        parameters are frozen; default: itself."""
+        return self
+
     def commands(self, commands: np.ndarray, batch: Batch) -> np.ndarray:
         """The commands in force per frame (e.g. delayed by a lag); default: as logged."""
         return commands
@@ -48,8 +60,11 @@ class EffectModel(Component):
     def lower(self, lo: Lowered, batch: Batch) -> None:
         """Write the effect into the lowered arrays (replacing them); default: nothing."""
 
-    def maximize(self, model: "Model", batch: Batch, post: Posterior) -> "Model":
-        """The conditional M-step (ECM); default: nothing (grid parameters are profiled outside EM)."""
+    def maximize(self, model: "Model", batch: Batch, post: Posterior, mu_star: np.ndarray) -> "Model":
+        """The conditional M-step (ECM); default: nothing (grid parameters are profiled outside EM).
+
+        ``mu_star`` (N, 3): the action statistics of this M-step (posterior mean robot-frame displacement
+        of each frame net of the previous world offset, the prior's pull included: ``learners.inference``)."""
         return model
 
     @classmethod
@@ -115,6 +130,7 @@ class BeaconHeightScale(EffectModel):
     scale: np.ndarray  # (B,) dimensionless
 
     name: ClassVar[str] = "beacon_height_scale"
+    CONSTRAINTS: ClassVar[int] = 1  # normalized to geometric mean 1
     PARAMS: ClassVar[dict[str, Param]] = {"scale": Param("factor per landmark", "log")}
 
     @classmethod
@@ -124,7 +140,7 @@ class BeaconHeightScale(EffectModel):
     def lower(self, lo: Lowered, batch: Batch) -> None:
         lo.size_scale = lo.size_scale * self.scale[batch.sight_landmark]
 
-    def maximize(self, model: "Model", batch: Batch, post: Posterior) -> "Model":
+    def maximize(self, model: "Model", batch: Batch, post: Posterior, mu_star: np.ndarray) -> "Model":
         """Closed form given the curve: scale[b] = sum f z / sum f^2 over landmark b's sightings
         (cubature points, weights 1 / size_var_factor); then normalized, the common factor moved
         into the curve's coefficients (f(d) g scale/g is the same prediction)."""

@@ -1,0 +1,101 @@
+"""``aibo diagnose``: calibrate, find where model and data disagree, name the missing effect, show the gap shrink."""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+from aibo.errors import CLIError
+from aibo.paths import check_files
+from aibo_core import trajectory
+from aibo_core.atomic import atomic_write
+from aibo_core.compat import check_compatible
+from learners.discrepancy.score import GAP_METRIC, score
+from learners.discrepancy.search import search
+from learners.discrepancy.signatures import signatures
+from learners.em.fit import EMOptions
+from learners.em.learner import EMLearner
+from learners.model.effects import EFFECT_MODELS
+from learners.model.io import save_result
+
+FIGURES = ("signatures.png", "gap.png")
+
+
+def candidates(arg: str | None) -> list[str]:
+    """The effects to try: all of the catalogue, or the comma-separated names given."""
+    if not arg:
+        return sorted(EFFECT_MODELS)
+    names = [n.strip() for n in arg.split(",") if n.strip()]
+    unknown = [n for n in names if n not in EFFECT_MODELS]
+    if unknown:
+        raise CLIError(f"--candidates: unknown effect {unknown[0]!r} (valid choices: {', '.join(sorted(EFFECT_MODELS))})")
+    return names
+
+
+def run(args) -> int:
+    out = Path(args.out)
+    names = candidates(args.candidates)
+    check_files([("log", p) for p in args.logs], [("--out file", out / f) for f in
+                                                   ("report.json", "model.json", "report.html", *FIGURES)],
+                folders=[("--out", out)])
+    logs = [trajectory.load(p) for p in args.logs]
+    for warning in check_compatible(logs, list(args.logs)):
+        print(f"aibo: warning: {warning}", file=sys.stderr)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    opts = EMOptions(seed=args.seed)
+    lines: list[str] = []
+
+    def say(line: str) -> None:
+        print(line, flush=True)
+        lines.append(line)
+
+    say(f"diagnosing {len(logs)} log(s), {sum(tr.n_frames for tr in logs)} frames; candidates: {', '.join(names)}")
+    found = search(logs, names, opts, jobs=args.jobs, progress=say)
+    logs = found["logs"]  # outliers set aside, as in every score of the search
+    before, after = score(found["base"], logs), score(found["model"], logs)
+    sig_before, sig_after = signatures(found["base"], logs), signatures(found["model"], logs)
+    final = EMLearner(opts, check_field=False).fit(logs, init=found["model"])
+    save_result(final, out / "model.json")
+    report = _report(found, before, after, sig_before)
+    say("")
+    say("where the base model disagrees with the data (strongest residual signatures):")
+    for s in sig_before[:6]:
+        say(f"  {s.residual:24s} vs {s.variable:32s} p = {s.p_value:.1g}")
+    say(f"named effects, in order: {', '.join(e['name'] for e in report['effects']) or 'none'}")
+    for e in report["effects"]:
+        say(f"  {e['name']}: {e['parameters']}")
+    for c in report["candidates"]:
+        if not c["identifiable"]:
+            say(f"  {c['name']}: present or not, {c['note']}")
+    say(f"gap ({GAP_METRIC}): {before.gap:.4f} before, {after.gap:.4f} after; mean NIS {before.nis_mean:.2f} -> "
+        f"{after.nis_mean:.2f} (2 expected); {time.perf_counter() - t0:.1f} s")
+    report["seconds"] = time.perf_counter() - t0
+    from aibo import diagnose_report as fig
+
+    fig.signature_panels(out / FIGURES[0], sig_before, sig_after)
+    fig.gap_bars(out / FIGURES[1], before.as_dict(), after.as_dict())
+    text = json.dumps(report, indent=1)
+    atomic_write(out / "report.json", lambda f: f.write(text.encode()))
+    fig.html_page(out / "report.html", report, "\n".join(lines), [out / f for f in FIGURES])
+    print(f"wrote {out}/: report.html, report.json, model.json, {', '.join(FIGURES)}")
+    return 0
+
+
+def _report(found: dict, before, after, sig_before) -> dict:
+    effects = [{"name": c.name, "parameters": c.as_dict()["parameters"]} for c in found["named"]]
+    tried = [dict(c.as_dict(), round=k + 1) for k, rnd in enumerate(found["rounds"]) for c in rnd]
+    return {
+        "effect": effects[0]["name"] if effects else "none",
+        "effects": effects,
+        "parameters": effects[0]["parameters"] if effects else {},
+        "candidates": tried,
+        "gap_metric": GAP_METRIC,
+        "gap_before": before.gap,
+        "gap_after": after.gap,
+        "consistency_before": before.as_dict(),
+        "consistency_after": after.as_dict(),
+        "signatures": [s.as_dict() for s in sig_before[:12]],
+    }

@@ -1,0 +1,186 @@
+"""Name the missing effect: each candidate of the catalogue is fitted warm-started from the current
+model (on the training half), scored on the held-out half, tested, and checked for identifiability;
+the best significant one is added and the search repeats until nothing is significant.
+
+Significance: a likelihood-ratio test on the training fit, 2 (l1 - l0) against chi-square(k), at a
+false-alarm level ``ALPHA`` per round shared by the candidates (Bonferroni), AND a held-out gain.
+Identifiability: a candidate that is not significant is refitted with its parameter frozen at a
+plausible strength (``PROBE``); if the likelihood does not drop by ``FLAT_NATS``, the data cannot
+tell the effect from the base model (a flat profile) and it is reported as not identifiable.
+"""
+
+from __future__ import annotations
+
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field, replace
+from typing import Any, Callable
+
+import numpy as np
+from scipy import stats
+
+from aibo_core.trajectory import Trajectory
+from learners.em.fit import EMOptions
+from learners.em.learner import EMLearner
+from learners.inference.batch import make_batch
+from learners.model.effects import EFFECT_MODELS, EffectModel
+from learners.model.model import Model
+
+from .score import score
+from .split import training_log
+
+ALPHA = 0.01  # false-alarm level of one round of the search (all candidates together)
+FLAT_NATS = 2.0  # a frozen probe within this many nats of the free fit: a flat profile
+MAX_ROUNDS = 3
+
+#: A plausible strength per effect, for the identifiability probe (in the effect's units).
+PROBE: dict[str, dict[str, Any]] = {
+    "angle_bias": {"bias_rad": 0.1},
+    "floor_drift": {"drift_mm_s": np.array([20.0, 0.0])},
+    "velocity_fade": {"fade_per_min": 0.03},
+    "off_center_shrink": {"k": 0.3},
+    "distance_dependent_noise": {"exponent": 1.0},
+}
+#: What would make an effect identifiable when the data cannot tell it from the base model.
+REMEDY: dict[str, str] = {
+    "angle_bias": "a constant bearing offset b is explained exactly by a heading offset of b and every velocity "
+                  "rotated by b; a known start heading (an --init model with a tight initial heading) or known "
+                  "velocities would make it identifiable",
+}
+
+
+@dataclass
+class Candidate:
+    """One effect tried in one round."""
+
+    name: str
+    parameters: dict[str, Any]
+    gain_train: float  # nats, training log-likelihood over the current model
+    gain_heldout: float  # nats, held-out log-likelihood over the current model
+    dof: int
+    p_value: float
+    significant: bool = False
+    identifiable: bool = True
+    note: str = ""
+    seconds: float = 0.0
+    model: Model | None = field(default=None, repr=False)
+
+    def as_dict(self) -> dict[str, Any]:
+        d = {k: v for k, v in self.__dict__.items() if k != "model"}
+        d["parameters"] = {k: np.asarray(v).tolist() for k, v in self.parameters.items()}
+        return d
+
+
+def applicable(name: str, logs: list[Trajectory]) -> bool:
+    """Whether the logs hold what the effect needs (e.g. a head pan)."""
+    return all(all(getattr(tr, need) is not None for tr in logs) for need in EFFECT_MODELS[name].NEEDS)
+
+
+def _fit(logs: list[Trajectory], init: Model, opts: EMOptions) -> tuple[Model, float]:
+    res = EMLearner(opts, check_field=False).fit(logs, init=init)
+    return res.params, float(max(res.loglik))
+
+
+def _with(effect: EffectModel, values: dict[str, Any]) -> EffectModel:
+    return effect.with_values(**{k: (float(v) if np.ndim(v) == 0 else np.asarray(v, float)) for k, v in values.items()})
+
+
+def try_candidate(name: str, base: Model, base_ll: float, base_heldout: float, train: list[Trajectory],
+                  logs: list[Trajectory], opts: EMOptions, n_candidates: int) -> Candidate:
+    """Fit the base model extended with effect ``name``; score, test, probe identifiability."""
+    t0 = time.perf_counter()
+    cls = EFFECT_MODELS[name]
+    start = base.with_effect(cls.start(make_batch(train)))
+    if cls.GRID:  # profile likelihood over the grid, the effect frozen at each value
+        (pname, grid), = cls.GRID.items()
+        frozen = replace(opts, frozen=opts.frozen + (name,), max_iter=min(opts.max_iter, 150))
+        fits = [_fit(train, start.with_effect(_with(start.effect(name), {pname: g})), frozen)[0] for g in grid]
+        lls = [_train_loglik(m, train) for m in fits]
+        k = int(np.argmax(lls))
+        model, ll = fits[k], lls[k]
+        fits = list(zip(fits, lls))
+        flat = max(ll for _, ll in fits) - min(ll for _, ll in fits) < FLAT_NATS
+    else:
+        model, _ = _fit(train, start, opts)
+        ll = _train_loglik(model, train)
+        flat = False
+    dof = model.effect(name).dof()
+    gain = max(ll - base_ll, 0.0)
+    p = float(stats.chi2.sf(2.0 * gain, max(dof, 1)))
+    heldout = score(model, logs).heldout_loglik - base_heldout
+    c = Candidate(name, model.effect(name).values(), gain, heldout, dof, p, model=model)
+    c.significant = p < ALPHA / max(n_candidates, 1) and heldout > 0
+    if not c.significant and name in PROBE and not cls.GRID:
+        probe = start.with_effect(_with(start.effect(name), PROBE[name]))
+        fitted, _ = _fit(train, probe, replace(opts, frozen=opts.frozen + (name,), max_iter=min(opts.max_iter, 150)))
+        ll_probe = _train_loglik(fitted, train)
+        flat = ll - ll_probe < FLAT_NATS
+    if flat:
+        c.identifiable, c.significant = False, False
+        c.note = "not identifiable from these data: " + REMEDY.get(name, "its profile likelihood is flat")
+    c.seconds = time.perf_counter() - t0
+    return c
+
+
+def _job(args: tuple) -> Candidate:
+    return try_candidate(*args)
+
+
+def drop_outliers(model: Model, logs: list[Trajectory]) -> tuple[list[Trajectory], int]:
+    """The logs without the sightings ``model`` gates out as outliers (Mahalanobis^2 > the fit's gate),
+    so that every candidate is fitted and scored on the same sightings (likelihoods comparable)."""
+    from learners.em.fit import DEFAULT_GATE, e_step
+
+    post = e_step(model, make_batch(logs), "compiled", DEFAULT_GATE)
+    bad = post.mahal2 > DEFAULT_GATE
+    out, at = [], 0
+    for tr in logs:
+        keep = ~bad[at:at + tr.n_sightings]
+        at += tr.n_sightings
+        out.append(replace(tr, sighting_frame=tr.sighting_frame[keep], sighting_landmark=tr.sighting_landmark[keep],
+                           sighting_value=tr.sighting_value[keep]))
+    return out, int(bad.sum())
+
+
+def _train_loglik(model: Model, train: list[Trajectory]) -> float:
+    from learners.em.fit import e_step
+
+    return float(e_step(model, make_batch(train), "compiled").loglik)
+
+
+def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs: int = 2,
+           progress: Callable[[str], None] = print) -> dict[str, Any]:
+    """The whole search (module docstring): returns the base fit, every round's candidates, the named
+    effects in order, and the current model after each addition (all fitted on the training half),
+    and the logs without outliers that every score uses."""
+    t0 = time.perf_counter()
+    base, _ = _fit([training_log(tr) for tr in logs], None, opts)
+    logs, n_out = drop_outliers(base, logs)
+    train = [training_log(tr) for tr in logs]
+    opts = replace(opts, gate=None, max_iter=min(opts.max_iter, 200))  # candidates are warm-started
+    base_ll = _train_loglik(base, train)
+    progress(f"base model fitted on the training half in {time.perf_counter() - t0:.1f} s; {n_out} outlier "
+             "sightings set aside")
+    current, current_ll = base, base_ll
+    rounds, named = [], []
+    remaining = [c for c in candidates if applicable(c, logs)]
+    with ProcessPoolExecutor(max_workers=max(jobs, 1)) as pool:
+        for _ in range(MAX_ROUNDS):
+            if not remaining:
+                break
+            heldout = score(current, logs).heldout_loglik
+            args = [(n, current, current_ll, heldout, train, logs, opts, len(remaining)) for n in remaining]
+            tried = list(pool.map(_job, args)) if jobs > 1 else [_job(a) for a in args]
+            rounds.append(tried)
+            for c in tried:
+                progress(f"  {c.name:26s} train +{c.gain_train:8.1f} nats, held-out {c.gain_heldout:+8.1f} nats, "
+                         f"p = {c.p_value:.2g}{'  SIGNIFICANT' if c.significant else ''}"
+                         f"{'  (not identifiable)' if not c.identifiable else ''}  [{c.seconds:.1f} s]")
+            best = max((c for c in tried if c.significant), key=lambda c: c.gain_heldout, default=None)
+            if best is None:
+                break
+            named.append(best)
+            current, current_ll = best.model, current_ll + best.gain_train
+            remaining = [n for n in remaining if n != best.name]
+            progress(f"named: {best.name} {best.as_dict()['parameters']}")
+    return {"base": base, "rounds": rounds, "named": named, "model": current, "logs": logs}
