@@ -4,6 +4,7 @@
     aibo learn      learn action and sensor models from logs
     aibo reproduce  the paper's simulated experiment, side by side with its numbers
     aibo bench      speed of the E-step and of whole fits on this machine
+    aibo import     convert a real robot's logs (MRCLAM) to an aibo-trajectory/2 log
 
 Bad input ends with one line ``aibo: error: ...`` and exit status 2 (``--debug`` shows the traceback).
 """
@@ -91,6 +92,18 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--json", help="write all figures to this JSON file")
     b.add_argument("--quick", action="store_true", help="smaller sizes (for a smoke test)")
     b.set_defaults(run=commands.run_bench)
+
+    im = sub.add_parser("import", help="convert a real robot's logs to an aibo-trajectory/2 log")
+    isub = im.add_subparsers(dest="dataset", required=True, metavar="DATASET")
+    mr = isub.add_parser("mrclam", help="one robot of the UTIAS MRCLAM dataset (Leung et al. 2011)")
+    mr.add_argument("folder", help="the dataset folder (Barcodes.dat, Landmark_Groundtruth.dat, RobotN_*.dat)")
+    mr.add_argument("--robot", type=integer(1), required=True, help="robot number (1-5)")
+    mr.add_argument("--out", required=True, help="log file to write (.npz)")
+    mr.add_argument("--dt", type=finite(1e-3), default=0.1, help="seconds per frame (default 0.1)")
+    mr.add_argument("--start", type=finite(0), default=0.0, help="skip this many seconds after the first command")
+    mr.add_argument("--seconds", type=finite(1e-3), help="keep at most this many seconds")
+    mr.add_argument("--lag", type=finite(0), default=0.0, help="delay the commands by this many seconds (default 0)")
+    mr.set_defaults(run=commands.run_import_mrclam)
     return p
 
 

@@ -32,3 +32,9 @@ def run_bench(args) -> int:
     from aibo.commands.bench import run
 
     return run(args)
+
+
+def run_import_mrclam(args) -> int:
+    from aibo.commands.import_mrclam import run
+
+    return run(args)

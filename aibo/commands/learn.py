@@ -70,10 +70,24 @@ def run(args) -> int:
           f"{result.pruned_observations} sightings pruned as outliers")
     if all(tr.truth is not None and tr.pose is not None for tr in logs):
         print(error_table({args.learner: model_errors(result.params, logs)}))
+    elif all(tr.truth is None and tr.pose is not None and not tr.discrete for tr in logs):
+        print_scores(result.params, logs)
     if args.plots:
         write_plots(Path(args.plots), result, logs, start=init)
         print(f"figures in {args.plots}/")
     return 0
+
+
+def print_scores(model, logs) -> None:
+    """A real log with ground truth (e.g. Vicon): the learned model against the commands at face value."""
+    from learners.scoring import face_value_model, score, score_table
+
+    try:
+        face_value_model(model)
+    except ValueError as exc:
+        print(f"(no comparison with ground truth: {exc})")
+        return
+    print(score_table(score(model, logs)))
 
 
 def write_plots(folder: Path, result: LearnResult, logs, start=None, oracle=None, prefix: str = "") -> list[Path]:

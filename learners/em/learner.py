@@ -11,6 +11,7 @@ from aibo_core.trajectory import Trajectory
 from learners.base import IterationRecord, LearnResult, ProgressFn
 from learners.em import checkpoint
 from learners.em.fit import EMOptions, EMState, e_step, initial_state, options_json, run
+from learners.em.start import initial_state_for
 from learners.em.support import check_support, curve_warnings
 from learners.inference.batch import Batch, make_batch
 from learners.model.initial import DEFAULT_INITIAL
@@ -63,7 +64,9 @@ class EMLearner:
     def start_params(self, logs: list[Trajectory], init: Model | None, batch: Batch,
                      action_model: str | None = None) -> Model:
         """``init`` fitted to these logs (dt, number of logs, sensor degree), or the paper's start
-        (``start_model``: zero velocities, a very poor sensor line suited to the sensor kind)."""
+        (``start_model``: zero velocities, a very poor sensor line suited to the sensor kind) with
+        each log's start-pose belief from ``initial_state_for`` (the simulator's start when the log
+        says it; for a real log, an estimate from its first sightings)."""
         tr = logs[0]
         names = tuple(tr.control_names or ())
         n_commands = len(tr.attempted) if tr.discrete else None
@@ -74,7 +77,7 @@ class EMLearner:
             raise ValueError("--action-model features needs continuous commands ('controls'); this log has "
                              "discrete actions (use --action-model table)")
         start = init or start_model(batch, tr.dt, tr.sensor_kind, n_commands, names, fmap,
-                                    degree=self.options.degree)
+                                    degree=self.options.degree).with_(init=tuple(initial_state_for(t) for t in logs))
         if tr.discrete and start.action.discrete and len(start.action.weights) != len(tr.attempted):
             raise ValueError(f"the start model has {len(start.action.weights)} commands, the log "
                              f"{len(tr.attempted)}")

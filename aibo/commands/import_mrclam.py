@@ -1,0 +1,28 @@
+"""``aibo import mrclam``: one robot of the UTIAS MRCLAM dataset as an aibo-trajectory/2 log."""
+
+from __future__ import annotations
+
+import time
+
+from aibo.errors import CLIError
+from aibo.paths import check_files
+from aibo_core import trajectory
+from aibo_core.mrclam import MRCLAMError, import_robot
+
+
+def run(args) -> int:
+    check_files(inputs=[], outputs=[("--out", args.out)])
+    t0 = time.perf_counter()
+    try:
+        tr = import_robot(args.folder, args.robot, dt=args.dt, start_s=args.start, seconds=args.seconds, lag_s=args.lag)
+    except MRCLAMError as exc:
+        raise CLIError(str(exc)) from None
+    trajectory.save(tr, args.out)
+    m = tr.meta
+    dropped = ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in m["dropped"].items() if isinstance(v, int) and v)
+    gaps = m["pose_gaps"]
+    print(f"wrote {args.out}: robot {args.robot}, {tr.n_frames} frames of {tr.dt:g} s ({tr.n_frames * tr.dt / 60:.1f} min), "
+          f"{tr.n_sightings} landmark sightings; dropped: {dropped or 'nothing'}; ground-truth gaps > "
+          f"{gaps['threshold_s']:g} s: {gaps['count']} (longest {gaps['longest_s']:.2f} s, {gaps['poses_flagged']} poses "
+          f"flagged); {time.perf_counter() - t0:.1f} s")
+    return 0

@@ -1,0 +1,188 @@
+"""Import one robot of the UTIAS MRCLAM dataset (Leung et al., IJRR 2011) as an aibo-trajectory/2 log.
+
+NumPy only. The folder holds ``Barcodes.dat``, ``Landmark_Groundtruth.dat`` and, per robot N,
+``RobotN_Odometry.dat`` (velocity COMMANDS: time s, v m/s, omega rad/s, each held until the next
+row), ``RobotN_Measurement.dat`` (time s, barcode, range m, bearing rad) and
+``RobotN_Groundtruth.dat`` (Vicon: time s, x m, y m, theta rad).
+
+What the log gets (frames of ``dt`` seconds from the first command, ``t0``):
+
+- ``controls`` (T, 2) = [v mm/s, omega rad/s], ``control_names`` ``("v_mm_s", "omega_rad_s")``: the
+  command held between rows, averaged over each frame (exact integral of the zero-order hold, so
+  the commanded travel per frame is kept whatever ``dt``);
+- sightings of the 15 landmarks (subjects 6-20, mapped through ``Barcodes.dat``) at the frame whose
+  end is nearest their image time (several per frame allowed); ``sensor_kind="range_mm"``
+  (range m -> mm), bearing wrapped to [-pi, pi]; ``landmarks`` (15, 2) in mm;
+- ``pose`` (T+1, 3): Vicon ground truth interpolated at the frame boundaries (x, y linear, theta
+  unwrapped); poses inside a ground-truth dropout longer than ``GAP_S`` are flagged in
+  ``meta["pose_gaps"]``;
+- ``meta``: the source (dataset, robot, files, ``t0``), every count of what was dropped (sightings of
+  other robots, unknown barcodes, non-positive ranges, sightings outside the log span, repeated or
+  backward odometry/ground-truth rows) and the ground-truth gaps. It carries neither the start pose
+  nor any ``field``: the learner must find its start from the sightings, as on any real robot.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .geometry import wrap
+from .trajectory import Trajectory
+
+#: Subjects 1-5 are the robots, 6-20 the landmarks (Barcodes.dat).
+ROBOTS = (1, 2, 3, 4, 5)
+#: A ground-truth interval longer than this (s) is a dropout: poses inside it are flagged.
+GAP_S = 0.1
+CONTROL_NAMES = ("v_mm_s", "omega_rad_s")
+#: Default frame length (s); see README "Real robot logs (MRCLAM)" for the speed/accuracy measurement.
+DEFAULT_DT = 0.1
+
+
+class MRCLAMError(ValueError):
+    """A missing folder, file or robot, or an unreadable file (one line naming it)."""
+
+
+def _read(path: Path, ncols: int) -> np.ndarray:
+    if not path.is_file():
+        raise MRCLAMError(f"{path}: file not found (an MRCLAM dataset folder holds Barcodes.dat, "
+                          "Landmark_Groundtruth.dat and RobotN_{Odometry,Measurement,Groundtruth}.dat)")
+    try:
+        a = np.loadtxt(path, comments="#", ndmin=2)
+    except ValueError as exc:
+        raise MRCLAMError(f"{path}: not a table of numbers ({exc})") from None
+    if a.shape[1] < ncols or len(a) == 0:
+        raise MRCLAMError(f"{path}: expected rows of {ncols} numbers, got shape {a.shape}")
+    if not np.isfinite(a[:, :ncols]).all():
+        raise MRCLAMError(f"{path}: non-finite value in row {int(np.argwhere(~np.isfinite(a[:, :ncols]))[0, 0])}")
+    return a[:, :ncols]
+
+
+def _increasing(t: np.ndarray) -> tuple[np.ndarray, int, int]:
+    """(mask of rows to keep: times strictly after every kept row before, repeated, backward)."""
+    prev = np.maximum.accumulate(np.concatenate([[-np.inf], t[:-1]]))
+    keep = t > prev
+    return keep, int(np.sum(t == prev)), int(np.sum(t < prev))
+
+
+def _held_average(t: np.ndarray, c: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """Average over [edges[k], edges[k+1]) of the piecewise-constant command (c[j] from t[j] on)."""
+    cum = np.concatenate([np.zeros((1, c.shape[1])), np.cumsum(c[:-1] * np.diff(t)[:, None], axis=0)])
+    j = np.clip(np.searchsorted(t, edges, side="right") - 1, 0, len(t) - 1)
+    integral = cum[j] + c[j] * (edges - t[j])[:, None]
+    return np.diff(integral, axis=0) / np.diff(edges)[:, None]
+
+
+def _runs(idx: np.ndarray) -> list[list[int]]:
+    """Sorted indices as [first, last] runs of consecutive values."""
+    if len(idx) == 0:
+        return []
+    cut = np.flatnonzero(np.diff(idx) > 1)
+    starts = np.concatenate([[idx[0]], idx[cut + 1]])
+    ends = np.concatenate([idx[cut], [idx[-1]]])
+    return [[int(a), int(b)] for a, b in zip(starts, ends)]
+
+
+def import_robot(folder: str | os.PathLike, robot: int, dt: float = DEFAULT_DT, start_s: float = 0.0,
+                 seconds: float | None = None, lag_s: float = 0.0) -> Trajectory:
+    """Robot ``robot`` of the MRCLAM dataset in ``folder`` as an aibo-trajectory/2 log (module docstring).
+
+    ``start_s``: skip this many seconds after the first command; ``seconds``: keep at most this long.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise MRCLAMError(f"{folder}: no such folder (give the MRCLAM dataset folder, e.g. MRCLAM_Dataset7)")
+    if robot not in ROBOTS:
+        raise MRCLAMError(f"--robot {robot}: MRCLAM robots are numbered {ROBOTS[0]}-{ROBOTS[-1]}")
+    if not (np.isfinite(dt) and dt > 0):
+        raise MRCLAMError(f"--dt {dt}: must be a positive number of seconds")
+    names = {"barcodes": "Barcodes.dat", "landmarks": "Landmark_Groundtruth.dat",
+             "odometry": f"Robot{robot}_Odometry.dat", "measurement": f"Robot{robot}_Measurement.dat",
+             "groundtruth": f"Robot{robot}_Groundtruth.dat"}
+    barcodes = _read(folder / names["barcodes"], 2).astype(np.int64)
+    lm_table = _read(folder / names["landmarks"], 3)
+    odo = _read(folder / names["odometry"], 3)
+    meas = _read(folder / names["measurement"], 4)
+    gt = _read(folder / names["groundtruth"], 4)
+
+    keep, odo_rep, odo_back = _increasing(odo[:, 0])
+    odo = odo[keep]
+    keep, gt_rep, gt_back = _increasing(gt[:, 0])
+    gt = gt[keep]
+    if len(odo) < 2:
+        raise MRCLAMError(f"{folder / names['odometry']}: fewer than 2 usable command rows")
+
+    t0 = float(odo[0, 0]) + float(start_s)
+    t_end = min(float(odo[-1, 0]), float(gt[-1, 0]))
+    if seconds is not None:
+        t_end = min(t_end, t0 + float(seconds))
+    T = int(np.floor((t_end - t0) / dt + 1e-9))
+    if T < 1:
+        raise MRCLAMError(f"robot {robot}: the log span from {start_s} s holds no frame of {dt} s")
+    edges = t0 + dt * np.arange(T + 1)
+    controls = _held_average(odo[:, 0] + lag_s, odo[:, 1:3] * [1000.0, 1.0], edges)
+
+    # landmarks: subjects 6-20 in the order of Landmark_Groundtruth.dat
+    subjects = lm_table[:, 0].astype(np.int64)
+    landmarks = lm_table[:, 1:3] * 1000.0
+    subject_of = dict(zip(barcodes[:, 1].tolist(), barcodes[:, 0].tolist()))
+    lm_index = {int(s): i for i, s in enumerate(subjects)}
+    subj = np.array([subject_of.get(int(b), -1) for b in meas[:, 1]], dtype=np.int64)
+    is_robot = np.isin(subj, ROBOTS)
+    unknown = (subj < 0) | (~is_robot & ~np.isin(subj, subjects))
+    landmark = np.array([lm_index.get(int(s), -1) for s in subj], dtype=np.int64)
+    bad_range = ~is_robot & ~unknown & (meas[:, 2] <= 0)
+    frame = np.rint((meas[:, 0] - t0) / dt).astype(np.int64) - 1  # frame whose end is nearest
+    inside = (frame >= 0) & (frame < T)
+    use = ~is_robot & ~unknown & ~bad_range & inside
+    order = np.flatnonzero(use)[np.argsort(frame[use], kind="stable")]
+    values = np.stack([meas[order, 2] * 1000.0, wrap(meas[order, 3])], axis=1)
+
+    # ground truth at the frame boundaries, gaps flagged
+    theta = np.unwrap(gt[:, 3])
+    pose = np.stack([np.interp(edges, gt[:, 0], gt[:, 1]) * 1000.0, np.interp(edges, gt[:, 0], gt[:, 2]) * 1000.0,
+                     wrap(np.interp(edges, gt[:, 0], theta))], axis=1)
+    gdt = np.diff(gt[:, 0])
+    in_span = (gt[1:, 0] > t0) & (gt[:-1, 0] < edges[-1])
+    gaps = np.flatnonzero((gdt > GAP_S) & in_span)
+    j = np.searchsorted(gt[:, 0], edges, side="right") - 1
+    flagged = np.flatnonzero((j >= 0) & (j < len(gdt)) & (gdt[np.clip(j, 0, len(gdt) - 1)] > GAP_S)
+                             & (edges > gt[np.clip(j, 0, len(gt) - 1), 0]))
+    outside_gt = int(np.sum((edges < gt[0, 0]) | (edges > gt[-1, 0])))
+
+    meta = {
+        "generator": "aibo_core.mrclam",
+        "source": {"dataset": folder.resolve().name, "robot": int(robot), "files": sorted(names.values()),
+                   "citation": "Leung, Halpern, Barfoot, Liu: The UTIAS Multi-Robot Cooperative Localization "
+                               "and Mapping Dataset, IJRR 30(8), 2011",
+                   "t0_unix_s": t0, "start_s": float(start_s), "seconds": T * dt},
+        "landmark_subjects": subjects.tolist(),
+        "dropped": {
+            "sightings_of_robots": int(is_robot.sum()),
+            "sightings_unknown_barcode": int(unknown.sum()),
+            "unknown_barcodes": sorted({int(b) for b in meas[unknown, 1]}),
+            "sightings_nonpositive_range": int(bad_range.sum()),
+            "sightings_outside_span": int((~is_robot & ~unknown & ~bad_range & ~inside).sum()),
+            "odometry_rows_repeated": odo_rep, "odometry_rows_backward": odo_back,
+            "groundtruth_rows_repeated": gt_rep, "groundtruth_rows_backward": gt_back,
+        },
+        "pose_gaps": {"threshold_s": GAP_S, "count": int(len(gaps)),
+                      "longest_s": float(gdt[gaps].max()) if len(gaps) else 0.0,
+                      "total_s": float(gdt[gaps].sum()) if len(gaps) else 0.0,
+                      "poses_flagged": int(len(flagged)), "flagged_runs": _runs(flagged),
+                      "poses_outside_groundtruth": outside_gt},
+    }
+    tr = Trajectory(dt=float(dt), landmarks=landmarks, sighting_frame=frame[order],
+                    sighting_landmark=landmark[order], sighting_value=values, sensor_kind="range_mm",
+                    controls=controls, control_names=CONTROL_NAMES, pose=pose, meta=meta)
+    return tr.validate(f"MRCLAM robot {robot}")
+
+
+def pose_valid(tr: Trajectory) -> np.ndarray:
+    """(T+1,) bool: poses not flagged as inside a ground-truth gap (``meta["pose_gaps"]``)."""
+    ok = np.ones(tr.n_frames + 1, bool)
+    for a, b in tr.meta.get("pose_gaps", {}).get("flagged_runs", []):
+        ok[a: b + 1] = False
+    return ok

@@ -1,0 +1,237 @@
+"""Scores of a learned model against a real log's ground truth (``pose``, e.g. Vicon in MRCLAM).
+
+Pure functions of (model, logs). Three models are compared:
+
+- ``face value``: the commands taken at their word (v_actual = v_cmd, omega_actual = omega_cmd, no
+  lateral motion; range = true distance), the baseline every user has without learning. Its noise
+  (needed by the smoother) is the learned model's, so only the mean functions differ;
+- ``learned``: the model under test;
+- ``fit to Vicon``: the same model class fitted to the ground truth directly (the action weights
+  regressed on window velocities, the sensor curve on the true distances): the yardstick.
+
+Measures (poses inside ground-truth gaps, ``meta["pose_gaps"]``, are left out):
+
+- velocity: over non-overlapping windows of ``window_s`` (1 s by default, so the ~0.2 s command
+  lag and Vicon jitter average out), the model's travel (per-frame displacements composed) against
+  the travel measured from ``pose``, both as forward / lateral / turn rates in the window's
+  mid-heading frame; RMS in mm/s and rad/s, and relative to each measured component's range;
+- range curve: RMS over the observed true distances of the model's mean range minus the curve of
+  the same basis fitted to (true distance, measured range); noise: the model's sigmas beside the
+  residual standard deviations of that fit (range mm, bearing rad);
+- smoothed pose: RMS position (mm) and heading (rad) error of the E-step's smoothed poses.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from aibo_core.geometry import wrap
+from aibo_core.trajectory import Trajectory
+from learners.inference.sensor_stats import fit_polynomial
+from learners.model.model import Model
+
+#: control names whose face value is a velocity: (forward mm/s, turn rad/s)
+FACE_VALUE_CONTROLS = ("v_mm_s", "omega_rad_s")
+COLUMNS = ("face value", "learned", "fit to Vicon")
+
+
+def _valid_poses(tr: Trajectory) -> np.ndarray:
+    ok = np.ones(tr.n_frames + 1, bool)
+    for a, b in tr.meta.get("pose_gaps", {}).get("flagged_runs", []):
+        ok[a: b + 1] = False
+    return ok
+
+
+def face_value_model(model: Model) -> Model:
+    """``model`` with its action means replaced by the commands' face value (vx = v, vtheta = omega)
+    and its range curve by range = distance; noise and start beliefs kept."""
+    a = model.action
+    if a.discrete or a.feature_map != "diff_drive" or tuple(a.control_names) != FACE_VALUE_CONTROLS:
+        raise ValueError(f"face value needs a diff_drive model of controls {FACE_VALUE_CONTROLS}")
+    w = np.zeros_like(a.weights)
+    w[0, 0], w[1, 2] = a.dt, a.dt  # per-frame displacement = velocity x dt
+    coef = np.zeros_like(model.sensor.coef)
+    if model.sensor.kind != "range_mm" or model.sensor.basis != "power":
+        raise ValueError("face value needs a range sensor in the power basis")
+    coef[1] = 1.0
+    return model.with_(action=a.with_values(weights=w), sensor=replace(model.sensor, coef=coef))
+
+
+def _windows(tr: Trajectory, window_s: float) -> np.ndarray:
+    """(n, 2) [first frame, end frame) of non-overlapping windows free of ground-truth gaps."""
+    W = max(1, int(round(window_s / tr.dt)))
+    starts = np.arange(0, tr.n_frames - W + 1, W)
+    bad = np.concatenate([[0], np.cumsum(~_valid_poses(tr))])
+    keep = bad[starts + W + 1] - bad[starts] == 0
+    return np.stack([starts[keep], starts[keep] + W], axis=1)
+
+
+def _as_rates(rel: np.ndarray, seconds: float) -> np.ndarray:
+    """Relative displacements (n, 3) in the start frame -> forward, lateral, turn rates in the
+    window's mid-heading frame."""
+    half = rel[:, 2] / 2
+    c, s = np.cos(half), np.sin(half)
+    return np.stack([c * rel[:, 0] + s * rel[:, 1], -s * rel[:, 0] + c * rel[:, 1], rel[:, 2]], axis=1) / seconds
+
+
+def measured_window_velocities(tr: Trajectory, window_s: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """(windows (n, 2), velocities (n, 3) mm/s, mm/s, rad/s) measured from ``pose``."""
+    win = _windows(tr, window_s)
+    p0, p1 = tr.pose[win[:, 0]], tr.pose[win[:, 1]]
+    c, s = np.cos(p0[:, 2]), np.sin(p0[:, 2])
+    d = p1 - p0
+    rel = np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], wrap(d[:, 2])], axis=1)
+    return win, _as_rates(rel, (win[0, 1] - win[0, 0]) * tr.dt if len(win) else 1.0)
+
+
+def model_window_velocities(model: Model, tr: Trajectory, win: np.ndarray) -> np.ndarray:
+    """(n, 3) the model's velocities over the windows: its per-frame displacements composed."""
+    disp = model.action.displacements(tr.controls)
+    W = int(win[0, 1] - win[0, 0])
+    pose = np.zeros((len(win), 3))
+    for k in range(W):
+        d = disp[win[:, 0] + k]
+        c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+        pose += np.stack([c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1], d[:, 2]], axis=1)
+    return _as_rates(pose, W * tr.dt)
+
+
+def fit_action_to_truth(model: Model, logs: list[Trajectory], window_s: float = 1.0) -> Model:
+    """The action weights regressed on the measured window velocities (window-mean features)."""
+    phi, vel = [], []
+    for tr in logs:
+        win, v = measured_window_velocities(tr, window_s)
+        f = model.action.features(tr.controls)
+        cum = np.concatenate([np.zeros((1, f.shape[1])), np.cumsum(f, axis=0)])
+        phi.append((cum[win[:, 1]] - cum[win[:, 0]]) / (win[:, 1] - win[:, 0])[:, None])
+        vel.append(v)
+    w = np.linalg.lstsq(np.concatenate(phi), np.concatenate(vel), rcond=None)[0] * model.action.dt
+    return model.with_(action=model.action.with_values(weights=w))
+
+
+def velocity_scores(model: Model, logs: list[Trajectory], window_s: float = 1.0) -> dict[str, float]:
+    """RMS velocity error over windows (module docstring): ``vx_rms`` mm/s, ``vy_rms`` mm/s,
+    ``vtheta_rms`` rad/s and ``*_rel`` (fractions of the measured ranges)."""
+    err, meas = [], []
+    for tr in logs:
+        win, v = measured_window_velocities(tr, window_s)
+        err.append(model_window_velocities(model, tr, win) - v)
+        meas.append(v)
+    err, meas = np.concatenate(err), np.concatenate(meas)
+    rms = np.sqrt(np.mean(err**2, axis=0))
+    span = np.ptp(meas, axis=0)
+    out = {f"{n}_rms": float(r) for n, r in zip(("vx", "vy", "vtheta"), rms)}
+    out.update({f"{n}_rel": float(r / s) for n, r, s in zip(("vx", "vy", "vtheta"), rms, span)})
+    out["windows"] = float(len(err))
+    return out
+
+
+def true_sightings(logs: list[Trajectory]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(true distance mm, measured range mm, bearing residual rad) of the sightings of valid poses."""
+    d, z, eb = [], [], []
+    for tr in logs:
+        f = tr.sighting_frame + 1
+        ok = _valid_poses(tr)[f]
+        p = tr.pose[f[ok]]
+        L = tr.landmarks[tr.sighting_landmark[ok]]
+        d.append(np.hypot(L[:, 0] - p[:, 0], L[:, 1] - p[:, 1]))
+        z.append(tr.sighting_value[ok, 0])
+        eb.append(wrap(tr.sighting_value[ok, 1] - (np.arctan2(L[:, 1] - p[:, 1], L[:, 0] - p[:, 0]) - p[:, 2])))
+    return np.concatenate(d), np.concatenate(z), np.concatenate(eb)
+
+
+def measured_sensor(model: Model, logs: list[Trajectory]) -> tuple[np.ndarray, float, float, tuple[float, float]]:
+    """(curve coefficients in the model's basis and degree, range sd mm, bearing sd rad, distance
+    range mm) fitted to the true distances; gross outliers (> 5 sd) left out of the sds."""
+    d, z, eb = true_sightings(logs)
+    x = d if model.sensor.basis == "power" else 1.0 / d
+    deg = len(model.sensor.coef) - 1
+    coef = fit_polynomial(x, z, np.ones_like(d), deg)
+    res = z - replace(model.sensor, coef=coef).mean(d)
+    keep = np.abs(res) < 5 * np.std(res)  # gross outliers (0.1% of MRCLAM's rows) out of the sds
+    keep = np.abs(res) < 5 * np.std(res[keep])
+    eb_keep = np.abs(eb) < 5 * np.std(eb)
+    lo, hi = np.percentile(d, [1, 99])
+    return coef, float(np.std(res[keep])), float(np.std(eb[eb_keep])), (float(lo), float(hi))
+
+
+def sensor_scores(model: Model, logs: list[Trajectory]) -> dict[str, float]:
+    """``range_curve_rms`` mm (vs the curve fitted to truth, over its 1-99% distances),
+    ``range_rms`` mm (measured range minus the model's mean at the true distance), the model's
+    ``sigma_range`` and ``sigma_bearing``."""
+    coef, _, _, (lo, hi) = measured_sensor(model, logs)
+    grid = np.linspace(lo, hi, 400)
+    truth = replace(model.sensor, coef=coef).mean(grid)
+    d, z, _ = true_sightings(logs)
+    return {"range_curve_rms": float(np.sqrt(np.mean((model.sensor.mean(grid) - truth) ** 2))),
+            "range_rms": float(np.sqrt(np.mean((z - model.sensor.mean(d)) ** 2))),
+            "sigma_range": float(model.sensor.sigma_size), "sigma_bearing": float(model.sensor.sigma_bearing)}
+
+
+def pose_scores(model: Model, logs: list[Trajectory]) -> dict[str, float]:
+    """RMS position (mm) and heading (rad) error of the smoothed poses against ``pose``."""
+    from learners.em.fit import e_step
+    from learners.inference.batch import make_batch
+
+    batch = make_batch(logs)
+    post = e_step(model, batch, "compiled")
+    err_xy, err_th = [], []
+    for tr, a, b in zip(logs, batch.pose_start[:-1], batch.pose_start[1:]):
+        ok = _valid_poses(tr)
+        mu = post.mu_gamma[a:b]
+        err_xy.append(np.hypot(*(mu[ok, :2] - tr.pose[ok, :2]).T))
+        err_th.append(wrap(mu[ok, 2] - tr.pose[ok, 2]))
+    e, t = np.concatenate(err_xy), np.concatenate(err_th)
+    return {"pose_rms": float(np.sqrt(np.mean(e**2))), "heading_rms": float(np.sqrt(np.mean(t**2))),
+            "loglik": float(post.loglik)}
+
+
+def score(model: Model, logs: list[Trajectory], window_s: float = 1.0) -> dict[str, dict[str, float]]:
+    """{column: {measure: value}} for the face value, the learned model and the fit to Vicon."""
+    if any(tr.pose is None for tr in logs):
+        raise ValueError("scoring needs logs with ground truth ('pose')")
+    face = face_value_model(model)
+    fitted = fit_action_to_truth(model, logs, window_s)
+    coef, s_range, s_bearing, _ = measured_sensor(model, logs)
+    fitted = fitted.with_(sensor=replace(model.sensor, coef=coef, sigma_size=s_range, sigma_bearing=s_bearing))
+    out = {}
+    for name, m in zip(COLUMNS, (face, model, fitted)):
+        row = velocity_scores(m, logs, window_s)
+        row.update(sensor_scores(m, logs))
+        row.update(pose_scores(m, logs))
+        out[name] = row
+    out["face value"].update(sigma_range=float("nan"), sigma_bearing=float("nan"))
+    return out
+
+
+ROWS = [
+    ("vx RMS (mm/s)", "vx_rms", "{:.2f}"),
+    ("vx RMS / range", "vx_rel", "{:.2%}"),
+    ("vy RMS (mm/s)", "vy_rms", "{:.2f}"),
+    ("vtheta RMS (rad/s)", "vtheta_rms", "{:.4f}"),
+    ("vtheta RMS / range", "vtheta_rel", "{:.2%}"),
+    ("range curve RMS (mm)", "range_curve_rms", "{:.1f}"),
+    ("range residual RMS (mm)", "range_rms", "{:.1f}"),
+    ("sigma range (mm)", "sigma_range", "{:.1f}"),
+    ("sigma bearing (deg)", "sigma_bearing", "deg"),
+    ("smoothed pose RMS (mm)", "pose_rms", "{:.1f}"),
+    ("smoothed heading RMS (deg)", "heading_rms", "deg"),
+]
+
+
+def score_table(scores: dict[str, dict[str, float]]) -> str:
+    """The scores as a text table (one column per model; for ``fit to Vicon`` the sigmas are the
+    measured ones)."""
+    width = max(14, *(len(c) + 2 for c in scores))
+    lines = [f"{'against ground truth':28s}" + "".join(f"{c:>{width}s}" for c in scores)]
+    for label, key, fmt in ROWS:
+        cells = []
+        for col in scores.values():
+            v = col.get(key, float("nan"))
+            cells.append("-" if not np.isfinite(v) else (f"{np.degrees(v):.2f}" if fmt == "deg" else fmt.format(v)))
+        lines.append(f"{label:28s}" + "".join(f"{s:>{width}s}" for s in cells))
+    n = int(next(iter(scores.values())).get("windows", 0))
+    lines.append(f"(velocities over {n} windows of 1 s; poses in ground-truth gaps left out)")
+    return "\n".join(lines)
