@@ -158,6 +158,7 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
     logs, n_out = drop_outliers(base, logs)
     train = [training_log(tr) for tr in logs]
     opts = replace(opts, gate=None, max_iter=min(opts.max_iter, 200))  # candidates are warm-started
+    base, _ = _fit(train, base, opts)  # polished as the candidates will be: gains are the effects' alone
     base_ll = _train_loglik(base, train)
     progress(f"base model fitted on the training half in {time.perf_counter() - t0:.1f} s; {n_out} outlier "
              "sightings set aside")
@@ -180,7 +181,8 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
             if best is None:
                 break
             named.append(best)
-            current, current_ll = best.model, current_ll + best.gain_train
+            current, _ = _fit(train, best.model, opts)
+            current_ll = _train_loglik(current, train)
             remaining = [n for n in remaining if n != best.name]
             progress(f"named: {best.name} {best.as_dict()['parameters']}")
     return {"base": base, "rounds": rounds, "named": named, "model": current, "logs": logs}

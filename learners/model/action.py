@@ -111,12 +111,13 @@ class ActionModel(Component):
         features (times ``scale`` (N,) per frame when an effect scales the motion). ``table``: the mean
         over the frames of each command (commands never executed keep their weights); otherwise
         ordinary least squares over all frames (equal weights: one shared noise covariance)."""
-        if scale is not None:
-            phi = self._one_hot(commands) if self.discrete else self.features(commands)
-            phi = phi * scale[:, None]
-            seen = np.abs(phi).sum(axis=0) > 0
+        if scale is not None and self.discrete:  # per command: sum s mu / sum s^2 (diagonal normal equations)
+            n_act = len(self.weights)
+            den = np.bincount(commands, weights=scale * scale, minlength=n_act)
+            num = np.stack([np.bincount(commands, weights=scale * mu_star[:, k], minlength=n_act) for k in range(3)], 1)
             out = np.array(self.weights, dtype=float)
-            out[seen] = np.linalg.lstsq(phi[:, seen], mu_star, rcond=None)[0]
+            seen = den > 0
+            out[seen] = num[seen] / den[seen, None]
             return out
         if self.discrete:
             n_act = len(self.weights)
@@ -129,12 +130,9 @@ class ActionModel(Component):
             out[seen] = sums[seen] / counts[seen, None]
             return out
         phi = self.features(commands)
-        return np.linalg.lstsq(phi, mu_star, rcond=None)[0]
-
-    def _one_hot(self, commands: np.ndarray) -> np.ndarray:
-        phi = np.zeros((len(commands), len(self.weights)))
-        phi[np.arange(len(commands)), commands] = 1.0
-        return phi
+        if scale is not None:
+            phi = phi * scale[:, None]
+        return np.linalg.lstsq(phi.T @ phi, phi.T @ mu_star, rcond=None)[0]  # normal equations: F x F
 
     def determined(self, commands: np.ndarray) -> np.ndarray:
         """(F,) bool: which weights the commands of a log determine (table: the commands executed;
