@@ -36,9 +36,11 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--steps", type=steps, default=27000, help="frames to simulate (default 27000 = 15 min at 30 Hz; at most 10^8, "
                    "or what half the memory holds at 160 bytes/frame)")
     c.add_argument("--seed", type=integer(0), default=0)
-    c.add_argument("--policy", default="random-balanced", choices=["random-balanced"])
-    c.add_argument("--localizer", default="truth", choices=["truth", "ekf"],
-                   help="pose estimate the policy steers with (default: the true pose)")
+    c.add_argument("--policy", default="random-balanced", metavar="NAME|sb3:PATH",
+                   help="random-balanced (default), uniform, informed, or sb3:AGENT.zip (see aibo_gym.policies)")
+    c.add_argument("--policy-params", type=json_object, default={}, metavar="JSON", help="the policy's parameters")
+    c.add_argument("--localizer", default=None, choices=["truth", "ekf"],
+                   help="pose estimate random-balanced steers with (default: the true pose); the others use the EKF")
     c.add_argument("--out", required=True, help="log file to write (.npz)")
     c.add_argument("--preset", choices=["paper-sim", "aibo"], help="sensor noise preset")
     c.add_argument("--config", type=json_object, default={}, help="JSON object of env config overrides")
