@@ -26,3 +26,15 @@ def run_bench(args) -> int:
     from aibo.commands.bench import run
 
     return run(args)
+
+
+def run_experiment(args) -> int:
+    from aibo.commands.experiment import run
+
+    return run(args)
+
+
+def run_train_explorer(args) -> int:
+    from aibo.commands.train_explorer import run
+
+    return run(args)
