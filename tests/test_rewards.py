@@ -90,7 +90,7 @@ def test_terms_use_no_true_pose():
 def test_wall_term_from_the_estimate():
     tr = OnboardTracker(make_config(None))
     tr.reset()
-    tr.ekf.mean[:] = [2700 - 150 - 16.0, 0.0, 0.0]  # the step moves it ~ +11.8 mm: ~ 138 mm from the edge
+    tr.ekf.m[:] = [2700 - 150 - 16.0, 0.0, 0.0]  # the step moves it ~ +11.8 mm: ~ 138 mm from the edge
     terms = tr.step(16, [])
     edge = 2700 - tr.ekf.mean[0]
     assert terms["wall"] == pytest.approx(-(1 - edge / 300.0))

@@ -3,7 +3,8 @@
 :class:`OnboardTracker` is fed, frame by frame, the command executed and the sightings reported
 (beacon, height px, angle rad): nothing else, never the true pose. It keeps
 
-* an onboard EKF (:class:`~aibo_gym.policies.localizer.EKFLocalizer`) predicting with the
+* an onboard EKF (:class:`~aibo_gym.policies.localizer.EKFLocalizer`'s equations in plain floats,
+  :class:`~aibo_gym.policies.fast_ekf.FastEKF`) predicting with the
   *nominal* velocities (attempted x ``nominal_max``) and correcting with the nominal pinhole;
 * frames executed per command, sightings per command;
 * the coverage cells visited: (command x beacon-distance bin x bearing bin), the distance from the
@@ -32,7 +33,8 @@ from aibo_core.actions import N_ACTIONS
 
 from ..config import sensor_sigmas
 from ..robot import nominal_velocities, wrap_angle
-from .localizer import NOMINAL_HEIGHT_PX_MM, EKFLocalizer
+from .fast_ekf import FastEKF
+from .localizer import NOMINAL_HEIGHT_PX_MM
 
 N_DIST_BINS = 6
 N_BEARING_BINS = 8
@@ -41,12 +43,6 @@ WALL_MARGIN_MM = 300.0  # the ``wall`` term grows from 0 at this distance of the
 FEATURES_VERSION = "onboard-v1"
 N_FEATURES = 10 + 2 * N_ACTIONS
 LOG_N = math.log(N_ACTIONS)
-
-
-def _logdet3(c: np.ndarray) -> float:
-    d = (c[0, 0] * (c[1, 1] * c[2, 2] - c[1, 2] * c[2, 1]) - c[0, 1] * (c[1, 0] * c[2, 2] - c[1, 2] * c[2, 0])
-         + c[0, 2] * (c[1, 0] * c[2, 1] - c[1, 1] * c[2, 0]))
-    return math.log(max(float(d), 1e-300))
 
 
 class OnboardTracker:
@@ -58,7 +54,7 @@ class OnboardTracker:
         self.nominal = nominal_velocities(cfg["nominal_max"])
         self._disp = (self.nominal * self.dt).tolist()
         sh, sa = sensor_sigmas(cfg)
-        self.ekf = EKFLocalizer(cfg["beacons"], sh, sa, cfg["slip_std"])
+        self.ekf = FastEKF(cfg["beacons"], sh, sa, cfg["slip_std"])
         self.beacons = np.asarray(cfg["beacons"], dtype=float)
         self.half = (0.5 * cfg["field"][0], 0.5 * cfg["field"][1])
         self.rmin, self.rmax = cfg["range_mm"]
@@ -110,11 +106,11 @@ class OnboardTracker:
             if not self.cells[k]:
                 self.cells[k] = True
                 new += 1
-            before = _logdet3(self.ekf.cov)
+            before = self.ekf.logdet()
             if self.ekf.correct(int(beacon), float(height), float(angle)):
-                gain += 0.5 * (before - _logdet3(self.ekf.cov))
+                gain += 0.5 * (before - self.ekf.logdet())
         self.seen[action] += n
-        x, y = float(self.ekf.mean[0]), float(self.ekf.mean[1])
+        x, y = self.ekf.m[0], self.ekf.m[1]
         edge = min(self.half[0] - abs(x), self.half[1] - abs(y))
         wall = -min(max(1.0 - edge / WALL_MARGIN_MM, 0.0), 1.0)
         return {"balance": balance, "coverage": new / N_CELLS, "sightings": float(n), "wall": wall, "info_gain": gain}

@@ -3,8 +3,8 @@
 Parameters: ``path`` (the agent ``.zip``; spec shorthand ``"sb3:AGENT.zip"``), ``hold_s`` (default:
 the one it was trained with, from the ``AGENT.json`` written beside it, else 5 s),
 ``deterministic`` (take the most probable command), ``shield`` (replace a command whose predicted
-path leaves the field by the agent's most probable safe one: the field-keeping rule of the other
-policies, also applied in training), ``margin_mm``. Its observation is
+path leaves the field by the safe one of most similar attempted velocity: the field-keeping rule
+of :func:`aibo_gym.explorer.shield_command`, applied in training too), ``margin_mm``. Its observation is
 :meth:`OnboardTracker.features` (onboard only). SB3 is imported only when this policy is built;
 a missing file or an agent for another observation or action space is one ValueError line.
 """
@@ -22,7 +22,6 @@ from aibo_core.actions import N_ACTIONS
 from .base import HoldPolicy, register_policy
 from .onboard import FEATURES_VERSION, N_FEATURES
 
-PATH_POINTS = 25
 ALGOS = ("ppo", "dqn")
 
 
@@ -88,24 +87,6 @@ class SB3Policy(HoldPolicy):
         a = int(np.asarray(action).reshape(-1)[0])
         if not self.params["shield"]:
             return a
-        xy, _ = self.tracker.predict_holds(self.hold_s, PATH_POINTS)
-        return shield(self.model, obs, a, self.candidates(xy))
+        from ..explorer import shield_command
 
-
-def action_preferences(model, obs: np.ndarray) -> np.ndarray:
-    """(40,) the agent's preference per command: PPO's log-probabilities or DQN's Q-values."""
-    import torch
-
-    with torch.no_grad():
-        t, _ = model.policy.obs_to_tensor(obs)
-        if hasattr(model.policy, "get_distribution"):
-            return model.policy.get_distribution(t).distribution.logits.cpu().numpy().reshape(-1)
-        return model.q_net(t).cpu().numpy().reshape(-1)
-
-
-def shield(model, obs: np.ndarray, action: int, safe: np.ndarray) -> int:
-    """``action`` if it is among ``safe``; else the safe command the agent prefers most."""
-    if action in safe:
-        return action
-    pref = action_preferences(model, obs)
-    return int(safe[np.argmax(pref[safe])])
+        return shield_command(self.tracker, a, self.hold_s, self.margin)
