@@ -25,7 +25,7 @@ from experiments.run import RunSpec
 #: The contract of results.jsonl: every record has at least these keys.
 RECORD_KEYS = ("policy", "minutes", "seed", "vx_rel", "vy_rel", "vth_rel", "sensor_rms_px", "log", "model")
 METRICS = ("vx_rel", "vy_rel", "vth_rel", "vel_rel_mean", "sensor_rms_px", "heldout_loglik", "iterations",
-           "seen_share", "sigma_height_rel", "sigma_angle_rel")
+           "seen_share", "commands_used", "sigma_height_rel", "sigma_angle_rel")
 BASELINE = "random-balanced"
 
 
@@ -119,8 +119,8 @@ def compare(policies: dict[str, Any]) -> dict[str, Any]:
 def table(summary: dict[str, Any]) -> str:
     """A Markdown table: mean +- std over seeds per policy and length."""
     head = ("| policy | min | runs | vx | vy | vtheta | mean vel | sensor px | held-out loglik/sighting | iterations | "
-            "frames seen |")
-    lines = [head, "|" + "---|" * 11]
+            "frames seen | commands |")
+    lines = [head, "|" + "---|" * 12]
     for pol, cells in summary["policies"].items():
         for m, c in cells.items():
             def pct(k):
@@ -129,7 +129,8 @@ def table(summary: dict[str, Any]) -> str:
             lines.append(f"| {pol} | {m} | {c['n']} | {pct('vx_rel')} | {pct('vy_rel')} | {pct('vth_rel')} | "
                          f"{pct('vel_rel_mean')} | {c['sensor_rms_px']['mean']:.3f} ± {c['sensor_rms_px']['std']:.3f} | "
                          + (f"{held['mean']:.3f} ± {held['std']:.3f}" if held else "-")
-                         + f" | {c['iterations']['mean']:.0f} | {100 * c['seen_share']['mean']:.0f}% |")
+                         + f" | {c['iterations']['mean']:.0f} | {100 * c['seen_share']['mean']:.0f}% | "
+                         f"{c['commands_used']['mean']:.1f} |")
     return "\n".join(lines)
 
 

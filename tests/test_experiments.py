@@ -78,7 +78,7 @@ def test_cli_sweep_end_to_end(tmp_path, capsys):
             "--out", str(out), "--max-iter", "8", "--holdout-minutes", "0.2", "--backend", "serial"]
     assert main(argv) == 0
     text = capsys.readouterr().out
-    assert "| uniform | 0.3 | 2 |" in text and "against random-balanced at 0.3 min" in text
+    assert "| uniform | 0.3 | 2 |" in text and "| commands |" in text and "against random-balanced at 0.3 min" in text
     records = [json.loads(line) for line in (out / "results.jsonl").read_text().splitlines()]
     assert len(records) == 8 and all(set(RECORD_KEYS) <= set(r) for r in records)
     assert {r["policy"] for r in records} == {"uniform", "random-balanced"}

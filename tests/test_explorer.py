@@ -74,6 +74,8 @@ def test_short_ppo_run_trains_and_its_rollouts_are_valid_logs(agent, tmp_path):
     assert tr.meta["policy"] == "sb3" and tr.meta["policy_params"]["path"] == str(agent)
     changes = np.flatnonzero(np.diff(tr.actions)) + 1
     assert np.all(np.diff(changes) % 15 == 0)  # held 0.5 s, the agent's hold
+    again = collect({"robot_seed": 3}, 900, seed=5, policy="sb3:" + str(agent))
+    np.testing.assert_array_equal(again.actions, tr.actions)  # seeded: the same log twice
     trajectory.save(tr, tmp_path / "log.npz")
     back = trajectory.load(tmp_path / "log.npz")  # validated on read
     np.testing.assert_array_equal(back.actions, tr.actions)

@@ -17,7 +17,7 @@ def test_registry_and_specs():
     assert validate_policy({"informed": {"hold_s": 3}})["params"]["hold_s"] == 3.0
     assert validate_policy({"name": "informed", "params": {"coverage_weight": 0}})["params"]["coverage_weight"] == 0.0
     assert validate_policy("sb3:agents/a.zip") == {"name": "sb3", "params": {
-        "path": "agents/a.zip", "hold_s": None, "margin_mm": 300.0, "deterministic": True, "shield": True}}
+        "path": "agents/a.zip", "hold_s": None, "margin_mm": 300.0, "deterministic": False, "shield": True}}
     assert policy_label("sb3:x/y/agent.zip") == "sb3:agent.zip"
 
 

@@ -2,7 +2,9 @@
 
 Parameters: ``path`` (the agent ``.zip``; spec shorthand ``"sb3:AGENT.zip"``), ``hold_s`` (default:
 the one it was trained with, from the ``AGENT.json`` written beside it, else 5 s),
-``deterministic`` (take the most probable command), ``shield`` (replace a command whose predicted
+``deterministic`` (take the most probable command; default false: a PPO agent's command is drawn
+from its action distribution with the policy's own seeded RNG, since the argmax of a briefly
+trained policy collapses onto a few commands; a DQN agent always takes its best Q), ``shield`` (replace a command whose predicted
 path leaves the field by the safe one of most similar attempted velocity: the field-keeping rule
 of :func:`aibo_gym.explorer.shield_command`, applied in training too), ``margin_mm``. Its observation is
 :meth:`OnboardTracker.features` (onboard only). SB3 is imported only when this policy is built;
@@ -72,7 +74,7 @@ def load_agent(path: str):
 @register_policy
 class SB3Policy(HoldPolicy):
     name = "sb3"
-    defaults = {"path": "", "hold_s": None, "margin_mm": 300.0, "deterministic": True, "shield": True}
+    defaults = {"path": "", "hold_s": None, "margin_mm": 300.0, "deterministic": False, "shield": True}
 
     def __init__(self, config, seed=None, **params) -> None:
         super().__init__(config, seed=seed, **params)
@@ -83,10 +85,25 @@ class SB3Policy(HoldPolicy):
 
     def choose(self) -> int:
         obs = self.tracker.features(self.max_steps)
-        action, _ = self.model.predict(obs, deterministic=self.params["deterministic"])
-        a = int(np.asarray(action).reshape(-1)[0])
+        pref = action_preferences(self.model, obs)
+        if self.params["deterministic"] or not hasattr(self.model.policy, "get_distribution"):
+            a = int(np.argmax(pref))
+        else:  # sample the trained stochastic policy with the policy's own seeded RNG (reproducible logs)
+            p = np.exp(pref - pref.max())
+            a = int(self.rng.choice(N_ACTIONS, p=p / p.sum()))
         if not self.params["shield"]:
             return a
         from ..explorer import shield_command
 
         return shield_command(self.tracker, a, self.hold_s, self.margin)
+
+
+def action_preferences(model, obs: np.ndarray) -> np.ndarray:
+    """(40,) the agent's preference per command: PPO's logits or DQN's Q-values."""
+    import torch
+
+    with torch.no_grad():
+        t, _ = model.policy.obs_to_tensor(obs)
+        if hasattr(model.policy, "get_distribution"):
+            return model.policy.get_distribution(t).distribution.logits.cpu().numpy().reshape(-1)
+        return model.q_net(t).cpu().numpy().reshape(-1)
