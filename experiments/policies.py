@@ -73,7 +73,7 @@ def summarize(records: list[dict]) -> dict[str, Any]:
                 v = np.array([r[k] for r in rs if r.get(k) is not None], float)
                 if len(v):
                     cell[k] = {"mean": float(v.mean()), "std": float(v.std(ddof=1)) if len(v) > 1 else 0.0,
-                               "min": float(v.min()), "max": float(v.max())}
+                               "median": float(np.median(v)), "min": float(v.min()), "max": float(v.max())}
             out["policies"][pol][m] = cell
     out["comparison"] = compare(out["policies"])
     return out
@@ -158,25 +158,29 @@ def plot(summary: dict[str, Any], path: str | Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    panels = [("vx_rel", "vx error / range", 100), ("vy_rel", "vy error / range", 100),
-              ("vth_rel", "vtheta error / range", 100), ("sensor_rms_px", "sensor RMS (px)", 1),
-              ("heldout_loglik", "held-out loglik per sighting", 1), ("seen_share", "frames with a sighting", 100)]
+    panels = [("vx_rel", "vx error / range", 100, True), ("vy_rel", "vy error / range", 100, True),
+              ("vth_rel", "vtheta error / range", 100, True), ("sensor_rms_px", "sensor RMS (px)", 1, True),
+              ("heldout_loglik", "held-out loglik per sighting", 1, False),
+              ("seen_share", "frames with a sighting", 100, False)]
     fig, axes = plt.subplots(2, 3, figsize=(13, 7))
-    for ax, (key, title, scale) in zip(axes.ravel(), panels):
+    for ax, (key, title, scale, log) in zip(axes.ravel(), panels):
         for pol, cells in summary["policies"].items():
             ms = sorted((m for m in cells if key in cells[m]), key=float)
             if not ms:
                 continue
             x = np.array([float(m) for m in ms])
-            y = np.array([cells[m][key]["mean"] for m in ms]) * scale
-            e = np.array([cells[m][key]["std"] for m in ms]) * scale
-            ax.errorbar(x, y, yerr=e, marker="o", capsize=3, label=pol)
+            y = np.array([cells[m][key]["median"] for m in ms]) * scale
+            lo = y - np.array([cells[m][key]["min"] for m in ms]) * scale
+            hi = np.array([cells[m][key]["max"] for m in ms]) * scale - y
+            ax.errorbar(x, y, yerr=[lo, hi], marker="o", capsize=3, label=pol, alpha=0.85)
         ax.set_title(title + (" (%)" if scale == 100 else ""))
+        if log:
+            ax.set_yscale("log")
         ax.set_xlabel("minutes of data")
-        ax.grid(alpha=0.3)
+        ax.grid(alpha=0.3, which="both")
     axes[0, 0].legend(fontsize=8)
     n = max((c["n"] for cells in summary["policies"].values() for c in cells.values()), default=0)
-    fig.suptitle(f"EM accuracy vs robot time per exploration policy (mean ± std over {n} seeds)")
+    fig.suptitle(f"EM accuracy vs robot time per exploration policy (median, bars min to max, over {n} seeds)")
     fig.tight_layout()
     atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=90))
     plt.close(fig)

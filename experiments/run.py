@@ -20,6 +20,7 @@ from typing import Any
 
 from aibo_core import trajectory
 from aibo_core.atomic import atomic_write
+from learners.em.learner import MAX_OFF_FIELD
 
 FPS = 30.0
 HOLDOUT_SEED_OFFSET = 10_000  # the held-out log of seed s is collected with seed s + this
@@ -90,7 +91,8 @@ def run(spec: RunSpec, out_dir: str | Path) -> dict[str, Any]:
     tr = simulate(spec.env, spec.steps, spec.seed, spec.policy)
     trajectory.save(tr, folder / "log.npz")
     t1 = time.perf_counter()
-    res = fit_em([tr], em_options(spec))
+    # a fit that leaves the field is kept and flagged (``diverged``), not raised: it is a result of the data
+    res = fit_em([tr], em_options(spec), check_field=False)
     model_io.save_result(res, folder / "model.json")
     t2 = time.perf_counter()
     err = score(res.params, [tr])
@@ -113,6 +115,8 @@ def run(spec: RunSpec, out_dir: str | Path) -> dict[str, Any]:
         "heldout_loglik": held, "train_loglik_per_sighting": float(max(res.loglik)) / max(tr.n_sightings, 1),
         "iterations": res.iterations, "converged": bool(res.converged), "pruned": int(res.pruned_observations),
         "undetermined": len(res.info.get("undetermined", [])),
+        "off_field_fraction": float(res.info.get("off_field_fraction", 0.0)),
+        "diverged": bool(res.info.get("off_field_fraction", 0.0) > MAX_OFF_FIELD),
         **log_stats(tr),
         "log": str(rel / "log.npz"), "model": str(rel / "model.json"),
         "spec": spec.to_json(),
