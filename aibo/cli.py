@@ -33,13 +33,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--debug", action="store_true", help="show tracebacks of errors")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    c = sub.add_parser("collect", help="simulate and write an aibo-trajectory/1 log")
+    c = sub.add_parser("collect", help="simulate and write an aibo-trajectory/2 log")
     c.add_argument("--steps", type=steps, default=27000, help="frames to simulate (default 27000 = 15 min at 30 Hz; at most 10^8, "
                    "or what half the memory holds at 160 bytes/frame)")
     c.add_argument("--seed", type=integer(0), default=0)
-    c.add_argument("--policy", default="random-balanced", choices=["random-balanced"])
-    c.add_argument("--localizer", default="truth", choices=["truth", "ekf"],
-                   help="pose estimate the policy steers with (default: the true pose)")
+    c.add_argument("--policy", default="random-balanced", metavar="NAME|sb3:PATH",
+                   help="random-balanced (default), uniform, informed, or sb3:AGENT.zip (see aibo_gym.policies)")
+    c.add_argument("--policy-params", type=json_object, default={}, metavar="JSON", help="the policy's parameters")
+    c.add_argument("--localizer", default=None, choices=["truth", "ekf"],
+                   help="pose estimate random-balanced steers with (default: the true pose); the others use the EKF")
     c.add_argument("--out", required=True, help="log file to write (.npz)")
     c.add_argument("--preset", choices=["paper-sim", "aibo"], help="sensor noise preset")
     c.add_argument("--config", type=json_object, default={}, help="JSON object of env config overrides")
@@ -104,7 +106,48 @@ def build_parser() -> argparse.ArgumentParser:
     mr.add_argument("--seconds", type=finite(1e-3), help="keep at most this many seconds")
     mr.add_argument("--lag", type=finite(0), default=0.0, help="delay the commands by this many seconds (default 0)")
     mr.set_defaults(run=commands.run_import_mrclam)
+
+    _add_experiment_commands(sub, commands)
     return p
+
+
+def _add_experiment_commands(sub, commands) -> None:
+    """``aibo experiment policies`` and ``aibo train-explorer`` (issue 10)."""
+    ex = sub.add_parser("experiment", help="sweeps of collect -> learn -> score runs (resumable)")
+    exs = ex.add_subparsers(dest="experiment", required=True, metavar="EXPERIMENT")
+    ep = exs.add_parser("policies", help="exploration policies x log lengths x seeds: EM accuracy per policy")
+    ep.add_argument("--policies", default="uniform,random-balanced,informed",
+                    help="comma-separated policy names or sb3:AGENT.zip (default uniform,random-balanced,informed)")
+    ep.add_argument("--minutes", default="5,10,15", help="comma-separated log lengths in minutes (default 5,10,15)")
+    ep.add_argument("--seeds", type=integer(1), default=5, help="seeds per policy and length (default 5)")
+    ep.add_argument("--seed-base", type=integer(0), default=1, help="first seed (default 1)")
+    ep.add_argument("--robot-seed-base", type=integer(0), default=100,
+                    help="seed s walks the robot robot_seed = this + s (default 100), unless --config sets robot_seed")
+    ep.add_argument("--out", required=True, help="sweep folder: results.jsonl, summary.json, PNG, runs/")
+    ep.add_argument("--config", type=json_object, default={}, help="JSON object of env config overrides")
+    ep.add_argument("--policy-params", type=json_object, default={},
+                    help='JSON object {policy: {param: value}} (random-balanced gets {"localizer": "ekf"} by default)')
+    ep.add_argument("--holdout-minutes", type=finite(0), default=5.0,
+                    help="length of each seed's held-out log (default 5; 0: none)")
+    ep.add_argument("--max-iter", type=integer(1), default=None, help="EM iteration cap (default: EM's)")
+    ep.add_argument("--jobs", type=integer(1), default=None, help="parallel runs (default: the CPU count)")
+    ep.add_argument("--backend", choices=["serial", "pool", "ray"], default="pool",
+                    help="serial, a local process pool (default) or Ray (optional extra 'ray')")
+    ep.add_argument("--address", default=None, help="Ray cluster address (default: a local Ray instance)")
+    ep.set_defaults(run=commands.run_experiment)
+
+    te = sub.add_parser("train-explorer", help="train an SB3 agent choosing each held command (needs the 'agents' extra)")
+    te.add_argument("--algo", choices=["ppo", "dqn"], default="ppo")
+    te.add_argument("--steps", type=integer(1), default=20000, help="agent steps (command holds) to train (default 20000)")
+    te.add_argument("--seed", type=integer(0), default=0)
+    te.add_argument("--out", required=True, help="agent file to write (.zip; AGENT.json beside it)")
+    te.add_argument("--config", type=json_object, default={},
+                    help='JSON object of env config overrides (default reward "explore"; episode = max_steps frames)')
+    te.add_argument("--hold-s", type=finite(0.001), default=5.0, help="seconds per command hold = one agent step (default 5)")
+    te.add_argument("--n-envs", type=integer(1), default=2, help="vectorized envs (default 2)")
+    te.add_argument("--vec", choices=["subproc", "dummy"], default="subproc", help="subprocess (default) or in-process envs")
+    te.add_argument("--tensorboard", default=None, help="TensorBoard log folder (used when tensorboard is installed)")
+    te.set_defaults(run=commands.run_train_explorer)
 
 
 def main(argv: list[str] | None = None) -> int:

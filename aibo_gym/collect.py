@@ -12,7 +12,8 @@ from aibo_core.trajectory import Trajectory
 
 from . import ENV_ID, __version__
 from .envs.aibo_beacons import AiboBeaconsEnv
-from .policies import POLICIES
+from .policies import make_policy as _make_policy
+from .policies import validate_policy
 
 
 def truth_of(env: AiboBeaconsEnv, spurious: list[int] | None = None) -> dict[str, Any]:
@@ -54,22 +55,38 @@ def _record_sightings(
         value.append((float(sightings["height"][j]), float(sightings["angle"][j])))
 
 
-def make_policy(policy: str, config: dict[str, Any], seed: int, localizer: str):
-    """A policy by name (``"random-balanced"``); ValueError naming the valid choices otherwise."""
-    if policy not in POLICIES:
-        raise ValueError(f"policy {policy!r} (valid choices: {', '.join(map(repr, POLICIES))})")
-    return POLICIES[policy](config, seed=seed, localizer=localizer)
+def policy_spec(policy: Any, localizer: str | None = None, params: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The validated spec ``{name, params}`` of ``policy`` (a name, ``"sb3:PATH"`` or a spec) with
+    ``params`` and ``localizer`` (for policies that have one) merged in."""
+    spec = validate_policy(policy)
+    extra = dict(params or {})
+    if localizer is not None:
+        if "localizer" not in spec["params"]:
+            if localizer != "ekf":
+                raise ValueError(f"policy '{spec['name']}' always uses its onboard EKF (localizer {localizer!r} not available)")
+        else:
+            extra["localizer"] = localizer
+    return validate_policy({"name": spec["name"], "params": {**spec["params"], **extra}})
+
+
+def make_policy(policy: Any, config: dict[str, Any], seed: int, localizer: str | None = None):
+    """A policy by name or spec (``aibo_gym.policies``); ValueError naming the valid choices otherwise."""
+    return _make_policy(policy_spec(policy, localizer), config, seed)
 
 
 def collect(
     config: dict[str, Any] | None,
     steps: int,
     seed: int,
-    policy: str = "random-balanced",
-    localizer: str = "truth",
+    policy: Any = "random-balanced",
+    localizer: str | None = None,
     progress: bool = False,
+    policy_params: dict[str, Any] | None = None,
 ) -> Trajectory:
     """Run the env for ``steps`` frames (fewer if it terminates) and return the log.
+
+    ``policy``: a policy spec (``aibo_gym.policies``: a name, ``"sb3:AGENT.zip"``, ``{"name",
+    "params"}``); ``policy_params`` and ``localizer`` override its parameters.
 
     The env is stepped unwrapped (no wrapper overhead); the result equals stepping
     ``gym.make("AiboBeacons-v0", config=config)`` reset with ``seed`` and the same policy.
@@ -77,7 +94,8 @@ def collect(
     if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
         raise ValueError(f"steps must be a positive integer, got {steps!r}")
     env = AiboBeaconsEnv(config)
-    pol = make_policy(policy, env.config, seed, localizer)
+    spec = policy_spec(policy, localizer, policy_params)
+    pol = _make_policy(spec, env.config, seed)
     obs, info = env.reset(seed=seed)
     pol.reset(info)
     actions = np.empty(steps, dtype=np.int64)
@@ -112,8 +130,9 @@ def collect(
     meta = {
         "generator": f"aibo_gym {__version__} {ENV_ID}",
         "seed": seed,
-        "policy": policy,
-        "localizer": localizer,
+        "policy": spec["name"],
+        "policy_params": spec["params"],
+        "localizer": spec["params"].get("localizer", "ekf"),
         "config": copy.deepcopy(env.config),
         "truth": truth_of(env, s_spurious),
     }

@@ -35,7 +35,11 @@ robot_radius      150                                 robot body radius for wall
 pymunk_substeps   4                                   fixed physics substeps per frame
 effects           {}                                  {name: {param: value}}, see aibo_gym.effects and
                                                       aibo_gym.catalogue
-reward            "none"                              only "none" (reward 0) for now
+reward            "none"                              "none" (reward 0) or "explore": the weighted sum of
+                                                      the terms in info["rewards"] (see the env docstring)
+reward_weights    {"balance": 1, "coverage": 1,       weight of each exploration reward term (a partial
+                   "sightings": 0, "wall": 0.01,      dict updates these; unknown terms are refused)
+                   "info_gain": 0}
 start_pose        [0, 0, 0]                           (x mm, y mm, theta rad) or "random"
 ================  ==================================  ==============================================
 """
@@ -55,7 +59,9 @@ NOISE_PRESETS: dict[str, dict[str, float]] = {
     "aibo": {"sigma_height": 1.59, "sigma_angle": 0.0267},  # measured on the ERS-7
 }
 WALL_MODES = ("clamp", "pymunk", "none")
-REWARDS = ("none",)
+REWARDS = ("none", "explore")
+REWARD_TERMS = ("balance", "coverage", "sightings", "wall", "info_gain")  # aibo_gym.policies.onboard: the same
+DEFAULT_REWARD_WEIGHTS = {"balance": 1.0, "coverage": 1.0, "sightings": 0.0, "wall": 0.01, "info_gain": 0.0}
 START_MARGIN_MM = 500.0  # start_pose="random": distance kept from the field edge, mm
 
 
@@ -88,6 +94,7 @@ def default_config() -> dict[str, Any]:
         "pymunk_substeps": 4,
         "effects": {},
         "reward": "none",
+        "reward_weights": dict(DEFAULT_REWARD_WEIGHTS),
         "start_pose": [0.0, 0.0, 0.0],
     }
 
@@ -211,6 +218,17 @@ def _sigma(key: str, v: Any) -> float | None:
     return x
 
 
+def _reward_weights(key: str, v: Any) -> dict[str, float]:
+    if not isinstance(v, dict):
+        raise _bad(key, v, "a dict {term: weight}")
+    out = {}
+    for term, w in v.items():
+        if term not in REWARD_TERMS:
+            raise ValueError(f"config key '{key}': unknown reward term {term!r} (valid terms: {', '.join(REWARD_TERMS)})")
+        out[term] = _num(key, w, f"a finite number for the weight of '{term}'")
+    return {t: out.get(t, 0.0) for t in REWARD_TERMS}
+
+
 def _start_pose(key: str, v: Any) -> str | list[float]:
     if isinstance(v, str):
         return _choice(("random",))(key, v)
@@ -244,6 +262,7 @@ CHECKS: dict[str, Callable[[str, Any], Any]] = {
     "pymunk_substeps": _int_min(1),
     "effects": lambda k, v: validate_effects(v),
     "reward": _choice(REWARDS),
+    "reward_weights": _reward_weights,
     "start_pose": _start_pose,
 }
 

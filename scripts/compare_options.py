@@ -15,10 +15,8 @@ import time
 
 import numpy as np
 
-from aibo_gym.collect import collect
+from experiments.loop import fit_em, score, simulate
 from learners.em.fit import EMOptions
-from learners.em.learner import EMLearner
-from learners.metrics import model_errors
 from learners.oracle import OracleLearner
 
 VARIANTS = {
@@ -40,15 +38,15 @@ def main() -> None:
     args = ap.parse_args()
     rows = []
     for seed in args.seeds:
-        tr = collect({"noise": args.noise}, steps=args.steps, seed=seed)
+        tr = simulate({"noise": args.noise}, args.steps, seed)
         rows.append({"seed": seed, "variant": "oracle (true poses)", "iterations": 1, "seconds": 0.0,
-                     **model_errors(OracleLearner().fit([tr]).params, [tr]).as_dict()})
+                     **score(OracleLearner().fit([tr]).params, [tr])})
         for name, opts in VARIANTS.items():
             t0 = time.perf_counter()
-            res = EMLearner(EMOptions(**{**opts.__dict__, "seed": seed})).fit([tr])
+            res = fit_em([tr], EMOptions(**{**opts.__dict__, "seed": seed}))
             rows.append({"seed": seed, "variant": name, "iterations": res.iterations,
                          "seconds": time.perf_counter() - t0, "pruned": res.pruned_observations,
-                         **model_errors(res.params, [tr]).as_dict()})
+                         **score(res.params, [tr])})
             print(f"seed {seed} {name:26s} {res.iterations:5d} it  " +
                   "  ".join(f"{k}={rows[-1][k]:.4f}" for k in KEYS), flush=True)
     names = ["oracle (true poses)", *VARIANTS]

@@ -44,7 +44,7 @@ def test_make_with_module_prefix_and_make_vec():
     env = gym.make("aibo_gym:AiboBeacons-v0")
     obs, info = env.reset(seed=0)
     assert env.observation_space.contains(obs)
-    assert set(info) == {"pose", "sightings", "head_pan", "action_velocity", "wall_contact"}
+    assert set(info) == {"pose", "sightings", "head_pan", "action_velocity", "wall_contact", "rewards"}
     vec = gym.make_vec("AiboBeacons-v0", num_envs=2, vectorization_mode="sync")
     obs, _ = vec.reset(seed=[1, 2])
     assert obs.shape == (2, 11)
@@ -263,7 +263,9 @@ def test_default_config_is_complete_and_json():
         ({"dt": -1}, ["'dt'"]),
         ({"velocities": [[0, 0, 0]] * 39}, ["'velocities'", "40 x 3"]),
         ({"detect_prob": 1.5}, ["'detect_prob'"]),
-        ({"reward": "explore"}, ["'reward'", "none"]),
+        ({"reward": "curiosity"}, ["'reward'", "none", "explore"]),
+        ({"reward_weights": {"speed": 1}}, ["'reward_weights'", "speed", "coverage"]),
+        ({"reward_weights": {"wall": "x"}}, ["'reward_weights'", "wall"]),
         ({"range_mm": [4000, 1000]}, ["'range_mm'"]),
         ({"max_steps": 0}, ["'max_steps'"]),
     ],

@@ -38,3 +38,15 @@ def run_import_mrclam(args) -> int:
     from aibo.commands.import_mrclam import run
 
     return run(args)
+
+
+def run_experiment(args) -> int:
+    from aibo.commands.experiment import run
+
+    return run(args)
+
+
+def run_train_explorer(args) -> int:
+    from aibo.commands.train_explorer import run
+
+    return run(args)

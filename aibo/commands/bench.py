@@ -94,13 +94,12 @@ def compile_time() -> float:
 
 def paper_fit(tr, opts) -> dict:
     """A full fit from the paper's start to convergence (compiled E-step already warm)."""
-    from learners.em.learner import EMLearner
-    from learners.metrics import model_errors
+    from experiments.loop import fit_em, score
 
     t0 = time.perf_counter()
-    res = EMLearner(opts).fit([tr])
+    res = fit_em([tr], opts)
     wall = time.perf_counter() - t0
-    err = model_errors(res.params, [tr]).as_dict()
+    err = score(res.params, [tr])
     return {"options": dict(opts.__dict__), "iterations": res.iterations,
             "best_iteration": res.info["best_iteration"], "wall_s": wall, "per_iteration_ms": 1000 * wall / res.iterations,
             "final_loglik": max(res.loglik), "errors": err}
@@ -125,7 +124,7 @@ def scaling(log_path: Path, sizes) -> list[dict]:
 
 def run(args) -> int:
     from aibo.paths import check_files
-    from aibo_gym.collect import collect
+    from experiments.loop import simulate
 
     check_files([], [("--json", args.json)] if args.json else [])
 
@@ -135,9 +134,9 @@ def run(args) -> int:
     print(f"machine: {report['machine']}")
     print(f"simulating {max(sizes):,d} frames for the benchmark logs ...", flush=True)
     t0 = time.perf_counter()
-    big = collect({"noise": "paper-sim", "max_steps": max(sizes)}, steps=max(sizes), seed=7)
+    big = simulate({"noise": "paper-sim", "max_steps": max(sizes)}, max(sizes), 7)
     report["collect_frames_per_s"] = big.n_frames / (time.perf_counter() - t0)
-    paper = collect({"noise": "paper-sim"}, steps=paper_frames, seed=1)
+    paper = simulate({"noise": "paper-sim"}, paper_frames, 1)
 
     print(f"E-step, compiled vs NumPy reference ({paper_frames:,d} frames) ...", flush=True)
     report["estep"] = estep_speed(paper)

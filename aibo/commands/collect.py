@@ -20,7 +20,7 @@ def run(args) -> int:
         config["noise"] = args.preset
     t0 = time.perf_counter()
     tr = collect(config, steps=args.steps, seed=args.seed, policy=args.policy, localizer=args.localizer,
-                 progress=sys.stderr.isatty())
+                 progress=sys.stderr.isatty(), policy_params=args.policy_params)
     seconds = time.perf_counter() - t0
     if args.plot:
         from aibo_gym.plot import plot_trajectory

@@ -18,7 +18,7 @@ from aibo_core.atomic import atomic_write
 from learners.em.fit import EMOptions
 from learners.em.learner import EMLearner
 from learners.inference.batch import make_batch
-from learners.metrics import PAPER_SIM, model_errors, observed_distance_range, sensor_rms
+from learners.metrics import PAPER_SIM, observed_distance_range, sensor_rms
 from learners.model import io as model_io
 from learners.oracle import OracleLearner
 
@@ -44,12 +44,12 @@ def run(args) -> int:
     out = Path(args.out)
     check_files([], [], folders=[("--out", out)])
     out.mkdir(parents=True, exist_ok=True)
-    from aibo_gym.collect import collect
     from aibo_gym.plot import plot_trajectory
+    from experiments.loop import fit_em, score, simulate
 
     steps = QUICK_STEPS if args.quick else FULL_STEPS
     print(f"simulating {steps} frames ({steps / 30 / 60:.0f} min, paper-sim noise, random-balanced, seed {args.seed})")
-    tr = collect({"noise": "paper-sim"}, steps=steps, seed=args.seed, progress=False)
+    tr = simulate({"noise": "paper-sim"}, steps, args.seed)
     trajectory.save(tr, out / "log.npz")
     plot_trajectory(tr, out / "trajectory.png", title=f"reproduce: {steps} frames, seed {args.seed}")
     logs = [tr]
@@ -64,12 +64,12 @@ def run(args) -> int:
           f"sensor step '{opts.sensor_method}', acceleration '{opts.accel}'")
     progress = Progress("EM", every=50)
     t0 = time.perf_counter()
-    em = EMLearner(opts, checkpoint_path=checkpoint_path(out / "model_em.json")).fit(logs, init=start, progress=progress)
+    em = fit_em(logs, opts, init=start, progress=progress, checkpoint_path=checkpoint_path(out / "model_em.json"))
     wall = time.perf_counter() - t0
     progress.close()
     model_io.save_result(em, out / "model_em.json")
 
-    errs = {"EM": model_errors(em.params, logs).as_dict(), "oracle": model_errors(oracle.params, logs).as_dict()}
+    errs = {"EM": score(em.params, logs), "oracle": score(oracle.params, logs)}
     errs["EM"]["iterations"] = em.iterations
     start_rms = sensor_rms(start.sensor, tr.truth, observed_distance_range(logs))
     print()

@@ -12,9 +12,10 @@ from gymnasium import spaces
 from aibo_core.actions import N_ACTIONS, attempted_velocities
 
 from ..camera import Camera, head_pan
-from ..config import START_MARGIN_MM, make_config, sensor_sigmas
+from ..config import REWARD_TERMS, START_MARGIN_MM, make_config, sensor_sigmas
 from ..context import NO_COMMAND, Frame, Motion, Sighting
 from ..effects import EffectChain
+from ..policies.onboard import OnboardTracker
 from ..robot import move, true_velocities, wrap_angle
 from ..walls import make_walls
 
@@ -71,6 +72,8 @@ class AiboBeaconsEnv(gym.Env):
                         action executed (zeros after reset)
     wall_contact        bool: the walls changed this frame's move     -
     sightings           dict of K-row arrays, K = ``max_sightings``   see below
+    rewards             dict of the reward terms (floats, the keys    see "Rewards"
+                        of ``REWARD_TERMS`` on every step)
     ==================  ============================================  ==============================
 
     ``info["sightings"]``: ``count`` (int, 0..K: rows in use, in report order), ``beacon`` (int64 (K,),
@@ -91,8 +94,27 @@ class AiboBeaconsEnv(gym.Env):
 
     ## Rewards
 
-    Always 0 (``reward="none"``, the only choice today); an exploration reward comes with a later
-    SB3 issue.
+    Named terms, highway-env style: ``info["rewards"]`` is a dict of floats with the same keys on
+    every step (:data:`aibo_gym.config.REWARD_TERMS`), and the reward is
+    ``sum(reward_weights[k] * info["rewards"][k])``. With ``reward="none"`` (the default) nothing is
+    computed: every term and the reward are 0. With ``reward="explore"`` the terms are computed
+    from what the robot knows onboard (its commands, its sightings and an onboard EKF:
+    :class:`aibo_gym.policies.onboard.OnboardTracker`), never from the true pose:
+
+    ===========  ===================================================================  =====================
+    term         value of one frame                                                   sum over an episode
+    ===========  ===================================================================  =====================
+    balance      H_t - H_(t-1), H = entropy of the frames per command / log(40)       H at the end, [0, 1]
+    coverage     new cells / 1920; cell = (command, distance bin of 6 over            share of cells seen
+                 ``range_mm`` (distance = 57000 / height px), bearing bin of 8)
+    sightings    sightings reported this frame                                        sightings
+    wall         -clip(1 - e / 300 mm, 0, 1), e = distance of the onboard estimate    <= 0
+                 to the nearest field edge
+    info_gain    0.5 (log det P_pred - log det P_post) of the onboard EKF's           nats
+                 sighting updates (0 without a sighting)
+    ===========  ===================================================================  =====================
+
+    ``reward_weights`` defaults: balance 1, coverage 1, sightings 0, wall 0.01, info_gain 0.
 
     ## Starting state
 
@@ -171,6 +193,9 @@ class AiboBeaconsEnv(gym.Env):
         self._episode = -1  # resets since the last seeded one (effects' streams)
         self._command, self._previous_command, self._command_start = NO_COMMAND, NO_COMMAND, 0
         self._renderer = None
+        self.tracker = None if cfg["reward"] == "none" else OnboardTracker(cfg)  # the onboard state the rewards use
+        self._weights = [(t, float(cfg["reward_weights"][t])) for t in REWARD_TERMS]
+        self._zero_terms = dict.fromkeys(REWARD_TERMS, 0.0)
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
@@ -185,8 +210,10 @@ class AiboBeaconsEnv(gym.Env):
         self.head_pan = head_pan(0.0, self.config["pan_amplitude"], self.config["pan_period"])
         self.last_sightings = []
         self._command, self._previous_command, self._command_start = NO_COMMAND, NO_COMMAND, 0
+        if self.tracker is not None:
+            self.tracker.reset()
         obs = self._observation([], self.head_pan, None)
-        info = self._info([], np.zeros(3), False)
+        info = self._info([], np.zeros(3), False, dict(self._zero_terms))
         if self.render_mode is not None:
             self._get_renderer().reset()
             self._renderer.record(self.pose)
@@ -215,13 +242,18 @@ class AiboBeaconsEnv(gym.Env):
         sightings = self._sense(u[1], z[6], z[7], frame, contact)
         self.last_sightings = sightings
         obs = self._observation(sightings, pan, a)
-        info = self._info(sightings, self.velocities[a].copy(), contact)
+        if self.tracker is None:
+            reward, terms = 0.0, dict(self._zero_terms)
+        else:
+            terms = self.tracker.step(a, [(s.beacon, s.height, s.angle) for s in sightings])
+            reward = float(sum(w * terms[t] for t, w in self._weights))
+        info = self._info(sightings, self.velocities[a].copy(), contact, terms)
         truncated = self.steps >= cfg["max_steps"]
         if self._renderer is not None:
             self._renderer.record(self.pose)
         if self.render_mode == "human":
             self.render()
-        return obs, 0.0, bool(left), bool(truncated), info
+        return obs, reward, bool(left), bool(truncated), info
 
     def render(self):
         if self.render_mode is None:
@@ -317,8 +349,9 @@ class AiboBeaconsEnv(gym.Env):
             obs[b + 4 : b + 7] = self._attempted[action]
         return obs
 
-    def _info(self, sightings: list[Sighting], velocity: np.ndarray, contact: bool) -> dict[str, Any]:
+    def _info(self, sightings: list[Sighting], velocity: np.ndarray, contact: bool, rewards: dict[str, float]) -> dict[str, Any]:
         return {
+            "rewards": rewards,
             "pose": np.array(self.pose),
             "head_pan": self.head_pan,
             "action_velocity": velocity,

@@ -31,7 +31,7 @@ PATH_POINTS = 25  # predicted points per candidate path
 
 
 class RandomBalancedPolicy:
-    """Random, balanced, field-keeping action choice.
+    """Random, balanced, field-keeping action choice (policy spec name ``random-balanced``).
 
     Args:
         env_config_or_params: the env config (partial or full; merged with the defaults).
@@ -40,6 +40,10 @@ class RandomBalancedPolicy:
         localizer: ``"truth"`` or ``"ekf"``.
         margin_mm: safety margin kept from the field edge by the predicted paths, mm.
     """
+
+    name = "random-balanced"
+    defaults = {"hold_s": 5.0, "localizer": "truth", "margin_mm": 300.0}
+    choices = {"localizer": LOCALIZERS}
 
     def __init__(
         self,
