@@ -33,8 +33,10 @@ def velocity(commands: np.ndarray) -> np.ndarray:
     return np.stack([v, w, v * np.abs(w), np.abs(w), np.ones_like(v)], axis=1) @ TRUE_W
 
 
-def diff_drive_log(seconds: float = 600.0, dt: float = 0.05, seed: int = 0) -> Trajectory:
-    """A log of ``seconds`` with commands held 1-3 s, wandering among 8 landmarks in a 6 m square."""
+def diff_drive_log(seconds: float = 600.0, dt: float = 0.05, seed: int = 0,
+                   drift_mm_s: tuple[float, float] = (0.0, 0.0)) -> Trajectory:
+    """A log of ``seconds`` with commands held 1-3 s, wandering among 8 landmarks in a 6 m square;
+    ``drift_mm_s``: a hidden world-frame drift (mm/s), recorded nowhere in the log."""
     rng = np.random.default_rng(seed)
     T = int(round(seconds / dt))
     landmarks = rng.uniform(-3000.0, 3000.0, size=(8, 2))
@@ -52,7 +54,8 @@ def diff_drive_log(seconds: float = 600.0, dt: float = 0.05, seed: int = 0) -> T
         controls[t] = cmd
         vel = velocity(cmd[None])[0] * dt + rng.normal(0.0, [2.0, 2.0, 0.005])
         c, s = np.cos(th), np.sin(th)
-        pose[t + 1] = (x + c * vel[0] - s * vel[1], y + s * vel[0] + c * vel[1], th + vel[2])
+        pose[t + 1] = (x + c * vel[0] - s * vel[1] + drift_mm_s[0] * dt, y + s * vel[0] + c * vel[1] + drift_mm_s[1] * dt,
+                       th + vel[2])
         dx, dy = (landmarks - pose[t + 1, :2]).T
         d = np.hypot(dx, dy)
         bearing = wrap(np.arctan2(dy, dx) - pose[t + 1, 2])
@@ -63,4 +66,4 @@ def diff_drive_log(seconds: float = 600.0, dt: float = 0.05, seed: int = 0) -> T
     return Trajectory(dt=dt, landmarks=landmarks, sighting_frame=np.array(frames), sighting_landmark=np.array(marks),
                       sighting_value=np.array(values).reshape(-1, 2), sensor_kind="range_mm", controls=controls,
                       control_names=("v_mm_s", "omega_rad_s"), pose=pose,
-                      meta={"generator": "tests/_diffdrive.py", "seed": seed})
+                      meta={"generator": "tests/_diffdrive.py", "seed": seed})  # no word of the drift

@@ -58,3 +58,69 @@ def _diagnose(tmp_path, effects: dict, candidates: str, seed: int = 11, steps: i
         assert (out / name).stat().st_size > 0
     assert "data:image/png;base64," in (out / "report.html").read_text()
     return report
+
+
+def _normalized(scale):
+    """Per-beacon factors at geometric mean 1 (a common factor is the sensor curve's)."""
+    return np.asarray(scale) / np.exp(np.mean(np.log(scale)))
+
+
+#: effect -> (simulator parameters, check of the estimate). Strengths are realistic for an Aibo-like
+#: robot; tolerances come from the measured estimates on these logs (README, "Discrepancy workflow").
+HIDDEN = {
+    "floor_drift": ({"drift_mm_s": [15.0, -10.0]}, lambda p: np.allclose(p["drift_mm_s"], [15, -10], atol=5.0)),
+    "velocity_fade": ({"fade_per_min": 0.03}, lambda p: abs(p["fade_per_min"] - 0.03) < 0.005),
+    "actuation_lag": ({"lag_s": 0.2}, lambda p: abs(p["lag_s"] - 0.2) < 0.11),
+    "off_center_shrink": ({"k": 0.3}, lambda p: abs(p["k"] - 0.3) < 0.06),
+    "distance_dependent_noise": ({"exponent": 1.0}, lambda p: abs(p["exponent"] - 1.0) < 0.25),
+    "beacon_height_scale": ({"scale": [1.08, 0.94, 1.04, 0.95]},
+                            lambda p: np.allclose(p["scale"], _normalized([1.08, 0.94, 1.04, 0.95]), atol=0.015)),
+}
+ALL = ",".join(sorted(HIDDEN) + ["angle_bias"])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(HIDDEN))
+def test_diagnose_names_a_hidden_effect(tmp_path, name):
+    params, check = HIDDEN[name]
+    report = _diagnose(tmp_path, {name: params}, ALL, steps=18000)
+    assert report["effect"] == name, report["effects"]
+    assert check(report["parameters"]), report["parameters"]
+    assert report["gap_after"] < report["gap_before"]
+    assert [e["name"] for e in report["effects"]] == [name]
+
+
+@pytest.mark.slow
+def test_angle_bias_is_reported_not_identifiable(tmp_path):
+    report = _diagnose(tmp_path, {"angle_bias": {"bias_rad": 0.05}}, ALL, steps=18000)
+    assert report["effect"] == "none"
+    bias = [c for c in report["candidates"] if c["name"] == "angle_bias"]
+    assert bias and not bias[0]["identifiable"] and "heading" in bias[0]["note"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [11, 12])
+def test_no_effect_names_none(tmp_path, seed):
+    report = _diagnose(tmp_path, {}, ALL, seed=seed, steps=18000)
+    assert report["effect"] == "none" and report["effects"] == []
+
+
+@pytest.mark.slow
+def test_two_effects_at_once_are_both_found(tmp_path):
+    report = _diagnose(tmp_path, {"floor_drift": {"drift_mm_s": [15.0, -10.0]},
+                                  "beacon_height_scale": {"scale": [1.08, 0.94, 1.04, 0.95]}}, ALL, steps=18000)
+    assert {e["name"] for e in report["effects"]} == {"floor_drift", "beacon_height_scale"}
+
+
+@pytest.mark.slow
+def test_a_log_from_another_generator(tmp_path):
+    """A differential-drive log (continuous commands, range sensor, several sightings per frame, no
+    head pan, no field, another start and noise) with a hidden world drift."""
+    from tests._diffdrive import diff_drive_log
+
+    log = tmp_path / "dd.npz"
+    save(blind(diff_drive_log(600.0, seed=3, drift_mm_s=(12.0, 0.0))), log)
+    out = tmp_path / "diag"
+    assert main(["diagnose", str(log), "--out", str(out), "--candidates", "floor_drift,velocity_fade,beacon_height_scale"]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert report["effect"] == "floor_drift" and np.allclose(report["parameters"]["drift_mm_s"], [12, 0], atol=4.0)

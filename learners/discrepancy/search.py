@@ -33,7 +33,7 @@ ALPHA = 0.01  # false-alarm level of one round of the search (all candidates tog
 FLAT_NATS = 2.0  # a frozen probe within this many nats of the free fit: a flat profile
 MAX_ROUNDS = 3
 
-#: A plausible strength per effect, for the identifiability probe (in the effect's units).
+#: A plausible strength per effect (in its units): the identifiability probe moves the estimate by it.
 PROBE: dict[str, dict[str, Any]] = {
     "angle_bias": {"bias_rad": 0.1},
     "floor_drift": {"drift_mm_s": np.array([20.0, 0.0])},
@@ -111,7 +111,8 @@ def try_candidate(name: str, base: Model, base_ll: float, base_heldout: float, t
     c = Candidate(name, model.effect(name).values(), gain, heldout, dof, p, model=model)
     c.significant = p < ALPHA / max(n_candidates, 1) and heldout > 0
     if not c.significant and name in PROBE and not cls.GRID:
-        probe = start.with_effect(_with(start.effect(name), PROBE[name]))
+        shifted = {k: np.asarray(v) + np.asarray(model.effect(name).values()[k]) for k, v in PROBE[name].items()}
+        probe = model.with_effect(_with(model.effect(name), shifted))  # the estimate moved by a plausible step
         fitted, _ = _fit(train, probe, replace(opts, frozen=opts.frozen + (name,), max_iter=min(opts.max_iter, 150)))
         ll_probe = _train_loglik(fitted, train)
         flat = ll - ll_probe < FLAT_NATS

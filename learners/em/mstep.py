@@ -75,7 +75,6 @@ def maximize(model: Model, batch: Batch, post: Posterior, rng: np.random.Generat
     init = tuple(InitialState(post.mu_gamma[p].copy(), post.cov_gamma[p].copy()) for p in first)
     new = model.with_(action=action, sensor=sensor, init=init)
     for effect in model.effects:
-        new = new.with_effect(new.effect(effect.name).refresh(new, batch, post))
         if effect.name not in opts.frozen:
             new = new.effect(effect.name).maximize(new, batch, post, mu_star)
     return new

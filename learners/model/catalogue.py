@@ -171,6 +171,16 @@ class AngleBias(EffectModel):
         return model.with_effect(AngleBias(bias))
 
 
+def implied_distance(lo: Lowered, batch: Batch) -> np.ndarray:
+    """(S,) the distance (mm) at which the lowered curve predicts each measured size (the curve
+    inverted on a grid over 100 mm .. 20 m, where it is monotone; clipped at the ends)."""
+    grid = np.geomspace(100.0, 20000.0, 400)
+    f = lo.curve(grid)[0]
+    size = (batch.sight_value[:, 0] - lo.size_offset) / lo.size_scale
+    order = np.argsort(f)
+    return np.interp(size, f[order], grid[order])
+
+
 def _size_fit(model: "Model", batch: Batch, post: Posterior, skip: EffectModel):
     """Used sightings: (indices, distance, prediction without ``skip``'s size scale, observed size less offsets,
     weights 1 / variance factor)."""
@@ -215,12 +225,12 @@ class OffCenterShrink(EffectModel):
 @register_effect
 @dataclass(frozen=True)
 class DistanceDependentNoise(EffectModel):
-    """Size noise grows with distance: sigma_size x (d / 2500 mm)^exponent. The distances are those of
-    the latest smoothed path (kept in ``distances``, not a parameter). Residual signature: the size
-    residuals' spread depends on distance."""
+    """Size noise grows with distance: sigma_size x (d / 2500 mm)^exponent. The distance of each
+    sighting is read off its measured size through the current sensor curve (so the factor needs no
+    path and is the same for any data). Residual signature: the size residuals' spread depends on
+    distance."""
 
     exponent: float
-    distances: tuple = ()  # (S,) mm at the latest smoothed means (empty: not known yet)
 
     name: ClassVar[str] = "distance_dependent_noise"
     PARAMS: ClassVar[dict[str, Param]] = {"exponent": Param("", "scaled", 0.1)}
@@ -229,24 +239,21 @@ class DistanceDependentNoise(EffectModel):
     def start(cls, batch: Batch) -> "DistanceDependentNoise":
         return cls(0.0)
 
-    def lower(self, lo: Lowered, batch: Batch) -> None:
-        if len(self.distances) == batch.n_sightings:
-            d = np.asarray(self.distances)
-            lo.size_var_factor = lo.size_var_factor * (d / REFERENCE_DISTANCE_MM) ** (2.0 * self.exponent)
+    def factor(self, lo: Lowered, batch: Batch) -> np.ndarray:
+        """(S,) variance factor (d / 2500 mm)^(2 exponent), d the distance whose predicted size is measured."""
+        return (implied_distance(lo, batch) / REFERENCE_DISTANCE_MM) ** (2.0 * self.exponent)
 
-    def refresh(self, model: "Model", batch: Batch, post: Posterior) -> "DistanceDependentNoise":
-        """The distances (mm) of every sighting at the latest smoothed means."""
-        d = np.hypot(*(batch.sight_xy - post.mu_gamma[batch.sight_pose][:, :2]).T)
-        return replace(self, distances=tuple(d.tolist()))
+    def lower(self, lo: Lowered, batch: Batch) -> None:
+        if self.exponent != 0.0:
+            lo.size_var_factor = lo.size_var_factor * self.factor(lo, batch)
 
     def maximize(self, model: "Model", batch: Batch, post: Posterior, mu_star: np.ndarray) -> "Model":
         """The exponent (and sigma_size) maximizing the Gaussian likelihood of the size residuals."""
         lo = model.lower(batch)
         idx, d, _ = _sight_geometry(model, batch, post)
         r2 = (batch.sight_value[idx, 0] - lo.size_offset[idx] - model.sensor.mean(d) * lo.size_scale[idx]) ** 2
-        mine = (d / REFERENCE_DISTANCE_MM) ** (2.0 * self.exponent) if len(self.distances) else 1.0
-        other = lo.size_var_factor[idx] / mine
-        logd = np.log(d / REFERENCE_DISTANCE_MM)
+        other = lo.size_var_factor[idx] / self.factor(lo, batch)[idx]
+        logd = np.log(implied_distance(lo, batch)[idx] / REFERENCE_DISTANCE_MM)
 
         def profile(e: float) -> tuple[float, float]:
             v = other * np.exp(2.0 * e * logd)

@@ -44,11 +44,6 @@ class EffectModel(Component):
     #: Constraints among the parameters (e.g. a normalization), subtracted from ``dof``.
     CONSTRAINTS: ClassVar[int] = 0
 
-    def refresh(self, model: "Model", batch: Batch, post: Posterior) -> "EffectModel":
-        """Keep what the effect needs from the latest smoothed path (e.g. distances), even when its
-        parameters are frozen; default: itself."""
-        return self
-
     def commands(self, commands: np.ndarray, batch: Batch) -> np.ndarray:
         """The commands in force per frame (e.g. delayed by a lag); default: as logged."""
         return commands
