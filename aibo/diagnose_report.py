@@ -55,7 +55,7 @@ def gap_bars(path: Path, before: dict[str, float], after: dict[str, float]) -> N
     for ax, (k, label) in zip(axes, keys):
         ax.bar(["before", "after"], [before[k], after[k]], color=["tab:red", "tab:blue"])
         ax.set_title(label, fontsize=9)
-    fig.suptitle("The gap shrinks")
+    fig.suptitle("Before and after adding the named effects (held-out half)")
     fig.tight_layout()
     _save(fig, path)
 

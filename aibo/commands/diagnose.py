@@ -67,9 +67,8 @@ def run(args) -> int:
     say(f"named effects, in order: {', '.join(e['name'] for e in report['effects']) or 'none'}")
     for e in report["effects"]:
         say(f"  {e['name']}: {e['parameters']}")
-    for c in report["candidates"]:
-        if not c["identifiable"]:
-            say(f"  {c['name']}: present or not, {c['note']}")
+    for name, note in {c["name"]: c["note"] for c in report["candidates"] if not c["identifiable"]}.items():
+        say(f"  {name}: present or not, {note}")
     say(f"gap ({GAP_METRIC}): {before.gap:.4f} before, {after.gap:.4f} after; mean NIS {before.nis_mean:.2f} -> "
         f"{after.nis_mean:.2f} (2 expected); {time.perf_counter() - t0:.1f} s")
     report["seconds"] = time.perf_counter() - t0
