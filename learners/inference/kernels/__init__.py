@@ -23,7 +23,7 @@ Layout (one concept per module; import the public functions from this package):
 from __future__ import annotations
 
 from learners.inference.kernels.action import action_statistics_compiled, residual_cov_compiled
-from learners.inference.kernels.estep import smooth_compiled
+from learners.inference.kernels.estep import innovations_compiled, smooth_compiled
 from learners.inference.kernels.sensor import sensor_update_compiled
 
-__all__ = ["smooth_compiled", "action_statistics_compiled", "residual_cov_compiled", "sensor_update_compiled"]
+__all__ = ["smooth_compiled", "innovations_compiled", "action_statistics_compiled", "residual_cov_compiled", "sensor_update_compiled"]
