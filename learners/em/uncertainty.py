@@ -59,7 +59,8 @@ class Uncertainty:
         """The JSON-ready part for a model file's ``info``."""
         return {"method": "Fisher information of the EKF innovations (finite differences)",
                 "parameters": len(self.names), "min_eigenvalue": self.min_eigenvalue,
-                "condition_number": self.condition_number, "weakest_direction": self.weakest,
+                "condition_number": self.condition_number if math.isfinite(self.condition_number) else None,
+                "weakest_direction": self.weakest,
                 "undetermined": self.undetermined, "newton_decrement": self.newton_decrement}
 
 
