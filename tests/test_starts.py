@@ -52,6 +52,8 @@ def test_disagreement_names_a_given_start_that_lost_or_failed():
 def test_the_paper_recipe_keeps_one_start_and_the_cubic():
     paper = EMOptions.paper()
     assert paper.starts == 1 and paper.basis == "power" and paper.sensor_degree(paper.sensor_basis()) == 3
+    assert EMOptions().sensor_basis("height_px") == "inverse" and EMOptions().sensor_basis("range_mm") == "power"
+    assert EMOptions().sensor_basis("height_px", init_basis="power") == "power"  # --init's basis is kept
     assert EMOptions(basis="inverse").sensor_degree("inverse") == 2
     with pytest.raises(ValueError, match="basis"):
         EMOptions(basis="log").validate()
@@ -73,7 +75,7 @@ def test_a_single_start_settles_in_a_wrong_world_that_several_starts_escape():
     the path inside the field) with ~40% velocity errors; three starts keep the right world and say so."""
     tr = sim_log(27000, seed=1, robot_seed=1)
     bad = paper_start([tr]).with_(sensor=paper_start([tr]).sensor.with_values(coef=FAR_LINE))
-    one = EMLearner(EMOptions(uncertainty=False)).fit([tr], init=bad)  # passes the off-field check
+    one = EMLearner(EMOptions(starts=1, uncertainty=False)).fit([tr], init=bad)  # passes the off-field check
     assert one.converged and one.info["off_field_fraction"] < 0.05
     assert model_errors(one.params, [tr]).vx_rel > 0.2
     three = EMLearner(EMOptions(starts=3, uncertainty=False)).fit([tr], init=bad)

@@ -26,8 +26,9 @@ from learners.model.model import Model
 DEFAULT_GATE = 50.0
 #: Sensor curve degree per basis when ``EMOptions.degree`` is None: the paper's cubic in d; c0 + c1/d + c2/d^2.
 DEFAULT_DEGREE = {"power": 3, "inverse": 2}
-#: The sensor basis of a fresh start when ``EMOptions.basis`` is None (README, "EM at the information bound").
-DEFAULT_BASIS = "power"
+#: The sensor basis of a fresh start when ``EMOptions.basis`` is None, per sensor kind: a pinhole height
+#: is c1/d (README, "EM at the information bound"); a range is d.
+DEFAULT_BASIS = {"height_px": "inverse", "range_mm": "power"}
 
 
 @dataclass
@@ -46,7 +47,7 @@ class EMOptions:
     estep: str = "compiled"  # "compiled" (numba) or "numpy" (the per-step reference)
     accel: str = "squarem"  # paper: "none"; "squarem": extrapolated EM with a monotone safeguard
     min_improvement: float = 0.1  # a new best must beat the old by this (nats); paper: any amount
-    starts: int = 1  # starts screened, the most likely continued (``learners.em.starts``); paper: 1
+    starts: int = 3  # starts screened, the most likely continued (``learners.em.starts``); paper: 1
     screen_iter: int = 30  # EM iterations each start runs before the most likely is chosen
     uncertainty: bool = True  # standard errors from the Fisher information (``learners.em.uncertainty``)
     seed: int = 0
@@ -55,7 +56,7 @@ class EMOptions:
     def paper(cls, **overrides) -> "EMOptions":
         """The paper's recipe: fixed motion noise, one sample per sighting, plain EM, strict stop rule."""
         base = dict(sensor_method="sample", learn_motion_noise=False, accel="none", min_improvement=0.0,
-                    basis="power", degree=3)
+                    basis="power", degree=3, starts=1)
         return cls(**{**base, **overrides})
 
     def validate(self) -> "EMOptions":
@@ -72,9 +73,10 @@ class EMOptions:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         return self
 
-    def sensor_basis(self, init_basis: str | None = None) -> str:
-        """The basis of the fit: the option, else the start model's (``init_basis``), else DEFAULT_BASIS."""
-        return self.basis or init_basis or DEFAULT_BASIS
+    def sensor_basis(self, kind: str = "height_px", init_basis: str | None = None) -> str:
+        """The basis of the fit: the option, else the start model's (``init_basis``), else DEFAULT_BASIS
+        of the sensor ``kind``."""
+        return self.basis or init_basis or DEFAULT_BASIS[kind]
 
     def sensor_degree(self, basis: str) -> int:
         """The curve's degree: the option, else DEFAULT_DEGREE of ``basis``."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import time
 from dataclasses import replace
 
 import numpy as np
@@ -75,7 +76,7 @@ class EMLearner:
         if action_model == "features" and tr.discrete:
             raise ValueError("--action-model features needs continuous commands ('controls'); this log has "
                              "discrete actions (use --action-model table)")
-        basis = self.options.sensor_basis(init.sensor.basis if init else None)
+        basis = self.options.sensor_basis(tr.sensor_kind, init.sensor.basis if init else None)
         degree = self.options.sensor_degree(basis)
         start = init or start_model(batch, tr.dt, tr.sensor_kind, n_commands, names, fmap, basis, degree)
         if tr.discrete and start.action.discrete and len(start.action.weights) != len(tr.attempted):
@@ -102,14 +103,17 @@ class EMLearner:
         start = self.start_params(logs, init, batch, action_model)
         undetermined = check_support(batch, start)
         fp = checkpoint.fingerprint(batch, start, options_json(self.options)) if self.checkpoint_path else ""
-        state, resumed_from = self._load_or_start(batch, start, fp)
         history: list[IterationRecord] = []
 
-        def on_iteration(st: EMState, params: Model, loglik: float) -> None:
-            rec = IterationRecord(st.iteration, loglik, st.seconds[-1], params)
-            history.append(rec)
+        def record(iteration: int, loglik: float, seconds: float, params: Model) -> None:
+            history.append(IterationRecord(iteration, loglik, seconds, params))
             if progress is not None:
-                progress(rec)
+                progress(history[-1])
+
+        state, resumed_from = self._load_or_start(batch, start, fp, record)
+
+        def on_iteration(st: EMState, params: Model, loglik: float) -> None:
+            record(st.iteration, loglik, st.seconds[-1], params)
 
         last_saved = [state.iteration]
 
@@ -128,6 +132,8 @@ class EMLearner:
         info["undetermined"] = undetermined  # parameters the data did not determine (kept at their start)
         if state.starts:
             info["starts"] = state.starts
+        # E-steps of the whole fit: the winner's, and the other starts' screening
+        info["iterations_all_starts"] = state.iteration + sum(r["iterations"] for r in state.starts if not r.get("chosen"))
         if self.options.uncertainty:
             info.update(self._uncertainty(state.best, batch.with_used(state.used)))
         info["warnings"] = curve_warnings(state.best) + ([disagreement(state.starts)] if disagreement(state.starts)
@@ -141,26 +147,33 @@ class EMLearner:
         """``standard_errors`` and ``information`` for the model file's info (module uncertainty)."""
         from learners.em.uncertainty import parameter_uncertainty
 
+        t0, c0 = time.perf_counter(), time.process_time()
         try:
             unc = parameter_uncertainty(best, batch, Packer(self.options).fixed)
         except (FloatingPointError, np.linalg.LinAlgError, ValueError) as exc:
             return {"information": {"error": f"standard errors not computed: {str(exc)[:200]}"}}
-        return {"standard_errors": unc.standard_errors, "information": unc.summary()}
+        return {"standard_errors": unc.standard_errors, "information": unc.summary(),
+                "uncertainty_seconds": time.perf_counter() - t0, "uncertainty_cpu_seconds": time.process_time() - c0}
 
     def discard_checkpoint(self) -> None:
         """Delete the checkpoint (call after the model is on disk)."""
         if self.checkpoint_path and os.path.exists(self.checkpoint_path):
             os.unlink(self.checkpoint_path)
 
-    def _load_or_start(self, batch: Batch, start: Model, fp: str) -> tuple[EMState, int]:
+    def _load_or_start(self, batch: Batch, start: Model, fp: str, record) -> tuple[EMState, int]:
         """(state to continue, iteration it was resumed from: 0 for a fresh start). A fresh start with
-        ``options.starts`` > 1 is the winner of the screening (``learners.em.starts``)."""
+        ``options.starts`` > 1 is the winner of the screening (``learners.em.starts``), whose iterations
+        are then passed to ``record(iteration, loglik, seconds, params)``."""
         if self.checkpoint_path and self.resume:
             saved = checkpoint.load(self.checkpoint_path, fp)
             if saved is not None:
                 return saved, saved.iteration
         if self.options.starts > 1:
-            state, state.starts = screen(batch, start, self.options)
+            state, state.starts, iterations = screen(batch, start, self.options)
+            if self.checkpoint_path:  # the screening is saved: a resumed fit continues the winner
+                checkpoint.save(self.checkpoint_path, state, fp)
+            for it in iterations:
+                record(*it)
             return state, 0
         return initial_state(start, batch, self.options), 0
 

@@ -56,24 +56,35 @@ def distance_scales(n: int, seed: int) -> list[float]:
     return list(DISTANCE_SCALES[:n]) + [float(s) for s in np.exp(rng.uniform(np.log(0.1), np.log(3.0), extra))]
 
 
-def _screened(batch: Batch, start: Model, opts: EMOptions, budget: int) -> EMState | str:
-    """``budget`` EM iterations from ``start``: the state, or the reason it failed (one line)."""
+#: (iteration, loglik, seconds, params) of one EM iteration
+Iteration = tuple[int, float, float, Model]
+
+
+def _screened(batch: Batch, start: Model, opts: EMOptions, budget: int) -> tuple[EMState | str, list[Iteration]]:
+    """``budget`` EM iterations from ``start``: (the state, or the reason it failed (one line); its iterations)."""
     state = initial_state(start, batch, opts)
+    its: list[Iteration] = []
+
+    def keep(st: EMState, params: Model, loglik: float) -> None:
+        its.append((st.iteration, loglik, st.seconds[-1], params))
+
     try:
-        return run(batch, state, replace(opts, max_iter=budget))
+        return run(batch, state, replace(opts, max_iter=budget), keep), its
     except (FloatingPointError, np.linalg.LinAlgError, ValueError) as exc:
-        return f"failed: {str(exc)[:120]}"
+        return f"failed: {str(exc)[:120]}", its
 
 
-def screen(batch: Batch, start: Model, opts: EMOptions) -> tuple[EMState, list[dict[str, Any]]]:
+def screen(batch: Batch, start: Model, opts: EMOptions) -> tuple[EMState, list[dict[str, Any]], list[Iteration]]:
     """Screen ``opts.starts`` starts (module docstring); returns the winner's state (to be continued
-    with ``run``) and the report rows."""
+    with ``run``), the report rows and the winner's iterations."""
     budget = min(opts.screen_iter, opts.max_iter)
     rows: list[dict[str, Any]] = []
     states: list[EMState | None] = []
+    iterations: list[list[Iteration]] = []
     for k, scale in enumerate(distance_scales(opts.starts, opts.seed)):
         model = start if scale == 1.0 else start.with_(sensor=stretched(start.sensor, scale))
-        got = _screened(batch, model, opts, budget)
+        got, its = _screened(batch, model, opts, budget)
+        iterations.append(its)
         rows.append({"start": k, "distance_scale": scale, "iterations": 0 if isinstance(got, str) else got.iteration,
                      **({"error": got} if isinstance(got, str) else {})})
         states.append(None if isinstance(got, str) else got)
@@ -87,7 +98,7 @@ def screen(batch: Batch, start: Model, opts: EMOptions) -> tuple[EMState, list[d
     for k in alive:
         rows[k]["behind_nats"] = rows[win]["loglik"] - rows[k]["loglik"]
     rows[win]["chosen"] = True
-    return states[win], rows
+    return states[win], rows, iterations[win]
 
 
 def disagreement(rows: list[dict[str, Any]]) -> str:
