@@ -3,6 +3,7 @@
     python scripts/monte_carlo.py --logs 12 --steps 27000 --json runs/mc15.json        # the README table
     python scripts/monte_carlo.py --variants default --logs 100 --steps 9000 27000 108000 \\
         --robots 0 1 2 3 --noise paper-sim aibo --json runs/mc_sweep.json                # the failure sweep
+    python scripts/monte_carlo.py --from-json runs/mc15.json                             # print the tables again
 
 Log i of a cell (noise preset, length) is ``aibo_gym.collect.collect`` of robot ``robots[i % len]``
 with seed ``seed + i``, so every number is reproducible from the command. Each variant fits each
@@ -98,8 +99,11 @@ def table(rows: list[dict], variants: list[str]) -> list[str]:
 def se_check(rows: list[dict]) -> list[str]:
     """Standard errors vs the spread over logs of one robot: pooled over commands, per component."""
     out = []
-    for robot in sorted({r["robot"] for r in rows if "se_velocities" in r}):
-        sel = [r for r in rows if r.get("robot") == robot and "se_velocities" in r and not r["failure"]]
+    groups = sorted({(r["variant"], r["noise"], r["steps"], r["robot"]) for r in rows if "se_velocities" in r})
+    for group in groups:
+        sel = [r for r in rows if (r["variant"], r["noise"], r["steps"], r["robot"]) == group and "se_velocities" in r
+               and not r["failure"]]
+        robot = group[3]
         if len(sel) < 3:
             continue
         est = np.array([r["velocities"] for r in sel])  # (n, 40, 3)
@@ -131,7 +135,10 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=100, help="log i of a cell has seed SEED + i")
     ap.add_argument("--oracle", action="store_true", help="also the oracle (true poses)")
     ap.add_argument("--json", help="write every row to this file")
+    ap.add_argument("--from-json", help="only print the tables of a study written by --json")
     args = ap.parse_args()
+    if args.from_json:
+        return report(json.load(open(args.from_json))["rows"])
     names = list(VARIANTS) if args.variants == ["all"] else [SHORT.get(v, v) for v in args.variants]
     se_names = {SHORT.get(v, v) for v in args.se_variants}
     rows: list[dict] = []
@@ -154,10 +161,19 @@ def main() -> None:
                 if args.json:
                     with open(args.json, "w") as f:
                         json.dump({"args": vars(args), "rows": rows}, f)
-            cell = [r for r in rows if r["noise"] == noise and r["steps"] == steps]
-            print(f"\n{args.logs} logs, {noise} noise, {steps} frames ({steps / 1800:.0f} min), robots {args.robots}: "
-                  "mean over the logs that did not fail\n")
-            print("\n".join(table(cell, names)))
+    report(rows)
+
+
+def report(rows: list[dict]) -> None:
+    """Print one table per cell (noise, length), then the standard errors against the spread."""
+    names = list(dict.fromkeys(r["variant"] for r in rows if r["variant"] != "oracle (true poses)"))
+    for noise, steps in dict.fromkeys((r["noise"], r["steps"]) for r in rows):
+        cell = [r for r in rows if r["noise"] == noise and r["steps"] == steps]
+        robots = sorted({r["robot"] for r in cell})
+        n_logs = len({r["seed"] for r in cell})
+        print(f"\n{n_logs} logs, {noise} noise, {steps} frames ({steps / 1800:.0f} min), robots {robots}: "
+              "mean over the logs that did not fail\n")
+        print("\n".join(table(cell, names)))
     print("\nStandard errors against the spread over logs of one robot (SE / spread and RMS z should be ~1)\n")
     print("\n".join(se_check(rows)))
 
