@@ -116,5 +116,5 @@ def disagreement(rows: list[dict[str, Any]]) -> str:
     else:
         return ""
     return (f"starts disagree: kept start {win['start']} (the given sensor curve with distances "
-            f"x{win['distance_scale']:.2g}); the given start {behind}: from it alone EM would have "
-            "settled in a less likely optimum")
+            f"x{win['distance_scale']:.2g}); the given start {behind}: alone it would probably have led EM to "
+            "a less likely optimum")
