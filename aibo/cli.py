@@ -69,6 +69,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="re-estimate Sigma_A in the M-step (default on; off in the paper)")
     lr.add_argument("--accel", choices=["none", "squarem"], help="EM acceleration (default squarem; paper: none)")
     lr.add_argument("--gate", type=finite(0), help="first-iteration outlier gate on Mahalanobis^2 (default 50; 0 = off)")
+    lr.add_argument("--starts", type=integer(1), help="starts screened, the most likely continued (default "
+                    "EMOptions.starts; paper: 1)")
+    lr.add_argument("--sensor-basis", choices=["power", "inverse"], help="sensor curve: power (the paper's cubic "
+                    "in d) or inverse (c0 + c1/d + c2/d^2); default: --init's, else EMOptions' default")
     lr.add_argument("--estep", choices=["compiled", "numpy"], default="compiled",
                     help="numba kernels (default) or the plain NumPy reference")
     lr.add_argument("--no-resume", action="store_true", help="ignore a checkpoint left by an interrupted run")

@@ -82,9 +82,11 @@ def test_max_iter_is_not_convergence():
     assert res.iterations == 7 and not res.converged
 
 
-# plain EM checkpoints after every step; SQUAREM only between its 2-3 step cycles (None: any of them)
+# plain EM checkpoints after every step; SQUAREM only between its 2-3 step cycles (None: any of them);
+# several starts after their screening (30 iterations), whose iterations are reported afterwards
 @pytest.mark.parametrize("opts, saved_at", [(EMOptions.paper(max_iter=12, seed=2), 8),
-                                             (EMOptions(max_iter=12, seed=2), None)])
+                                             (EMOptions(max_iter=12, seed=2, starts=1), None),
+                                             (EMOptions(max_iter=40, seed=2), 30)])
 def test_resume_after_interruption_gives_the_same_fit(tmp_path, opts, saved_at):
     tr = sim_log(3000, seed=4)
     full = EMLearner(opts).fit([tr])
@@ -137,7 +139,10 @@ def test_a_start_that_puts_beacons_off_the_field_fails_loudly():
     # height = 45 - 0.004 d implies beacons ~8 m away: EM settles in a wrong world (see docs/em-math.md)
     bad = start.with_(sensor=SensorModel(np.array([45.0, -0.004, 0.0, 0.0]), 10.0, 0.2))
     with pytest.raises(EMDivergedError, match="does not fit the field"):
-        EMLearner(EMOptions(max_iter=60, patience=20)).fit([tr], init=bad)
+        EMLearner(EMOptions(max_iter=60, patience=20, starts=1)).fit([tr], init=bad)
+    # several starts (the default) try curves implying shorter distances and keep the right world
+    res = EMLearner(EMOptions(max_iter=150, patience=20, uncertainty=False)).fit([tr], init=bad)
+    assert res.info["starts"][0]["behind_nats"] > 1000 and model_errors(res.params, [tr]).vx_rel < 0.05
 
 
 @pytest.mark.parametrize("steps", [1, 30, 200])

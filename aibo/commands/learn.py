@@ -26,6 +26,10 @@ def em_options(args) -> EMOptions:
             setattr(opts, name, getattr(args, name))
     if args.gate is not None:
         opts.gate = args.gate if args.gate > 0 else None
+    if args.starts is not None:
+        opts.starts = args.starts
+    if args.sensor_basis is not None:
+        opts.basis = args.sensor_basis
     return opts.validate()
 
 
@@ -34,6 +38,48 @@ def make_learner(args):
     if args.learner == "em":
         return cls(em_options(args), checkpoint_path=checkpoint_path(args.out), resume=not args.no_resume)
     return cls()
+
+
+def starts_report(info: dict) -> list[str]:
+    """Lines on the screened starts (``info["starts"]``), if there were several."""
+    rows = info.get("starts") or []
+    if len(rows) < 2:
+        return []
+    win = next(r for r in rows if r.get("chosen"))
+    lines = [f"{len(rows)} starts screened for {win['iterations']} iterations each (sensor curve with distances "
+             f"x scale); kept start {win['start']}:"]
+    for r in rows:
+        what = r["error"] if "error" in r else f"loglik {r['loglik']:.1f}, {r['behind_nats']:,.1f} nats behind"
+        lines.append(f"  start {r['start']} (x{r['distance_scale']:.2g}): {what}{'  <- kept' if r.get('chosen') else ''}")
+    return lines
+
+
+def uncertainty_report(result: LearnResult) -> list[str]:
+    """Lines on the standard errors (``info["standard_errors"]``) and the information behind them."""
+    se, inf = result.info.get("standard_errors"), result.info.get("information")
+    if inf and "error" in inf:
+        return [inf["error"]]
+    if not se or not inf:
+        return []
+    cond = inf["condition_number"]
+    lines = [f"standard errors from the Fisher information ({inf['parameters']} parameters; condition number "
+             f"{cond if cond is None else format(cond, '.3g')}, smallest eigenvalue {inf['min_eigenvalue']:.3g} of its correlation "
+             f"form; weakest direction: {', '.join(inf['weakest_direction']) or '-'}):"]
+    if "action_model.velocities" in se:
+        v = np.array(se["action_model.velocities"], dtype=float)
+        lines.append("  velocities (RMS over commands): vx {:.2f} mm/s, vy {:.2f} mm/s, vtheta {:.4f} rad/s".format(
+            *np.sqrt(np.nanmean(v**2, axis=0))))
+    for key in ("sensor_model.sigma_height", "sensor_model.sigma_range_mm", "sensor_model.sigma_angle"):
+        if key in se:
+            lines.append(f"  {key.split('.')[1]}: {getattr(result.params.sensor, _SIGMA[key]):.4g} +- {se[key]:.2g}")
+    if inf["undetermined"]:
+        lines.append(f"  undetermined (no sighting depends on them): {', '.join(inf['undetermined'][:6])}"
+                     + (" ..." if len(inf["undetermined"]) > 6 else ""))
+    return lines
+
+
+_SIGMA = {"sensor_model.sigma_height": "sigma_size", "sensor_model.sigma_range_mm": "sigma_size",
+          "sensor_model.sigma_angle": "sigma_bearing"}
 
 
 #: The figures ``write_plots`` may draw into ``--plots`` (without a prefix).
@@ -68,6 +114,8 @@ def run(args) -> int:
         print(f"resumed from the checkpoint at iteration {result.info['resumed_from']}")
     print(f"wrote {args.out}: {result.iterations} iterations, converged={result.converged}, "
           f"{result.pruned_observations} sightings pruned as outliers")
+    for line in starts_report(result.info) + uncertainty_report(result):
+        print(line)
     if all(tr.truth is not None and tr.pose is not None for tr in logs):
         print(error_table({args.learner: model_errors(result.params, logs)}))
     elif all(tr.truth is None and tr.pose is not None and not tr.discrete for tr in logs):

@@ -59,9 +59,11 @@ def run(args) -> int:
 
     opts = em_options(args)
     start = EMLearner(opts).start_params(logs, None, make_batch(logs))
+    x = "d" if start.sensor.basis == "power" else "/d"
     print(f"EM from the paper's start (zero velocities, height = {start.sensor.coef[0]:g} "
-          f"{start.sensor.coef[1]:+g} d px): motion noise {'learned' if opts.learn_motion_noise else 'fixed'}, "
-          f"sensor step '{opts.sensor_method}', acceleration '{opts.accel}'")
+          f"{start.sensor.coef[1]:+g}{x} px, {opts.starts} start(s)): motion noise "
+          f"{'learned' if opts.learn_motion_noise else 'fixed'}, sensor step '{opts.sensor_method}', sensor basis "
+          f"'{start.sensor.basis}', acceleration '{opts.accel}'")
     progress = Progress("EM", every=50)
     t0 = time.perf_counter()
     em = fit_em(logs, opts, init=start, progress=progress, checkpoint_path=checkpoint_path(out / "model_em.json"))

@@ -24,6 +24,11 @@ from learners.model.model import Model
 #: chi-square 0.999 quantile (13.8): with the paper's very poor start that prunes ~12% of honest
 #: sightings and biases sigma_angle by ~20% (README, "Options").
 DEFAULT_GATE = 50.0
+#: Sensor curve degree per basis when ``EMOptions.degree`` is None: the paper's cubic in d; c0 + c1/d + c2/d^2.
+DEFAULT_DEGREE = {"power": 3, "inverse": 2}
+#: The sensor basis of a fresh start when ``EMOptions.basis`` is None, per sensor kind: a pinhole height
+#: is c1/d (README, "EM at the information bound"); a range is d.
+DEFAULT_BASIS = {"height_px": "inverse", "range_mm": "power"}
 
 
 @dataclass
@@ -36,18 +41,23 @@ class EMOptions:
     gate: float | None = DEFAULT_GATE  # first-iteration Mahalanobis^2 gate; None disables pruning
     sensor_method: str = "cubature"  # paper: "sample" (one draw per sighting); deterministic: "cubature"
     n_samples: int = 1  # paper: one sample per frame (method "sample")
-    degree: int = 3  # paper: cubic
+    basis: str | None = None  # sensor curve basis: "power" (paper) or "inverse"; None: --init's, else DEFAULT_BASIS
+    degree: int | None = None  # sensor curve degree; None: DEFAULT_DEGREE of the basis (paper: cubic)
     learn_motion_noise: bool = True  # paper: fixed Sigma_A (10 mm, 10 mm, 0.1 rad)
     estep: str = "compiled"  # "compiled" (numba) or "numpy" (the per-step reference)
     accel: str = "squarem"  # paper: "none"; "squarem": extrapolated EM with a monotone safeguard
     min_improvement: float = 0.1  # a new best must beat the old by this (nats); paper: any amount
+    starts: int = 3  # starts screened, the most likely continued (``learners.em.starts``); paper: 1
+    screen_iter: int = 30  # EM iterations each start runs before the most likely is chosen
+    uncertainty: bool = True  # standard errors from the Fisher information (``learners.em.uncertainty``)
     seed: int = 0
     frozen: tuple[str, ...] = ()  # effects held at their values (profile likelihood), by name
 
     @classmethod
     def paper(cls, **overrides) -> "EMOptions":
         """The paper's recipe: fixed motion noise, one sample per sighting, plain EM, strict stop rule."""
-        base = dict(sensor_method="sample", learn_motion_noise=False, accel="none", min_improvement=0.0)
+        base = dict(sensor_method="sample", learn_motion_noise=False, accel="none", min_improvement=0.0,
+                    basis="power", degree=3, starts=1)
         return cls(**{**base, **overrides})
 
     def validate(self) -> "EMOptions":
@@ -57,10 +67,21 @@ class EMOptions:
             raise ValueError(f"accel must be 'none' or 'squarem', got {self.accel!r}")
         if self.estep not in ("compiled", "numpy"):
             raise ValueError(f"estep must be 'compiled' or 'numpy', got {self.estep!r}")
-        for name in ("max_iter", "patience", "n_samples", "degree"):
-            if getattr(self, name) < 1:
+        if self.basis is not None and self.basis not in DEFAULT_DEGREE:
+            raise ValueError(f"basis must be 'power' or 'inverse', got {self.basis!r}")
+        for name in ("max_iter", "patience", "n_samples", "degree", "starts", "screen_iter"):
+            if getattr(self, name) is not None and getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         return self
+
+    def sensor_basis(self, kind: str = "height_px", init_basis: str | None = None) -> str:
+        """The basis of the fit: the option, else the start model's (``init_basis``), else DEFAULT_BASIS
+        of the sensor ``kind``."""
+        return self.basis or init_basis or DEFAULT_BASIS[kind]
+
+    def sensor_degree(self, basis: str) -> int:
+        """The curve's degree: the option, else DEFAULT_DEGREE of ``basis``."""
+        return self.degree if self.degree is not None else DEFAULT_DEGREE[basis]
 
 
 @dataclass
@@ -79,6 +100,7 @@ class EMState:
     converged: bool = False
     seconds: list[float] = field(default_factory=list)
     record_iteration: int = -1  # last iteration that beat the best by more than min_improvement
+    starts: list = field(default_factory=list)  # the screening report (``learners.em.starts``), JSON-able
 
 
 def e_step(params: Model, batch: Batch, estep: str, gate: float | None = None,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import time
 from dataclasses import replace
 
 import numpy as np
@@ -10,8 +11,10 @@ import numpy as np
 from aibo_core.trajectory import Trajectory
 from learners.base import IterationRecord, LearnResult, ProgressFn
 from learners.em import checkpoint
+from learners.em.accel import Packer
 from learners.em.fit import EMOptions, EMState, e_step, initial_state, options_json, run
 from learners.em.start import initial_state_for
+from learners.em.starts import disagreement, screen
 from learners.em.support import check_support, curve_warnings
 from learners.inference.batch import Batch, make_batch
 from learners.model.initial import DEFAULT_INITIAL
@@ -76,8 +79,10 @@ class EMLearner:
         if action_model == "features" and tr.discrete:
             raise ValueError("--action-model features needs continuous commands ('controls'); this log has "
                              "discrete actions (use --action-model table)")
-        start = init or start_model(batch, tr.dt, tr.sensor_kind, n_commands, names, fmap,
-                                    degree=self.options.degree).with_(init=tuple(initial_state_for(t) for t in logs))
+        basis = self.options.sensor_basis(tr.sensor_kind, init.sensor.basis if init else None)
+        degree = self.options.sensor_degree(basis)
+        start = init or start_model(batch, tr.dt, tr.sensor_kind, n_commands, names, fmap, basis,
+                                    degree).with_(init=tuple(initial_state_for(t) for t in logs))
         if tr.discrete and start.action.discrete and len(start.action.weights) != len(tr.attempted):
             raise ValueError(f"the start model has {len(start.action.weights)} commands, the log "
                              f"{len(tr.attempted)}")
@@ -85,7 +90,7 @@ class EMLearner:
             raise ValueError("the start model's action model does not fit this log's kind of commands")
         if start.sensor.kind != tr.sensor_kind:
             raise ValueError(f"the start model's sensor measures {start.sensor.kind}, the log {tr.sensor_kind}")
-        start = start.with_(sensor=start.sensor.with_degree(self.options.degree))
+        start = start.with_(sensor=start.sensor.in_basis(basis, degree))
         if len(start.init) != len(logs):
             start = replace(start, init=tuple(start.init[0] if len(start.init) == 1 else DEFAULT_INITIAL
                                               for _ in logs))
@@ -102,15 +107,17 @@ class EMLearner:
         start = self.start_params(logs, init, batch, action_model)
         undetermined = check_support(batch, start)
         fp = checkpoint.fingerprint(batch, start, options_json(self.options)) if self.checkpoint_path else ""
-        state = self._load_or_start(batch, start, fp)
-        resumed_from = state.iteration
         history: list[IterationRecord] = []
 
-        def on_iteration(st: EMState, params: Model, loglik: float) -> None:
-            rec = IterationRecord(st.iteration, loglik, st.seconds[-1], params)
-            history.append(rec)
+        def record(iteration: int, loglik: float, seconds: float, params: Model) -> None:
+            history.append(IterationRecord(iteration, loglik, seconds, params))
             if progress is not None:
-                progress(rec)
+                progress(history[-1])
+
+        state, resumed_from = self._load_or_start(batch, start, fp, record)
+
+        def on_iteration(st: EMState, params: Model, loglik: float) -> None:
+            record(st.iteration, loglik, st.seconds[-1], params)
 
         last_saved = [state.iteration]
 
@@ -127,23 +134,52 @@ class EMLearner:
                 "options": self.options.__dict__.copy()}
         info["off_field_fraction"] = self._check(batch.with_used(state.used), state.best, logs)
         info["undetermined"] = undetermined  # parameters the data did not determine (kept at their start)
-        info["warnings"] = curve_warnings(state.best) + (
+        if state.starts:
+            info["starts"] = state.starts
+        # E-steps of the whole fit: the winner's, and the other starts' screening
+        info["iterations_all_starts"] = state.iteration + sum(r["iterations"] for r in state.starts if not r.get("chosen"))
+        if self.options.uncertainty:
+            info.update(self._uncertainty(state.best, batch.with_used(state.used)))
+        info["warnings"] = curve_warnings(state.best) + ([disagreement(state.starts)] if disagreement(state.starts)
+                                                         else []) + (
             [f"{len(undetermined)} parameter(s) not determined by the data (e.g. {undetermined[0]}): kept at their "
              "start values"] if undetermined else [])
         return LearnResult("em", state.best, state.iteration, state.converged, list(state.loglik),
                            state.pruned, history, info)
+
+    def _uncertainty(self, best: Model, batch: Batch) -> dict:
+        """``standard_errors`` and ``information`` for the model file's info (module uncertainty)."""
+        from learners.em.uncertainty import parameter_uncertainty
+
+        t0, c0 = time.perf_counter(), time.process_time()
+        try:
+            unc = parameter_uncertainty(best, batch, Packer(self.options).fixed)
+        except (FloatingPointError, np.linalg.LinAlgError, ValueError) as exc:
+            return {"information": {"error": f"standard errors not computed: {str(exc)[:200]}"}}
+        return {"standard_errors": unc.standard_errors, "information": unc.summary(),
+                "uncertainty_seconds": time.perf_counter() - t0, "uncertainty_cpu_seconds": time.process_time() - c0}
 
     def discard_checkpoint(self) -> None:
         """Delete the checkpoint (call after the model is on disk)."""
         if self.checkpoint_path and os.path.exists(self.checkpoint_path):
             os.unlink(self.checkpoint_path)
 
-    def _load_or_start(self, batch: Batch, start: Model, fp: str) -> EMState:
+    def _load_or_start(self, batch: Batch, start: Model, fp: str, record) -> tuple[EMState, int]:
+        """(state to continue, iteration it was resumed from: 0 for a fresh start). A fresh start with
+        ``options.starts`` > 1 is the winner of the screening (``learners.em.starts``), whose iterations
+        are then passed to ``record(iteration, loglik, seconds, params)``."""
         if self.checkpoint_path and self.resume:
             saved = checkpoint.load(self.checkpoint_path, fp)
             if saved is not None:
-                return saved
-        return initial_state(start, batch, self.options)
+                return saved, saved.iteration
+        if self.options.starts > 1:
+            state, state.starts, iterations = screen(batch, start, self.options)
+            if self.checkpoint_path:  # the screening is saved: a resumed fit continues the winner
+                checkpoint.save(self.checkpoint_path, state, fp)
+            for it in iterations:
+                record(*it)
+            return state, 0
+        return initial_state(start, batch, self.options), 0
 
     def _check(self, batch: Batch, best: Model, logs: list[Trajectory]) -> float:
         post = e_step(best, batch, self.options.estep)

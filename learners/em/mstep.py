@@ -68,7 +68,8 @@ def maximize(model: Model, batch: Batch, post: Posterior, rng: np.random.Generat
             R = resid_cov(mu_star, pred if scale is None else pred * scale[:, None], lo.cov_scale)
         action = action.with_values(cov=_sym(C_sum * inv_n + R * inv_n))
     coef, sigma_size, sigma_bearing, drange = sensor_update(
-        lo, batch, post, rng, method=opts.sensor_method, n_samples=opts.n_samples, degree=opts.degree)
+        lo, batch, post, rng, method=opts.sensor_method, n_samples=opts.n_samples,
+        degree=len(model.sensor.coef) - 1)
     sensor = replace(model.sensor, coef=coef, sigma_size=sigma_size, sigma_bearing=sigma_bearing,
                      distance_range_mm=(float(drange[0]), float(drange[1])))
     first = batch.pose_start[:-1]

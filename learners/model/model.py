@@ -91,6 +91,10 @@ class Model:
         """The trainable parameters (except ``fixed``, dotted names) as one scaled, unconstrained vector."""
         return np.concatenate([comp.pack_param(pname) for _, _, pname, comp in self._slots(fixed)])
 
+    def packed_layout(self, fixed: frozenset[str] = frozenset()) -> list[tuple[str, str, int]]:
+        """(component, parameter, number of entries) of each block of ``pack(fixed)``, in order."""
+        return [(cname, pname, len(comp.pack_param(pname))) for _, cname, pname, comp in self._slots(fixed)]
+
     def unpack(self, x: np.ndarray, fixed: frozenset[str] = frozenset()) -> "Model":
         """Inverse of ``pack``: this model with the packed parameters read from ``x``."""
         new: dict[str, dict] = {}

@@ -108,6 +108,19 @@ class SensorModel(Component):
         coef[:2] = lines[(kind, basis)]
         return SensorModel(coef, 10.0 if kind == "height_px" else 100.0, 0.2, NODE_RANGE_MM, basis, kind)
 
+    def in_basis(self, basis: str, degree: int) -> "SensorModel":
+        """The same model with its curve in ``basis`` with degree + 1 coefficients: unchanged (zeros
+        appended, ``with_degree``) in its own basis; otherwise the least-squares fit of the curve over
+        its distance range (e.g. a cubic ``--init`` for an ``inverse`` fit)."""
+        if basis == self.basis:
+            return self.with_degree(degree)
+        from learners.inference.sensor_stats import fit_polynomial
+
+        d = np.linspace(*self.distance_range_mm, 200)
+        x = d if basis == "power" else 1.0 / d
+        coef = fit_polynomial(x, self.mean(d), np.ones(len(d)), degree)
+        return SensorModel(coef, self.sigma_size, self.sigma_bearing, self.distance_range_mm, basis, self.kind)
+
     def with_degree(self, degree: int) -> "SensorModel":
         """The same curve with degree + 1 coefficients (zeros appended; refuses to drop non-zero ones)."""
         coef = np.zeros(degree + 1)

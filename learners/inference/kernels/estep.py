@@ -144,10 +144,13 @@ def _smooth_kernel(
     frame_start, sight_start, disp, offset, cov_scale, sig_a, basis, coef, var_s, var_b,
     sight_xy, sight_value, used, size_scale, size_offset, size_var_factor, bearing_offset,
     init_mean, init_cov, use_gate, gate,
-    mu_alpha, cov_alpha, mu_gamma, cov_gamma, info_delta, vec_delta, mahal2, cos_th, sin_th,
+    mu_alpha, cov_alpha, mu_gamma, cov_gamma, info_delta, vec_delta, mahal2, cos_th, sin_th, innov, forward_only,
 ):  # fmt: skip
     """Returns (status, log index, frame index within the log, loglik).
-    cos_th, sin_th (n_poses,): scratch, cos/sin of mu_alpha[:, 2] (every pose but each log's last)."""
+    cos_th, sin_th (n_poses,): scratch, cos/sin of mu_alpha[:, 2] (every pose but each log's last).
+    innov: (S, 5) [v_size, v_bearing, S00, S01, S11] of each applied sighting (NaN otherwise) when it
+    has S rows (else (0, 5): not stored); forward_only: skip the backward pass (gamma, delta unset)."""
+    store = innov.shape[0] == mahal2.shape[0]
     sig = _sym(_ld33(sig_a.reshape(1, 3, 3), 0))
     iva = 1.0 / var_b
     loglik = 0.0
@@ -179,6 +182,8 @@ def _smooth_kernel(
             P = _add(_fpft_sym(P, fa, fb), _rot_sym(c, s, _scale_sym(cov_scale[i], sig)))  # P- = F P F^T + Q
             for q in range(sight_start[i], sight_start[i + 1]):
                 mahal2[q] = np.nan
+                if store:
+                    innov[q, :] = np.nan
                 if not used[q]:
                     continue
                 var_h = var_s * size_var_factor[q]
@@ -204,6 +209,8 @@ def _smooth_kernel(
                 if use_gate and m2v > gate:
                     continue
                 loglik += -0.5 * (m2v + math.log(det_s) + 2.0 * _LOG_2PI)
+                if store:
+                    innov[q, 0], innov[q, 1], innov[q, 2], innov[q, 3], innov[q, 4] = v0, v1, s00, s01, s11
                 # K = P- H^T S^-1 (columns k0, k1)
                 k0 = (ph0[0] * i00 + ph1[0] * i01, ph0[1] * i00 + ph1[1] * i01, ph0[2] * i00 + ph1[2] * i01)
                 k1 = (ph0[0] * i01 + ph1[0] * i11, ph0[1] * i01 + ph1[1] * i11, ph0[2] * i01 + ph1[2] * i11)
@@ -256,6 +263,8 @@ def _smooth_kernel(
                 _st3(vec_delta, i, _ZERO3)
 
         # ---------------- backward information filter + combination ----------------
+        if forward_only:
+            continue
         status, j = _backward_log(k, f0, ps, n, disp, offset, cov_scale, sig, mu_alpha, cov_alpha, mu_gamma,
                                   cov_gamma, info_delta, vec_delta, cos_th, sin_th)  # fmt: skip
         if status != _OK:
@@ -263,20 +272,12 @@ def _smooth_kernel(
     return _OK, -1, -1, loglik
 
 
-def smooth_compiled(lo: Lowered, batch: Batch, gate: float | None = None, out: Posterior | None = None) -> Posterior:
-    """Compiled E-step: forward EKF, backward information filter, combination (docs/em-math.md).
-
-    Same contract as ``learners.inference.reference.smooth``. ``out``: a Posterior of the same batch
-    whose arrays are overwritten and returned (the caller must no longer need it). ``gate``: a used
-    sighting whose mahal2 exceeds it is not applied (no update, no likelihood term, skipped by the
-    backward pass); its mahal2 is still stored so the caller can prune it (``used & (mahal2 > gate)``).
-    """
+def _inputs(lo: Lowered, batch: Batch, gate: float | None) -> tuple:
+    """The kernel's input arguments (checked, contiguous float64), up to and including the gate."""
     n_logs = batch.n_logs
     if len(lo.init_mean) != n_logs or len(lo.init_cov) != n_logs:
         raise ValueError(f"lowered model has {len(lo.init_mean)} initial states for {n_logs} logs")
-    n = batch.n_frames
-    n_s = batch.n_sightings
-    n_poses = n + n_logs
+    n, n_s = batch.n_frames, batch.n_sightings
     frame_start = np.ascontiguousarray(batch.frame_start, dtype=np.int64)
     sight_start = np.ascontiguousarray(batch.sight_start, dtype=np.int64)
     used = np.ascontiguousarray(batch.used, dtype=np.bool_)
@@ -287,6 +288,30 @@ def smooth_compiled(lo: Lowered, batch: Batch, gate: float | None = None, out: P
     coef = _f64(lo.coef).reshape(-1)
     if coef.size == 0:
         coef = np.zeros(1)
+    return (
+        frame_start, sight_start, _f64(lo.disp, (n, 3)), _f64(lo.offset, (n, 3)), _f64(lo.cov_scale, (n,)),
+        _f64(lo.cov, (3, 3)), int(lo.basis), coef, float(lo.sigma_size) ** 2, float(lo.sigma_bearing) ** 2,
+        _f64(batch.sight_xy, (n_s, 2)), _f64(batch.sight_value, (n_s, 2)), used,
+        _f64(lo.size_scale, (n_s,)), _f64(lo.size_offset, (n_s,)), _f64(lo.size_var_factor, (n_s,)),
+        _f64(lo.bearing_offset, (n_s,)), _f64(lo.init_mean, (n_logs, 3)), _f64(lo.init_cov, (n_logs, 3, 3)),
+        gate is not None, float(gate) if gate is not None else np.inf,
+    )  # fmt: skip
+
+
+_NO_INNOV = np.empty((0, 5))
+
+
+def smooth_compiled(lo: Lowered, batch: Batch, gate: float | None = None, out: Posterior | None = None) -> Posterior:
+    """Compiled E-step: forward EKF, backward information filter, combination (docs/em-math.md).
+
+    Same contract as ``learners.inference.reference.smooth``. ``out``: a Posterior of the same batch
+    whose arrays are overwritten and returned (the caller must no longer need it). ``gate``: a used
+    sighting whose mahal2 exceeds it is not applied (no update, no likelihood term, skipped by the
+    backward pass); its mahal2 is still stored so the caller can prune it (``used & (mahal2 > gate)``).
+    """
+    args = _inputs(lo, batch, gate)
+    n, n_s = batch.n_frames, batch.n_sightings
+    n_poses = n + batch.n_logs
     if out is not None and out.mu_alpha.shape == (n_poses, 3) and out.mahal2.shape == (n_s,) \
             and out.info_delta.shape == (n, 3, 3):
         # reuse the previous posterior's arrays: fresh 8 MB per call cost ~40% of the time (page faults)
@@ -304,15 +329,32 @@ def smooth_compiled(lo: Lowered, batch: Batch, gate: float | None = None, out: P
     cos_th = _scratch("estep_cos", (n_poses,))
     sin_th = _scratch("estep_sin", (n_poses,))
     status, k, j, loglik = _smooth_kernel(
-        frame_start, sight_start, _f64(lo.disp, (n, 3)), _f64(lo.offset, (n, 3)), _f64(lo.cov_scale, (n,)),
-        _f64(lo.cov, (3, 3)), int(lo.basis), coef, float(lo.sigma_size) ** 2, float(lo.sigma_bearing) ** 2,
-        _f64(batch.sight_xy, (n_s, 2)), _f64(batch.sight_value, (n_s, 2)), used,
-        _f64(lo.size_scale, (n_s,)), _f64(lo.size_offset, (n_s,)), _f64(lo.size_var_factor, (n_s,)),
-        _f64(lo.bearing_offset, (n_s,)), _f64(lo.init_mean, (n_logs, 3)), _f64(lo.init_cov, (n_logs, 3, 3)),
-        gate is not None, float(gate) if gate is not None else np.inf,
-        mu_alpha, cov_alpha, mu_gamma, cov_gamma, info_delta, vec_delta, mahal2, cos_th, sin_th,
-    )  # fmt: skip
+        *args, mu_alpha, cov_alpha, mu_gamma, cov_gamma, info_delta, vec_delta, mahal2, cos_th, sin_th,
+        _NO_INNOV, False)
     _raise(status, k, j, batch)
     if not math.isfinite(loglik):
         raise FloatingPointError("non-finite log-likelihood in the E-step")
     return Posterior(mu_alpha, cov_alpha, mu_gamma, cov_gamma, info_delta, vec_delta, float(loglik), mahal2)
+
+
+def innovations_compiled(lo: Lowered, batch: Batch, out: np.ndarray | None = None) -> tuple[float, np.ndarray]:
+    """The forward EKF alone (no gate): (loglik, (S, 5) [v_size, v_bearing (rad, wrapped), S00, S01, S11])
+    of every applied sighting (NaN rows for the others): the Gaussian innovations the likelihood is
+    made of, in the size unit (px or mm) and rad. ``out``: an (S, 5) array to fill and return."""
+    args = _inputs(lo, batch, None)
+    n, n_s = batch.n_frames, batch.n_sightings
+    n_poses = n + batch.n_logs
+    innov = out if out is not None and out.shape == (n_s, 5) else np.empty((n_s, 5))
+    mu_alpha = _scratch("innov_mu", (n_poses, 3))
+    cov_alpha = _scratch("innov_cov", (n_poses, 3, 3))
+    info_delta = _scratch("innov_info", (n, 3, 3))
+    vec_delta = _scratch("innov_vec", (n, 3))
+    mahal2 = _scratch("innov_m2", (n_s,))
+    cos_th = _scratch("estep_cos", (n_poses,))
+    sin_th = _scratch("estep_sin", (n_poses,))
+    status, k, j, loglik = _smooth_kernel(
+        *args, mu_alpha, cov_alpha, mu_alpha, cov_alpha, info_delta, vec_delta, mahal2, cos_th, sin_th, innov, True)
+    _raise(status, k, j, batch)
+    if not math.isfinite(loglik):
+        raise FloatingPointError("non-finite log-likelihood in the forward filter")
+    return float(loglik), innov

@@ -1,0 +1,267 @@
+"""Standard errors of the learned parameters: the Fisher information of the filter's innovations.
+
+The likelihood EM maximizes is the EKF's: log p(O | theta) = sum over applied sightings j of
+log N(v_j; 0, S_j), v_j the innovation (size, bearing) and S_j its predictive covariance
+(docs/em-math.md). Its Fisher information is (e.g. Cavanaugh & Shumway 1996)
+
+    I_kl = sum_j  dv_j/dk^T S_j^-1 dv_j/dl  +  1/2 tr(S_j^-1 dS_j/dk S_j^-1 dS_j/dl),
+
+with the derivatives taken through the whole forward filter. They are taken here by forward
+differences of the compiled forward pass (``innovations_compiled``), one pass per parameter:
+about p passes of ~4 ms on 27,000 frames (p ~ 135 for the paper's model). The
+covariance of the estimate is I^-1 (Cramer-Rao); it is mapped to the model file's units by the
+delta method (the Jacobian of the file's numbers with respect to the packed parameters).
+
+Parameters: every trainable parameter in ``Model.pack`` (velocities, the sensor curve as its
+values at fixed distances, log sigmas, the log-Cholesky factor of Sigma_A unless fixed, effects)
+and each log's initial pose mean (``init.mean``; the initial covariance is held fixed). A parameter that no
+sighting depends on (a command never executed) is undetermined: left out, its error ``None``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from learners.inference.batch import Batch
+from learners.inference.kernels import innovations_compiled
+from learners.model.io import model_to_json
+from learners.model.model import Model
+from learners.model.sensor import curve_nodes
+
+#: Forward-difference step in the packed units (one unit ~ one noise width: 10 mm/frame, 1 px, ...);
+#: a negative step asks for central differences (twice the passes; the tests compare the two).
+STEP = 1e-5
+#: Initial pose means enter the packed vector divided by these (mm, mm, rad), like InitialState's scale.
+INIT_SCALE = np.array([100.0, 100.0, 0.1])
+#: Model-file numbers that are not parameters.
+NOT_PARAMETERS = {"dt", "distance_range_mm"}
+
+
+@dataclass
+class Uncertainty:
+    """Standard errors (model-file keys and units) and the information behind them."""
+
+    standard_errors: dict[str, Any]  # file key -> SE with the file entry's shape; None where undetermined
+    names: list[str]  # the free coordinates of the packed vector
+    information: np.ndarray  # (p, p) Fisher information over ``names`` (packed units)
+    covariance: np.ndarray  # (p, p) its inverse
+    min_eigenvalue: float  # smallest eigenvalue of the correlation form of I (1 = orthogonal, 0 = singular)
+    condition_number: float  # of the correlation form of I
+    weakest: list[str]  # coordinates carrying most of the weakest direction
+    undetermined: list[str]  # coordinates no sighting depends on
+    newton_decrement: float  # sqrt(g^T I^-1 g): distance to the likelihood's optimum in standard errors
+
+    def summary(self) -> dict[str, Any]:
+        """The JSON-ready part for a model file's ``info``."""
+        return {"method": "Fisher information of the EKF innovations (finite differences)",
+                "parameters": len(self.names), "min_eigenvalue": self.min_eigenvalue,
+                "condition_number": self.condition_number if math.isfinite(self.condition_number) else None,
+                "weakest_direction": self.weakest,
+                "undetermined": self.undetermined, "newton_decrement": self.newton_decrement}
+
+
+# ---------------------------------------------------------------------------------------------- coordinates
+def _coordinate_names(model: Model, fixed: frozenset[str]) -> list[str]:
+    """One name per entry of ``pack(fixed)`` followed by the initial pose means."""
+    names: list[str] = []
+    for cname, pname, n in model.packed_layout(fixed):
+        key = f"{cname}.{pname}"
+        if key == "action.weights":
+            label = "velocities" if model.action.discrete else "weights"
+            names += [f"action_model.{label}[{i // 3}][{i % 3}]" for i in range(n)]
+        elif key == "sensor.coef":
+            names += [f"sensor_model.curve_at_{d:.0f}mm" for d in curve_nodes(n)]
+        elif key == "sensor.sigma_size":
+            names.append("sensor_model.sigma_height" if model.sensor.kind == "height_px" else "sensor_model.sigma_range_mm")
+        elif key == "sensor.sigma_bearing":
+            names.append("sensor_model.sigma_angle")
+        elif key == "action.cov":
+            names += [f"action_model.motion_cov.logchol[{i}]" for i in range(n)]
+        else:
+            names += [f"{key}[{i}]" for i in range(n)]
+    for k in range(_n_init(model, fixed)):
+        names += [f"initial_state.{k}.mean[{i}]" for i in range(3)]
+    return names
+
+
+def _n_init(model: Model, fixed: frozenset[str]) -> int:
+    """Number of initial pose means among the coordinates (none if ``init.mean`` is fixed)."""
+    return 0 if "init.mean" in fixed else len(model.init)
+
+
+def _packed(model: Model, fixed: frozenset[str]) -> np.ndarray:
+    means = [s.mean / INIT_SCALE for s in model.init[: _n_init(model, fixed)]]
+    return np.concatenate([model.pack(fixed), *means])
+
+
+def file_values(model: Model) -> dict[str, np.ndarray]:
+    """The model file's parameter numbers by dotted key (``action_model.velocities``, ``sensor_model.coef``,
+    ``effects.<name>.<parameter>``, ``initial_state.<k>.mean``), in the file's units."""
+    doc = model_to_json(model)
+    out = {}
+    for section in ("action_model", "sensor_model"):
+        for key, value in doc[section].items():
+            if key not in NOT_PARAMETERS and not isinstance(value, str) and key != "control_names":
+                out[f"{section}.{key}"] = np.asarray(value, dtype=float)
+    for e in doc["effects"]:
+        out.update({f"effects.{e['name']}.{k}": np.asarray(v, dtype=float) for k, v in e["parameters"].items()})
+    for k, s in enumerate(doc["initial_state"]):
+        out[f"initial_state.{k}.mean"] = np.asarray(s["mean"], dtype=float)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------- information
+def _whiten(S: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cholesky factor C (S = C C^T) of each 2x2 [S00, S01, S11]: (c00, c10, c11)."""
+    c00 = np.sqrt(S[:, 0])
+    c10 = S[:, 1] / c00
+    return c00, c10, np.sqrt(S[:, 2] - c10 * c10)
+
+
+def _solve(c, a0: np.ndarray, a1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """C^-1 (a0, a1) for lower-triangular C = (c00, c10, c11)."""
+    w0 = a0 / c[0]
+    return w0, (a1 - c[1] * w0) / c[2]
+
+
+def _columns(dv: np.ndarray, dS: np.ndarray, c) -> np.ndarray:
+    """(n, 5) rows whose Gram sum is the information: C^-1 dv and 1/sqrt(2) C^-1 dS C^-T (symmetric,
+    off-diagonal counted twice)."""
+    w0, w1 = _solve(c, dv[:, 0], dv[:, 1])
+    n0, n1 = _solve(c, dS[:, 0], dS[:, 1])  # first column of C^-1 dS
+    m0, m1 = _solve(c, dS[:, 1], dS[:, 2])  # second column
+    a00, a01 = _solve(c, n0, m0)  # C^-1 (C^-1 dS)^T: rows of the whitened matrix
+    _, a11 = _solve(c, n1, m1)
+    h = math.sqrt(0.5)
+    return np.stack([w0, w1, h * a00, a01, h * a11], axis=1)
+
+
+class _Perturber:
+    """Models with one packed coordinate moved: only the block holding it is unpacked again (the
+    sensor curve's unpacking is a least-squares fit; doing all of them per coordinate cost ~1 s)."""
+
+    def __init__(self, model: Model, x0: np.ndarray, fixed: frozenset[str]):
+        self.model, self.x0, self.fixed = model, x0, fixed
+        self.blocks: list[tuple[str, str, int, int]] = []  # (component, parameter, start, stop)
+        at = 0
+        for cname, pname, n in model.packed_layout(fixed):
+            self.blocks.append((cname, pname, at, at + n))
+            at += n
+        self.blocks += [("init", str(k), at + 3 * k, at + 3 * k + 3) for k in range(_n_init(model, fixed))]
+
+    def moved(self, k: int, delta: float) -> Model:
+        cname, pname, a, b = next(blk for blk in self.blocks if blk[2] <= k < blk[3])
+        x = self.x0[a:b].copy()
+        x[k - a] += delta
+        m = self.model
+        if cname == "init":
+            i = int(pname)
+            init = list(m.init)
+            init[i] = replace(init[i], mean=x * INIT_SCALE)
+            return m.with_(init=tuple(init))
+        comp = dict(m.components())[cname]
+        value, _ = comp.unpack_param(pname, x)
+        new = comp.with_values(**{pname: value})
+        return m.with_effect(new) if cname.startswith("effects.") else replace(m, **{cname: new})
+
+
+def _derivatives(model: Model, batch: Batch, x0: np.ndarray, fixed: frozenset[str], rows: np.ndarray,
+                 step: float) -> tuple[np.ndarray, np.ndarray]:
+    """(G (p, n, 5) whitened derivatives, score (p,) = d loglik / dx) by differences of step ``step``
+    (> 0: forward, one pass per coordinate; < 0: central, two)."""
+    ll0, innov0 = innovations_compiled(model.lower(batch), batch)
+    base = innov0[rows]
+    c = _whiten(base[:, 2:])
+    G = np.empty((len(x0), len(rows), 5))
+    score = np.empty(len(x0))
+    plus = np.empty_like(innov0)
+    minus = np.empty_like(innov0)
+    perturb = _Perturber(model, x0, fixed)
+    h = abs(step)
+    for k in range(len(x0)):
+        llp, _ = innovations_compiled(perturb.moved(k, h).lower(batch), batch, out=plus)
+        if step < 0:
+            llm, _ = innovations_compiled(perturb.moved(k, -h).lower(batch), batch, out=minus)
+            lo, span = minus[rows], 2 * h
+        else:
+            llm, lo, span = ll0, base, h
+        d = (plus[rows] - lo) / span
+        d[:, 1] = np.angle(np.exp(1j * (plus[rows, 1] - lo[:, 1]))) / span  # bearings: wrapped difference
+        G[k] = _columns(d[:, :2], d[:, 2:], c)
+        score[k] = (llp - llm) / span
+    return G, score
+
+
+def _gram(G: np.ndarray) -> np.ndarray:
+    """The sum over sightings and rows of G G^T: (p, p)."""
+    flat = G.reshape(len(G), -1)
+    return flat @ flat.T
+
+
+# ---------------------------------------------------------------------------------------------- errors
+def _file_jacobian(model: Model, x0: np.ndarray, fixed: frozenset[str], step: float = 1e-6) -> dict[str, np.ndarray]:
+    """d file_values / dx (key -> (entries, p)) by central differences (no E-step: cheap)."""
+    cols: dict[str, list[np.ndarray]] = {}
+    perturb = _Perturber(model, x0, fixed)
+    for k in range(len(x0)):
+        plus = file_values(perturb.moved(k, step))
+        minus = file_values(perturb.moved(k, -step))
+        for key in plus:
+            cols.setdefault(key, []).append(np.ravel(plus[key] - minus[key]) / (2 * step))
+    return {key: np.stack(c, axis=1) for key, c in cols.items()}
+
+
+def _errors(jac: dict[str, np.ndarray], shapes: dict[str, tuple], free: np.ndarray, cov: np.ndarray) -> dict[str, Any]:
+    """SE per file key (nested lists like the file; None for entries depending on an undetermined
+    coordinate); keys no coordinate moves (fixed parameters) are left out."""
+    out = {}
+    for key, J in jac.items():
+        moved = np.abs(J) > 1e-12 * max(1.0, float(np.abs(J).max(initial=0.0)))
+        if not moved.any():
+            continue
+        var = np.einsum("ik,kl,il->i", J[:, free], cov, J[:, free])
+        se = np.sqrt(np.maximum(var, 0.0))
+        se_list = [None if moved[i, ~free].any() else float(se[i]) for i in range(len(se))]
+        out[key] = np.array(se_list, dtype=object).reshape(shapes[key]).tolist() if shapes[key] else se_list[0]
+    return out
+
+
+def _spectrum(info: np.ndarray, names: list[str]) -> tuple[float, float, list[str]]:
+    """(smallest eigenvalue, condition number) of the correlation form D^-1/2 I D^-1/2, and the
+    names carrying most (>= 10% of the squared weight) of its weakest direction."""
+    d = 1.0 / np.sqrt(np.diag(info))
+    w, V = np.linalg.eigh(info * np.outer(d, d))
+    lo = max(float(w[0]), 0.0)
+    v = V[:, 0] ** 2
+    weakest = [names[i] for i in np.argsort(-v)[:5] if v[i] >= 0.1]
+    return lo, float(w[-1] / lo) if lo > 0 else math.inf, weakest
+
+
+def parameter_uncertainty(model: Model, batch: Batch, fixed: frozenset[str] = frozenset(),
+                          step: float = STEP) -> Uncertainty:
+    """Standard errors of every learned parameter of ``model`` (usually EM's estimate) on ``batch``
+    (the fit's sightings, pruned ones excluded), from the Fisher information of the EKF innovations
+    (module docstring). ``fixed``: dotted parameter names held fixed (e.g. ``action.cov`` when the motion
+    noise is not learned; ``init.mean``: the initial poses)."""
+    x0 = _packed(model, fixed)
+    names = _coordinate_names(model, fixed)
+    rows = np.flatnonzero(batch.used)
+    G, score = _derivatives(model, batch, x0, fixed, rows, step)
+    info_all = _gram(G)
+    diag = np.diag(info_all)
+    free = diag > 1e-12 * diag.max()
+    info = info_all[np.ix_(free, free)]
+    free_names = [n for n, f in zip(names, free) if f]
+    lo, cond, weakest = _spectrum(info, free_names)
+    cov = np.linalg.pinv(info, hermitian=True) if cond > 1e14 else np.linalg.inv(info)
+    cov = 0.5 * (cov + cov.T)
+    g = score[free]
+    newton = float(np.sqrt(max(g @ cov @ g, 0.0)))
+    shapes = {k: v.shape for k, v in file_values(model).items()}
+    errors = _errors(_file_jacobian(model, x0, fixed), shapes, free, cov)
+    return Uncertainty(errors, free_names, info, cov, lo, cond, weakest, [n for n, f in zip(names, free) if not f],
+                       newton)
