@@ -132,7 +132,11 @@ def try_candidate(name: str, base: Model, base_ll: float, base_heldout: float, t
 
 
 def _job(args: tuple) -> Candidate:
-    return try_candidate(*args)
+    """One candidate; a fit that fails numerically is reported (not significant) instead of ending the search."""
+    try:
+        return try_candidate(*args)
+    except (FloatingPointError, np.linalg.LinAlgError, ValueError) as err:
+        return Candidate(args[0], {}, 0.0, 0.0, 0, 1.0, note=f"fit failed: {err}")
 
 
 def drop_outliers(model: Model, logs: list[Trajectory]) -> tuple[list[Trajectory], int]:

@@ -49,9 +49,10 @@ from learners.model.parameters import Param
 if TYPE_CHECKING:
     from learners.model.model import Model
 
-W_FLOOR = 1e-6  # false_sightings: responsibilities floored here (size variance x 1e6 at most)
+W_FLOOR = 1e-4  # false_sightings: responsibilities floored here (variances x 1e4 at most: no information left)
 MAX_RATE = 0.5  # false_sightings: as the simulator's bound
 START_RATE = 0.05  # false_sightings: EM cannot leave rate 0 (every w is 1 there)
+INNER = 10  # false_sightings: mixture EM iterations (w, rate, sigmas) per M-step at the fixed smoothed path
 
 
 def _sighting_key(batch: Batch) -> tuple:
@@ -117,30 +118,32 @@ class FalseSightings(EffectModel):
     def maximize(self, model: "Model", batch: Batch, post: Posterior, mu_star: np.ndarray) -> "Model":
         """Responsibilities at the smoothed path: w = (1 - rate) N(z; h(mu), H Sigma H^T + R) / (that + rate u)
         (R without this effect's inflation), rate = mean(1 - w); sigma_size^2 = sum w (r^2 + H Sigma H^T) / vf /
-        sum w and sigma_bearing^2 likewise (first order: the sensor M-step weighs every bearing alike)."""
+        sum w and sigma_bearing^2 likewise (first order; the sensor M-step's sigmas are not the mixture's),
+        iterated ``INNER`` times at the fixed path."""
         others = replace(model, effects=tuple(e for e in model.effects if e.name != self.name))
         lo0 = others.lower(batch)
         log_u = self.log_u if self.log_u is not None else spurious_log_density(batch)
         idx = np.flatnonzero(batch.used)
         pose = batch.sight_pose[idx]
-        h, H, rd = sighting_model(lo0, post.mu_gamma[pose], batch.sight_xy[idx], idx)
+        h, H, _ = sighting_model(lo0, post.mu_gamma[pose], batch.sight_xy[idx], idx)
         hph = H @ post.cov_gamma[pose] @ np.swapaxes(H, 1, 2)
-        S = hph.copy()
-        S[:, 0, 0] += rd[:, 0]
-        S[:, 1, 1] += rd[:, 1]
         v = batch.sight_value[idx] - h
         v[:, 1] = wrap(v[:, 1])
-        det = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] ** 2
-        m2 = (S[:, 1, 1] * v[:, 0] ** 2 - 2 * S[:, 0, 1] * v[:, 0] * v[:, 1] + S[:, 0, 0] * v[:, 1] ** 2) / det
-        log_n = -0.5 * (m2 + np.log(det)) - math.log(2.0 * math.pi)
+        vf, bvf = lo0.size_var_factor[idx], lo0.bearing_var_factor[idx]
+        var_s, var_b = lo0.sigma_size**2, lo0.sigma_bearing**2
         r = self._rate()
-        a, b = math.log1p(-r) + log_n, math.log(r) + log_u
-        w = np.exp(a - np.logaddexp(a, b))
-        rate = float(np.clip(np.mean(1.0 - w), W_FLOOR, MAX_RATE))
-        ws = float(w.sum())
-        vf = lo0.size_var_factor[idx]
-        var_s = float(np.sum(w * (v[:, 0] ** 2 + hph[:, 0, 0]) / vf) / ws)
-        var_b = float(np.sum(w * (v[:, 1] ** 2 + hph[:, 1, 1])) / ws)
+        for _ in range(INNER):  # the mixture's EM at the fixed path (the path-only part converges slowly)
+            s00, s11, s01 = hph[:, 0, 0] + var_s * vf, hph[:, 1, 1] + var_b * bvf, hph[:, 0, 1]
+            det = s00 * s11 - s01 ** 2
+            m2 = (s11 * v[:, 0] ** 2 - 2 * s01 * v[:, 0] * v[:, 1] + s00 * v[:, 1] ** 2) / det
+            a = math.log1p(-r) - 0.5 * (m2 + np.log(det)) - math.log(2.0 * math.pi)
+            b = math.log(r) + log_u
+            w = np.exp(a - np.logaddexp(a, b))
+            r = float(np.clip(np.mean(1.0 - w), W_FLOOR, MAX_RATE))
+            ws = float(w.sum())
+            var_s = float(np.sum(w * (v[:, 0] ** 2 + hph[:, 0, 0]) / vf) / ws)
+            var_b = float(np.sum(w * (v[:, 1] ** 2 + hph[:, 1, 1]) / bvf) / ws)
+        rate = r
         w_all = np.ones(batch.n_sightings)
         w_all[idx] = w
         sensor = replace(model.sensor, sigma_size=math.sqrt(var_s), sigma_bearing=math.sqrt(var_b))

@@ -310,7 +310,8 @@ def smooth_compiled(lo: Lowered, batch: Batch, gate: float | None = None, out: P
         _f64(lo.cov, (3, 3)), int(lo.basis), coef, float(lo.sigma_size) ** 2, float(lo.sigma_bearing) ** 2,
         _f64(batch.sight_xy, (n_s, 2)), _f64(batch.sight_value, (n_s, 2)), used,
         _f64(lo.size_scale, (n_s,)), _f64(lo.size_offset, (n_s,)), _f64(lo.size_var_factor, (n_s,)),
-        _f64(lo.bearing_offset, (n_s,)), _f64(lo.bearing_var_factor, (n_s,)), _f64(lo.init_mean, (n_logs, 3)), _f64(lo.init_cov, (n_logs, 3, 3)),
+        _f64(lo.bearing_offset, (n_s,)), _f64(lo.bearing_var_factor, (n_s,)),
+        _f64(lo.init_mean, (n_logs, 3)), _f64(lo.init_cov, (n_logs, 3, 3)),
         gate is not None, float(gate) if gate is not None else np.inf,
         mu_alpha, cov_alpha, mu_gamma, cov_gamma, info_delta, vec_delta, mahal2, cos_th, sin_th,
     )  # fmt: skip
