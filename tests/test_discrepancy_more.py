@@ -70,7 +70,7 @@ def test_diagnose_names_false_sightings(tmp_path):
     assert report["gap_after"] < report["gap_before"]
 
 
-RATE_TOL = 0.1  # measured: see README-less report of branch d9 (EM of the mixture converges slowly)
+RATE_TOL = 0.09  # measured 0.169 for 0.1 (seed 11): biased high, the mixture EM converges slowly from the base fit
 
 
 @pytest.mark.slow
