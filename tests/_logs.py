@@ -24,3 +24,22 @@ def frame_view(tr):
     obs[tr.sighting_frame] = tr.sighting_value
     beacon[tr.sighting_frame] = tr.sighting_landmark
     return obs, beacon
+
+
+def diagnose(tmp_path, tr, candidates: str, jobs: int = 2) -> dict:
+    """``aibo diagnose`` on the blinded log ``tr`` (saved under ``tmp_path``): its report.json, after
+    checking that every output file was written."""
+    import json
+
+    from aibo.cli import main
+    from aibo_core.trajectory import blind, save
+
+    log = tmp_path / "log.npz"
+    save(blind(tr), log)
+    out = tmp_path / "diag"
+    assert main(["diagnose", str(log), "--out", str(out), "--candidates", candidates, "--jobs", str(jobs)]) == 0
+    report = json.loads((out / "report.json").read_text())
+    for name in ("model.json", "report.html", "signatures.png", "gap.png"):
+        assert (out / name).stat().st_size > 0
+    assert "data:image/png;base64," in (out / "report.html").read_text()
+    return report

@@ -17,7 +17,7 @@ from learners.discrepancy.split import heldout_mask, training_log
 from learners.em.fit import EMOptions, e_step
 from learners.em.learner import EMLearner
 from learners.inference.batch import make_batch
-from tests._logs import sim_log
+from tests._logs import diagnose, sim_log
 
 
 def test_predictive_densities_sum_to_the_e_step_likelihood():
@@ -49,15 +49,7 @@ def test_floor_drift_shows_in_the_motion_residuals_against_heading():
 
 
 def _diagnose(tmp_path, effects: dict, candidates: str, seed: int = 11, steps: int = 12000) -> dict:
-    log = tmp_path / "log.npz"
-    save(blind(collect({"noise": "aibo", "effects": effects}, steps, seed=seed)), log)
-    out = tmp_path / "diag"
-    assert main(["diagnose", str(log), "--out", str(out), "--candidates", candidates, "--jobs", "2"]) == 0
-    report = json.loads((out / "report.json").read_text())
-    for name in ("model.json", "report.html", "signatures.png", "gap.png"):
-        assert (out / name).stat().st_size > 0
-    assert "data:image/png;base64," in (out / "report.html").read_text()
-    return report
+    return diagnose(tmp_path, collect({"noise": "aibo", "effects": effects}, steps, seed=seed), candidates)
 
 
 def _normalized(scale):

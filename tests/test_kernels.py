@@ -54,7 +54,7 @@ def _h(lo, q, mu, b):
     sc = lo.size_scale[q]
     H = np.array([[-sc * fp * dx / d, -sc * fp * dy / d, 0.0], [dy / qq, -dx / qq, -1.0]])
     h = np.array([sc * f + lo.size_offset[q], math.atan2(dy, dx) - mu[2] + lo.bearing_offset[q]])
-    Ro = np.diag([lo.sigma_size**2 * lo.size_var_factor[q], lo.sigma_bearing**2])
+    Ro = np.diag([lo.sigma_size**2 * lo.size_var_factor[q], lo.sigma_bearing**2 * lo.bearing_var_factor[q]])
     return h, H, Ro
 
 
@@ -443,3 +443,20 @@ def test_sensor_update_errors_like_reference():
     for fn in (sensor_update_compiled, sensor_stats.update_sensor_curve):
         with pytest.raises(ValueError, match="need at least"):
             fn(lo, few, post, np.random.default_rng(0), "sample")
+
+
+@pytest.mark.parametrize("gate", [None, GATE])
+def test_bearing_var_factor_in_both_e_steps_and_sensor_updates(gate):
+    """A per-sighting bearing variance factor (``false_sightings`` inflates it by 1/responsibility):
+    compiled == spec == reference, it changes the answer, and the sensor M-steps agree."""
+    lo, batch, _ = case("effects")
+    rng = np.random.default_rng(5)
+    lo = replace(lo, bearing_var_factor=np.where(rng.random(batch.n_sightings) < 0.1, 1e4, rng.uniform(0.5, 3.0, batch.n_sightings)))
+    got = smooth_compiled(lo, batch, gate)
+    spec = _spec_smooth(lo, batch, gate)
+    _compare_posteriors(got, spec)
+    _compare_posteriors(smooth(lo, batch, gate), spec)
+    plain = smooth_compiled(replace(lo, bearing_var_factor=None), batch, gate)
+    assert np.abs(plain.mu_gamma - got.mu_gamma).max() > 1e-3 and abs(plain.loglik - got.loglik) > 1e-3
+    for method in ("cubature", "sample"):
+        _assert_sensor_close(*_sensor_pair(lo, batch.with_used(batch.used & ~(got.mahal2 > GATE)), got, method))

@@ -8,18 +8,16 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
-from aibo_core import geometry
 from aibo_core.trajectory import Trajectory
 from learners.em.fit import DEFAULT_GATE, e_step
-from learners.inference.batch import Batch, make_batch
-from learners.inference.lowered import Lowered
-from learners.inference.posterior import Posterior
-from learners.inference.reference import AIBO_ANGLE_MASK, ekf_innovation, ekf_update, sighting_model
+from learners.inference.batch import make_batch
+from learners.inference.predictive import predictive_logdens, sightings_logdens
 from learners.model.model import Model
 
 from .split import heldout_mask
 
 GAP_METRIC = "heldout_nll_per_sighting"
+__all__ = ["GAP_METRIC", "Score", "predictive_logdens", "score"]
 
 
 @dataclass
@@ -38,37 +36,6 @@ class Score:
         return {k: float(v) for k, v in self.__dict__.items() if k != "nis"}
 
 
-def predictive_logdens(lo: Lowered, batch: Batch, post: Posterior, idx: np.ndarray) -> np.ndarray:
-    """log N(z_j; h(m-), H P- H^T + R) of sightings ``idx``: the one-step predictive density the forward
-    filter gave each, from the filtered belief at the start of its frame (mu_alpha, cov_alpha), the
-    motion of the frame, and the frame's earlier sightings applied in order (as the E-step does)."""
-    out = np.empty(len(idx))
-    frame = batch.sight_frame[idx]
-    first = batch.sight_start[frame]
-    p = batch.frame_to_pose[frame]
-    g, F, R3 = geometry.motion(post.mu_alpha[p], lo.disp[frame])
-    m = g + lo.offset[frame]
-    P = F @ post.cov_alpha[p] @ np.swapaxes(F, 1, 2) + lo.cov_scale[frame, None, None] * (R3 @ lo.cov @ np.swapaxes(R3, 1, 2))
-    for k, j in enumerate(idx):
-        mk, Pk = m[k], P[k]
-        for e in range(first[k], j):  # earlier sightings of the same frame (rare): applied first
-            if batch.used[e]:
-                h, H, rd = sighting_model(lo, mk[None], batch.sight_xy[e:e + 1], np.array([e]))
-                v, S = ekf_innovation(Pk, h[0], H[0], np.diag(rd[0]), batch.sight_value[e], AIBO_ANGLE_MASK)
-                mk, Pk = ekf_update(mk, Pk, H[0], np.diag(rd[0]), v, S)
-        m[k], P[k] = mk, Pk
-    h, H, rd = sighting_model(lo, m, batch.sight_xy[idx], idx)
-    S = H @ P @ np.swapaxes(H, 1, 2)
-    S[:, 0, 0] += rd[:, 0]
-    S[:, 1, 1] += rd[:, 1]
-    v = batch.sight_value[idx] - h
-    v[:, 1] = geometry.wrap(v[:, 1])
-    det = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
-    m2 = (S[:, 1, 1] * v[:, 0] ** 2 - 2 * S[:, 0, 1] * v[:, 0] * v[:, 1] + S[:, 0, 0] * v[:, 1] ** 2) / det
-    out[:] = -0.5 * (m2 + np.log(det) + 2.0 * np.log(2.0 * np.pi))
-    return out
-
-
 def score(model: Model, logs: list[Trajectory], gate: float | None = None) -> Score:
     """The held-out one-step predictive log-likelihood: the sum, over the held-out sightings, of the
     log density the forward filter (run over all sightings, the model fitted on the training half)
@@ -79,7 +46,7 @@ def score(model: Model, logs: list[Trajectory], gate: float | None = None) -> Sc
     post_all = e_step(model, batch, "compiled", gate)
     nis = np.array(post_all.mahal2, copy=True)
     idx = np.flatnonzero(held & batch.used & ~(nis > (gate if gate is not None else np.inf)))
-    heldout = float(np.sum(predictive_logdens(model.lower(batch), batch, post_all, idx)))
+    heldout = float(np.sum(sightings_logdens(model, batch, post_all, idx)))
     n = len(idx)
     ok = np.isfinite(nis) & (nis <= DEFAULT_GATE)
     lo, hi = stats.chi2.ppf([0.025, 0.975], 2)

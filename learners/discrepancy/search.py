@@ -4,6 +4,10 @@ the best significant one is added and the search repeats until nothing is signif
 
 Significance: a likelihood-ratio test on the training fit, 2 (l1 - l0) against chi-square(k), at a
 false-alarm level ``ALPHA`` per round shared by the candidates (Bonferroni), AND a held-out gain.
+An effect with no free parameters (dof 0, ``wall_contact``: its per-frame contacts are read off the
+smoothed path, nothing is estimated) has no likelihood-ratio test: it is significant when BOTH its
+training and its held-out gains exceed ``ZERO_DOF_NATS`` (its p-value is reported as if it had one
+dof, for reference only). Where the effect does nothing (no contact frames) both gains are exactly 0.
 Identifiability: a candidate that is not significant is refitted with its parameter frozen at a
 plausible strength (``PROBE``); if the likelihood does not drop by ``FLAT_NATS``, the data cannot
 tell the effect from the base model (a flat profile) and it is reported as not identifiable.
@@ -32,6 +36,7 @@ from .split import training_log
 ALPHA = 0.01  # false-alarm level of one round of the search (all candidates together)
 FLAT_NATS = 2.0  # a frozen probe within this many nats of the free fit: a flat profile
 MAX_ROUNDS = 3
+ZERO_DOF_NATS = 3.0  # a zero-parameter effect must gain this much, on the training AND the held-out half
 
 #: A plausible strength per effect (in its units): the identifiability probe moves the estimate by it.
 PROBE: dict[str, dict[str, Any]] = {
@@ -109,7 +114,10 @@ def try_candidate(name: str, base: Model, base_ll: float, base_heldout: float, t
     p = float(stats.chi2.sf(2.0 * gain, max(dof, 1)))
     heldout = score(model, logs).heldout_loglik - base_heldout
     c = Candidate(name, model.effect(name).values(), gain, heldout, dof, p, model=model)
-    c.significant = p < ALPHA / max(n_candidates, 1) and heldout > 0
+    if dof == 0:
+        c.significant = gain > ZERO_DOF_NATS and heldout > ZERO_DOF_NATS
+    else:
+        c.significant = p < ALPHA / max(n_candidates, 1) and heldout > 0
     if not c.significant and name in PROBE and not cls.GRID:
         shifted = {k: np.asarray(v) + np.asarray(model.effect(name).values()[k]) for k, v in PROBE[name].items()}
         probe = model.with_effect(_with(model.effect(name), shifted))  # the estimate moved by a plausible step
@@ -124,7 +132,11 @@ def try_candidate(name: str, base: Model, base_ll: float, base_heldout: float, t
 
 
 def _job(args: tuple) -> Candidate:
-    return try_candidate(*args)
+    """One candidate; a fit that fails numerically is reported (not significant) instead of ending the search."""
+    try:
+        return try_candidate(*args)
+    except (FloatingPointError, np.linalg.LinAlgError, ValueError) as err:
+        return Candidate(args[0], {}, 0.0, 0.0, 0, 1.0, note=f"fit failed: {err}")
 
 
 def drop_outliers(model: Model, logs: list[Trajectory]) -> tuple[list[Trajectory], int]:

@@ -72,7 +72,7 @@ def sighting_residuals(model: Model, batch: Batch, post: Posterior) -> dict[str,
     frame = batch.sight_frame
     out = {
         "size": (batch.sight_value[:, 0] - pred) / sd,
-        "bearing": wrap(batch.sight_value[:, 1] - bearing) / model.sensor.sigma_bearing,
+        "bearing": wrap(batch.sight_value[:, 1] - bearing) / (model.sensor.sigma_bearing * np.sqrt(lo.bearing_var_factor)),
         "distance (mm)": d,
         "elapsed time (min)": batch.frame_time[frame] / 60.0,
         "time since command change (s)": (frame - batch.command_start[frame]) * batch.dt,

@@ -106,15 +106,26 @@ class EMState:
 def e_step(params: Model, batch: Batch, estep: str, gate: float | None = None,
            reuse: Posterior | None = None, lo: Lowered | None = None) -> Posterior:
     """The E-step; ``reuse``: a spent Posterior whose memory the compiled kernel may overwrite;
-    ``lo``: ``params.lower(batch)`` if the caller has it."""
+    ``lo``: ``params.lower(batch)`` if the caller has it.
+
+    When an effect of ``params`` is a mixture (``false_sightings``), the Posterior's ``loglik`` is
+    the mixture's one-step predictive log-likelihood (``learners.inference.predictive``), not the
+    Gaussian filter's: the likelihood EM keeps the best of and the search compares."""
     lo = params.lower(batch) if lo is None else lo
     if estep == "compiled":
         from learners.inference.kernels import smooth_compiled
 
-        return smooth_compiled(lo, batch, gate, out=reuse)
-    from learners.inference.reference import smooth
+        post = smooth_compiled(lo, batch, gate, out=reuse)
+    else:
+        from learners.inference.reference import smooth
 
-    return smooth(lo, batch, gate)
+        post = smooth(lo, batch, gate)
+    from learners.inference.predictive import has_mixture, sightings_logdens
+
+    if has_mixture(params):
+        idx = np.flatnonzero(batch.used & ~(post.mahal2 > (gate if gate is not None else np.inf)))
+        post.loglik = float(np.sum(sightings_logdens(params, batch, post, idx, lo)))
+    return post
 
 
 def m_step(params: Model, batch: Batch, post: Posterior, rng: np.random.Generator, opts: EMOptions,

@@ -31,6 +31,7 @@ class Batch:
     used: np.ndarray  # (S,) bool: takes part (not pruned)
     landmarks: np.ndarray  # (B, 2) float mm
     head_pan: np.ndarray | None = None  # (N,) rad, or None (fixed camera)
+    field: np.ndarray | None = None  # (2,) field length and width (mm, origin at the centre) shared by the logs, or None
 
     @property
     def n_logs(self) -> int:
@@ -120,4 +121,13 @@ def make_batch(logs: list[Trajectory]) -> Batch:
         used=np.ones(len(sight_landmark), dtype=bool),
         landmarks=np.asarray(landmarks, dtype=np.float64),
         head_pan=np.concatenate([tr.head_pan for tr in logs]).astype(np.float64) if has_pan else None,
+        field=_shared_field(logs),
     )
+
+
+def _shared_field(logs: list[Trajectory]) -> np.ndarray | None:
+    """The logs' field (2,) if every log has the same one, else None."""
+    fields = [tr.field for tr in logs]
+    if any(f is None for f in fields) or any(not np.array_equal(f, fields[0]) for f in fields[1:]):
+        return None
+    return np.asarray(fields[0], dtype=np.float64)

@@ -8,7 +8,7 @@ Motion of frame i (pose s -> s'):   s' = s + R(theta) disp[i] + offset[i] + w,
                                     w ~ N(0, cov_scale[i] R(theta) cov R(theta)^T).
 Sighting j (of the end pose s'):    size    = size_scale[j] f(d) + size_offset[j] + e1,
                                     bearing = wrap(atan2(dy, dx) - theta + bearing_offset[j]) + e2,
-    e1 ~ N(0, sigma_size^2 size_var_factor[j]), e2 ~ N(0, sigma_bearing^2), d the distance (mm) to
+    e1 ~ N(0, sigma_size^2 size_var_factor[j]), e2 ~ N(0, sigma_bearing^2 bearing_var_factor[j]), d the distance (mm) to
     the landmark, f(d) = sum_k coef[k] x^k with x = d (``basis == BASIS_POWER``) or x = 1/d
     (``basis == BASIS_INVERSE``).
 """
@@ -41,6 +41,11 @@ class Lowered:
     bearing_offset: np.ndarray  # (S,) added to the predicted bearing (rad)
     init_mean: np.ndarray  # (L, 3) first pose mean per log (mm, mm, rad)
     init_cov: np.ndarray  # (L, 3, 3)
+    bearing_var_factor: np.ndarray | None = None  # (S,) multiplies sigma_bearing^2 (None: ones, filled in)
+
+    def __post_init__(self) -> None:
+        if self.bearing_var_factor is None:
+            self.bearing_var_factor = _constant((len(self.size_var_factor),), 1.0)
 
     @staticmethod
     def plain(disp: np.ndarray, cov: np.ndarray, basis: int, coef: np.ndarray, sigma_size: float,
@@ -55,6 +60,7 @@ class Lowered:
             coef=np.asarray(coef, dtype=float), sigma_size=float(sigma_size), sigma_bearing=float(sigma_bearing),
             size_scale=_constant((n_sightings,), 1.0), size_offset=_constant((n_sightings,), 0.0),
             size_var_factor=_constant((n_sightings,), 1.0), bearing_offset=_constant((n_sightings,), 0.0),
+            bearing_var_factor=_constant((n_sightings,), 1.0),
             init_mean=np.asarray(init_mean, dtype=float).reshape(-1, 3),
             init_cov=np.asarray(init_cov, dtype=float).reshape(-1, 3, 3),
         )

@@ -313,7 +313,7 @@ def sighting_model(lo: Lowered, mean, xy, idx):
     h = (size_scale f(d) + size_offset, wrap(atan2(dy, dx) - theta + bearing_offset)) and its
     Jacobian H (S', 2, 3): row 0 = size_scale f'(d) (-dx/d, -dy/d, 0), row 1 = (dy/q, -dx/q, -1),
     with (dx, dy) = landmark - (x, y) in mm, q = dx^2 + dy^2, d = sqrt(q). Returns (h, H, R_diag)
-    with R_diag (S', 2) = (sigma_size^2 size_var_factor, sigma_bearing^2).
+    with R_diag (S', 2) = (sigma_size^2 size_var_factor, sigma_bearing^2 bearing_var_factor).
     """
     mean = np.asarray(mean, dtype=float)
     dx = xy[:, 0] - mean[:, 0]
@@ -333,7 +333,7 @@ def sighting_model(lo: Lowered, mean, xy, idx):
     H[:, 1, 2] = -1.0
     rd = np.empty((len(idx), 2))
     rd[:, 0] = lo.sigma_size**2 * lo.size_var_factor[idx]
-    rd[:, 1] = lo.sigma_bearing**2
+    rd[:, 1] = lo.sigma_bearing**2 * lo.bearing_var_factor[idx]
     return h, H, rd
 
 

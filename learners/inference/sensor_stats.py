@@ -112,7 +112,7 @@ def update_sensor_curve(lo: Lowered, batch: Batch, post: Posterior, rng: np.rand
     coef: ``fit_polynomial`` of (size - size_offset) on size_scale phi(x) with weights
     point weight / size_var_factor; sigma_size^2 = weighted mean of
     (size_scale f(x) + size_offset - size)^2 / size_var_factor; sigma_bearing^2 = weighted mean of
-    wrap(bearing + bearing_offset - observed bearing)^2.
+    wrap(bearing + bearing_offset - observed bearing)^2 / bearing_var_factor.
     """
     dist, bearing, sight, w = sensor_points(lo, batch, post, rng, method, n_samples)
     x = basis_variable(lo.basis, dist)
@@ -125,7 +125,7 @@ def update_sensor_curve(lo: Lowered, batch: Batch, post: Posterior, rng: np.rand
     res_s = sc * np.polynomial.polynomial.polyval(x, coef) + off - size
     res_b = geometry.wrap(bearing - batch.sight_value[sight, 1])
     sigma_s = float(np.sqrt(np.sum(w * res_s**2 / vf) / wsum))
-    sigma_b = float(np.sqrt(np.sum(w * res_b**2) / wsum))
+    sigma_b = float(np.sqrt(np.sum(w * res_b**2 / lo.bearing_var_factor[sight]) / wsum))
     idx, pose = used_sightings(batch)
     dm = np.hypot(batch.sight_xy[idx, 0] - post.mu_gamma[pose, 0], batch.sight_xy[idx, 1] - post.mu_gamma[pose, 1])
     return coef, sigma_s, sigma_b, (float(dm.min()), float(dm.max()))

@@ -7,7 +7,9 @@ An effect is a ``Component`` that
   kernel changes;
 - ``maximize(model, batch, post)``: its conditional M-step (ECM: the other parameters held at
   their newest values), returning the new Model (it may also re-normalize another component);
-- ``start(batch)``: its neutral value sized for the data (the effect switched off).
+- ``start(batch)``: its neutral value sized for the data (the effect switched off);
+- ``predictive()`` and ``predictive_logdens(base, lo, batch, idx)``: a mixture's density of a sighting
+  (default: the Gaussian), used by the E-step's likelihood and the held-out score.
 
 Register one with ``@register_effect``; ``EFFECT_MODELS`` maps names to classes.
 """
@@ -61,6 +63,17 @@ class EffectModel(Component):
         ``mu_star`` (N, 3): the action statistics of this M-step (posterior mean robot-frame displacement
         of each frame net of the previous world offset, the prior's pull included: ``learners.inference``)."""
         return model
+
+    def predictive(self) -> "EffectModel":
+        """The effect as it enters a sighting's OWN predictive density (default: itself). An effect whose
+        ``lower`` uses the sightings themselves (responsibilities) returns itself without that part."""
+        return self
+
+    def predictive_logdens(self, base_logdens: np.ndarray, lo: Lowered, batch: Batch, idx: np.ndarray) -> np.ndarray:
+        """The model's log density of sightings ``idx`` given their Gaussian one-step predictive log
+        densities ``base_logdens`` (``learners.inference.predictive``); default: the Gaussian itself.
+        A mixture (spurious sightings) overrides it; the E-step's likelihood and the score then use it."""
+        return base_logdens
 
     @classmethod
     def start(cls, batch: Batch) -> "EffectModel":
@@ -157,3 +170,4 @@ class BeaconHeightScale(EffectModel):
 
 
 from learners.model import catalogue as _catalogue  # noqa: E402,F401  (registers the catalogue's twins)
+from learners.model import catalogue_more as _catalogue_more  # noqa: E402,F401  (false_sightings, wall_contact)

@@ -142,7 +142,7 @@ def _backward_log(k, f0, ps, n, disp, offset, cov_scale, sig, mu_alpha, cov_alph
 @njit(cache=True, error_model="numpy", fastmath=_FMA)
 def _smooth_kernel(
     frame_start, sight_start, disp, offset, cov_scale, sig_a, basis, coef, var_s, var_b,
-    sight_xy, sight_value, used, size_scale, size_offset, size_var_factor, bearing_offset,
+    sight_xy, sight_value, used, size_scale, size_offset, size_var_factor, bearing_offset, bearing_var_factor,
     init_mean, init_cov, use_gate, gate,
     mu_alpha, cov_alpha, mu_gamma, cov_gamma, info_delta, vec_delta, mahal2, cos_th, sin_th, innov, forward_only,
 ):  # fmt: skip
@@ -187,6 +187,7 @@ def _smooth_kernel(
                 if not used[q]:
                     continue
                 var_h = var_s * size_var_factor[q]
+                vb = var_b * bearing_var_factor[q]
                 fd, bear, e0, e1, t0, t1 = _observe_h(mu, sight_xy[q, 0], sight_xy[q, 1], basis, coef,
                                                       size_scale[q], size_offset[q], bearing_offset[q])  # fmt: skip
                 v0 = sight_value[q, 0] - fd
@@ -195,7 +196,7 @@ def _smooth_kernel(
                 ph0 = (P[0] * e0 + P[1] * e1, P[3] * e0 + P[4] * e1, P[6] * e0 + P[7] * e1)
                 ph1 = (P[0] * t0 + P[1] * t1 - P[2], P[3] * t0 + P[4] * t1 - P[5], P[6] * t0 + P[7] * t1 - P[8])
                 s00 = e0 * ph0[0] + e1 * ph0[1] + var_h
-                s11 = t0 * ph1[0] + t1 * ph1[1] - ph1[2] + var_b
+                s11 = t0 * ph1[0] + t1 * ph1[1] - ph1[2] + vb
                 s01 = 0.5 * ((e0 * ph1[0] + e1 * ph1[1]) + (t0 * ph0[0] + t1 * ph0[1] - ph0[2]))
                 det_s = s00 * s11 - s01 * s01
                 rdet = 1.0 / det_s
@@ -228,7 +229,7 @@ def _smooth_kernel(
                 xh1 = (X[0] * t0 + X[1] * t1 - X[2], X[3] * t0 + X[4] * t1 - X[5], X[6] * t0 + X[7] * t1 - X[8])
                 # (r, c) entry of the symmetric result, r <= c
                 g0 = (var_h * k0[0] - xh0[0], var_h * k0[1] - xh0[1], var_h * k0[2] - xh0[2])
-                g1 = (var_b * k1[0] - xh1[0], var_b * k1[1] - xh1[1], var_b * k1[2] - xh1[2])
+                g1 = (vb * k1[0] - xh1[0], vb * k1[1] - xh1[1], vb * k1[2] - xh1[2])
                 P = _symm(X[0] + g0[0] * k0[0] + g1[0] * k1[0], X[1] + g0[0] * k0[1] + g1[0] * k1[1],
                           X[2] + g0[0] * k0[2] + g1[0] * k1[2], X[4] + g0[1] * k0[1] + g1[1] * k1[1],
                           X[5] + g0[1] * k0[2] + g1[1] * k1[2], X[8] + g0[2] * k0[2] + g1[2] * k1[2])  # fmt: skip
@@ -244,12 +245,13 @@ def _smooth_kernel(
                 if not used[q] or (use_gate and mahal2[q] > gate):
                     continue
                 ivh = 1.0 / (var_s * size_var_factor[q])
+                ivb = iva / bearing_var_factor[q]
                 fd, bear, e0, e1, t0, t1 = _observe_h(mu, sight_xy[q, 0], sight_xy[q, 1], basis, coef,
                                                       size_scale[q], size_offset[q], bearing_offset[q])  # fmt: skip
                 z0 = (sight_value[q, 0] - fd + (e0 * mu[0] + e1 * mu[1])) * ivh
-                z1 = (_wrap(sight_value[q, 1] - bear) + (t0 * mu[0] + t1 * mu[1] - mu[2])) * iva
-                dY = _symm(ivh * e0 * e0 + iva * t0 * t0, ivh * e0 * e1 + iva * t0 * t1, -iva * t0,
-                           ivh * e1 * e1 + iva * t1 * t1, -iva * t1, iva)  # fmt: skip
+                z1 = (_wrap(sight_value[q, 1] - bear) + (t0 * mu[0] + t1 * mu[1] - mu[2])) * ivb
+                dY = _symm(ivh * e0 * e0 + ivb * t0 * t0, ivh * e0 * e1 + ivb * t0 * t1, -ivb * t0,
+                           ivh * e1 * e1 + ivb * t1 * t1, -ivb * t1, ivb)  # fmt: skip
                 dy = (e0 * z0 + t0 * z1, e1 * z0 + t1 * z1, -z1)
                 if n_app > 0:
                     Yo = _ld33(info_delta, i)
@@ -293,7 +295,8 @@ def _inputs(lo: Lowered, batch: Batch, gate: float | None) -> tuple:
         _f64(lo.cov, (3, 3)), int(lo.basis), coef, float(lo.sigma_size) ** 2, float(lo.sigma_bearing) ** 2,
         _f64(batch.sight_xy, (n_s, 2)), _f64(batch.sight_value, (n_s, 2)), used,
         _f64(lo.size_scale, (n_s,)), _f64(lo.size_offset, (n_s,)), _f64(lo.size_var_factor, (n_s,)),
-        _f64(lo.bearing_offset, (n_s,)), _f64(lo.init_mean, (n_logs, 3)), _f64(lo.init_cov, (n_logs, 3, 3)),
+        _f64(lo.bearing_offset, (n_s,)), _f64(lo.bearing_var_factor, (n_s,)),
+        _f64(lo.init_mean, (n_logs, 3)), _f64(lo.init_cov, (n_logs, 3, 3)),
         gate is not None, float(gate) if gate is not None else np.inf,
     )  # fmt: skip
 

@@ -297,6 +297,9 @@ def sensor_update_compiled(lo: Lowered, batch: Batch, post: Posterior, rng: np.r
     dist = _scratch("dist", (n, k))
     ra2 = _scratch("ra2", (n * k,))
     _sensor_dist_resid(dxs.reshape(-1), dys.reshape(-1), pto.reshape(-1), dist.reshape(-1), ra2)
+    bvf = _f64(lo.bearing_var_factor, (n_s,))[sights]
+    if np.any(bvf != 1.0):
+        ra2.reshape(n, k)[:] /= bvf[:, None]  # the bearing residuals weighted as the size ones
     if lo.basis == BASIS_INVERSE:
         np.divide(1.0, dist, out=dist)  # x = 1/d
     _sensor_reduce(dist.reshape(-1), ra2, out)

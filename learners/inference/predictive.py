@@ -1,0 +1,82 @@
+"""One-step predictive densities of sightings: what the forward filter predicted for each, and the
+model's density of it (a mixture when an effect says so, e.g. ``false_sightings``).
+
+``sightings_logdens`` is the likelihood every comparison of models uses (the E-step's, the
+held-out score's): for a model whose effects are all Gaussian it is exactly the E-step's
+log-likelihood; an effect that is a mixture (``EffectModel.predictive_logdens``) turns each
+sighting's Gaussian density into the mixture's, the filter itself being the Gaussian (assumed
+density) one the kernels run.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from aibo_core import geometry
+from learners.inference.batch import Batch
+from learners.inference.lowered import Lowered
+from learners.inference.posterior import Posterior
+from learners.inference.reference import AIBO_ANGLE_MASK, ekf_innovation, ekf_update, sighting_model
+
+if TYPE_CHECKING:
+    from learners.model.model import Model
+
+
+def predictive_logdens(lo: Lowered, batch: Batch, post: Posterior, idx: np.ndarray,
+                       lo_own: Lowered | None = None) -> np.ndarray:
+    """log N(z_j; h(m-), H P- H^T + R) of sightings ``idx``: the one-step predictive density the forward
+    filter gave each, from the filtered belief at the start of its frame (mu_alpha, cov_alpha), the
+    motion of the frame, and the frame's earlier sightings applied in order (as the E-step does).
+    ``lo_own``: the lowered arrays whose noise R the sighting's OWN density uses (default ``lo``; an
+    effect may inflate a sighting's variance in the filter from the sighting itself, e.g. by its
+    responsibility, which its own density must not see)."""
+    lo_own = lo if lo_own is None else lo_own
+    out = np.empty(len(idx))
+    frame = batch.sight_frame[idx]
+    first = batch.sight_start[frame]
+    p = batch.frame_to_pose[frame]
+    g, F, R3 = geometry.motion(post.mu_alpha[p], lo.disp[frame])
+    m = g + lo.offset[frame]
+    P = F @ post.cov_alpha[p] @ np.swapaxes(F, 1, 2) + lo.cov_scale[frame, None, None] * (R3 @ lo.cov @ np.swapaxes(R3, 1, 2))
+    for k in np.flatnonzero(first < idx):  # earlier sightings of the same frame (rare): applied first
+        mk, Pk = m[k], P[k]
+        for e in range(first[k], idx[k]):
+            if batch.used[e]:
+                h, H, rd = sighting_model(lo, mk[None], batch.sight_xy[e:e + 1], np.array([e]))
+                v, S = ekf_innovation(Pk, h[0], H[0], np.diag(rd[0]), batch.sight_value[e], AIBO_ANGLE_MASK)
+                mk, Pk = ekf_update(mk, Pk, H[0], np.diag(rd[0]), v, S)
+        m[k], P[k] = mk, Pk
+    h, H, rd = sighting_model(lo_own, m, batch.sight_xy[idx], idx)
+    S = H @ P @ np.swapaxes(H, 1, 2)
+    S[:, 0, 0] += rd[:, 0]
+    S[:, 1, 1] += rd[:, 1]
+    v = batch.sight_value[idx] - h
+    v[:, 1] = geometry.wrap(v[:, 1])
+    det = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
+    m2 = (S[:, 1, 1] * v[:, 0] ** 2 - 2 * S[:, 0, 1] * v[:, 0] * v[:, 1] + S[:, 0, 0] * v[:, 1] ** 2) / det
+    out[:] = -0.5 * (m2 + np.log(det) + 2.0 * np.log(2.0 * np.pi))
+    return out
+
+
+def has_mixture(model: "Model") -> bool:
+    """Whether an effect of ``model`` changes the sightings' densities (``EffectModel.predictive_logdens``)."""
+    from learners.model.effects import EffectModel
+
+    return any(type(e).predictive_logdens is not EffectModel.predictive_logdens for e in model.effects)
+
+
+def sightings_logdens(model: "Model", batch: Batch, post: Posterior, idx: np.ndarray,
+                      lo: Lowered | None = None) -> np.ndarray:
+    """The model's one-step predictive log density of sightings ``idx`` (module docstring): the filter's
+    Gaussian (``predictive_logdens``, each sighting's own noise from the effects' ``predictive()``
+    versions), then every effect's ``predictive_logdens`` hook."""
+    lo = model.lower(batch) if lo is None else lo
+    own = tuple(e.predictive() for e in model.effects)
+    lo_own = lo if all(a is b for a, b in zip(own, model.effects)) else replace(model, effects=own).lower(batch)
+    out = predictive_logdens(lo, batch, post, idx, lo_own)
+    for e in model.effects:
+        out = e.predictive_logdens(out, lo_own, batch, idx)
+    return out

@@ -1,0 +1,211 @@
+"""Learner-side twins of the simulator's ``false_sightings`` and ``wall_contact`` (``aibo_gym/catalogue.py``;
+same names and parameter names). Both carry per-sighting or per-frame quantities computed in their
+M-step from the latest posterior (non-parameter fields, recomputed every M-step, tied to the batch
+they were computed on by a key: on another batch they are not applied).
+
+=================  ==============================================  =======================================
+name               how the model carries it                        its M-step
+=================  ==============================================  =======================================
+false_sightings    a mixture: real (the Gaussian) with probability  responsibilities w = P(real | z) at the
+                   1 - rate, spurious (uniform over the data's      smoothed path; rate = mean(1 - w); the
+                   box of sizes x image positions) with ``rate``;   sensor's sigmas re-weighted by w
+                   in the filter a sighting's size variance x 1/w
+wall_contact       frames whose smoothed end pose is within          the contact frames and their walls
+                   ``MARGIN_MM`` of a wall, moving outward: the     (signs) from the smoothed path
+                   outward world motion cancelled (``offset``)
+=================  ==============================================  =======================================
+
+false_sightings, in the filter: the EKF cannot carry a mixture; each sighting's size variance is
+multiplied by 1/w (w floored at ``W_FLOOR``). The lowered arrays have one bearing variance for all
+sightings, so a spurious sighting's BEARING still enters the filter at full weight: only those
+that survive the outlier gate (Mahalanobis^2 <= 50 at the first iteration, which for a bearing is
+within ~7 sigma) are left, and their pull is bounded by that. The likelihood (the E-step's and the
+held-out score's) is the mixture's: (1 - rate) N(z; filter's prediction, un-inflated noise) + rate u.
+In the held-out score the responsibilities are not applied (they belong to the training batch):
+the filter there is the plain Gaussian one, the densities the mixture's (causal, conservative).
+
+wall_contact: the walls are where the log's ``field`` says (clamp walls: the robot's centre stays
+on the field). The contact frames come from the training half's smoothed path, so in the held-out
+score (same frames) they are decided with the training half's sightings of the whole log (past and
+future; never the held-out ones).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import numpy as np
+
+from aibo_core.geometry import wrap
+from learners.inference.batch import Batch
+from learners.inference.lowered import Lowered
+from learners.inference.posterior import Posterior
+from learners.inference.reference import sighting_model
+from learners.model.effects import EffectModel, register_effect
+from learners.model.parameters import Param
+
+if TYPE_CHECKING:
+    from learners.model.model import Model
+
+W_FLOOR = 1e-4  # false_sightings: responsibilities floored here (variances x 1e4 at most: no information left)
+MAX_RATE = 0.5  # false_sightings: as the simulator's bound
+START_RATE = 0.05  # false_sightings: EM cannot leave rate 0 (every w is 1 there)
+INNER = 10  # false_sightings: mixture EM iterations (w, rate, sigmas) per M-step at the fixed smoothed path
+
+
+def _sighting_key(batch: Batch) -> tuple:
+    return (batch.n_sightings, hash(np.ascontiguousarray(batch.sight_value).tobytes()),
+            hash(np.ascontiguousarray(batch.sight_landmark).tobytes()))
+
+
+def _frame_key(batch: Batch) -> tuple:
+    cmds = batch.actions if batch.actions is not None else batch.controls
+    return (batch.n_frames, hash(np.ascontiguousarray(batch.frame_start).tobytes()),
+            hash(np.ascontiguousarray(cmds).tobytes()))
+
+
+def spurious_log_density(batch: Batch) -> float:
+    """log u: a spurious sighting's density, uniform over the box of the used sightings' sizes and
+    positions in the image (bearing - head pan; the whole circle without a head pan)."""
+    z = batch.sight_value[batch.used]
+    size_span = float(np.ptp(z[:, 0])) if len(z) > 1 else 1.0
+    if batch.head_pan is not None and len(z) > 1:
+        phi = wrap(z[:, 1] - batch.head_pan[batch.sight_frame[batch.used]])
+        angle_span = float(np.ptp(phi))
+    else:
+        angle_span = 2.0 * math.pi
+    return -math.log(max(size_span, 1e-9) * max(angle_span, 1e-9))
+
+
+@register_effect
+@dataclass(frozen=True)
+class FalseSightings(EffectModel):
+    """A fraction ``rate`` of the sightings are spurious (module docstring). Residual signature: none
+    (outliers anywhere in the image: heavy tails of the size and bearing residuals)."""
+
+    rate: float
+    w: np.ndarray | None = field(default=None, compare=False, repr=False)  # (S,) P(real | z) of the keyed batch
+    key: tuple | None = field(default=None, compare=False, repr=False)
+    log_u: float | None = None  # log density of a spurious sighting (set by ``start`` or the first M-step)
+
+    name: ClassVar[str] = "false_sightings"
+    PARAMS: ClassVar[dict[str, Param]] = {"rate": Param("fraction of sightings", "log")}
+
+    @classmethod
+    def start(cls, batch: Batch) -> "FalseSightings":
+        return cls(START_RATE, log_u=spurious_log_density(batch))
+
+    def _rate(self) -> float:
+        return float(min(max(self.rate, W_FLOOR), MAX_RATE))
+
+    def lower(self, lo: Lowered, batch: Batch) -> None:
+        if self.w is not None and self.key == _sighting_key(batch):
+            inv = 1.0 / np.maximum(self.w, W_FLOOR)
+            lo.size_var_factor = lo.size_var_factor * inv
+            lo.bearing_var_factor = lo.bearing_var_factor * inv
+
+    def predictive(self) -> "FalseSightings":
+        return replace(self, w=None, key=None)
+
+    def predictive_logdens(self, base_logdens: np.ndarray, lo: Lowered, batch: Batch, idx: np.ndarray) -> np.ndarray:
+        """log((1 - rate) N + rate u)."""
+        r = self._rate()
+        log_u = self.log_u if self.log_u is not None else spurious_log_density(batch)
+        return np.logaddexp(math.log1p(-r) + base_logdens, math.log(r) + log_u)
+
+    def maximize(self, model: "Model", batch: Batch, post: Posterior, mu_star: np.ndarray) -> "Model":
+        """Responsibilities at the smoothed path: w = (1 - rate) N(z; h(mu), H Sigma H^T + R) / (that + rate u)
+        (R without this effect's inflation), rate = mean(1 - w); sigma_size^2 = sum w (r^2 + H Sigma H^T) / vf /
+        sum w and sigma_bearing^2 likewise (first order; the sensor M-step's sigmas are not the mixture's),
+        iterated ``INNER`` times at the fixed path."""
+        others = replace(model, effects=tuple(e for e in model.effects if e.name != self.name))
+        lo0 = others.lower(batch)
+        log_u = self.log_u if self.log_u is not None else spurious_log_density(batch)
+        idx = np.flatnonzero(batch.used)
+        pose = batch.sight_pose[idx]
+        h, H, _ = sighting_model(lo0, post.mu_gamma[pose], batch.sight_xy[idx], idx)
+        hph = H @ post.cov_gamma[pose] @ np.swapaxes(H, 1, 2)
+        v = batch.sight_value[idx] - h
+        v[:, 1] = wrap(v[:, 1])
+        vf, bvf = lo0.size_var_factor[idx], lo0.bearing_var_factor[idx]
+        var_s, var_b = lo0.sigma_size**2, lo0.sigma_bearing**2
+        r = self._rate()
+        for _ in range(INNER):  # the mixture's EM at the fixed path (the path-only part converges slowly)
+            s00, s11, s01 = hph[:, 0, 0] + var_s * vf, hph[:, 1, 1] + var_b * bvf, hph[:, 0, 1]
+            det = s00 * s11 - s01 ** 2
+            m2 = (s11 * v[:, 0] ** 2 - 2 * s01 * v[:, 0] * v[:, 1] + s00 * v[:, 1] ** 2) / det
+            a = math.log1p(-r) - 0.5 * (m2 + np.log(det)) - math.log(2.0 * math.pi)
+            b = math.log(r) + log_u
+            w = np.exp(a - np.logaddexp(a, b))
+            r = float(np.clip(np.mean(1.0 - w), W_FLOOR, MAX_RATE))
+            ws = float(w.sum())
+            var_s = float(np.sum(w * (v[:, 0] ** 2 + hph[:, 0, 0]) / vf) / ws)
+            var_b = float(np.sum(w * (v[:, 1] ** 2 + hph[:, 1, 1]) / bvf) / ws)
+        rate = r
+        w_all = np.ones(batch.n_sightings)
+        w_all[idx] = w
+        sensor = replace(model.sensor, sigma_size=math.sqrt(var_s), sigma_bearing=math.sqrt(var_b))
+        new = replace(self, rate=rate, w=w_all, key=_sighting_key(batch), log_u=log_u)
+        return model.with_effect(new).with_(sensor=sensor)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"name": self.name, "parameters": {"rate": float(self.rate)}}
+
+
+@register_effect
+@dataclass(frozen=True)
+class WallContact(EffectModel):
+    """The walls stop the robot where the model lets it pass (module docstring). No parameters: its
+    dof is 0 (``learners.discrepancy.search`` names it on its held-out gain). Residual signature: the
+    motion residuals against the distance to the walls."""
+
+    contact: np.ndarray | None = field(default=None, compare=False, repr=False)  # (N, 2) outward sign per axis (0: none)
+    heading: np.ndarray | None = field(default=None, compare=False, repr=False)  # (N,) smoothed heading at the frame's start
+    key: tuple | None = field(default=None, compare=False, repr=False)
+
+    name: ClassVar[str] = "wall_contact"
+    PARAMS: ClassVar[dict[str, Param]] = {}
+    NEEDS: ClassVar[tuple[str, ...]] = ("field",)
+    MARGIN_MM: ClassVar[float] = 60.0  # an end pose this close to a wall is against it
+
+    @classmethod
+    def start(cls, batch: Batch) -> "WallContact":
+        return cls()
+
+    def n_contacts(self) -> int:
+        return 0 if self.contact is None else int(np.any(self.contact != 0, axis=1).sum())
+
+    def lower(self, lo: Lowered, batch: Batch) -> None:
+        """Contact frames: the outward world-frame component of R(theta) disp + offset (per wall touched)
+        cancelled through ``offset``."""
+        if self.contact is None or self.key != _frame_key(batch):
+            return
+        rows = np.flatnonzero(np.any(self.contact != 0, axis=1))
+        if len(rows) == 0:
+            return
+        c, s = np.cos(self.heading[rows]), np.sin(self.heading[rows])
+        d = lo.disp[rows]
+        move = np.stack([c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1]], axis=1) + lo.offset[rows, :2]
+        sign = self.contact[rows]
+        cancel = np.where(move * sign > 0, -move, 0.0)
+        offset = np.array(lo.offset, copy=True)
+        offset[rows, :2] += cancel
+        lo.offset = offset
+
+    def maximize(self, model: "Model", batch: Batch, post: Posterior, mu_star: np.ndarray) -> "Model":
+        """The contact frames (end pose within ``MARGIN_MM`` of a wall; the sign of that wall's outward
+        normal per axis) and their start headings, from the smoothed path."""
+        if batch.field is None:
+            return model
+        half = np.asarray(batch.field, float) / 2.0
+        p = batch.frame_to_pose
+        end = post.mu_gamma[p + 1]
+        near = half[None, :] - np.abs(end[:, :2]) < self.MARGIN_MM
+        contact = np.where(near, np.sign(end[:, :2]), 0.0)
+        return model.with_effect(replace(self, contact=contact, heading=post.mu_gamma[p, 2].copy(),
+                                         key=_frame_key(batch)))
+
+    def to_json(self) -> dict[str, Any]:
+        return {"name": self.name, "parameters": {}}
