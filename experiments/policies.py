@@ -25,7 +25,8 @@ from experiments.run import RunSpec
 #: The contract of results.jsonl: every record has at least these keys.
 RECORD_KEYS = ("policy", "minutes", "seed", "vx_rel", "vy_rel", "vth_rel", "sensor_rms_px", "log", "model")
 METRICS = ("vx_rel", "vy_rel", "vth_rel", "vel_rel_mean", "sensor_rms_px", "heldout_loglik", "iterations",
-           "seen_share", "commands_used", "sigma_height_rel", "sigma_angle_rel")
+           "seen_share", "commands_used", "sigma_height_rel", "sigma_angle_rel", "info_min_eigenvalue",
+           "info_condition_number")
 BASELINE = "random-balanced"
 
 

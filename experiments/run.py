@@ -115,6 +115,10 @@ def run(spec: RunSpec, out_dir: str | Path) -> dict[str, Any]:
         "heldout_loglik": held, "train_loglik_per_sighting": float(max(res.loglik)) / max(tr.n_sightings, 1),
         "iterations": res.iterations, "converged": bool(res.converged), "pruned": int(res.pruned_observations),
         "undetermined": len(res.info.get("undetermined", [])),
+        # the spectrum of the information matrix at the estimate (learners/em/uncertainty.py): a policy can
+        # be informative in total and still leave parameters confounded
+        "info_min_eigenvalue": res.info.get("information", {}).get("min_eigenvalue"),
+        "info_condition_number": res.info.get("information", {}).get("condition_number"),
         "off_field_fraction": float(res.info.get("off_field_fraction", 0.0)),
         "diverged": bool(res.info.get("off_field_fraction", 0.0) > MAX_OFF_FIELD),
         **log_stats(tr),
