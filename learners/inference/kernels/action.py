@@ -1,5 +1,5 @@
 """Compiled (numba) action statistics: the fused ``_action_stats_kernel`` (``action_statistics_compiled``)
-and ``_residual_cov_kernel`` (``residual_cov_compiled``). Twins of ``action_stats.action_statistics`` /
+and ``_table_residual_kernel`` (``residual_cov_compiled``, ``table_residual_cov_compiled``). Twins of ``action_stats.action_statistics`` /
 ``action_stats.residual_cov``; docs/em-math.md is the specification. Units: mm, mm, rad per frame.
 
 The mu*_i, C*_i of ``action_stats.action_statistics``, rearranged so that each frame needs ONE 3x3
@@ -146,31 +146,11 @@ def action_statistics_compiled(lo: Lowered, batch: Batch, post: Posterior, need_
     return mu_star, (cov if need_cov else None)
 
 
-@njit(cache=True, error_model="numpy")
-def _residual_cov_kernel(mu_star, pred, cov_scale):
-    """sum_i r_i r_i^T / cov_scale_i, r_i = mu_star_i - pred_i, summed in frame order (upper triangle)."""
-    r00 = r01 = r02 = r11 = r12 = r22 = 0.0
-    for i in range(mu_star.shape[0]):
-        iw = 1.0 / cov_scale[i]
-        r0 = mu_star[i, 0] - pred[i, 0]
-        r1 = mu_star[i, 1] - pred[i, 1]
-        r2 = mu_star[i, 2] - pred[i, 2]
-        r00 += r0 * r0 * iw
-        r01 += r0 * r1 * iw
-        r02 += r0 * r2 * iw
-        r11 += r1 * r1 * iw
-        r12 += r1 * r2 * iw
-        r22 += r2 * r2 * iw
-    return r00, r01, r02, r11, r12, r22
-
-
 def residual_cov_compiled(mu_star: np.ndarray, pred: np.ndarray, cov_scale: np.ndarray) -> np.ndarray:
     """Compiled twin of ``action_stats.residual_cov``: sum_i (mu*_i - pred_i)(...)^T / cov_scale_i (3, 3),
     summed in frame order like the table-indexed kernel's pass 2 (bit-identical with unit scales)."""
     n = len(mu_star)
-    r00, r01, r02, r11, r12, r22 = _residual_cov_kernel(_f64(mu_star, (n, 3)), _f64(pred, (n, 3)),
-                                                        _f64(cov_scale, (n,)))  # fmt: skip
-    return np.array([[r00, r01, r02], [r01, r11, r12], [r02, r12, r22]])
+    return table_residual_cov_compiled(np.arange(n), mu_star, _f64(pred, (n, 3)), cov_scale)  # row i predicts frame i
 
 
 # ----------------------------------------------------------------------------------------------
@@ -205,6 +185,7 @@ def table_means_compiled(commands: np.ndarray, mu_star: np.ndarray, old: np.ndar
 
 @njit(cache=True)
 def _table_residual_kernel(commands, mu_star, weights, cov_scale):
+    """sum_i r_i r_i^T / cov_scale_i, r_i = mu_star_i - weights[commands_i], in frame order (upper triangle)."""
     r00 = r01 = r02 = r11 = r12 = r22 = 0.0
     for i in range(mu_star.shape[0]):
         a = commands[i]
