@@ -1,6 +1,7 @@
 """Compiled (numba) action statistics: the fused ``_action_stats_kernel`` (``action_statistics_compiled``)
-and ``_table_residual_kernel`` (``residual_cov_compiled``, ``table_residual_cov_compiled``). Twins of ``action_stats.action_statistics`` /
-``action_stats.residual_cov``; docs/em-math.md is the specification. Units: mm, mm, rad per frame.
+and ``_table_residual_kernel`` (``residual_cov_compiled``, ``table_residual_cov_compiled``). Twins of
+``action_stats.action_statistics`` / ``action_stats.residual_cov``; docs/em-math.md is the specification.
+Units: mm, mm, rad per frame.
 
 The mu*_i, C*_i of ``action_stats.action_statistics``, rearranged so that each frame needs ONE 3x3
 inverse and C*_i is never formed. With Sigma_i = cov_scale_i Sigma_A, B = (I + Y'P1)^-1,
