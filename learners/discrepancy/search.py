@@ -81,9 +81,10 @@ def applicable(name: str, logs: list[Trajectory]) -> bool:
     return all(all(getattr(tr, need) is not None for tr in logs) for need in EFFECT_MODELS[name].NEEDS)
 
 
-def _fit(logs: list[Trajectory], init: Model, opts: EMOptions) -> tuple[Model, float]:
-    res = EMLearner(opts, check_field=False).fit(logs, init=init)
-    return res.params, float(max(res.loglik))
+def _fit(logs: list[Trajectory], init: Model, opts: EMOptions) -> Model:
+    """EM on ``logs`` from ``init`` (the paper's start when None); candidates are compared by
+    ``_train_loglik`` on the same sightings, not by the fit's own (gated) likelihood."""
+    return EMLearner(opts, check_field=False).fit(logs, init=init).params
 
 
 def _with(effect: EffectModel, values: dict[str, Any]) -> EffectModel:
@@ -99,14 +100,13 @@ def try_candidate(name: str, base: Model, base_ll: float, base_heldout: float, t
     if cls.GRID:  # profile likelihood over the grid, the effect frozen at each value
         (pname, grid), = cls.GRID.items()
         frozen = replace(opts, frozen=opts.frozen + (name,), max_iter=min(opts.max_iter, 150))
-        fits = [_fit(train, start.with_effect(_with(start.effect(name), {pname: g})), frozen)[0] for g in grid]
+        fits = [_fit(train, start.with_effect(_with(start.effect(name), {pname: g})), frozen) for g in grid]
         lls = [_train_loglik(m, train) for m in fits]
         k = int(np.argmax(lls))
         model, ll = fits[k], lls[k]
-        fits = list(zip(fits, lls))
-        flat = max(ll for _, ll in fits) - min(ll for _, ll in fits) < FLAT_NATS
+        flat = max(lls) - min(lls) < FLAT_NATS
     else:
-        model, _ = _fit(train, start, opts)
+        model = _fit(train, start, opts)
         ll = _train_loglik(model, train)
         flat = False
     dof = model.effect(name).dof()
@@ -121,7 +121,7 @@ def try_candidate(name: str, base: Model, base_ll: float, base_heldout: float, t
     if not c.significant and name in PROBE and not cls.GRID:
         shifted = {k: np.asarray(v) + np.asarray(model.effect(name).values()[k]) for k, v in PROBE[name].items()}
         probe = model.with_effect(_with(model.effect(name), shifted))  # the estimate moved by a plausible step
-        fitted, _ = _fit(train, probe, replace(opts, frozen=opts.frozen + (name,), max_iter=min(opts.max_iter, 150)))
+        fitted = _fit(train, probe, replace(opts, frozen=opts.frozen + (name,), max_iter=min(opts.max_iter, 150)))
         ll_probe = _train_loglik(fitted, train)
         flat = ll - ll_probe < FLAT_NATS
     if flat:
@@ -167,11 +167,11 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
     effects in order, and the current model after each addition (all fitted on the training half),
     and the logs without outliers that every score uses."""
     t0 = time.perf_counter()
-    base, _ = _fit([training_log(tr) for tr in logs], None, opts)
+    base = _fit([training_log(tr) for tr in logs], None, opts)
     logs, n_out = drop_outliers(base, logs)
     train = [training_log(tr) for tr in logs]
     opts = replace(opts, gate=None, max_iter=min(opts.max_iter, 200))  # candidates are warm-started
-    base, _ = _fit(train, base, opts)  # polished as the candidates will be: gains are the effects' alone
+    base = _fit(train, base, opts)  # polished as the candidates will be: gains are the effects' alone
     base_ll = _train_loglik(base, train)
     progress(f"base model fitted on the training half in {time.perf_counter() - t0:.1f} s; {n_out} outlier "
              "sightings set aside")
@@ -194,7 +194,7 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
             if best is None:
                 break
             named.append(best)
-            current, _ = _fit(train, best.model, opts)
+            current = _fit(train, best.model, opts)
             current_ll = _train_loglik(current, train)
             remaining = [n for n in remaining if n != best.name]
             progress(f"named: {best.name} {best.as_dict()['parameters']}")

@@ -92,10 +92,6 @@ class VelocityFade(EffectModel):
     name: ClassVar[str] = "velocity_fade"
     PARAMS: ClassVar[dict[str, Param]] = {"fade_per_min": Param("1/min", "scaled", 0.01)}
 
-    @classmethod
-    def start(cls, batch: Batch) -> "VelocityFade":
-        return cls(0.0)
-
     def disp_scale(self, batch: Batch) -> np.ndarray:
         return np.maximum(0.0, 1.0 - self.fade_per_min * batch.frame_time / 60.0)
 
@@ -128,10 +124,6 @@ class ActuationLag(EffectModel):
     PARAMS: ClassVar[dict[str, Param]] = {"lag_s": Param("s", "scaled", 0.1, trainable=False)}
     GRID: ClassVar[dict[str, tuple[float, ...]]] = {"lag_s": (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)}
 
-    @classmethod
-    def start(cls, batch: Batch) -> "ActuationLag":
-        return cls(0.0)
-
     def commands(self, commands: np.ndarray, batch: Batch) -> np.ndarray:
         n = math.ceil(self.lag_s / batch.dt - 1e-9)
         if n <= 0:
@@ -155,10 +147,6 @@ class AngleBias(EffectModel):
 
     name: ClassVar[str] = "angle_bias"
     PARAMS: ClassVar[dict[str, Param]] = {"bias_rad": Param("rad", "scaled", 0.01)}
-
-    @classmethod
-    def start(cls, batch: Batch) -> "AngleBias":
-        return cls(0.0)
 
     def lower(self, lo: Lowered, batch: Batch) -> None:
         lo.bearing_offset = lo.bearing_offset + self.bias_rad
@@ -203,10 +191,6 @@ class OffCenterShrink(EffectModel):
     PARAMS: ClassVar[dict[str, Param]] = {"k": Param("1/rad^2", "scaled", 0.05)}
     NEEDS: ClassVar[tuple[str, ...]] = ("head_pan",)
 
-    @classmethod
-    def start(cls, batch: Batch) -> "OffCenterShrink":
-        return cls(0.0)
-
     def factor(self, batch: Batch) -> np.ndarray:
         phi = wrap(batch.sight_value[:, 1] - batch.head_pan[batch.sight_frame])
         return 1.0 - self.k * phi * phi
@@ -234,10 +218,6 @@ class DistanceDependentNoise(EffectModel):
 
     name: ClassVar[str] = "distance_dependent_noise"
     PARAMS: ClassVar[dict[str, Param]] = {"exponent": Param("", "scaled", 0.1)}
-
-    @classmethod
-    def start(cls, batch: Batch) -> "DistanceDependentNoise":
-        return cls(0.0)
 
     def factor(self, lo: Lowered, batch: Batch) -> np.ndarray:
         """(S,) variance factor (d / 2500 mm)^(2 exponent), d the distance whose predicted size is measured."""

@@ -77,7 +77,9 @@ class EffectModel(Component):
 
     @classmethod
     def start(cls, batch: Batch) -> "EffectModel":
-        raise NotImplementedError
+        """The effect switched off, sized for ``batch``; default: every (scalar) parameter 0 and no
+        other field set. Effects with array parameters or extra state override it."""
+        return cls(**{name: 0.0 for name in cls.PARAMS})
 
     def to_json(self) -> dict[str, Any]:
         return {"name": self.name, "parameters": {k: v.tolist() for k, v in self.values().items()}}
