@@ -47,6 +47,10 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--config", type=json_object, default={}, help="JSON object of env config overrides")
     c.add_argument("--blind", action="store_true", help="leave out pose and truth, as a real robot's log")
     c.add_argument("--plot", help="also draw the trajectory on the field to this PNG")
+    c.add_argument("--model", help="a calibrated simulator: the robot this model file describes (aibo-model/1: its "
+                   "velocities, motion noise, sensor curve and noise, effects and start pose; --config still applies)")
+    c.add_argument("--replay", help="with --model: replay this log's commands and head pan in its world (landmarks, "
+                   "field, camera); --steps and --policy are then the log's")
     c.set_defaults(run=commands.run_collect)
 
     lr = sub.add_parser("learn", help="learn action and sensor models from logs")
@@ -92,6 +96,8 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument("--candidates", help="comma-separated effects to try (default: the whole catalogue)")
     dg.add_argument("--jobs", type=integer(1), default=2, help="worker processes for the candidates (default 2)")
     dg.add_argument("--seed", type=integer(0), default=0)
+    dg.add_argument("--replicas", type=integer(0), default=8,
+                    help="replays of the measured commands in the calibrated simulator, before and after (default 8; 0: none)")
     dg.set_defaults(run=commands.run_diagnose)
 
     b = sub.add_parser("bench", help="measure E-step and fit speed on this machine")

@@ -60,9 +60,51 @@ def gap_bars(path: Path, before: dict[str, float], after: dict[str, float]) -> N
     _save(fig, path)
 
 
+def calibrated_bars(path: Path, before: dict[str, Any], after: dict[str, Any] | None, n: int = 12) -> None:
+    """The measured log against the calibrated simulator: z of the ``n`` statistics that disagree most
+    with the base model's simulator, and the same statistics with the named effects added."""
+    z_after = {r["statistic"]: r["z"] for r in (after or {}).get("statistics", [])}
+    rows = sorted((r for r in before["statistics"] if r["z"] is not None), key=lambda r: -abs(r["z"]))[:n][::-1]
+    fig, ax = plt.subplots(figsize=(10.0, 0.38 * len(rows) + 1.6))
+    y = range(len(rows))
+    ax.barh([k + 0.2 for k in y], [r["z"] for r in rows], height=0.4, color="tab:red", label="base model")
+    if after is not None:
+        ax.barh([k - 0.2 for k in y], [z_after.get(r["statistic"]) or 0.0 for r in rows], height=0.4,
+                color="tab:blue", label="with the named effects")
+    limit = before["disagree_z"] or 4.0  # None: too few replicas for a threshold
+    ax.axvspan(-limit, limit, color="0.9", zorder=0, label=f"|z| <= {limit:.1f}: like a simulated log")
+    ax.set_xscale("symlog", linthresh=limit)
+    lo, hi = ax.get_xlim()
+    ticks = [t for t in (-1000, -100, -30, -10, 0, 10, 30, 100, 1000) if lo <= t <= hi] + [-round(limit, 1), round(limit, 1)]
+    ax.set_xticks(sorted(ticks), [f"{t:g}" for t in sorted(ticks)])
+    ax.set_yticks(list(y), [r["statistic"] for r in rows], fontsize=8)
+    ax.set_xlabel(f"z = (measured - mean of {before['replicas']} simulated replays) / their sd")
+    ax.legend(fontsize=8, loc="lower right")
+    ax.set_title("The measured log against its calibrated simulator (the measured commands replayed)", fontsize=10)
+    fig.tight_layout()
+    _save(fig, path)
+
+
 def _img(path: Path) -> str:
     data = base64.b64encode(path.read_bytes()).decode()
     return f'<img src="data:image/png;base64,{data}" style="max-width:100%">'
+
+
+def _calibrated(cal: dict[str, Any] | None) -> str:
+    """One paragraph: where the measured log is unlike its calibrated simulation, before and after."""
+    if not cal:
+        return ""
+    if "before" not in cal:
+        return f"<p>Calibrated simulator: {html.escape(cal.get('note', 'not run'))}</p>"
+
+    def worst(check: dict[str, Any]) -> str:
+        d = check["disagreements"]
+        return (", ".join(f"{html.escape(x['statistic'])} (z = {x['z']:+.1f})" for x in d[:4])
+                + (f" and {len(d) - 4} more" if len(d) > 4 else "")) if d else "nothing"
+    return (f"<p>Calibrated simulator ({cal['before']['replicas']} replays of the measured commands): the measured "
+            f"log differs in <b>{len(cal['before']['disagreements'])}</b> statistics from the base model's simulation "
+            f"({worst(cal['before'])}), and in <b>{len(cal['after']['disagreements'])}</b> from the simulation with the "
+            f"named effects ({worst(cal['after'])}).</p>")
 
 
 def html_page(path: Path, report: dict[str, Any], text: str, figures: list[Path]) -> None:
@@ -80,7 +122,8 @@ pre{{background:#f6f6f6;padding:1em;overflow:auto}}</style></head><body>
 <h1>Discrepancy report</h1><p>{verdict}</p>
 <p>Gap ({html.escape(report['gap_metric'])}): <b>{report['gap_before']:.4f}</b> before,
 <b>{report['gap_after']:.4f}</b> after (lower is better).</p>
-{''.join(_img(p) for p in figures)}
+{_calibrated(report.get("calibrated_simulation"))}
+{''.join(_img(p) for p in figures if p.exists())}
 <h2>Candidates</h2><table><tr><th>round</th><th>effect</th><th>train gain (nats)</th><th>held-out gain (nats)</th>
 <th>p</th><th>significant</th><th>identifiable</th><th>note</th></tr>{rows}</table>
 <h2>Full report</h2><pre>{html.escape(text)}</pre></body></html>"""

@@ -5,14 +5,14 @@
   ``fov / 2`` and its distance is within ``range_mm``. At most one sighting per frame: the visible
   beacon nearest the image centre, detected with probability ``detect_prob``.
 * Sighting: height px = ``focal_px * beacon_height_mm / d`` + N(0, sigma_height^2) (pinhole,
-  57000 / d by default) and angle rad = wrap(bearing from the body heading + N(0, sigma_angle^2)),
-  counter-clockwise positive.
+  57000 / d by default; config ``sensor_curve`` replaces the pinhole, see :func:`mean_height`) and
+  angle rad = wrap(bearing from the body heading + N(0, sigma_angle^2)), counter-clockwise positive.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, Callable
 
 from .context import Sighting, wrap_angle
 
@@ -20,6 +20,29 @@ from .context import Sighting, wrap_angle
 def head_pan(t: float, amplitude: float, period: float) -> float:
     """Head pan angle (rad, relative to the body) at time ``t`` (s)."""
     return amplitude * math.sin(2.0 * math.pi * t / period)
+
+
+class MeanHeight:
+    """The true (noise-free) beacon height px as a function of distance d (mm): the pinhole
+    ``focal_px * beacon_height_mm / d``, or the config's ``sensor_curve`` (sum c_k d^k for ``power``,
+    sum c_k d^-k for ``inverse``), e.g. a learned sensor model in a calibrated simulator.
+    A plain class, so that envs pickle."""
+
+    def __init__(self, cfg: dict[str, Any]) -> None:
+        curve = cfg.get("sensor_curve")
+        self.k = cfg["focal_px"] * cfg["beacon_height_mm"]
+        self.coef = None if curve is None else [float(c) for c in curve["coef"]]
+        self.sign = 1 if curve is None or curve["basis"] == "power" else -1
+
+    def __call__(self, d: float) -> float:
+        if self.coef is None:
+            return self.k / d
+        return sum(c * d ** (self.sign * i) for i, c in enumerate(self.coef))
+
+
+def mean_height(cfg: dict[str, Any]) -> Callable[[float], float]:
+    """:class:`MeanHeight` of ``cfg``."""
+    return MeanHeight(cfg)
 
 
 class Camera:
@@ -30,7 +53,7 @@ class Camera:
         self.half_fov = 0.5 * cfg["fov"]
         self.rmin, self.rmax = cfg["range_mm"]
         self.detect_prob = cfg["detect_prob"]
-        self.height_px_mm = cfg["focal_px"] * cfg["beacon_height_mm"]
+        self.mean_height = mean_height(cfg)
         self.sigma_height = sigma_height
         self.sigma_angle = sigma_angle
 
@@ -61,7 +84,7 @@ class Camera:
         if seen is None or u >= self.detect_prob:
             return None
         i, d, bearing = seen
-        true_height = self.height_px_mm / d
+        true_height = self.mean_height(d)
         height = true_height + self.sigma_height * z_height
         angle = wrap_angle(bearing + self.sigma_angle * z_angle)
         return Sighting(i, height, angle, d, bearing, wrap_angle(bearing - pan), true_height)

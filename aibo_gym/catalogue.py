@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from .camera import mean_height
 from .context import NO_COMMAND, Frame, Motion, Sighting, wrap_angle
 from .effects import Effect, register_effect
 
@@ -118,8 +119,8 @@ class WallContact(Effect):
 
     @classmethod
     def finalize(cls, params: dict[str, Any], cfg: dict[str, Any]) -> dict[str, Any]:
-        if cfg["walls"] == "none":
-            raise ValueError("effect 'wall_contact': needs config key 'walls' 'clamp' or 'pymunk', got 'none'")
+        if cfg["walls"] in ("none", "open"):
+            raise ValueError(f"effect 'wall_contact': needs config key 'walls' 'clamp' or 'pymunk', got {cfg['walls']!r}")
         return super().finalize(params, cfg)
 
 
@@ -245,10 +246,11 @@ class FalseSightings(Effect):
 
     def _spurious(self, frame: Frame) -> Sighting:
         cfg = self.cfg
-        k = cfg["focal_px"] * cfg["beacon_height_mm"]
+        h = mean_height(cfg)
         rmin, rmax = cfg["range_mm"]
         beacon = int(self.rng.integers(len(cfg["beacons"])))
         image_angle = float(self.rng.uniform(-0.5 * cfg["fov"], 0.5 * cfg["fov"]))
-        height = float(self.rng.uniform(k / rmax, k / max(rmin, 0.1 * rmax)))
+        lo, hi = sorted((h(rmax), h(max(rmin, 0.1 * rmax))))
+        height = float(self.rng.uniform(lo, hi))
         bearing = wrap_angle(frame.head_pan + image_angle)
         return Sighting(beacon, height, bearing, math.nan, bearing, image_angle, math.nan, spurious=True)

@@ -20,8 +20,10 @@ def truth_of(env: AiboBeaconsEnv, spurious: list[int] | None = None) -> dict[str
     """The ground truth of a (reset) env, as recorded in ``meta["truth"]`` (a contract: keep keys).
 
     velocities: 40 x 3 true velocities (mm/s, mm/s, rad/s); motion_noise_std: per-frame
-    robot-frame slip std (mm, mm, rad); big_slip_prob; sensor: pinhole model with
-    height_px_mm = focal_px * beacon_height_mm (height px = height_px_mm / d mm);
+    robot-frame slip std (mm, mm, rad); motion_noise_cov (only with config ``slip_cov``, which then
+    replaces the std): the 3 x 3 slip covariance (mm^2, rad^2);
+    big_slip_prob; sensor: pinhole model with height_px_mm = focal_px * beacon_height_mm (height
+    px = height_px_mm / d mm), or ``{"model": "curve", "basis", "coef"}`` (config ``sensor_curve``);
     sigma_height px; sigma_angle rad; effects: validated effect parameters; start_pose;
     spurious_sightings (only when an enabled effect can create sightings, ``env.max_sightings`` > 1):
     the indices into the log's sighting arrays of the spurious (false) sightings.
@@ -31,12 +33,15 @@ def truth_of(env: AiboBeaconsEnv, spurious: list[int] | None = None) -> dict[str
         "velocities": env.velocities.tolist(),
         "motion_noise_std": list(cfg["slip_std"]),
         "big_slip_prob": cfg["big_slip_prob"],
-        "sensor": {"model": "pinhole", "height_px_mm": cfg["focal_px"] * cfg["beacon_height_mm"]},
+        "sensor": ({"model": "pinhole", "height_px_mm": cfg["focal_px"] * cfg["beacon_height_mm"]}
+                   if cfg["sensor_curve"] is None else {"model": "curve", **cfg["sensor_curve"]}),
         "sigma_height": env.sigma_height,
         "sigma_angle": env.sigma_angle,
         "effects": copy.deepcopy(cfg["effects"]),
         "start_pose": [float(v) for v in env.start_pose],
     }
+    if cfg["slip_cov"] is not None:
+        truth["motion_noise_cov"] = [list(row) for row in cfg["slip_cov"]]
     if env.max_sightings > 1:
         truth["spurious_sightings"] = [] if spurious is None else [int(i) for i in spurious]
     return truth
@@ -91,13 +96,49 @@ def collect(
     The env is stepped unwrapped (no wrapper overhead); the result equals stepping
     ``gym.make("AiboBeacons-v0", config=config)`` reset with ``seed`` and the same policy.
     """
-    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
-        raise ValueError(f"steps must be a positive integer, got {steps!r}")
+    _check_steps(steps)
     env = AiboBeaconsEnv(config)
     spec = policy_spec(policy, localizer, policy_params)
     pol = _make_policy(spec, env.config, seed)
-    obs, info = env.reset(seed=seed)
-    pol.reset(info)
+    meta = {"policy": spec["name"], "policy_params": spec["params"], "localizer": spec["params"].get("localizer", "ekf")}
+    return _run(env, pol.reset, pol.act, steps, seed, None, progress, meta)
+
+
+def replay(
+    config: dict[str, Any] | None,
+    actions: np.ndarray,
+    seed: int,
+    head_pan: np.ndarray | None = None,
+    source: str = "",
+    progress: bool = False,
+) -> Trajectory:
+    """Step the env through the given commands (a measured log's ``actions``) and return the log.
+
+    ``head_pan`` (rad, one per step): the pans to use instead of the config's sinusoid (a measured
+    log's); ``source`` is recorded in ``meta["replay_of"]``. The episode ends early only if the env
+    terminates (``walls="none"``).
+    """
+    actions = np.asarray(actions)
+    if actions.ndim != 1 or len(actions) == 0 or not np.issubdtype(actions.dtype, np.integer):
+        raise ValueError("replay: actions must be a non-empty 1-d array of command indices")
+    env = AiboBeaconsEnv(dict(config or {}, max_steps=len(actions)))
+    it = iter(actions.tolist())
+    options = None if head_pan is None else {"head_pan": head_pan}
+    meta = {"policy": "replay", "policy_params": {}, "localizer": "none", "replay_of": source}
+    return _run(env, lambda info: None, lambda obs, info: next(it), len(actions), seed, options, progress, meta)
+
+
+def _check_steps(steps: Any) -> None:
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
+        raise ValueError(f"steps must be a positive integer, got {steps!r}")
+
+
+def _run(env: AiboBeaconsEnv, reset, act, steps: int, seed: int, options: dict[str, Any] | None,
+         progress: bool, meta: dict[str, Any]) -> Trajectory:
+    """Reset ``env`` with ``seed`` (and ``options``), call ``reset(info)``, step ``act(obs, info)`` for
+    up to ``steps`` frames and record the log; ``meta`` adds the policy's keys to the log's meta."""
+    obs, info = env.reset(seed=seed, options=options)
+    reset(info)
     actions = np.empty(steps, dtype=np.int64)
     s_frame: list[int] = []
     s_landmark: list[int] = []
@@ -113,7 +154,7 @@ def collect(
         bar = tqdm(total=steps, unit="frame", desc="collect")
     n = 0
     for t in range(steps):
-        a = pol.act(obs, info)
+        a = act(obs, info)
         obs, _, terminated, truncated, info = env.step(a)
         actions[t] = a
         _record_sightings(info["sightings"], t, s_frame, s_landmark, s_value, s_spurious)
@@ -130,9 +171,7 @@ def collect(
     meta = {
         "generator": f"aibo_gym {__version__} {ENV_ID}",
         "seed": seed,
-        "policy": spec["name"],
-        "policy_params": spec["params"],
-        "localizer": spec["params"].get("localizer", "ekf"),
+        **meta,
         "config": copy.deepcopy(env.config),
         "truth": truth_of(env, s_spurious),
     }

@@ -18,6 +18,8 @@ nominal_max       [355, 420, pi/2]                    nominal top speed per comp
                                                       (mm/s, mm/s, rad/s): what the robot *believes*
 velocity_range    [710, 840, pi]                      max - min of the true velocities per component
 slip_std          [3.0, 3.0, 0.02]                    per-frame robot-frame slip noise std (mm, mm, rad)
+slip_cov          None                                3 x 3 per-frame slip covariance (mm^2, rad^2), symmetric
+                                                      positive definite; replaces slip_std when set
 big_slip_prob     0.0                                 probability per frame of an extra large slip
 big_slip_std      [30, 30, 0.2]                       std of a large slip (mm, mm, rad)
 pan_amplitude     1.4                                 head pan amplitude, rad (pan = A sin(2 pi t / T))
@@ -27,10 +29,14 @@ range_mm          [1275, 4175]                        distances at which a beaco
 detect_prob       0.9                                 probability a visible beacon is detected
 focal_px          190                                 camera focal length, px
 beacon_height_mm  300                                 beacon height, mm (height px = focal*H/d)
+sensor_curve      None                                {"basis": "power" | "inverse", "coef": [c0, c1, ...]}:
+                                                      true height px = sum c_k d^k (power) or sum c_k d^-k
+                                                      (inverse), d in mm; replaces focal*H/d when set
 noise             "paper-sim"                         sensor noise preset: "paper-sim" or "aibo"
 sigma_height      None                                px; overrides the preset when set
 sigma_angle       None                                rad; overrides the preset when set
-walls             "clamp"                             "clamp", "pymunk" or "none"
+walls             "clamp"                             "clamp", "pymunk", "none" or "open" (no walls and
+                                                      the episode goes on off the field)
 robot_radius      150                                 robot body radius for walls="pymunk", mm
 pymunk_substeps   4                                   fixed physics substeps per frame
 effects           {}                                  {name: {param: value}}, see aibo_gym.effects and
@@ -58,7 +64,8 @@ NOISE_PRESETS: dict[str, dict[str, float]] = {
     "paper-sim": {"sigma_height": 1.0, "sigma_angle": 0.5},  # the paper's simulation
     "aibo": {"sigma_height": 1.59, "sigma_angle": 0.0267},  # measured on the ERS-7
 }
-WALL_MODES = ("clamp", "pymunk", "none")
+WALL_MODES = ("clamp", "pymunk", "none", "open")
+SENSOR_BASES = ("power", "inverse")
 REWARDS = ("none", "explore")
 REWARD_TERMS = ("balance", "coverage", "sightings", "wall", "info_gain")  # aibo_gym.policies.onboard: the same
 DEFAULT_REWARD_WEIGHTS = {"balance": 1.0, "coverage": 1.0, "sightings": 0.0, "wall": 0.01, "info_gain": 0.0}
@@ -77,6 +84,7 @@ def default_config() -> dict[str, Any]:
         "nominal_max": [355.0, 420.0, math.pi / 2],
         "velocity_range": [710.0, 840.0, math.pi],
         "slip_std": [3.0, 3.0, 0.02],
+        "slip_cov": None,
         "big_slip_prob": 0.0,
         "big_slip_std": [30.0, 30.0, 0.2],
         "pan_amplitude": 1.4,
@@ -86,6 +94,7 @@ def default_config() -> dict[str, Any]:
         "detect_prob": 0.9,
         "focal_px": 190.0,
         "beacon_height_mm": 300.0,
+        "sensor_curve": None,
         "noise": "paper-sim",
         "sigma_height": None,
         "sigma_angle": None,
@@ -218,6 +227,33 @@ def _sigma(key: str, v: Any) -> float | None:
     return x
 
 
+def _slip_cov(key: str, v: Any) -> list[list[float]] | None:
+    if v is None:
+        return None
+    want = "None or a 3 x 3 symmetric positive definite covariance (mm^2, rad^2)"
+    if isinstance(v, np.ndarray):
+        v = v.tolist()
+    if not isinstance(v, (list, tuple)) or len(v) != 3:
+        raise _bad(key, v, want)
+    m = np.array([_numbers(key, row, 3, want) for row in v])
+    if not np.allclose(m, m.T, rtol=1e-9, atol=1e-12) or np.linalg.eigvalsh(0.5 * (m + m.T)).min() <= 0:
+        raise _bad(key, v, want)
+    return (0.5 * (m + m.T)).tolist()
+
+
+def _sensor_curve(key: str, v: Any) -> dict[str, Any] | None:
+    if v is None:
+        return None
+    want = 'None or {"basis": "power" | "inverse", "coef": [c0, c1, ...]}'
+    if not isinstance(v, dict) or set(v) != {"basis", "coef"}:
+        raise _bad(key, v, want)
+    basis = _choice(SENSOR_BASES)(f"{key}.basis", v["basis"])
+    coef = _numbers(f"{key}.coef", v["coef"], None, "a non-empty list of finite numbers")
+    if not coef:
+        raise _bad(f"{key}.coef", v["coef"], "a non-empty list of finite numbers")
+    return {"basis": basis, "coef": coef}
+
+
 def _reward_weights(key: str, v: Any) -> dict[str, float]:
     if not isinstance(v, dict):
         raise _bad(key, v, "a dict {term: weight}")
@@ -245,6 +281,7 @@ CHECKS: dict[str, Callable[[str, Any], Any]] = {
     "nominal_max": _triple(True, positive=True),
     "velocity_range": _triple(True, positive=True),
     "slip_std": _triple(True),
+    "slip_cov": _slip_cov,
     "big_slip_prob": _prob,
     "big_slip_std": _triple(True),
     "pan_amplitude": lambda k, v: _angle_range(k, v, math.pi),
@@ -254,6 +291,7 @@ CHECKS: dict[str, Callable[[str, Any], Any]] = {
     "detect_prob": _prob,
     "focal_px": _positive,
     "beacon_height_mm": _positive,
+    "sensor_curve": _sensor_curve,
     "noise": _choice(tuple(NOISE_PRESETS)),
     "sigma_height": _sigma,
     "sigma_angle": _sigma,

@@ -7,6 +7,8 @@
   (deterministic) and the position read back. Pushing into a wall slides along it. As a final
   guarantee the centre is clamped to the field shrunk by the radius.
 * ``"none"``: no walls; leaving the field ends the episode (``terminated=True``).
+* ``"open"``: no walls, and the episode goes on off the field: the world of a motion model that
+  knows no walls (a calibrated simulator of a model without ``wall_contact``).
 
 Heading is never changed by the walls (the circle has infinite moment of inertia).
 """
@@ -54,6 +56,11 @@ class NoWalls(Walls):
 
     def move(self, x: float, y: float, nx: float, ny: float, dt: float) -> tuple[float, float, bool]:
         return nx, ny, self.outside(nx, ny)
+
+
+class OpenWalls(NoWalls):
+    def move(self, x: float, y: float, nx: float, ny: float, dt: float) -> tuple[float, float, bool]:
+        return nx, ny, False
 
 
 class PymunkWalls(Walls):
@@ -108,7 +115,7 @@ class PymunkWalls(Walls):
         return cx, cy, False
 
 
-WALLS = {"clamp": ClampWalls, "pymunk": PymunkWalls, "none": NoWalls}
+WALLS = {"clamp": ClampWalls, "pymunk": PymunkWalls, "none": NoWalls, "open": OpenWalls}
 
 
 def make_walls(cfg: dict[str, Any]) -> Walls:

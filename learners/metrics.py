@@ -44,11 +44,16 @@ class ModelErrors:
 
 
 def true_height(truth: dict[str, Any], d: np.ndarray) -> np.ndarray:
-    """The simulator's mean beacon height (px) at distance d (mm): pinhole k / d."""
+    """The simulator's mean beacon height (px) at distance d (mm): pinhole k / d, or the curve of a
+    calibrated simulator (``{"model": "curve", "basis", "coef"}``)."""
     sensor = truth["sensor"]
+    d = np.asarray(d, float)
+    if sensor.get("model") == "curve":
+        sign = 1 if sensor["basis"] == "power" else -1
+        return sum(c * d ** (sign * i) for i, c in enumerate(sensor["coef"]))
     if sensor.get("model") != "pinhole":
         raise ValueError(f"unknown true sensor model {sensor.get('model')!r}")
-    return float(sensor["height_px_mm"]) / np.asarray(d, float)
+    return float(sensor["height_px_mm"]) / d
 
 
 def velocity_errors(learned: np.ndarray, true: np.ndarray, executed: np.ndarray | None = None) -> dict[str, float]:

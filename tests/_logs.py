@@ -26,9 +26,10 @@ def frame_view(tr):
     return obs, beacon
 
 
-def diagnose(tmp_path, tr, candidates: str, jobs: int = 2) -> dict:
+def diagnose(tmp_path, tr, candidates: str, jobs: int = 2, replicas: int = 0) -> dict:
     """``aibo diagnose`` on the blinded log ``tr`` (saved under ``tmp_path``): its report.json, after
-    checking that every output file was written."""
+    checking that every output file was written. ``replicas``: of the calibrated simulator (0: not
+    run, to keep the tests of the search short; tests/test_calibrated.py checks it)."""
     import json
 
     from aibo.cli import main
@@ -37,9 +38,10 @@ def diagnose(tmp_path, tr, candidates: str, jobs: int = 2) -> dict:
     log = tmp_path / "log.npz"
     save(blind(tr), log)
     out = tmp_path / "diag"
-    assert main(["diagnose", str(log), "--out", str(out), "--candidates", candidates, "--jobs", str(jobs)]) == 0
+    assert main(["diagnose", str(log), "--out", str(out), "--candidates", candidates, "--jobs", str(jobs),
+                 "--replicas", str(replicas)]) == 0
     report = json.loads((out / "report.json").read_text())
-    for name in ("model.json", "report.html", "signatures.png", "gap.png"):
+    for name in ("model.json", "report.html", "signatures.png", "gap.png") + (("calibrated.png",) if replicas else ()):
         assert (out / name).stat().st_size > 0
     assert "data:image/png;base64," in (out / "report.html").read_text()
     return report

@@ -48,8 +48,9 @@ def test_floor_drift_shows_in_the_motion_residuals_against_heading():
     assert any(v == "world heading (rad)" and "motion" in r for r, v in top), top
 
 
-def _diagnose(tmp_path, effects: dict, candidates: str, seed: int = 11, steps: int = 12000) -> dict:
-    return diagnose(tmp_path, collect({"noise": "aibo", "effects": effects}, steps, seed=seed), candidates)
+def _diagnose(tmp_path, effects: dict, candidates: str, seed: int = 11, steps: int = 12000, replicas: int = 0) -> dict:
+    return diagnose(tmp_path, collect({"noise": "aibo", "effects": effects}, steps, seed=seed), candidates,
+                    replicas=replicas)
 
 
 def _normalized(scale):
@@ -99,9 +100,16 @@ def test_no_effect_names_none(tmp_path, seed):
 
 @pytest.mark.slow
 def test_two_effects_at_once_are_both_found(tmp_path):
+    """... and the calibrated simulator, which disagrees with the measured log before, agrees after."""
     report = _diagnose(tmp_path, {"floor_drift": {"drift_mm_s": [15.0, -10.0]},
-                                  "beacon_height_scale": {"scale": [1.08, 0.94, 1.04, 0.95]}}, ALL, steps=18000)
+                                  "beacon_height_scale": {"scale": [1.08, 0.94, 1.04, 0.95]}}, ALL, steps=18000,
+                       replicas=6)
     assert {e["name"] for e in report["effects"]} == {"floor_drift", "beacon_height_scale"}
+    cal = report["calibrated_simulation"]
+    assert cal["before"]["replicas"] == cal["after"]["replicas"] == 6
+    before = {d["statistic"] for d in cal["before"]["disagreements"]}
+    assert any("landmark" in s for s in before) and any("world heading" in s for s in before), before
+    assert len(cal["after"]["disagreements"]) < len(before), cal["after"]["disagreements"]
 
 
 @pytest.mark.slow
@@ -116,3 +124,4 @@ def test_a_log_from_another_generator(tmp_path):
     assert main(["diagnose", str(log), "--out", str(out), "--candidates", "floor_drift,velocity_fade,beacon_height_scale"]) == 0
     report = json.loads((out / "report.json").read_text())
     assert report["effect"] == "floor_drift" and np.allclose(report["parameters"]["drift_mm_s"], [12, 0], atol=4.0)
+    assert report["calibrated_simulation"]["note"].startswith("not available: the simulator walks 40 discrete commands")

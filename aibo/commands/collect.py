@@ -1,26 +1,36 @@
-"""``aibo collect``: run the simulator with an exploration policy and write a log."""
+"""``aibo collect``: run the simulator with an exploration policy and write a log; with ``--model``,
+the simulator is calibrated to a fitted model, and with ``--replay`` it replays a measured log."""
 
 from __future__ import annotations
 
 import sys
 import time
 
+from aibo.errors import CLIError
 from aibo.paths import check_files
 from aibo_core import trajectory
 
 
 def run(args) -> int:
-    from aibo_gym.collect import collect
+    from aibo_gym.collect import collect, replay
     from aibo_gym.config import default_config
 
-    check_files(inputs=[], outputs=[("--out", args.out)] + ([("--plot", args.plot)] if args.plot else []))
+    inputs = [(flag, p) for flag, p in (("--model", args.model), ("--replay", args.replay)) if p]
+    check_files(inputs=inputs, outputs=[("--out", args.out)] + ([("--plot", args.plot)] if args.plot else []))
+    if args.replay and not args.model:
+        raise CLIError("--replay needs --model (the model whose simulator replays the log)")
+    model_config, log = calibrated_config(args.model, args.replay)
     # --steps frames, also past the default episode limit, unless --config sets max_steps
-    config = {"max_steps": max(args.steps, default_config()["max_steps"]), **args.config}
+    config = {"max_steps": max(args.steps, default_config()["max_steps"]), **model_config, **args.config}
     if args.preset:
         config["noise"] = args.preset
     t0 = time.perf_counter()
-    tr = collect(config, steps=args.steps, seed=args.seed, policy=args.policy, localizer=args.localizer,
-                 progress=sys.stderr.isatty(), policy_params=args.policy_params)
+    if log is not None:
+        tr = replay(config, log.actions, args.seed, head_pan=log.head_pan, source=str(args.replay),
+                    progress=sys.stderr.isatty())
+    else:
+        tr = collect(config, steps=args.steps, seed=args.seed, policy=args.policy, localizer=args.localizer,
+                     progress=sys.stderr.isatty(), policy_params=args.policy_params)
     seconds = time.perf_counter() - t0
     if args.plot:
         from aibo_gym.plot import plot_trajectory
@@ -34,3 +44,21 @@ def run(args) -> int:
           f"{seen:.0%} with a sighting, {tr.n_frames / seconds:,.0f} frames/s"
           + (f"; figure {args.plot}" if args.plot else ""))
     return 0
+
+
+def calibrated_config(model_path: str | None, replay_path: str | None):
+    """(env config of the model's simulator, the log to replay or None); ({}, None) without a model."""
+    if not model_path:
+        return {}, None
+    from experiments.calibrated import simulator_config
+    from learners.model.io import load_model
+
+    model = load_model(model_path)
+    log = trajectory.load(replay_path) if replay_path else None
+    if log is not None and log.actions is None:
+        raise CLIError(f"{replay_path}: field 'actions': the log has continuous commands; the simulator replays "
+                       "only the 40 discrete walk commands")
+    try:
+        return simulator_config(model, log), log
+    except ValueError as err:
+        raise CLIError(f"{model_path}: {err}") from None

@@ -20,7 +20,7 @@ from learners.em.learner import EMLearner
 from learners.model.effects import EFFECT_MODELS
 from learners.model.io import save_result
 
-FIGURES = ("signatures.png", "gap.png")
+FIGURES = ("signatures.png", "gap.png", "calibrated.png")
 
 
 def candidates(arg: str | None) -> list[str]:
@@ -70,17 +70,48 @@ def run(args) -> int:
     for name, note in {c["name"]: c["note"] for c in report["candidates"] if not c["identifiable"]}.items():
         say(f"  {name}: present or not, {note}")
     say(f"gap ({GAP_METRIC}): {before.gap:.4f} before, {after.gap:.4f} after; mean NIS {before.nis_mean:.2f} -> "
-        f"{after.nis_mean:.2f} (2 expected); {time.perf_counter() - t0:.1f} s")
+        f"{after.nis_mean:.2f} (2 expected)")
+    report["calibrated_simulation"] = calibrated(found, logs, args, say)
     report["seconds"] = time.perf_counter() - t0
+    say(f"{report['seconds']:.1f} s in all")
     from aibo import diagnose_report as fig
 
     fig.signature_panels(out / FIGURES[0], sig_before, sig_after)
     fig.gap_bars(out / FIGURES[1], before.as_dict(), after.as_dict())
+    cal = report["calibrated_simulation"]
+    if "before" in cal:
+        fig.calibrated_bars(out / FIGURES[2], cal["before"], cal["after"])
     text = json.dumps(report, indent=1)
     atomic_write(out / "report.json", lambda f: f.write(text.encode()))
     fig.html_page(out / "report.html", report, "\n".join(lines), [out / f for f in FIGURES])
     print(f"wrote {out}/: report.html, report.json, model.json, {', '.join(FIGURES)}")
     return 0
+
+
+def calibrated(found: dict, logs: list, args, say) -> dict:
+    """The measured logs against the calibrated simulators of the base and the final model
+    (``experiments.calibrated``): ``{"before", "after"}`` checks, or ``{"note"}`` why not."""
+    from experiments.calibrated import predictive_check, simulator_config
+
+    if args.replicas == 0:
+        return {"note": "not run (--replicas 0)"}
+    try:
+        simulator_config(found["model"], logs[0])
+    except ValueError as err:
+        say(f"calibrated simulator: not available: {err}")
+        return {"note": f"not available: {err}"}
+    say("")
+    say(f"the measured log against its calibrated simulator ({args.replicas} replays of the measured commands):")
+    checks = {}
+    for when, key in (("base model", "base"), ("with the named effects", "model")):
+        check = predictive_check(found[key], logs, args.replicas, args.seed, args.jobs)
+        checks["before" if key == "base" else "after"] = check.as_dict()
+        worst = check.disagreements()
+        say(f"  {when}: {len(worst)} statistics disagree (|z| > {check.threshold:.2g})"
+            + "".join(f"\n    {n:70s} z = {z:+.1f}" for n, z in worst[:6]))
+        for failure in check.failed:
+            say(f"    {failure}")
+    return checks
 
 
 def _report(found: dict, before, after, sig_before) -> dict:

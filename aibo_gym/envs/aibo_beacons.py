@@ -116,6 +116,10 @@ class AiboBeaconsEnv(gym.Env):
 
     ``reward_weights`` defaults: balance 1, coverage 1, sightings 0, wall 0.01, info_gain 0.
 
+    ## Head pan
+    ``pan_amplitude * sin(2 pi t / pan_period)`` (rad); ``reset(options={"head_pan": pans})`` uses
+    ``pans[t]`` after step t instead (a measured log's pans, to replay it), the sinusoid after the last.
+
     ## Starting state
 
     ``start_pose`` (default (0, 0, 0): field centre facing +x) or ``"random"``: uniform on the field
@@ -177,6 +181,9 @@ class AiboBeaconsEnv(gym.Env):
         self._disp = (self.velocities * self.dt).tolist()  # per-frame displacement per action
         self._attempted = self.attempted.tolist()
         self._slip = list(cfg["slip_std"])
+        # a full slip covariance: slip = L z with L its lower Cholesky factor (the same 3 normals)
+        self._slip_chol = None if cfg["slip_cov"] is None else np.linalg.cholesky(np.asarray(cfg["slip_cov"])).tolist()
+        self._pan_schedule: np.ndarray | None = None
         self._big = list(cfg["big_slip_std"])
         self._beacons = np.asarray(cfg["beacons"], dtype=float)
         self._beacons.flags.writeable = False
@@ -207,7 +214,8 @@ class AiboBeaconsEnv(gym.Env):
         self.pose = (x, y, wrap_angle(th))
         self.start_pose = list(self.pose)
         self.steps = 0
-        self.head_pan = head_pan(0.0, self.config["pan_amplitude"], self.config["pan_period"])
+        self._pan_schedule = self._check_pan_schedule(options)
+        self.head_pan = self._pan(0)
         self.last_sightings = []
         self._command, self._previous_command, self._command_start = NO_COMMAND, NO_COMMAND, 0
         if self.tracker is not None:
@@ -227,7 +235,7 @@ class AiboBeaconsEnv(gym.Env):
         z = rng.standard_normal(8).tolist()
         u = rng.random(2).tolist()
         cfg = self.config
-        pan = head_pan((self.steps + 1) * self.dt, cfg["pan_amplitude"], cfg["pan_period"])
+        pan = self._pan(self.steps + 1)
         frame = self._frame(a, pan)
         x, y, th = self.pose
         dx, dy, dth, wx, wy = self._displacement(a, z, u[0], frame)
@@ -278,6 +286,24 @@ class AiboBeaconsEnv(gym.Env):
             self._renderer = None
 
     # ------------------------------------------------------------------ internals
+    @staticmethod
+    def _check_pan_schedule(options: dict[str, Any] | None) -> np.ndarray | None:
+        """``reset(options={"head_pan": pans})``: the head pan (rad) after each step, e.g. a measured
+        log's (``Trajectory.head_pan``) to replay it; the config's sinusoid after the last."""
+        if not options or options.get("head_pan") is None:
+            return None
+        pans = np.asarray(options["head_pan"], dtype=float)
+        if pans.ndim != 1 or not np.all(np.isfinite(pans)):
+            raise ValueError("reset option 'head_pan': expected a 1-d array of finite angles (rad), one per step")
+        return pans
+
+    def _pan(self, step: int) -> float:
+        """Head pan (rad) at the end of frame ``step`` (0: at reset): the schedule's or the sinusoid's."""
+        sched = self._pan_schedule
+        if sched is not None and 1 <= step <= len(sched):
+            return float(sched[step - 1])
+        return head_pan(step * self.dt, self.config["pan_amplitude"], self.config["pan_period"])
+
     def _draw_start(self) -> tuple[float, float, float]:
         sp = self.config["start_pose"]
         if sp != "random":
@@ -312,8 +338,12 @@ class AiboBeaconsEnv(gym.Env):
     def _displacement(self, a: int, z: list[float], u_big: float, frame: Frame | None):
         """Robot-frame displacement (mm, mm, rad) and world-frame offset (mm, mm) of one frame."""
         vx, vy, vth = self._disp[a]
-        s = self._slip
-        dx, dy, dth = vx + s[0] * z[0], vy + s[1] * z[1], vth + s[2] * z[2]
+        if self._slip_chol is None:
+            s = self._slip
+            dx, dy, dth = vx + s[0] * z[0], vy + s[1] * z[1], vth + s[2] * z[2]
+        else:
+            (l00, _, _), (l10, l11, _), (l20, l21, l22) = self._slip_chol
+            dx, dy, dth = vx + l00 * z[0], vy + l10 * z[0] + l11 * z[1], vth + l20 * z[0] + l21 * z[1] + l22 * z[2]
         if u_big < self.config["big_slip_prob"]:
             b = self._big
             dx, dy, dth = dx + b[0] * z[3], dy + b[1] * z[4], dth + b[2] * z[5]

@@ -1,0 +1,187 @@
+"""The calibrated simulator: ``AiboBeacons-v0`` built from a fitted model, replaying a measured log's
+commands, and the check that compares it with the measured log (issue 9, steps 2 and 4).
+
+The model becomes an env config (:func:`simulator_config`): its velocity table, its per-frame motion
+covariance (``slip_cov``), its sensor curve and noise (``sensor_curve``, ``sigma_height``,
+``sigma_angle``), its effects through their simulator twins (same names and parameters), and its
+start pose. A model without ``wall_contact`` knows no walls, so its simulator has none
+(``walls="open"``). The measured log gives what the model does not describe: the landmarks, the
+field, the head pan per frame (replayed), and, when the log comes from this simulator, the camera
+(field of view, range, detection probability).
+
+The replay is open loop: the commands are the measured ones, but the simulated robot's path
+drifts away from the measured one (the policy that chose them steered on what it saw; the
+replay cannot). So statistics tied to where the robot goes relative to the walls are left out of
+the comparison (``EXCLUDED``); everything else depends on the path only through the data the
+model explains.
+
+The check (:func:`predictive_check`) is a parametric bootstrap: ``replicas`` logs are simulated from
+the fitted model with the measured commands; each is put through exactly what the measured log went
+through (outliers set aside, refit on its training half warm-started from the model, then every
+statistic of :mod:`learners.discrepancy.statistics`); the measured value of a statistic is compared
+with the replicas' spread as z = (measured - mean) / sd. Where the model is right, the measured log
+looks like one more replica. A statistic disagrees when the measured value is outside the replicas'
+prediction interval at level 1 - ``FAMILY_ALPHA`` / K (K statistics, Bonferroni; Student t with
+R - 1 dof, widened by sqrt(1 + 1/R)): a model that is right shows no disagreement in 95% of checks.
+"""
+
+from __future__ import annotations
+
+import math
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+from scipy import stats
+
+from aibo_core.actions import N_ACTIONS
+from aibo_core.trajectory import Trajectory
+from learners.discrepancy.search import drop_outliers
+from learners.discrepancy.split import training_log
+from learners.discrepancy.statistics import check_statistics
+from learners.em.fit import EMOptions
+from learners.em.learner import EMLearner
+from learners.model.model import Model
+
+#: Camera and body settings taken from a log made by this simulator (``meta["config"]``).
+SIMULATOR_KEYS = ("fov", "range_mm", "detect_prob", "pan_amplitude", "pan_period", "focal_px", "beacon_height_mm")
+EXCLUDED = ("distance to walls",)  # statistics naming these: the open-loop replay cannot reproduce them
+FAMILY_ALPHA = 0.05  # chance that a right model shows any disagreement in one check
+REFIT = EMOptions(starts=1, max_iter=60, patience=10, uncertainty=False)  # replicas: warm-started polish
+FIELD_MARGIN_MM = 1000.0  # a log without a field: the landmarks' bounding box grown by this
+
+
+def simulator_config(model: Model, log: Trajectory | None = None, index: int = 0) -> dict[str, Any]:
+    """The env config of a simulator built from ``model`` (module docstring); ``log`` (the measured
+    one, the ``index``-th of the fit) gives landmarks, field and camera. ValueError (one line) when
+    the simulator cannot represent the model."""
+    act, sen = model.action, model.sensor
+    if not act.discrete or act.weights.shape[0] != N_ACTIONS:
+        raise ValueError(f"the simulator walks {N_ACTIONS} discrete commands; this model's action model is "
+                         f"'{act.feature_map}' with {act.weights.shape[0]} rows")
+    if sen.kind != "height_px":
+        raise ValueError(f"the simulator's camera reports heights in px; this model's sensor is '{sen.kind}'")
+    walls = "clamp" if model.effect("wall_contact") is not None else "open"
+    cfg: dict[str, Any] = {
+        "dt": act.dt, "velocities": act.velocities.tolist(), "slip_cov": act.cov.tolist(), "big_slip_prob": 0.0,
+        "sensor_curve": {"basis": sen.basis, "coef": [float(c) for c in sen.coef]},
+        "sigma_height": float(sen.sigma_size), "sigma_angle": float(sen.sigma_bearing),
+        "effects": {e.name: e.to_json()["parameters"] for e in model.effects}, "walls": walls,
+    }
+    if log is not None:
+        made_here = log.meta.get("config") if isinstance(log.meta.get("config"), dict) else {}
+        cfg.update({k: made_here[k] for k in SIMULATOR_KEYS if k in made_here})
+        cfg["beacons"] = log.landmarks.tolist()
+        cfg["field"] = (log.field if log.field is not None else _bounding_field(log.landmarks)).tolist()
+        cfg["max_steps"] = int(log.n_frames)
+    start = model.init[min(index, len(model.init) - 1)].mean
+    half = np.asarray(cfg.get("field", (5400.0, 3600.0)), float) / 2
+    cfg["start_pose"] = [*np.clip(start[:2], -half, half).tolist(), float(start[2])]
+    return cfg
+
+
+def _bounding_field(landmarks: np.ndarray) -> np.ndarray:
+    return 2.0 * (np.abs(landmarks).max(axis=0) + FIELD_MARGIN_MM)
+
+
+def replay_log(model: Model, log: Trajectory, seed: int, index: int = 0) -> Trajectory:
+    """``log``'s commands (and head pan) replayed in the simulator of ``model``: a log of the same
+    length, as the model says the robot would have made it."""
+    from aibo_gym.collect import replay
+
+    if log.actions is None:
+        raise ValueError("replay: the log has no discrete commands ('actions') to replay")
+    cfg = simulator_config(model, log, index)
+    src = str(log.meta.get("source", log.meta.get("generator", "")))
+    return replay(cfg, log.actions, seed, head_pan=log.head_pan, source=src)
+
+
+@dataclass
+class Check:
+    """The measured statistics against the calibrated simulation's (``replicas`` rows)."""
+
+    names: list[str]
+    measured: np.ndarray  # (K,)
+    replicas: np.ndarray  # (R, K); NaN where a replica lacks a statistic
+    failed: list[str] = field(default_factory=list)  # replicas that could not be simulated or fitted
+
+    @property
+    def z(self) -> np.ndarray:
+        """(K,) (measured - replica mean) / replica sd; 0 where the replicas agree exactly with the data."""
+        mean, sd = np.nanmean(self.replicas, axis=0), np.nanstd(self.replicas, axis=0, ddof=1)
+        diff = self.measured - mean
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = np.where(sd > 0, diff / sd, np.where(diff == 0, 0.0, np.sign(diff) * np.inf))
+        return np.where(np.isfinite(self.measured), z, np.nan)
+
+    @property
+    def threshold(self) -> float:
+        """|z| above which a statistic disagrees (module docstring); inf with fewer than 3 replicas."""
+        r, k = len(self.replicas), max(len(self.names), 1)
+        if r < 3:
+            return math.inf
+        return float(stats.t.ppf(1.0 - FAMILY_ALPHA / (2 * k), r - 1) * math.sqrt(1.0 + 1.0 / r))
+
+    def disagreements(self) -> list[tuple[str, float]]:
+        """(statistic, z) with |z| > ``threshold``, the largest first."""
+        z, limit = self.z, self.threshold
+        idx = [k for k in np.argsort(-np.abs(np.nan_to_num(z))) if abs(z[k]) > limit]
+        return [(self.names[k], float(z[k])) for k in idx]
+
+    def as_dict(self) -> dict[str, Any]:
+        z = self.z
+        mean, sd = np.nanmean(self.replicas, axis=0), np.nanstd(self.replicas, axis=0, ddof=1)
+        rows = [{"statistic": n, "measured": _num(m), "simulated_mean": _num(a), "simulated_sd": _num(s), "z": _num(q)}
+                for n, m, a, s, q in zip(self.names, self.measured, mean, sd, z)]
+        return {"replicas": int(len(self.replicas)), "disagree_z": _num(self.threshold), "statistics": rows,
+                "disagreements": [{"statistic": n, "z": _num(q)} for n, q in self.disagreements()],
+                "failed_replicas": self.failed}
+
+
+def _num(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
+
+
+def replica_statistics(model: Model, logs: list[Trajectory], seed: int) -> dict[str, float]:
+    """One replica: every log replayed in ``model``'s simulator, then the measured logs' treatment
+    (outliers set aside, refit on the training half from ``model``, statistics on the whole)."""
+    sims = [replay_log(model, tr, seed + 7919 * i, index=i) for i, tr in enumerate(logs)]
+    sims, _ = drop_outliers(model, sims)
+    refit = EMLearner(REFIT, check_field=False).fit([training_log(tr) for tr in sims], init=model).params
+    return _compared(check_statistics(refit, sims))
+
+
+def _compared(stats: dict[str, float]) -> dict[str, float]:
+    return {k: v for k, v in stats.items() if not any(x in k for x in EXCLUDED)}
+
+
+def _replica_job(args: tuple) -> dict[str, float] | str:
+    try:
+        return replica_statistics(*args)
+    except (FloatingPointError, np.linalg.LinAlgError, ValueError, RuntimeError) as err:
+        return f"replica seed {args[2]}: {str(err).splitlines()[0]}"
+
+
+def predictive_check(model: Model, logs: list[Trajectory], replicas: int = 8, seed: int = 0, jobs: int = 1,
+                     progress: Callable[[str], None] | None = None) -> Check:
+    """The measured ``logs`` (``model`` fitted on their training halves, outliers already set aside)
+    against ``replicas`` simulations from ``model`` with the same commands (module docstring)."""
+    simulator_config(model, logs[0])  # refuse early, in one line, what the simulator cannot represent
+    measured = _compared(check_statistics(model, logs))
+    args = [(model, logs, 1_000_003 * (seed + 1) + r) for r in range(replicas)]
+    if jobs > 1:
+        with ProcessPoolExecutor(max_workers=jobs) as pool:
+            results = list(pool.map(_replica_job, args))
+    else:
+        results = [_replica_job(a) for a in args]
+    done = [r for r in results if isinstance(r, dict)]
+    failed = [r for r in results if isinstance(r, str)]
+    names = list(measured)
+    table = np.array([[r.get(n, np.nan) for n in names] for r in done]).reshape(len(done), len(names))
+    check = Check(names, np.array([measured[n] for n in names]), table, failed)
+    if progress is not None:
+        worst = check.disagreements()[:3]
+        progress(f"calibrated simulator: {len(done)} replicas ({len(failed)} failed); "
+                 + (", ".join(f"{n} z = {z:+.1f}" for n, z in worst) if worst else "no statistic disagrees"))
+    return check

@@ -1,0 +1,68 @@
+"""The statistics a calibrated simulator is compared on: one number each, computed the same way on the
+measured logs and on logs simulated from the fitted model (``experiments.calibrated``), so that the
+simulated spread calibrates every one of them (a parametric-bootstrap, posterior predictive check).
+
+Three kinds:
+
+- fit consistency (:func:`learners.discrepancy.score.score`): the held-out gap (nats per sighting),
+  the mean normalized innovation squared, its share outside the chi-square 95% band, whiteness;
+- residual signatures (:func:`learners.discrepancy.signatures.signatures`): the strength
+  sqrt(-log10 p) of each (residual, variable) dependence. Their p-values assume independent
+  residuals and are optimistic; the simulated spread of the strength is the honest reference. The
+  square root makes its tail Gaussian-like (-log10 p of a true null is exponential, its root
+  Rayleigh), so a z-score against a few replicas means what it says;
+- the data alone: sightings per frame, size quantiles (px or mm), spread of the bearings (rad).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from aibo_core.trajectory import Trajectory
+from learners.model.model import Model
+
+from .score import score
+from .signatures import signatures
+
+MAX_STRENGTH = 300.0  # -log10(p) cap (p below 1e-300 underflows)
+
+
+def signature_key(residual: str, variable: str) -> str:
+    return f"{residual} vs {variable}"
+
+
+def strength(p_value: float) -> float:
+    """sqrt(-log10 p), p floored at 10^-MAX_STRENGTH (below it p underflows)."""
+    return math.sqrt(min(-math.log10(max(p_value, 1e-300)), MAX_STRENGTH))
+
+
+def check_statistics(model: Model, logs: list[Trajectory]) -> dict[str, float]:
+    """Every statistic (module docstring) of ``model`` on ``logs``, by name."""
+    s = score(model, logs)
+    out = {
+        "held-out NLL per sighting (nats)": s.gap,
+        "mean NIS": s.nis_mean,
+        "share of NIS outside the 95% band": s.nis_outside,
+        "innovation whiteness": s.whiteness,
+    }
+    for sig in signatures(model, logs):
+        out[signature_key(sig.residual, sig.variable) + " (strength)"] = strength(sig.p_value)
+    out.update(data_statistics(logs))
+    return out
+
+
+def data_statistics(logs: list[Trajectory]) -> dict[str, float]:
+    """Statistics of the sightings alone (no model): how often and what the sensor reports."""
+    size = np.concatenate([tr.sighting_value[:, 0] for tr in logs])
+    bearing = np.concatenate([tr.sighting_value[:, 1] for tr in logs])
+    frames = sum(tr.n_frames for tr in logs)
+    q10, q50, q90 = np.quantile(size, [0.1, 0.5, 0.9]) if len(size) else (np.nan,) * 3
+    return {
+        "sightings per frame": len(size) / max(frames, 1),
+        "size, 10% quantile": float(q10),
+        "size, median": float(q50),
+        "size, 90% quantile": float(q90),
+        "bearing spread (rad)": float(np.std(bearing)) if len(bearing) else np.nan,
+    }

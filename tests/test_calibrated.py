@@ -1,0 +1,160 @@
+"""The calibrated simulator (experiments/calibrated.py, ``aibo collect --model [--replay]``) and the
+check that compares it with a measured log."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from aibo.cli import main
+from aibo_core import trajectory
+from aibo_gym.collect import collect
+from aibo_gym.config import make_config
+from aibo_gym.envs.aibo_beacons import AiboBeaconsEnv
+from experiments.calibrated import Check, predictive_check, replay_log, simulator_config
+from learners.em.fit import EMOptions
+from learners.em.learner import EMLearner
+from learners.model.catalogue import FloorDrift
+from learners.model.io import save_result
+from tests._logs import sim_log
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    """A 5-minute blind log and the default EM fit of it."""
+    tr = trajectory.blind(sim_log(9000, seed=3, noise="aibo"))
+    return tr, EMLearner(EMOptions(starts=1, uncertainty=False)).fit([tr])
+
+
+def test_the_simulator_config_carries_every_learned_number(fitted):
+    tr, result = fitted
+    model = result.params.with_effect(FloorDrift(np.array([4.0, -2.0])))
+    cfg = make_config(simulator_config(model, tr))
+    np.testing.assert_array_equal(cfg["velocities"], model.action.velocities)
+    np.testing.assert_allclose(cfg["slip_cov"], model.action.cov, rtol=1e-12)
+    assert cfg["sensor_curve"] == {"basis": model.sensor.basis, "coef": model.sensor.coef.tolist()}
+    assert (cfg["sigma_height"], cfg["sigma_angle"]) == (model.sensor.sigma_size, model.sensor.sigma_bearing)
+    assert cfg["effects"] == {"floor_drift": {"drift_mm_s": [4.0, -2.0]}}
+    assert cfg["walls"] == "open"  # the model knows no walls
+    assert cfg["start_pose"] == model.init[0].mean.tolist() and cfg["max_steps"] == tr.n_frames
+    np.testing.assert_array_equal(cfg["beacons"], tr.landmarks)
+
+
+def test_a_replay_steps_the_measured_commands_and_pans_and_is_seeded(fitted):
+    tr, result = fitted
+    a, b, c = (replay_log(result.params, tr, seed) for seed in (5, 5, 6))
+    assert a.n_frames == tr.n_frames and np.array_equal(a.actions, tr.actions)
+    np.testing.assert_array_equal(a.head_pan, tr.head_pan)
+    np.testing.assert_array_equal(a.meta["truth"]["velocities"], result.params.action.velocities)
+    assert np.array_equal(a.sighting_value, b.sighting_value) and not np.array_equal(a.pose, c.pose)
+
+
+def test_models_the_simulator_cannot_represent_are_refused_in_one_line(fitted):
+    tr, result = fitted
+    features = replace(result.params.action, feature_map="diff_drive", weights=np.zeros((5, 3)))
+    with pytest.raises(ValueError, match="40 discrete commands; this model's action model is 'diff_drive'"):
+        simulator_config(result.params.with_(action=features))
+    with pytest.raises(ValueError, match="reports heights in px; this model's sensor is 'range_mm'"):
+        simulator_config(result.params.with_(sensor=replace(result.params.sensor, kind="range_mm")))
+
+
+def test_a_diagonal_slip_covariance_is_the_slip_std_and_a_full_one_is_sampled_right():
+    steps = 20000
+    std = collect({"slip_std": [3.0, 3.0, 0.02]}, 300, seed=1)
+    cov = collect({"slip_cov": np.diag([9.0, 9.0, 0.0004]).tolist()}, 300, seed=1)
+    np.testing.assert_allclose(cov.pose, std.pose, rtol=0, atol=1e-9)
+    full = np.array([[9.0, 4.0, 0.02], [4.0, 16.0, -0.03], [0.02, -0.03, 0.0009]])
+    v = np.zeros((40, 3))
+    env = AiboBeaconsEnv({"velocities": v, "slip_cov": full.tolist(), "walls": "open", "max_steps": steps})
+    env.reset(seed=2)
+    poses = [env.pose]
+    for _ in range(steps):
+        env.step(0)
+        poses.append(env.pose)
+    p = np.array(poses)
+    c, s = np.cos(p[:-1, 2]), np.sin(p[:-1, 2])
+    d = np.diff(p, axis=0)
+    d[:, 2] = (d[:, 2] + np.pi) % (2 * np.pi) - np.pi  # the env wraps its heading
+    disp = np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], d[:, 2]], axis=1)  # robot frame
+    np.testing.assert_allclose(np.cov(disp.T), full, rtol=0.05, atol=2e-5)
+
+
+def test_a_sensor_curve_equal_to_the_pinhole_gives_the_same_heights():
+    a = collect({}, 600, seed=4)
+    b = collect({"sensor_curve": {"basis": "inverse", "coef": [0.0, 190.0 * 300.0]}}, 600, seed=4)
+    np.testing.assert_allclose(b.sighting_value, a.sighting_value, rtol=1e-12)
+    assert b.meta["truth"]["sensor"] == {"model": "curve", "basis": "inverse", "coef": [0.0, 57000.0]}
+
+
+@pytest.mark.parametrize("key, value, match", [
+    ("slip_cov", [[1, 0, 0], [0, -1, 0], [0, 0, 1]], "symmetric positive definite"),
+    ("slip_cov", [[1, 2], [2, 1]], "3 x 3"),
+    ("sensor_curve", {"basis": "log", "coef": [1.0]}, "sensor_curve.basis"),
+    ("sensor_curve", {"basis": "power", "coef": []}, "non-empty"),
+])
+def test_bad_calibration_keys_are_refused_naming_the_key(key, value, match):
+    with pytest.raises(ValueError, match=match):
+        make_config({key: value})
+
+
+def test_a_head_pan_schedule_replaces_the_sinusoid_then_it_resumes():
+    env = AiboBeaconsEnv({})
+    pans = np.linspace(-1.0, 1.0, 5)
+    env.reset(seed=0, options={"head_pan": pans})
+    seen = [env.step(0)[4]["head_pan"] for _ in range(6)]
+    np.testing.assert_array_equal(seen[:5], pans)
+    assert seen[5] == pytest.approx(1.4 * np.sin(2 * np.pi * 6 / 30 / 3.0))
+    with pytest.raises(ValueError, match="head_pan"):
+        env.reset(seed=0, options={"head_pan": [[0.0]]})
+
+
+def test_the_check_threshold_is_a_bonferroni_prediction_interval():
+    rng = np.random.default_rng(0)
+    right = [Check(["a", "b", "c"], rng.normal(size=3), rng.normal(size=(8, 3))) for _ in range(400)]
+    assert np.mean([bool(c.disagreements()) for c in right]) < 0.08  # 5% family-wise, by construction
+    wrong = Check(["a", "b"], np.array([0.0, 12.0]), rng.normal(size=(8, 2)))
+    assert [n for n, _ in wrong.disagreements()] == ["b"]
+    assert Check(["a"], np.array([9.0]), np.zeros((2, 1))).disagreements() == []  # too few replicas: no verdict
+
+
+@pytest.mark.slow
+def test_the_check_finds_a_hidden_drift_and_is_quiet_without_one():
+    """The base model's simulator disagrees with a drifting log on the motion residuals against the
+    world heading; the model with the drift no longer does there, and the base model on a log
+    without drift shows no disagreement at all."""
+    drift = trajectory.blind(collect({"noise": "aibo", "effects": {"floor_drift": {"drift_mm_s": [20.0, 0.0]}}},
+                                     9000, seed=4))
+    opts = EMOptions(starts=1, uncertainty=False)
+    base = EMLearner(opts, check_field=False).fit([drift]).params
+    found = predictive_check(base, [drift], replicas=6, seed=0, jobs=2).disagreements()
+    assert any("world heading" in n and "motion" in n for n, _ in found[:3]), found
+    with_drift = EMLearner(opts, check_field=False).fit([drift], init=base.with_effect(FloorDrift(np.zeros(2)))).params
+    after = predictive_check(with_drift, [drift], replicas=6, seed=0, jobs=2).disagreements()
+    assert not any("world heading" in n for n, _ in after), after
+    clean = trajectory.blind(sim_log(9000, seed=4, noise="aibo"))
+    model = EMLearner(opts, check_field=False).fit([clean]).params
+    assert not predictive_check(model, [clean], replicas=6, seed=0, jobs=2).disagreements()
+
+
+def test_aibo_collect_model_replay_end_to_end(tmp_path, fitted, capsys):
+    tr, result = fitted
+    log, model = tmp_path / "log.npz", tmp_path / "model.json"
+    trajectory.save(tr, log)
+    save_result(result, model)
+    out = tmp_path / "sim.npz"
+    assert main(["collect", "--model", str(model), "--replay", str(log), "--out", str(out), "--seed", "2"]) == 0
+    sim = trajectory.load(out)
+    assert np.array_equal(sim.actions, tr.actions) and sim.meta["replay_of"] == str(log)
+    np.testing.assert_allclose(sim.meta["truth"]["velocities"], json.loads(model.read_text())["action_model"]["velocities"])
+    assert main(["collect", "--model", str(model), "--steps", "300", "--out", str(tmp_path / "new.npz")]) == 0
+    assert trajectory.load(tmp_path / "new.npz").n_frames == 300
+    capsys.readouterr()
+    assert main(["collect", "--replay", str(log), "--out", str(tmp_path / "x.npz")]) == 2
+    assert capsys.readouterr().err.strip() == "aibo: error: --replay needs --model (the model whose simulator replays the log)"
+    assert main(["collect", "--model", str(log), "--out", str(tmp_path / "x.npz")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(log) in err and "Traceback" not in err
+    assert main(["collect", "--model", str(model), "--replay", str(log), "--out", str(log)]) == 2  # inputs never outputs
