@@ -85,12 +85,19 @@ def calibrated_bars(path: Path, before: dict[str, Any], after: dict[str, Any] | 
     _save(fig, path)
 
 
+def short(params: dict[str, Any]) -> str:
+    """Effect parameters with 4 significant digits: ``lag_s 0.2, scale [1.056, 0.9454]``."""
+    def num(v: Any) -> str:
+        return "[" + ", ".join(num(x) for x in v) + "]" if isinstance(v, (list, tuple)) else f"{v:.4g}"
+    return ", ".join(f"{k} {num(v)}" for k, v in params.items())
+
+
 def _img(path: Path) -> str:
     data = base64.b64encode(path.read_bytes()).decode()
     return f'<img src="data:image/png;base64,{data}" style="max-width:100%">'
 
 
-def _calibrated(cal: dict[str, Any] | None) -> str:
+def _calibrated(cal: dict[str, Any] | None, unexplained: list[dict[str, Any]]) -> str:
     """One paragraph: where the measured log is unlike its calibrated simulation, before and after."""
     if not cal:
         return ""
@@ -104,12 +111,15 @@ def _calibrated(cal: dict[str, Any] | None) -> str:
     return (f"<p>Calibrated simulator ({cal['before']['replicas']} replays of the measured commands): the measured "
             f"log differs in <b>{len(cal['before']['disagreements'])}</b> statistics from the base model's simulation "
             f"({worst(cal['before'])}), and in <b>{len(cal['after']['disagreements'])}</b> from the simulation with the "
-            f"named effects ({worst(cal['after'])}).</p>")
+            f"named effects ({worst(cal['after'])}).</p>" + "".join(
+                f"<p><b>Still unlike its simulation:</b> {html.escape(u['statistic'])} (z = {u['z']:+.1f}), the residual "
+                f"signature of <b>{html.escape(u['effect'])}</b>, which was not named ({html.escape(u['why_not_named'])}).</p>"
+                for u in unexplained))
 
 
 def html_page(path: Path, report: dict[str, Any], text: str, figures: list[Path]) -> None:
     """One self-contained page: the verdict first, then the figures, the candidates and the full text."""
-    verdict = ("Named: " + ", ".join(f"<b>{html.escape(e['name'])}</b> {html.escape(str(e['parameters']))}"
+    verdict = ("Named: " + ", ".join(f"<b>{html.escape(e['name'])}</b> {html.escape(short(e['parameters']))}"
                                     for e in report["effects"])) if report["effects"] else "Named: <b>none</b>"
     rows = "".join(
         f"<tr><td>{c['round']}</td><td>{html.escape(c['name'])}</td><td>{c['gain_train']:.1f}</td>"
@@ -122,7 +132,7 @@ pre{{background:#f6f6f6;padding:1em;overflow:auto}}</style></head><body>
 <h1>Discrepancy report</h1><p>{verdict}</p>
 <p>Gap ({html.escape(report['gap_metric'])}): <b>{report['gap_before']:.4f}</b> before,
 <b>{report['gap_after']:.4f}</b> after (lower is better).</p>
-{_calibrated(report.get("calibrated_simulation"))}
+{_calibrated(report.get("calibrated_simulation"), report.get("unexplained", []))}
 {''.join(_img(p) for p in figures if p.exists())}
 <h2>Candidates</h2><table><tr><th>round</th><th>effect</th><th>train gain (nats)</th><th>held-out gain (nats)</th>
 <th>p</th><th>significant</th><th>identifiable</th><th>note</th></tr>{rows}</table>

@@ -158,3 +158,18 @@ def test_aibo_collect_model_replay_end_to_end(tmp_path, fitted, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and str(log) in err and "Traceback" not in err
     assert main(["collect", "--model", str(model), "--replay", str(log), "--out", str(log)]) == 2  # inputs never outputs
+
+
+def test_a_disagreement_left_after_the_search_names_the_effect_whose_signature_it_is():
+    from aibo.commands.diagnose import unexplained
+
+    report = {"effects": [{"name": "beacon_height_scale", "parameters": {}}],
+              "candidates": [{"name": "floor_drift", "note": "", "gain_train": 50.3, "p_value": 1e-22, "gain_heldout": -63.0},
+                             {"name": "velocity_fade", "note": "", "gain_train": 0.1, "p_value": 0.8, "gain_heldout": -0.5}],
+              "calibrated_simulation": {"after": {"disagreements": [
+                  {"statistic": "forward motion (sigma) vs world heading (rad) (strength)", "z": 17.6},
+                  {"statistic": "size (sigma) vs landmark (strength)", "z": 6.0},  # named: not unexplained
+                  {"statistic": "innovation whiteness", "z": 6.5}]}}}  # no effect's signature
+    (u,) = unexplained(report)
+    assert u["effect"] == "floor_drift" and u["z"] == 17.6 and "held-out gain -63.0 nats" in u["why_not_named"]
+    assert unexplained({"calibrated_simulation": {"note": "not run"}}) == []

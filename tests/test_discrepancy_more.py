@@ -92,3 +92,32 @@ def test_no_effect_names_none_with_every_candidate(tmp_path, seed):
     """The default policy keeps 300 mm from the walls: no frame against a wall, nothing to name."""
     report = diagnose(tmp_path, collect({"noise": "aibo"}, 18000, seed=seed), ALL)
     assert report["effect"] == "none" and report["effects"] == [], report["effects"]
+
+
+@pytest.mark.slow
+def test_an_aibo_trajectory_1_log_of_another_head_camera_and_start(tmp_path):
+    """A /1 file (the old layout: one sighting per frame) of a robot with another head scan (0.8 rad
+    every 2 s), a wider camera, another start and noise, and no simulator config in its meta: the
+    hidden beacon heights are named, and the calibrated simulator replays that log's own head pan."""
+    import json
+
+    from aibo.cli import main
+    from tests._logs import frame_view
+
+    scale = [1.08, 0.94, 1.04, 0.95]
+    tr = collect({"pan_period": 2.0, "pan_amplitude": 0.8, "fov": 1.4, "start_pose": [300.0, -200.0, 0.3],
+                  "sigma_height": 1.2, "sigma_angle": 0.04, "effects": {"beacon_height_scale": {"scale": scale}}},
+                 18000, seed=5)
+    obs, beacon = frame_view(tr)
+    log = tmp_path / "other.npz"
+    np.savez_compressed(log, format=np.array("aibo-trajectory/1"), dt=np.array(tr.dt), actions=tr.actions, obs=obs,
+                        beacon=beacon, head_pan=tr.head_pan, beacons=tr.landmarks, field=tr.field,
+                        attempted=tr.attempted, meta=np.array(json.dumps({"generator": "another simulator"})))
+    out = tmp_path / "diag"
+    assert main(["diagnose", str(log), "--out", str(out), "--candidates", "beacon_height_scale,floor_drift,velocity_fade",
+                 "--replicas", "4"]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert report["effect"] == "beacon_height_scale" and report["gap_after"] < report["gap_before"]
+    geo = np.exp(np.mean(np.log(scale)))
+    np.testing.assert_allclose(report["parameters"]["scale"], np.array(scale) / geo, atol=0.015)
+    assert report["calibrated_simulation"]["before"]["replicas"] == 4

@@ -7,6 +7,7 @@ import sys
 import time
 from pathlib import Path
 
+from aibo import diagnose_report as fig
 from aibo.errors import CLIError
 from aibo.paths import check_files
 from aibo_core import trajectory
@@ -66,16 +67,18 @@ def run(args) -> int:
         say(f"  {s.residual:24s} vs {s.variable:32s} p = {s.p_value:.1g}")
     say(f"named effects, in order: {', '.join(e['name'] for e in report['effects']) or 'none'}")
     for e in report["effects"]:
-        say(f"  {e['name']}: {e['parameters']}")
+        say(f"  {e['name']}: {fig.short(e['parameters'])}")
     for name, note in {c["name"]: c["note"] for c in report["candidates"] if not c["identifiable"]}.items():
         say(f"  {name}: present or not, {note}")
     say(f"gap ({GAP_METRIC}): {before.gap:.4f} before, {after.gap:.4f} after; mean NIS {before.nis_mean:.2f} -> "
         f"{after.nis_mean:.2f} (2 expected)")
     report["calibrated_simulation"] = calibrated(found, logs, args, say)
+    report["unexplained"] = unexplained(report)
+    for u in report["unexplained"]:
+        say(f"  still unlike its simulation: {u['statistic']} (z = {u['z']:+.1f}), the signature of {u['effect']}, "
+            f"not named ({u['why_not_named']})")
     report["seconds"] = time.perf_counter() - t0
     say(f"{report['seconds']:.1f} s in all")
-    from aibo import diagnose_report as fig
-
     fig.signature_panels(out / FIGURES[0], sig_before, sig_after)
     fig.gap_bars(out / FIGURES[1], before.as_dict(), after.as_dict())
     cal = report["calibrated_simulation"]
@@ -112,6 +115,27 @@ def calibrated(found: dict, logs: list, args, say) -> dict:
         for failure in check.failed:
             say(f"    {failure}")
     return checks
+
+
+def unexplained(report: dict) -> list[dict]:
+    """Disagreements of the final model's calibrated simulation that are the residual signature
+    (``EffectModel.SIGNATURE``) of an effect that was not named, with why it was not: where the
+    search and the simulator part ways, the user should look."""
+    after = report["calibrated_simulation"].get("after")
+    if not after:
+        return []
+    named = {e["name"] for e in report["effects"]}
+    tried = {c["name"]: c for c in report["candidates"]}  # the last round's try of each
+    out = []
+    for d in after["disagreements"]:
+        for name, cls in sorted(EFFECT_MODELS.items()):
+            if not cls.SIGNATURE or cls.SIGNATURE not in d["statistic"] or name in named:
+                continue
+            c = tried.get(name)
+            why = ("not among the candidates" if c is None else c["note"] or
+                   f"training gain {c['gain_train']:.1f} nats, p = {c['p_value']:.2g}; held-out gain {c['gain_heldout']:+.1f} nats")
+            out.append({"statistic": d["statistic"], "z": d["z"], "effect": name, "why_not_named": why})
+    return out
 
 
 def _report(found: dict, before, after, sig_before) -> dict:

@@ -166,6 +166,7 @@ class WallContact(EffectModel):
     key: tuple | None = field(default=None, compare=False, repr=False)
 
     name: ClassVar[str] = "wall_contact"
+    SIGNATURE: ClassVar[str] = "vs distance to walls"
     PARAMS: ClassVar[dict[str, Param]] = {}
     NEEDS: ClassVar[tuple[str, ...]] = ("field",)
     MARGIN_MM: ClassVar[float] = 60.0  # an end pose this close to a wall is against it

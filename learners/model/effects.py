@@ -34,6 +34,9 @@ class EffectModel(Component):
     """Base of the effect components (module docstring). Every hook is optional."""
 
     name: ClassVar[str] = ""
+    #: the residual signature (part of a ``learners.discrepancy.signatures`` "residual vs variable" name)
+    #: that shows when the effect is missing; "" when none (a constant offset, outliers)
+    SIGNATURE: ClassVar[str] = ""
     #: Parameters estimated by profile likelihood over a grid (outside EM), e.g. a lag: name -> grid.
     GRID: ClassVar[dict[str, tuple[float, ...]]] = {}
     #: What the effect needs from the logs besides commands and sightings (``"head_pan"``, ``"field"``).
@@ -140,6 +143,7 @@ class BeaconHeightScale(EffectModel):
     scale: np.ndarray  # (B,) dimensionless
 
     name: ClassVar[str] = "beacon_height_scale"
+    SIGNATURE: ClassVar[str] = "size (sigma) vs landmark"
     CONSTRAINTS: ClassVar[int] = 1  # normalized to geometric mean 1
     PARAMS: ClassVar[dict[str, Param]] = {"scale": Param("factor per landmark", "log")}
 
