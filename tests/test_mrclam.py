@@ -103,6 +103,30 @@ def test_start_pose_from_sightings():
     np.testing.assert_array_equal(initial_state_for(sim).cov, DEFAULT_INITIAL.cov)
 
 
+def test_a_fit_far_from_the_commands_face_value_says_it_may_be_wrong():
+    """``face_value_warnings``: silent for velocities near the commands (robots 1, 2, 3, 5 of MRCLAM depart
+    by 7-24% of the commanded range), a warning for robot 4's world (forward speed -335 mm/s per rad/s)."""
+    from learners.em.support import face_value_departure, face_value_warnings
+    from learners.model.action import ActionModel
+    from learners.model.model import Model
+    from learners.model.sensor import SensorModel
+
+    rng = np.random.default_rng(0)
+    controls = np.column_stack([rng.uniform(0, 90, 2000), rng.uniform(-0.6, 0.6, 2000)])
+    a = ActionModel.zeros(5, 0.1, "unicycle", ("v_mm_s", "omega_rad_s"))
+    w = np.zeros((5, 3))
+    w[0, 0], w[1, 2], w[4, 0] = 0.1 * 1.05, 0.1 * 0.9, 0.1 * 3.0  # 5% fast, 10% short of the turn, 3 mm/s offset
+    sensor = SensorModel.start("range_mm")
+    good = Model(a.with_values(weights=w), sensor, (DEFAULT_INITIAL,))
+    assert face_value_warnings(good, controls) == [] and max(face_value_departure(good, controls)) < 0.15
+    w_bad = w.copy()
+    w_bad[1, 0], w_bad[3, 0] = -0.1 * 335.0, 0.1 * 103.0  # robot 4's learned omega and |omega| gains (mm/s per rad/s)
+    bad = face_value_warnings(Model(a.with_values(weights=w_bad), sensor, (DEFAULT_INITIAL,)), controls)
+    assert len(bad) == 1 and "may be wrong" in bad[0]
+    assert face_value_departure(Model(ActionModel.zeros(3, 0.1, "linear", ("a", "b")), sensor, (DEFAULT_INITIAL,)),
+                                controls) is None  # controls of unknown meaning: no face value
+
+
 needs_data = pytest.mark.skipif(not (DATA / "Robot1_Odometry.dat").is_file(),
                                 reason=f"MRCLAM Dataset 7 not found at {DATA} (see README, 'Real robot logs')")
 

@@ -15,7 +15,7 @@ from learners.em.accel import Packer
 from learners.em.fit import EMOptions, EMState, e_step, initial_state, options_json, run
 from learners.em.start import initial_state_for
 from learners.em.starts import disagreement, screen
-from learners.em.support import check_support, curve_warnings
+from learners.em.support import check_support, curve_warnings, face_value_warnings
 from learners.inference.batch import Batch, make_batch
 from learners.model.initial import DEFAULT_INITIAL
 from learners.model.model import Model, start_model
@@ -158,8 +158,9 @@ class EMLearner:
         info["iterations_all_starts"] = state.iteration + sum(r["iterations"] for r in state.starts if not r.get("chosen"))
         if self.options.uncertainty:
             info.update(self._uncertainty(state.best, batch.with_used(state.used)))
-        info["warnings"] = curve_warnings(state.best) + ([disagreement(state.starts)] if disagreement(state.starts)
-                                                         else []) + (
+        split = disagreement(state.starts)
+        info["warnings"] = curve_warnings(state.best) + face_value_warnings(state.best, batch.controls) + (
+            [split] if split else []) + (
             [f"{len(undetermined)} parameter(s) not determined by the data (e.g. {undetermined[0]}): kept at their "
              "start values"] if undetermined else [])
         return LearnResult("em", state.best, state.iteration, state.converged, list(state.loglik),
