@@ -65,7 +65,7 @@ def figures(out: Path, robot: int, tr, model) -> list[Path]:
         a.set_ylabel(f"{label} velocity ({unit})")
         a.set_title(f"robot {robot}: {label} velocity vs command")
     ax[0].plot(cmd[turning, 0], meas[turning, 0], "o", ms=4, mfc="none", color="tab:green", label="measured, |omega| > 0.2")
-    ax[0].legend(fontsize=7)
+    ax[0].legend(fontsize=7, markerscale=3)
     fig.tight_layout()
     p1 = out / f"velocity_r{robot}.png"
     fig.savefig(p1, dpi=90)
@@ -105,8 +105,13 @@ def learn(path: Path, tr, action_model: str) -> tuple[dict, float, object]:
     return score(res.params, [tr]), seconds, res
 
 
-def diagnose(log: Path, out: Path) -> dict:
-    """``aibo diagnose LOG --jobs 1`` in a subprocess: its report.json plus the wall time (s)."""
+def diagnose(log: Path, out: Path, reuse: bool = False) -> dict:
+    """``aibo diagnose LOG --jobs 1`` in a subprocess: its report.json plus the wall time (s); ``reuse``: read
+    an earlier run's report.json instead when there is one (wall time: the time diagnose itself reported)."""
+    if reuse and (out / "report.json").is_file():
+        report = json.loads((out / "report.json").read_text())
+        report["wall_s"] = report["seconds"]
+        return report
     t0 = time.perf_counter()
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     subprocess.run([sys.executable, "-m", "aibo.cli", "diagnose", str(log), "--out", str(out), "--jobs", "1"],
@@ -153,6 +158,14 @@ DIAG_HEAD = ("| robot | named effects (parameters) | gap before -> after (held-o
              + "---|" * 6)
 
 
+def _param(name: str, value) -> str:
+    """``name value`` of one named effect's parameter; a per-landmark list as its range and length."""
+    if isinstance(value, list):
+        v = np.asarray(value, dtype=float)
+        return f"{name} {v.min():.3g}..{v.max():.3g} ({v.size} values)"
+    return f"{name} {value:.3g}"
+
+
 def diag_row(robot: int, rep: dict | None, times: list[float], departures: list[tuple[float, bool]]) -> str:
     """One row of the diagnose and wall-time table; ``departures``: (forward departure from the face value as a
     fraction of the commanded range, whether the learner warned) per action model."""
@@ -160,7 +173,7 @@ def diag_row(robot: int, rep: dict | None, times: list[float], departures: list[
     warn = " / ".join(f"{d:.0%}" + (" (warned)" if w else "") for d, w in departures)
     if rep is None:
         return f"| {robot} | (not run) | - | - | {t} | {warn} |"
-    named = ", ".join(f"{e['name']} ({', '.join(f'{k} {v:.3g}' for k, v in e['parameters'].items())})"
+    named = ", ".join(f"{e['name']} ({', '.join(_param(k, v) for k, v in e['parameters'].items())})"
                       for e in rep["effects"]) or "none"
     cb, ca = rep["consistency_before"], rep["consistency_after"]
     return (f"| {robot} | {named} | {rep['gap_before']:.3f} -> {rep['gap_after']:.3f} | {cb['nis_mean']:.2f} -> "
@@ -184,7 +197,7 @@ def robot_report(args, out: Path, robot: int) -> tuple[str, str, str]:
                      f"value {dep[0]:.0%} forward / {dep[1]:.0%} turn\n{score_table(scores[name])}")
         print(texts[-1], flush=True)
     figures(out, robot, tr, res.params)
-    rep = None if args.no_diagnose else diagnose(path, out / f"diagnose_r{robot}")
+    rep = None if args.no_diagnose else diagnose(path, out / f"diagnose_r{robot}", args.reuse_diagnose)
     return score_row(robot, scores), diag_row(robot, rep, times, departures), "\n\n".join(texts)
 
 
@@ -195,6 +208,7 @@ def main(argv=None) -> int:
     ap.add_argument("--dt", type=float, default=0.1)
     ap.add_argument("--robots", type=int, nargs="+", default=[1, 2, 3, 4, 5])
     ap.add_argument("--no-diagnose", action="store_true", help="skip aibo diagnose (about 75 s per robot)")
+    ap.add_argument("--reuse-diagnose", action="store_true", help="reuse OUT/diagnose_rN/report.json when present")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
