@@ -61,9 +61,10 @@ def build_parser() -> argparse.ArgumentParser:
     lr.add_argument("--patience", type=integer(1), default=50, help="stop after N iterations without a new best likelihood")
     lr.add_argument("--seed", type=integer(0), default=0)
     lr.add_argument("--init", help="start from this model file instead of the paper's start")
-    lr.add_argument("--action-model", choices=["table", "features"], default=None,
+    lr.add_argument("--action-model", choices=["table", "features", "unicycle"], default=None,
                     help="table: one velocity per discrete command (default for discrete logs); features: "
-                         "velocity = features(command) x weights (the only choice for continuous commands)")
+                         "velocity = features(command) x weights (diff_drive for (v, omega) commands); unicycle: "
+                         "the diff_drive features with no lateral velocity (dy weights held at 0; a wheeled robot)")
     lr.add_argument("--plots", help="write learning-curve and sensor-model PNGs to this folder")
     lr.add_argument("--paper-recipe", action="store_true",
                     help="the paper's recipe as written: fixed motion noise, one sample per sighting, plain EM")

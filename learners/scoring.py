@@ -48,8 +48,8 @@ def face_value_model(model: Model) -> Model:
     """``model`` with its action means replaced by the commands' face value (vx = v, vtheta = omega)
     and its range curve by range = distance; noise and start beliefs kept."""
     a = model.action
-    if a.discrete or a.feature_map != "diff_drive" or tuple(a.control_names) != FACE_VALUE_CONTROLS:
-        raise ValueError(f"face value needs a diff_drive model of controls {FACE_VALUE_CONTROLS}")
+    if a.discrete or a.feature_map not in ("diff_drive", "unicycle") or tuple(a.control_names) != FACE_VALUE_CONTROLS:
+        raise ValueError(f"face value needs a diff_drive or unicycle model of controls {FACE_VALUE_CONTROLS}")
     w = np.zeros_like(a.weights)
     w[0, 0], w[1, 2] = a.dt, a.dt  # per-frame displacement = velocity x dt
     coef = np.zeros_like(model.sensor.coef)
@@ -107,7 +107,7 @@ def fit_action_to_truth(model: Model, logs: list[Trajectory], window_s: float = 
         cum = np.concatenate([np.zeros((1, f.shape[1])), np.cumsum(f, axis=0)])
         phi.append((cum[win[:, 1]] - cum[win[:, 0]]) / (win[:, 1] - win[:, 0])[:, None])
         vel.append(v)
-    w = np.linalg.lstsq(np.concatenate(phi), np.concatenate(vel), rcond=None)[0] * model.action.dt
+    w = model.action.constrain(np.linalg.lstsq(np.concatenate(phi), np.concatenate(vel), rcond=None)[0] * model.action.dt)
     return model.with_(action=model.action.with_values(weights=w))
 
 

@@ -14,6 +14,7 @@ from learners import load_model
 from learners.em.fit import EMOptions
 from learners.em.learner import EMLearner
 from learners.inference.batch import make_batch
+from learners.model.action import ActionModel
 from learners.model.effects import EFFECT_MODELS, BeaconHeightScale
 from learners.model.io import save_result
 from learners.model.model import paper_start
@@ -88,6 +89,37 @@ def test_continuous_commands_and_range_sensor_from_another_generator():
     assert np.max(np.abs(m.sensor.mean(d) - d)) < 30.0  # mm; the true curve is range = d
     assert m.sensor.sigma_size == pytest.approx(40.0, rel=0.1)
     assert m.sensor.sigma_bearing == pytest.approx(0.02, rel=0.1)
+
+
+def test_unicycle_regression_holds_lateral_weights_at_zero():
+    """``unicycle``: the diff_drive least squares with the dy column exactly 0 and the other columns
+    unchanged (one shared design matrix, so the constrained solution is the unconstrained one, dy zeroed)."""
+    rng = np.random.default_rng(0)
+    commands = np.column_stack([rng.uniform(-100, 400, 500), rng.uniform(-1.2, 1.2, 500)])
+    mu = velocity(commands) * 0.1 + rng.normal(0, [2.0, 2.0, 0.005], (500, 3))
+    free = ActionModel.zeros(5, 0.1, "diff_drive", ("v_mm_s", "omega_rad_s")).regress(commands, mu)
+    held = ActionModel.zeros(5, 0.1, "unicycle", ("v_mm_s", "omega_rad_s"))
+    w = held.regress(commands, mu)
+    assert np.all(w[:, 1] == 0.0) and np.any(free[:, 1] != 0.0)
+    np.testing.assert_allclose(w[:, [0, 2]], free[:, [0, 2]], rtol=0, atol=1e-12)
+    scaled = held.regress(commands, mu, scale=np.full(500, 0.9))
+    assert np.all(scaled[:, 1] == 0.0)
+
+
+@pytest.mark.slow
+def test_unicycle_action_model_on_the_diff_drive_generator():
+    """``--action-model unicycle`` on tests/_diffdrive.py: learned dy weights exactly 0, a dy variance
+    still in Sigma_A, and v, omega recovered within 2% of their ranges (the generator's small side
+    drift, 0.015 v + 12 omega - 2 mm/s, goes to the noise)."""
+    tr = diff_drive_log(300.0, seed=0)
+    m = EMLearner(EMOptions()).fit([tr], action_model="unicycle").params
+    assert m.action.feature_map == "unicycle" and np.all(m.action.weights[:, 1] == 0.0)
+    assert m.action.cov[1, 1] > 0.0
+    grid = np.array([[v, w] for v in np.linspace(-100, 400, 11) for w in np.linspace(-1.2, 1.2, 13)])
+    err = m.action.velocity(grid) - velocity(grid)
+    span = np.ptp(velocity(grid), axis=0)
+    rms = np.sqrt(np.mean(err**2, axis=0))
+    assert rms[0] / span[0] < 0.02 and rms[2] / span[2] < 0.02, rms / span
 
 
 def test_learner_effect_names_are_simulator_effect_names():

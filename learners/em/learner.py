@@ -15,7 +15,7 @@ from learners.em.accel import Packer
 from learners.em.fit import EMOptions, EMState, e_step, initial_state, options_json, run
 from learners.em.start import initial_state_for
 from learners.em.starts import disagreement, screen
-from learners.em.support import check_support, curve_warnings
+from learners.em.support import check_support, curve_warnings, face_value_warnings
 from learners.inference.batch import Batch, make_batch
 from learners.model.initial import DEFAULT_INITIAL
 from learners.model.model import Model, start_model
@@ -46,6 +46,29 @@ def plausible_area(tr: Trajectory) -> tuple[np.ndarray, np.ndarray]:
     return (lo + hi) / 2, hi - lo + grow
 
 
+#: ``--action-model`` choices: table (discrete), features (diff_drive for (v, omega), else linear), unicycle
+ACTION_MODELS = ("table", "features", "unicycle")
+
+
+def feature_map_for(action_model: str | None, discrete: bool, control_names: tuple[str, ...]) -> str | None:
+    """The feature map ``--action-model`` asks for (None: the start model's default), or a ValueError naming
+    why it does not fit the log (``discrete``: the log's commands are indices; ``control_names``: otherwise)."""
+    if action_model not in (None, *ACTION_MODELS):
+        raise ValueError(f"unknown action model {action_model!r} (valid choices: {', '.join(ACTION_MODELS)})")
+    if action_model == "table" and not discrete:
+        raise ValueError("this log has continuous commands ('controls'): use --action-model features")
+    if action_model in ("features", "unicycle") and discrete:
+        raise ValueError(f"--action-model {action_model} needs continuous commands ('controls'); this log has "
+                         "discrete actions (use --action-model table)")
+    if action_model == "unicycle" and len(control_names) != 2:
+        raise ValueError(f"--action-model unicycle needs two controls (v, omega); this log has {len(control_names)}")
+    if action_model in (None, "table"):
+        return None
+    if action_model == "unicycle":
+        return "unicycle"
+    return "diff_drive" if len(control_names) == 2 else "linear"
+
+
 class EMLearner:
     """Maximum-likelihood action and sensor models by EM (Stronger & Stone).
 
@@ -73,12 +96,7 @@ class EMLearner:
         tr = logs[0]
         names = tuple(tr.control_names or ())
         n_commands = len(tr.attempted) if tr.discrete else None
-        fmap = None if action_model in (None, "table") else ("diff_drive" if len(names) == 2 else "linear")
-        if action_model == "table" and not tr.discrete:
-            raise ValueError("this log has continuous commands ('controls'): use --action-model features")
-        if action_model == "features" and tr.discrete:
-            raise ValueError("--action-model features needs continuous commands ('controls'); this log has "
-                             "discrete actions (use --action-model table)")
+        fmap = feature_map_for(action_model, tr.discrete, names)
         basis = self.options.sensor_basis(tr.sensor_kind, init.sensor.basis if init else None)
         degree = self.options.sensor_degree(basis)
         start = init or start_model(batch, tr.dt, tr.sensor_kind, n_commands, names, fmap, basis,
@@ -140,8 +158,9 @@ class EMLearner:
         info["iterations_all_starts"] = state.iteration + sum(r["iterations"] for r in state.starts if not r.get("chosen"))
         if self.options.uncertainty:
             info.update(self._uncertainty(state.best, batch.with_used(state.used)))
-        info["warnings"] = curve_warnings(state.best) + ([disagreement(state.starts)] if disagreement(state.starts)
-                                                         else []) + (
+        split = disagreement(state.starts)
+        info["warnings"] = curve_warnings(state.best) + face_value_warnings(state.best, batch.controls) + (
+            [split] if split else []) + (
             [f"{len(undetermined)} parameter(s) not determined by the data (e.g. {undetermined[0]}): kept at their "
              "start values"] if undetermined else [])
         return LearnResult("em", state.best, state.iteration, state.converged, list(state.loglik),

@@ -4,6 +4,13 @@ Measured (issue 8, item 14): with 1 sighting EM wrote sigma_height 3.6e-15 px; w
 reported convergence with a curve 9 px off; with 30 it predicted -288 px at 1.3 m. A cubic sensor
 curve and two noise sigmas need many sightings spread over distances, and a command never executed
 says nothing about its velocity.
+
+A fit can also be determined and still wrong: on MRCLAM robot 4 (2 sightings/s, errors correlated
+from sighting to sighting) EM reaches a world whose forward speed depends on the turn direction
+(-335 mm/s per rad/s of omega, where Vicon says +3), from the paper's start, from the true start
+pose and from the commands' face value alike. No truth is needed to see it: the learned velocities
+depart from the commands' face value by 71% of the commanded speed range (7-24% on robots 1, 2, 3
+and 5). ``face_value_warnings`` says so when the controls are velocities with known units.
 """
 
 from __future__ import annotations
@@ -17,6 +24,12 @@ from learners.model.model import Model
 MIN_SIGHTINGS_PER_PARAMETER = 25
 #: Smallest spread (mm) of smoothed distances over which a curve of degree > 1 is taken as determined.
 MIN_DISTANCE_SPAN_MM = 500.0
+#: Controls whose face value is a velocity: (forward mm/s, turn rad/s).
+VELOCITY_CONTROLS = ("v_mm_s", "omega_rad_s")
+#: Largest RMS departure of the learned forward speed (turn rate) from the commanded v (omega), as a
+#: fraction of the commanded range (1st-99th percentile), before the fit is called doubtful. Measured
+#: on MRCLAM: 0.07-0.24 (turn 0.02-0.06) on four robots whose fit beats the commands, 0.71 on robot 4.
+MAX_FACE_VALUE_DEPARTURE = 0.4
 
 
 class InsufficientDataError(ValueError):
@@ -54,3 +67,31 @@ def curve_warnings(model: Model) -> list[str]:
         out.append(f"the learned sensor curve predicts non-positive sizes within {lo:.0f}-{hi:.0f} mm: the data "
                    "do not determine it")
     return out
+
+
+def face_value_departure(model: Model, controls: np.ndarray) -> tuple[float, float] | None:
+    """(forward, turn) RMS of learned velocity minus commanded velocity over ``controls`` (N, 2), each as
+    a fraction of the commanded range (1st-99th percentile); None unless the controls are velocities
+    (``VELOCITY_CONTROLS``)."""
+    a = model.action
+    if a.discrete or tuple(a.control_names) != VELOCITY_CONTROLS or controls is None or not len(controls):
+        return None
+    c = np.asarray(controls, dtype=float)
+    diff = a.velocity(c)[:, [0, 2]] - c
+    span = np.diff(np.percentile(c, [1, 99], axis=0), axis=0)[0]
+    rms = np.sqrt(np.mean(diff**2, axis=0))
+    out = np.where(span > 0, rms / np.where(span > 0, span, 1.0), 0.0)
+    return float(out[0]), float(out[1])
+
+
+def face_value_warnings(model: Model, controls: np.ndarray | None) -> list[str]:
+    """A warning when the learned velocities depart from the commands' face value by more than
+    ``MAX_FACE_VALUE_DEPARTURE`` of the commanded range: the fit may have found a wrong world (module
+    docstring)."""
+    dep = face_value_departure(model, controls)
+    if dep is None or max(dep) <= MAX_FACE_VALUE_DEPARTURE:
+        return []
+    return [f"the learned velocities depart from the commands' face value by {dep[0]:.0%} (forward) and {dep[1]:.0%} "
+            f"(turn) of the commanded range (RMS over the log; above {MAX_FACE_VALUE_DEPARTURE:.0%}): this fit may "
+            "be wrong (a local optimum, or sensor errors the model takes as motion); check it against ground "
+            "truth or a longer log before using it"]

@@ -12,6 +12,10 @@ name           command                features (F)
                                       cross-coupling, forward speed lost while turning either
                                       way (v |omega|), a turn-size-dependent drift (|omega|)
                                       and a constant offset
+``unicycle``   (v mm/s, omega rad/s)  the ``diff_drive`` features with the lateral (dy) column of
+                                      the weights held at exactly 0: a wheeled robot cannot move
+                                      sideways. Sigma_A keeps its dy variance (slip, and the path
+                                      curving within one frame)
 ``linear``     any k numbers          [c_1, ..., c_k, 1]
 =============  =====================  ========================================================
 
@@ -46,8 +50,12 @@ def _linear(c: np.ndarray) -> np.ndarray:
 #: name -> (features of (N, k) continuous commands, number of features for k inputs)
 FEATURE_MAPS: dict[str, tuple[Callable[[np.ndarray], np.ndarray], Callable[[int], int]]] = {
     "diff_drive": (_diff_drive, lambda k: 5 if k == 2 else -1),
+    "unicycle": (_diff_drive, lambda k: 5 if k == 2 else -1),
     "linear": (_linear, lambda k: k + 1),
 }
+
+#: name -> output columns (0 dx, 1 dy, 2 dtheta) whose weights are held at exactly 0
+ZERO_OUTPUTS: dict[str, tuple[int, ...]] = {"unicycle": (1,)}
 
 
 @dataclass(frozen=True)
@@ -132,7 +140,18 @@ class ActionModel(Component):
         phi = self.features(commands)
         if scale is not None:
             phi = phi * scale[:, None]
-        return np.linalg.lstsq(phi.T @ phi, phi.T @ mu_star, rcond=None)[0]  # normal equations: F x F
+        return self.constrain(np.linalg.lstsq(phi.T @ phi, phi.T @ mu_star, rcond=None)[0])  # normal equations: F x F
+
+    def constrain(self, weights: np.ndarray) -> np.ndarray:
+        """``weights`` (F, 3) with the columns the feature map holds at 0 (``ZERO_OUTPUTS``) set to 0. The
+        three outputs share one design matrix, so zeroing a column of the least-squares solution is the
+        constrained least-squares solution (the other columns do not depend on it)."""
+        zero = ZERO_OUTPUTS.get(self.feature_map, ())
+        if not zero:
+            return weights
+        out = np.array(weights, dtype=float)
+        out[:, list(zero)] = 0.0
+        return out
 
     def determined(self, commands: np.ndarray) -> np.ndarray:
         """(F,) bool: which weights the commands of a log determine (table: the commands executed;

@@ -3,7 +3,7 @@
 Keys (a contract; tools rely on them; later keys only ever added):
 
 - ``format``: ``"aibo-model/1"``; ``learner``: learner name
-- ``action_model``: ``feature_map`` (``table``, ``diff_drive``, ``linear``), ``dt`` (s per frame),
+- ``action_model``: ``feature_map`` (``table``, ``diff_drive``, ``unicycle``, ``linear``), ``dt`` (s per frame),
   ``motion_cov`` (3x3 per-frame displacement covariance, mm^2 and rad^2); for ``table``:
   ``velocities`` (one row per command: [vx mm/s, vy mm/s, vtheta rad/s], robot frame, x forward,
   y left); otherwise ``weights`` (F rows: velocity per unit feature) and ``control_names``
@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from aibo_core.atomic import atomic_write
-from learners.model.action import PAPER_MOTION_STD, ActionModel
+from learners.model.action import PAPER_MOTION_STD, ZERO_OUTPUTS, ActionModel
 from learners.model.effects import effect_from_json
 from learners.model.initial import DEFAULT_INITIAL, InitialState
 from learners.model.model import Model
@@ -122,7 +122,7 @@ class _Reader:
 
 
 def _action(r: _Reader) -> ActionModel:
-    fmap = r.choice("action_model.feature_map", ("table", "diff_drive", "linear"), "table")
+    fmap = r.choice("action_model.feature_map", ("table", "diff_drive", "unicycle", "linear"), "table")
     dt = r.positive("action_model.dt", limit=3600.0)
     cov = r.spd("action_model.motion_cov", default=np.diag(np.square(PAPER_MOTION_STD)).tolist())
     if fmap == "table":
@@ -136,6 +136,9 @@ def _action(r: _Reader) -> ActionModel:
     weights = r.array("action_model.weights", ndim=2)
     if weights.shape[1] != 3:
         r.fail("action_model.weights", f"expected rows of 3 velocities, got shape {weights.shape}")
+    held = list(ZERO_OUTPUTS.get(fmap, ()))
+    if np.any(weights[:, held] != 0):
+        r.fail("action_model.weights", f"a {fmap} model holds columns {held} at 0")
     return ActionModel(weights * dt, cov, dt, fmap, tuple(names))
 
 
