@@ -66,7 +66,8 @@ def table(rows: list[dict]) -> str:
              "(strongest before) | seconds |", "|---|---|---|---|---|---|"]
     for r in rows:
         gap = f"{r['gap_before']:.3f} -> {r['gap_after']:.3f}" if r["gap_before"] is not None else "failed"
-        named = r["named"] + (f" (not identifiable: {', '.join(r['not_identifiable'])})" if r["not_identifiable"] else "")
+        hidden = sorted(set(r["not_identifiable"]))
+        named = r["named"] + (f" (not identifiable: {', '.join(hidden)})" if hidden else "")
         lines.append(f"| `{r['case']}` | {r['true']} | {named} | {gap} | {r['disagree_before']} -> {r['disagree_after']} "
                      f"({r['worst_before']}) | {r['seconds']:.0f} |")
     return "\n".join(lines) + "\n"
