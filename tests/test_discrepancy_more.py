@@ -121,3 +121,10 @@ def test_an_aibo_trajectory_1_log_of_another_head_camera_and_start(tmp_path):
     geo = np.exp(np.mean(np.log(scale)))
     np.testing.assert_allclose(report["parameters"]["scale"], np.array(scale) / geo, atol=0.015)
     assert report["calibrated_simulation"]["before"]["replicas"] == 4
+
+
+def test_a_false_sightings_rate_of_a_few_outliers_is_negligible_not_an_effect():
+    assert "negligible: the rate 0.0001 means 0.9 spurious sightings in 9000" in FalseSightings(1e-4).negligible(9000)
+    assert FalseSightings(0.05).negligible(9000) == "" and FalseSightings(1e-3).negligible(9000) == ""
+    assert all(cls(**{k: 0.0 for k in cls.PARAMS}).negligible(100) == "" for name, cls in EFFECT_MODELS.items()
+               if name not in ("false_sightings", "beacon_height_scale"))

@@ -97,6 +97,15 @@ class FalseSightings(EffectModel):
     def start(cls, batch: Batch) -> "FalseSightings":
         return cls(START_RATE, log_u=spurious_log_density(batch))
 
+    MIN_SPURIOUS: ClassVar[float] = 5.0  # fewer expected spurious sightings than this: outliers, not an effect
+
+    def negligible(self, n_sightings: int) -> str:
+        expected = self.rate * n_sightings
+        if expected >= self.MIN_SPURIOUS:
+            return ""
+        return (f"negligible: the rate {self.rate:.2g} means {expected:.1f} spurious sightings in {n_sightings} "
+                f"(fewer than {self.MIN_SPURIOUS:g}): a few outliers, not an effect")
+
     def _rate(self) -> float:
         return float(min(max(self.rate, W_FLOOR), MAX_RATE))
 

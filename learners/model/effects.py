@@ -42,6 +42,12 @@ class EffectModel(Component):
     #: What the effect needs from the logs besides commands and sightings (``"head_pan"``, ``"field"``).
     NEEDS: ClassVar[tuple[str, ...]] = ()
 
+    def negligible(self, n_sightings: int) -> str:
+        """Why the fitted effect is too small to name ("" when it is not), on data of ``n_sightings``
+        sightings: a significant likelihood gain that rests on a handful of data points is an outlier
+        set aside, not an effect. Default: never negligible."""
+        return ""
+
     def dof(self) -> int:
         """Free numbers the effect adds (for the likelihood-ratio test): grid parameters count one each."""
         return sum(1 if name in self.GRID else np.size(v) for name, v in self.values().items()) - self.CONSTRAINTS
