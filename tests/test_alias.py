@@ -54,12 +54,13 @@ def test_the_reports_of_the_search():
     assert "command(s) 14 moved" in fixed_line({"changed": [14], "gained_nats": 61.8})
     assert "command(s) 3, 7 moved" in fixed_line({"changed": [3, 7], "gained_nats": 61.8})
     fit = np.zeros((3, 3)).tolist()
-    row = {"command": 1, "behind_nats": CLOSE_NATS / 2, "velocities": [30.0, 0.0, 1.26]}
-    rec = {"fit_velocities": fit, "tried": [row]}
+    alt = {"velocities": [30.0, 0.0, 1.26], "behind_nats": CLOSE_NATS / 2}
+    rec = {"fit_velocities": fit, "tried": [{"command": 1, "alternative": alt}]}
     se = np.full((3, 3), 5.0)
     assert "may be a wrong optimum: command 1" in close_call(rec, se)
     assert close_call(rec, np.full((3, 3), 50.0)) == ""  # within the standard errors: the same optimum
-    assert close_call({"fit_velocities": fit, "tried": [dict(row, behind_nats=2 * CLOSE_NATS)]}, se) == ""
+    far = {"command": 1, "alternative": dict(alt, behind_nats=2 * CLOSE_NATS)}
+    assert close_call({"fit_velocities": fit, "tried": [far]}, se) == ""
     assert close_call({"fit_velocities": fit, "tried": [{"command": 1, "behind_nats": 80.0}]}, se) == ""
 
 

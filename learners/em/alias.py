@@ -168,10 +168,13 @@ def _round(batch: Batch, best: Model, ll: float, steps: dict[int, float], opts: 
     spent += st.iteration - before
     row.update(loglik=st.best_loglik, behind_nats=ll - st.best_loglik, iterations=st.iteration,
                returned=_returned(best, st.best, row["command"], steps[row["command"]]))
+    a = row["command"]
     if st.best_loglik > ll + opts.min_improvement and not row["returned"]:
-        row["kept"] = True
+        # the incumbent is now the alternative (reported by ``close_call`` when it lost by little)
+        row.update(kept=True, alternative={"velocities": best.action.velocities[a].tolist(), "behind_nats": -row["behind_nats"]})
         return (st.best, st.best_loglik), spent
-    row["velocities"] = st.best.action.velocities[row["command"]].tolist()
+    if not row["returned"]:
+        row["alternative"] = {"velocities": st.best.action.velocities[a].tolist(), "behind_nats": row["behind_nats"]}
     return None, spent
 
 
@@ -207,17 +210,19 @@ def fixed_line(rec: dict[str, Any]) -> str:
 
 
 def close_call(rec: dict[str, Any], se_velocities: np.ndarray | None) -> str:
-    """One line (a warning) when an alternative that lost came within CLOSE_NATS of the fit and its
-    velocities differ from the fit's by more than the standard errors: the fit may be a wrong optimum."""
+    """One line (a warning) when an alternative (a refitted alias that lost, or an incumbent an alias beat)
+    came within CLOSE_NATS of the fit and its velocities differ from the fit's by more than the standard
+    errors: the fit may be a wrong optimum."""
     fit = rec.get("fit_velocities")
     for row in rec.get("tried", []):
-        if "velocities" not in row or row["behind_nats"] > CLOSE_NATS or fit is None:
+        alt = row.get("alternative")
+        if fit is None or alt is None or alt["behind_nats"] > CLOSE_NATS:
             continue
         a = row["command"]
-        diff = np.abs(np.asarray(row["velocities"]) - np.asarray(fit[a]))
+        diff = np.abs(np.asarray(alt["velocities"]) - np.asarray(fit[a]))
         se = np.asarray(se_velocities[a], float) if se_velocities is not None else np.zeros(3)
         if np.any(diff > np.nan_to_num(se, nan=0.0)):
-            return (f"may be a wrong optimum: command {a} with its turn rate moved by one turn per hold fits only "
-                    f"{row['behind_nats']:.1f} nats worse (velocities differ by {np.round(diff, 3).tolist()} mm/s, "
+            return (f"may be a wrong optimum: command {a} with its turn rate one turn per hold away fits only "
+                    f"{alt['behind_nats']:.1f} nats worse (velocities differ by {np.round(diff, 3).tolist()} mm/s, "
                     "mm/s, rad/s; more than the standard errors): a longer log would tell them apart")
     return ""
