@@ -141,6 +141,7 @@ class EMLearner:
         # E-steps of the whole fit: the winner's, and the other starts' screening
         info["iterations_all_starts"] = state.iteration + sum(r["iterations"] for r in state.starts if not r.get("chosen"))
         if alias is not None:
+            info["alias_search_seconds"] = alias.pop("seconds")  # top level: the model file leaves timings out
             info["alias_search"] = alias
             info["iterations_all_starts"] += alias["iterations"]
         if self.options.uncertainty:
@@ -162,7 +163,7 @@ class EMLearner:
         found = search(batch.with_used(state.used), state.best, state.best_loglik, self.options)
         if found.record["changed"]:
             state.best, state.best_loglik = found.best, found.loglik
-        return found.record
+        return {**found.record, "seconds": found.seconds}
 
     def _uncertainty(self, best: Model, batch: Batch) -> dict:
         """``standard_errors`` and ``information`` for the model file's info (module uncertainty)."""
