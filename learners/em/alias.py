@@ -142,14 +142,13 @@ def _rank(batch: Batch, best: Model, cands: list[Candidate], opts: EMOptions) ->
     return sorted(scored, key=lambda r: -r[0])
 
 
-def _round(batch: Batch, best: Model, ll: float, steps: dict[int, float], opts: EMOptions,
-           rec: dict[str, Any]) -> tuple[tuple[Model, float] | None, int]:
-    """One round: rank, refit the top candidates briefly, continue the best one that did not return; ((the
-    new model, its loglik) when it beats ``ll``, else None; E-steps spent). Tried ones go to ``rec["tried"]``."""
+def _short_refits(batch: Batch, best: Model, ll: float, steps: dict[int, float], opts: EMOptions,
+                  rec: dict[str, Any]) -> tuple[list[tuple[EMState, dict[str, Any]]], int]:
+    """The ``TOP`` candidates of one E-step's ranking, each after ``SHORT_ITER`` EM iterations: (state, row)
+    of those whose command did not return (rows of all in ``rec["tried"]``); E-steps spent."""
     ranked = _rank(batch, best, candidates(best, steps), opts)
     rec["ranked"] += len(ranked)
-    spent = len(ranked)
-    short = []
+    spent, short = len(ranked), []
     for ll_e, cand in ranked[:TOP]:
         st = _fit(batch, with_alias(best, *cand), opts, SHORT_ITER)
         spent += st.iteration
@@ -159,23 +158,31 @@ def _round(batch: Batch, best: Model, ll: float, steps: dict[int, float], opts: 
         rec["tried"].append(row)
         if not row["returned"]:
             short.append((st, row))
+    return short, spent
+
+
+def _round(batch: Batch, best: Model, ll: float, steps: dict[int, float], opts: EMOptions,
+           rec: dict[str, Any]) -> tuple[tuple[Model, float, int] | None, int]:
+    """One round: the short refits, the best one continued to convergence; ((the new model, its loglik, the
+    command changed) when it beats ``ll``, else None; E-steps spent). The row of the continued candidate gets
+    its final likelihood and the ``alternative`` (the side that lost, for ``close_call``)."""
+    short, spent = _short_refits(batch, best, ll, steps, opts, rec)
     if not short:
         return None, spent
     st, row = max(short, key=lambda r: r[0].best_loglik)
     if row["behind_nats"] > CONTINUE_NATS:
         return None, spent
-    before = st.iteration
+    a, before = row["command"], st.iteration
     st = _fit(batch, st.best, opts, opts.max_iter, st)
     spent += st.iteration - before
     row.update(loglik=st.best_loglik, behind_nats=ll - st.best_loglik, iterations=st.iteration,
-               returned=_returned(best, st.best, row["command"], steps[row["command"]]))
-    a = row["command"]
-    if st.best_loglik > ll + opts.min_improvement and not row["returned"]:
-        # the incumbent is now the alternative (reported by ``close_call`` when it lost by little)
+               returned=_returned(best, st.best, a, steps[a]))
+    if row["returned"]:
+        return None, spent
+    if st.best_loglik > ll + opts.min_improvement:
         row.update(kept=True, alternative={"velocities": best.action.velocities[a].tolist(), "behind_nats": -row["behind_nats"]})
-        return (st.best, st.best_loglik), spent
-    if not row["returned"]:
-        row["alternative"] = {"velocities": st.best.action.velocities[a].tolist(), "behind_nats": row["behind_nats"]}
+        return (st.best, st.best_loglik, a), spent
+    row["alternative"] = {"velocities": st.best.action.velocities[a].tolist(), "behind_nats": row["behind_nats"]}
     return None, spent
 
 
@@ -192,9 +199,9 @@ def search(batch: Batch, best: Model, loglik: float, opts: EMOptions) -> AliasSe
         out.iterations += spent
         if got is None:
             break
-        rec["changed"].append(int(next(r for r in reversed(rec["tried"]) if r.get("kept"))["command"]))
+        rec["changed"].append(int(got[2]))
         rec["gained_nats"] += got[1] - out.loglik
-        out.best, out.loglik = got
+        out.best, out.loglik = got[:2]
     rec["iterations"] = out.iterations
     rec["fit_velocities"] = out.best.action.velocities.tolist() if steps else None
     out.seconds = time.perf_counter() - t0
