@@ -78,6 +78,9 @@ def build_parser() -> argparse.ArgumentParser:
                     "EMOptions.starts; paper: 1)")
     lr.add_argument("--sensor-basis", choices=["power", "inverse"], help="sensor curve: power (the paper's cubic "
                     "in d) or inverse (c0 + c1/d + c2/d^2); default: --init's, else EMOptions' default")
+    lr.add_argument("--alias-search", action=argparse.BooleanOptionalAction, default=None,
+                    help="after the fit, search heading aliases of commands held once or a few times (default on; "
+                         "paper: off)")
     lr.add_argument("--estep", choices=["compiled", "numpy"], default="compiled",
                     help="numba kernels (default) or the plain NumPy reference")
     lr.add_argument("--no-resume", action="store_true", help="ignore a checkpoint left by an interrupted run")

@@ -35,8 +35,10 @@ VARIANTS = {
     "cubic, 1 start (old default)": EMOptions(basis="power", starts=1),
     "cubic, 3 starts": EMOptions(basis="power", starts=3),
     "inverse, 1 start": EMOptions(basis="inverse", starts=1),
+    "default without the alias search": EMOptions(alias_search=False),
 }
-SHORT = {"default": "default (inverse, 3 starts)", "paper": "paper recipe", "old": "cubic, 1 start (old default)"}
+SHORT = {"default": "default (inverse, 3 starts)", "paper": "paper recipe", "old": "cubic, 1 start (old default)",
+         "noalias": "default without the alias search"}
 #: A fit whose vx or vy error exceeds this fraction of the range is a failure (a wrong optimum).
 FAIL_REL = 0.05
 KEYS = ("vx_rel", "vy_rel", "vtheta_rel", "sigma_height_rel", "sigma_angle_rel", "sensor_rms_px")
@@ -54,6 +56,8 @@ def fit_one(tr, name: str, opts: EMOptions, seed: int, with_se: bool) -> dict:
            "starts": res.info.get("starts", []), **model_errors(res.params, [tr]).as_dict()}
     row["failure"] = bool(row["vx_rel"] > FAIL_REL or row["vy_rel"] > FAIL_REL)
     row["starts_disagree"] = any(w.startswith("starts disagree") for w in res.info["warnings"])
+    row["may_be_wrong"] = any(w.startswith("may be a wrong optimum") for w in res.info["warnings"])
+    row["alias_search"] = res.info.get("alias_search")
     row["velocities"] = res.params.action.velocities.tolist()
     row["sigma_height"], row["sigma_angle"] = res.params.sensor.sigma_size, res.params.sensor.sigma_bearing
     se = res.info.get("standard_errors")
@@ -89,7 +93,10 @@ def table(rows: list[dict], variants: list[str]) -> list[str]:
         ok = [r for r in sel if not r["failure"]]
         fails = len(sel) - len(ok)
         disagree = sum(r.get("starts_disagree", False) for r in sel)
-        cells = [str(len(sel)), f"{fails}" + (f" ({disagree} times the starts disagreed)" if disagree else "")]
+        flagged = sum(r.get("may_be_wrong", False) for r in sel if r["failure"])
+        fixed = sum(bool((r.get("alias_search") or {}).get("changed")) for r in sel)
+        cells = [str(len(sel)), f"{fails}" + (f" ({disagree} times the starts disagreed)" if disagree else "")
+                 + (f" ({flagged} flagged)" if flagged else "") + (f" ({fixed} aliases fixed)" if fixed else "")]
         cells += [f"{100 * _mean(ok, k):.2f}%" for k in KEYS[:5]] + [f"{_mean(ok, 'sensor_rms_px'):.3f}"]
         cells += [f"{_mean(sel, 'iterations'):.0f}", f"{_mean(sel, 'seconds'):.2f}", f"{_mean(sel, 'cpu_seconds'):.2f}"]
         out.append(f"| {name} | " + " | ".join(cells) + " |")

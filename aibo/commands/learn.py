@@ -12,6 +12,7 @@ from aibo.report import Progress, error_table
 from aibo_core import trajectory
 from aibo_core.compat import check_compatible
 from learners.base import LearnResult, get_learner
+from learners.em.alias import fixed_line
 from learners.em.fit import EMOptions
 from learners.metrics import model_errors, observed_distance_range, true_height, velocity_errors
 from learners.model import io as model_io
@@ -21,7 +22,7 @@ def em_options(args) -> EMOptions:
     """Defaults (or the paper's recipe), overridden by every option the user gave."""
     opts = EMOptions.paper() if args.paper_recipe else EMOptions()
     opts.max_iter, opts.patience, opts.seed, opts.estep = args.max_iter, args.patience, args.seed, args.estep
-    for name in ("sensor_method", "learn_motion_noise", "accel"):
+    for name in ("sensor_method", "learn_motion_noise", "accel", "alias_search"):
         if getattr(args, name) is not None:
             setattr(opts, name, getattr(args, name))
     if args.gate is not None:
@@ -114,7 +115,8 @@ def run(args) -> int:
         print(f"resumed from the checkpoint at iteration {result.info['resumed_from']}")
     print(f"wrote {args.out}: {result.iterations} iterations, converged={result.converged}, "
           f"{result.pruned_observations} sightings pruned as outliers")
-    for line in starts_report(result.info) + uncertainty_report(result):
+    fixed = fixed_line(result.info.get("alias_search") or {})
+    for line in starts_report(result.info) + ([fixed] if fixed else []) + uncertainty_report(result):
         print(line)
     if all(tr.truth is not None and tr.pose is not None for tr in logs):
         print(error_table({args.learner: model_errors(result.params, logs)}))

@@ -83,8 +83,10 @@ def applicable(name: str, logs: list[Trajectory]) -> bool:
 
 def _fit(logs: list[Trajectory], init: Model, opts: EMOptions) -> Model:
     """EM on ``logs`` from ``init`` (the paper's start when None); candidates are compared by
-    ``_train_loglik`` on the same sightings, not by the fit's own (gated) likelihood."""
-    return EMLearner(opts, check_field=False).fit(logs, init=init).params
+    ``_train_loglik`` on the same sightings, not by the fit's own (gated) likelihood. The alias search
+    (``learners.em.alias``) runs in the base fit from the paper's start only: a warm-started refit that
+    switched a command to its alias would credit the jump in likelihood to the effect tried."""
+    return EMLearner(opts if init is None else replace(opts, alias_search=False), check_field=False).fit(logs, init=init).params
 
 
 def _with(effect: EffectModel, values: dict[str, Any]) -> EffectModel:

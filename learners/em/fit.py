@@ -49,6 +49,7 @@ class EMOptions:
     min_improvement: float = 0.1  # a new best must beat the old by this (nats); paper: any amount
     starts: int = 3  # starts screened, the most likely continued (``learners.em.starts``); paper: 1
     screen_iter: int = 30  # EM iterations each start runs before the most likely is chosen
+    alias_search: bool = True  # search heading aliases after the fit (``learners.em.alias``); paper: off
     uncertainty: bool = True  # standard errors from the Fisher information (``learners.em.uncertainty``)
     seed: int = 0
     frozen: tuple[str, ...] = ()  # effects held at their values (profile likelihood), by name
@@ -57,7 +58,7 @@ class EMOptions:
     def paper(cls, **overrides) -> "EMOptions":
         """The paper's recipe: fixed motion noise, one sample per sighting, plain EM, strict stop rule."""
         base = dict(sensor_method="sample", learn_motion_noise=False, accel="none", min_improvement=0.0,
-                    basis="power", degree=3, starts=1)
+                    basis="power", degree=3, starts=1, alias_search=False)
         return cls(**{**base, **overrides})
 
     def validate(self) -> "EMOptions":

@@ -12,6 +12,7 @@ from aibo_core.trajectory import Trajectory
 from learners.base import IterationRecord, LearnResult, ProgressFn
 from learners.em import checkpoint
 from learners.em.accel import Packer
+from learners.em.alias import close_call, search
 from learners.em.fit import EMOptions, EMState, e_step, initial_state, options_json, run
 from learners.em.start import initial_state_for
 from learners.em.starts import disagreement, screen
@@ -145,6 +146,7 @@ class EMLearner:
                 last_saved[0] = st.iteration
 
         state = run(batch, state, self.options, on_iteration, on_cycle)
+        alias = self._alias_search(batch, state)
         info = {"best_iteration": state.best_iteration + 1, "resumed_from": resumed_from,
                 # the first iteration carries the one-time numba compile or cache load: reported apart
                 "first_iteration_seconds": float(state.seconds[0]) if state.seconds else 0.0,
@@ -156,15 +158,31 @@ class EMLearner:
             info["starts"] = state.starts
         # E-steps of the whole fit: the winner's, and the other starts' screening
         info["iterations_all_starts"] = state.iteration + sum(r["iterations"] for r in state.starts if not r.get("chosen"))
+        if alias is not None:
+            info["alias_search_seconds"] = alias.pop("seconds")  # top level: the model file leaves timings out
+            info["alias_search"] = alias
+            info["iterations_all_starts"] += alias["iterations"]
         if self.options.uncertainty:
             info.update(self._uncertainty(state.best, batch.with_used(state.used)))
         split = disagreement(state.starts)
+        se = info.get("standard_errors", {}).get("action_model.velocities")
+        close = close_call(alias, None if se is None else np.asarray(se, float)) if alias else ""
         info["warnings"] = curve_warnings(state.best) + face_value_warnings(state.best, batch.controls) + (
-            [split] if split else []) + (
+            [split] if split else []) + ([close] if close else []) + (
             [f"{len(undetermined)} parameter(s) not determined by the data (e.g. {undetermined[0]}): kept at their "
              "start values"] if undetermined else [])
         return LearnResult("em", state.best, state.iteration, state.converged, list(state.loglik),
                            state.pruned, history, info)
+
+    def _alias_search(self, batch: Batch, state: EMState) -> dict | None:
+        """The heading-alias search (``learners.em.alias``) after the fit of a command table, when enabled:
+        ``state.best`` is replaced by a more likely alias; returns the search's record (None: not run)."""
+        if not self.options.alias_search or batch.actions is None or not state.best.action.discrete:
+            return None
+        found = search(batch.with_used(state.used), state.best, state.best_loglik, self.options)
+        if found.record["changed"]:
+            state.best, state.best_loglik = found.best, found.loglik
+        return {**found.record, "seconds": found.seconds}
 
     def _uncertainty(self, best: Model, batch: Batch) -> dict:
         """``standard_errors`` and ``information`` for the model file's info (module uncertainty)."""
