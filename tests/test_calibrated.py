@@ -126,17 +126,17 @@ def test_the_check_finds_a_hidden_drift_and_is_quiet_without_one():
     world heading; the model with the drift no longer does there, and the base model on a log
     without drift shows no disagreement at all."""
     drift = trajectory.blind(collect({"noise": "aibo", "effects": {"floor_drift": {"drift_mm_s": [20.0, 0.0]}}},
-                                     9000, seed=4))
+                                     13500, seed=4))
     opts = EMOptions(starts=1, uncertainty=False)
     base = EMLearner(opts, check_field=False).fit([drift]).params
-    found = predictive_check(base, [drift], replicas=6, seed=0, jobs=2).disagreements()
+    found = predictive_check(base, [drift], replicas=8, seed=0, jobs=2).disagreements()
     assert any("world heading" in n and "motion" in n for n, _ in found[:3]), found
     with_drift = EMLearner(opts, check_field=False).fit([drift], init=base.with_effect(FloorDrift(np.zeros(2)))).params
-    after = predictive_check(with_drift, [drift], replicas=6, seed=0, jobs=2).disagreements()
+    after = predictive_check(with_drift, [drift], replicas=8, seed=0, jobs=2).disagreements()
     assert not any("world heading" in n for n, _ in after), after
-    clean = trajectory.blind(sim_log(9000, seed=4, noise="aibo"))
+    clean = trajectory.blind(sim_log(13500, seed=4, noise="aibo"))
     model = EMLearner(opts, check_field=False).fit([clean]).params
-    assert not predictive_check(model, [clean], replicas=6, seed=0, jobs=2).disagreements()
+    assert not predictive_check(model, [clean], replicas=8, seed=0, jobs=2).disagreements()
 
 
 def test_aibo_collect_model_replay_end_to_end(tmp_path, fitted, capsys):
