@@ -30,13 +30,13 @@ from pathlib import Path
 import numpy as np
 
 from .geometry import wrap
-from .trajectory import Trajectory
+from .trajectory import VELOCITY_CONTROLS, Trajectory
 
 #: Subjects 1-5 are the robots, 6-20 the landmarks (Barcodes.dat).
 ROBOTS = (1, 2, 3, 4, 5)
 #: A ground-truth interval longer than this (s) is a dropout: poses inside it are flagged.
 GAP_S = 0.1
-CONTROL_NAMES = ("v_mm_s", "omega_rad_s")
+CONTROL_NAMES = VELOCITY_CONTROLS
 #: Default frame length (s); see README "Real robot logs (MRCLAM)" for the speed/accuracy measurement.
 DEFAULT_DT = 0.1
 

@@ -45,6 +45,8 @@ from .npzfile import FileFormatError, Header, fail, read_npz
 FORMAT = "aibo-trajectory/2"
 FORMAT_V1 = "aibo-trajectory/1"
 SENSOR_KINDS = ("height_px", "range_mm")
+#: ``control_names`` of commands that are velocities (forward mm/s, turn rad/s): their face value is a motion
+VELOCITY_CONTROLS = ("v_mm_s", "omega_rad_s")
 KEYS = ("format", "dt", "actions", "attempted", "controls", "control_names", "sighting_frame",
         "sighting_landmark", "sighting_value", "sensor_kind", "landmarks", "head_pan", "field", "pose", "meta")
 KEYS_V1 = ("format", "dt", "actions", "obs", "beacon", "head_pan", "beacons", "field", "attempted", "pose", "meta")

@@ -13,8 +13,9 @@ from typing import Any
 
 import numpy as np
 
+from learners.inference.lowered import curve
 from learners.model.model import Model
-from learners.model.sensor import SensorModel
+from learners.model.sensor import BASES, SensorModel
 
 #: The paper's simulated results (section IV-B), for side-by-side tables.
 PAPER_SIM = {
@@ -49,8 +50,7 @@ def true_height(truth: dict[str, Any], d: np.ndarray) -> np.ndarray:
     sensor = truth["sensor"]
     d = np.asarray(d, float)
     if sensor.get("model") == "curve":
-        sign = 1 if sensor["basis"] == "power" else -1
-        return sum(c * d ** (sign * i) for i, c in enumerate(sensor["coef"]))
+        return curve(BASES[sensor["basis"]], sensor["coef"], d)[0]
     if sensor.get("model") != "pinhole":
         raise ValueError(f"unknown true sensor model {sensor.get('model')!r}")
     return float(sensor["height_px_mm"]) / d

@@ -28,12 +28,10 @@ from dataclasses import replace
 import numpy as np
 
 from aibo_core.geometry import wrap
-from aibo_core.trajectory import Trajectory
+from aibo_core.trajectory import VELOCITY_CONTROLS, Trajectory
 from learners.inference.sensor_stats import fit_polynomial
 from learners.model.model import Model
 
-#: control names whose face value is a velocity: (forward mm/s, turn rad/s)
-FACE_VALUE_CONTROLS = ("v_mm_s", "omega_rad_s")
 COLUMNS = ("face value", "learned", "fit to Vicon")
 
 
@@ -48,8 +46,8 @@ def face_value_model(model: Model) -> Model:
     """``model`` with its action means replaced by the commands' face value (vx = v, vtheta = omega)
     and its range curve by range = distance; noise and start beliefs kept."""
     a = model.action
-    if a.discrete or a.feature_map not in ("diff_drive", "unicycle") or tuple(a.control_names) != FACE_VALUE_CONTROLS:
-        raise ValueError(f"face value needs a diff_drive or unicycle model of controls {FACE_VALUE_CONTROLS}")
+    if a.discrete or a.feature_map not in ("diff_drive", "unicycle") or tuple(a.control_names) != VELOCITY_CONTROLS:
+        raise ValueError(f"face value needs a diff_drive or unicycle model of controls {VELOCITY_CONTROLS}")
     w = np.zeros_like(a.weights)
     w[0, 0], w[1, 2] = a.dt, a.dt  # per-frame displacement = velocity x dt
     coef = np.zeros_like(model.sensor.coef)

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from aibo_core.trajectory import VELOCITY_CONTROLS
 from learners.inference.batch import Batch
 from learners.model.model import Model
 
@@ -24,8 +25,6 @@ from learners.model.model import Model
 MIN_SIGHTINGS_PER_PARAMETER = 25
 #: Smallest spread (mm) of smoothed distances over which a curve of degree > 1 is taken as determined.
 MIN_DISTANCE_SPAN_MM = 500.0
-#: Controls whose face value is a velocity: (forward mm/s, turn rad/s).
-VELOCITY_CONTROLS = ("v_mm_s", "omega_rad_s")
 #: Largest RMS departure of the learned forward speed (turn rate) from the commanded v (omega), as a
 #: fraction of the commanded range (1st-99th percentile), before the fit is called doubtful. Measured
 #: on MRCLAM: 0.07-0.24 (turn 0.02-0.06) on four robots whose fit beats the commands, 0.71 on robot 4.
