@@ -107,9 +107,14 @@ class Check:
     failed: list[str] = field(default_factory=list)  # replicas that could not be simulated or fitted
 
     @property
+    def moments(self) -> tuple[np.ndarray, np.ndarray]:
+        """(K,) mean and (K,) sample sd of the replicas' statistics."""
+        return np.nanmean(self.replicas, axis=0), np.nanstd(self.replicas, axis=0, ddof=1)
+
+    @property
     def z(self) -> np.ndarray:
         """(K,) (measured - replica mean) / replica sd; 0 where the replicas agree exactly with the data."""
-        mean, sd = np.nanmean(self.replicas, axis=0), np.nanstd(self.replicas, axis=0, ddof=1)
+        mean, sd = self.moments
         diff = self.measured - mean
         with np.errstate(divide="ignore", invalid="ignore"):
             z = np.where(sd > 0, diff / sd, np.where(diff == 0, 0.0, np.sign(diff) * np.inf))
@@ -131,7 +136,7 @@ class Check:
 
     def as_dict(self) -> dict[str, Any]:
         z = self.z
-        mean, sd = np.nanmean(self.replicas, axis=0), np.nanstd(self.replicas, axis=0, ddof=1)
+        mean, sd = self.moments
         rows = [{"statistic": n, "measured": _num(m), "simulated_mean": _num(a), "simulated_sd": _num(s), "z": _num(q)}
                 for n, m, a, s, q in zip(self.names, self.measured, mean, sd, z)]
         return {"replicas": int(len(self.replicas)), "disagree_z": _num(self.threshold), "statistics": rows,

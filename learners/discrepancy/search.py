@@ -120,8 +120,8 @@ def try_candidate(name: str, base: Model, base_ll: float, base_heldout: float, t
         c.significant = gain > ZERO_DOF_NATS and heldout > ZERO_DOF_NATS
     else:
         c.significant = p < ALPHA / max(n_candidates, 1) and heldout > 0
-    small = model.effect(name).negligible(int(make_batch(logs).used.sum()))
-    if c.significant and small:
+    small = model.effect(name).negligible(sum(tr.n_sightings for tr in logs)) if c.significant else ""
+    if small:
         c.significant, c.note = False, small
     if not c.significant and name in PROBE and not cls.GRID:
         shifted = {k: np.asarray(v) + np.asarray(model.effect(name).values()[k]) for k, v in PROBE[name].items()}
