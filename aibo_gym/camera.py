@@ -5,14 +5,14 @@
   ``fov / 2`` and its distance is within ``range_mm``. At most one sighting per frame: the visible
   beacon nearest the image centre, detected with probability ``detect_prob``.
 * Sighting: height px = ``focal_px * beacon_height_mm / d`` + N(0, sigma_height^2) (pinhole,
-  57000 / d by default; config ``sensor_curve`` replaces the pinhole, see :func:`mean_height`) and
+  57000 / d by default; config ``sensor_curve`` replaces the pinhole, see :class:`MeanHeight`) and
   angle rad = wrap(bearing from the body heading + N(0, sigma_angle^2)), counter-clockwise positive.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any, Callable
+from typing import Any
 
 from .context import Sighting, wrap_angle
 
@@ -40,11 +40,6 @@ class MeanHeight:
         return sum(c * d ** (self.sign * i) for i, c in enumerate(self.coef))
 
 
-def mean_height(cfg: dict[str, Any]) -> Callable[[float], float]:
-    """:class:`MeanHeight` of ``cfg``."""
-    return MeanHeight(cfg)
-
-
 class Camera:
     """Beacon sensing for one config; pure Python floats (4 beacons are faster than NumPy)."""
 
@@ -53,7 +48,7 @@ class Camera:
         self.half_fov = 0.5 * cfg["fov"]
         self.rmin, self.rmax = cfg["range_mm"]
         self.detect_prob = cfg["detect_prob"]
-        self.mean_height = mean_height(cfg)
+        self.mean_height = MeanHeight(cfg)
         self.sigma_height = sigma_height
         self.sigma_angle = sigma_angle
 

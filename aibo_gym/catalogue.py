@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from .camera import mean_height
+from .camera import MeanHeight
 from .context import NO_COMMAND, Frame, Motion, Sighting, wrap_angle
 from .effects import Effect, register_effect
 
@@ -246,7 +246,7 @@ class FalseSightings(Effect):
 
     def _spurious(self, frame: Frame) -> Sighting:
         cfg = self.cfg
-        h = mean_height(cfg)
+        h = MeanHeight(cfg)
         rmin, rmax = cfg["range_mm"]
         beacon = int(self.rng.integers(len(cfg["beacons"])))
         image_angle = float(self.rng.uniform(-0.5 * cfg["fov"], 0.5 * cfg["fov"]))
