@@ -81,6 +81,9 @@ def build_parser() -> argparse.ArgumentParser:
     lr.add_argument("--alias-search", action=argparse.BooleanOptionalAction, default=None,
                     help="after the fit, search heading aliases of commands held once or a few times (default on; "
                          "paper: off)")
+    lr.add_argument("--finish", choices=["none", "scoring"],
+                    help="after EM: none (EM's own stop, default) or scoring (EM stops early, Fisher scoring climbs "
+                         "to the likelihood's maximum; fewer EM iterations, about the same errors)")
     lr.add_argument("--estep", choices=["compiled", "numpy"], default="compiled",
                     help="numba kernels (default) or the plain NumPy reference")
     lr.add_argument("--no-resume", action="store_true", help="ignore a checkpoint left by an interrupted run")

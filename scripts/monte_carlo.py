@@ -9,9 +9,11 @@ Log i of a cell (noise preset, length) is ``aibo_gym.collect.collect`` of robot 
 with seed ``seed + i``, so every number is reproducible from the command. Each variant fits each
 log from the paper's start; per fit: the errors (``learners.metrics.model_errors``), failure (vx
 or vy error above 5% of the range), iterations (all starts' E-steps), wall and CPU seconds of the EM
-fit, and, for ``--se-variants``, the standard errors (``learners.em.uncertainty``), timed apart.
+fit, and, for ``--se-variants``, the standard errors (``learners.em.uncertainty``), timed apart (with
+the scoring finish they come with the fit, at no extra time), and the bound they imply (``bound``).
 Printed: one markdown table per cell (mean over logs; failures counted apart and left out of the
-means), and the standard errors against the spread of the estimates over the logs of each robot.
+means; error / bound is the mean error over the mean bound of the same logs), and the standard
+errors against the spread of the estimates over the logs of each robot.
 """
 
 from __future__ import annotations
@@ -36,9 +38,11 @@ VARIANTS = {
     "cubic, 3 starts": EMOptions(basis="power", starts=3),
     "inverse, 1 start": EMOptions(basis="inverse", starts=1),
     "default without the alias search": EMOptions(alias_search=False),
+    "default with the scoring finish": EMOptions(finish="scoring"),
 }
 SHORT = {"default": "default (inverse, 3 starts)", "paper": "paper recipe", "old": "cubic, 1 start (old default)",
-         "noalias": "default without the alias search"}
+         "noalias": "default without the alias search",
+         "finish": "default with the scoring finish"}
 #: A fit whose vx or vy error exceeds this fraction of the range is a failure (a wrong optimum).
 FAIL_REL = 0.05
 KEYS = ("vx_rel", "vy_rel", "vtheta_rel", "sigma_height_rel", "sigma_angle_rel", "sensor_rms_px")
@@ -67,7 +71,19 @@ def fit_one(tr, name: str, opts: EMOptions, seed: int, with_se: bool) -> dict:
         row["se_sigma_height"] = se["sensor_model.sigma_height"]
         row["se_sigma_angle"] = se["sensor_model.sigma_angle"]
         row["condition_number"] = res.info["information"]["condition_number"]
+        row.update(bound(row["se_velocities"], tr.truth["velocities"]))
+    row["scoring"] = res.info.get("scoring")
     return row
+
+
+def bound(se_velocities, true_velocities) -> dict[str, float]:
+    """The Cramer-Rao-type bound of one log: the RMS over commands of the velocities' standard errors,
+    relative to each component's true range (the errors' yardstick, ``learners.metrics``)."""
+    se = np.array(se_velocities, dtype=float)
+    true = np.asarray(true_velocities, float)
+    span = true.max(axis=0) - true.min(axis=0)
+    rms = np.sqrt(np.nanmean(se**2, axis=0))
+    return {f"{n}_bound": float(r / w) for n, r, w in zip(("vx", "vy", "vtheta"), rms, span)}
 
 
 def cell_logs(noise: str, steps: int, n: int, robots: list[int], seed: int):
@@ -85,7 +101,7 @@ def _mean(rows: list[dict], key: str) -> float:
 def table(rows: list[dict], variants: list[str]) -> list[str]:
     """Markdown rows: mean over the logs that did not fail, failures counted."""
     out = ["| variant | logs | failures | vx | vy | vtheta | sigma_h | sigma_a | sensor px | iterations | "
-           "wall s | CPU s |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+           "wall s | with SE s | error / bound (vx / vy / vtheta) |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for name in ["oracle (true poses)", *variants]:
         sel = [r for r in rows if r["variant"] == name]
         if not sel:
@@ -98,7 +114,12 @@ def table(rows: list[dict], variants: list[str]) -> list[str]:
         cells = [str(len(sel)), f"{fails}" + (f" ({disagree} times the starts disagreed)" if disagree else "")
                  + (f" ({flagged} flagged)" if flagged else "") + (f" ({fixed} aliases fixed)" if fixed else "")]
         cells += [f"{100 * _mean(ok, k):.2f}%" for k in KEYS[:5]] + [f"{_mean(ok, 'sensor_rms_px'):.3f}"]
-        cells += [f"{_mean(sel, 'iterations'):.0f}", f"{_mean(sel, 'seconds'):.2f}", f"{_mean(sel, 'cpu_seconds'):.2f}"]
+        cells += [f"{_mean(sel, 'iterations'):.0f}", f"{_mean(sel, 'seconds'):.2f}"]
+        with_se = [r for r in sel if "se_seconds" in r]
+        cells.append(f"{float(np.mean([r['seconds'] + r['se_seconds'] for r in with_se])):.2f}" if with_se else "")
+        bounded = [r for r in ok if "vx_bound" in r]
+        cells.append(" / ".join(f"{_mean(bounded, f'{n}_rel') / _mean(bounded, f'{n}_bound'):.2f}"
+                                for n in ("vx", "vy", "vtheta")) if bounded else "")
         out.append(f"| {name} | " + " | ".join(cells) + " |")
     return out
 

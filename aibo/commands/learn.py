@@ -22,7 +22,7 @@ def em_options(args) -> EMOptions:
     """Defaults (or the paper's recipe), overridden by every option the user gave."""
     opts = EMOptions.paper() if args.paper_recipe else EMOptions()
     opts.max_iter, opts.patience, opts.seed, opts.estep = args.max_iter, args.patience, args.seed, args.estep
-    for name in ("sensor_method", "learn_motion_noise", "accel", "alias_search"):
+    for name in ("sensor_method", "learn_motion_noise", "accel", "alias_search", "finish"):
         if getattr(args, name) is not None:
             setattr(opts, name, getattr(args, name))
     if args.gate is not None:
@@ -39,6 +39,15 @@ def make_learner(args):
     if args.learner == "em":
         return cls(em_options(args), checkpoint_path=checkpoint_path(args.out), resume=not args.no_resume)
     return cls()
+
+
+def scoring_report(info: dict) -> list[str]:
+    """One line on the scoring finish (``info["scoring"]``), if it ran."""
+    rec = info.get("scoring")
+    if not rec:
+        return []
+    return [f"scoring finish: {len(rec['steps'])} step(s), the likelihood rose by {rec['gain_nats']:.1f} nats over "
+            f"EM's stop ({rec.get('stop', rec.get('error', ''))}; {rec['forward_passes']} forward passes)"]
 
 
 def starts_report(info: dict) -> list[str]:
@@ -116,7 +125,8 @@ def run(args) -> int:
     print(f"wrote {args.out}: {result.iterations} iterations, converged={result.converged}, "
           f"{result.pruned_observations} sightings pruned as outliers")
     fixed = fixed_line(result.info.get("alias_search") or {})
-    for line in starts_report(result.info) + ([fixed] if fixed else []) + uncertainty_report(result):
+    for line in starts_report(result.info) + ([fixed] if fixed else []) + scoring_report(result.info) + \
+            uncertainty_report(result):
         print(line)
     if all(tr.truth is not None and tr.pose is not None for tr in logs):
         print(error_table({args.learner: model_errors(result.params, logs)}))

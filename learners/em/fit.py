@@ -29,6 +29,10 @@ DEFAULT_DEGREE = {"power": 3, "inverse": 2}
 #: The sensor basis of a fresh start when ``EMOptions.basis`` is None, per sensor kind: a pinhole height
 #: is c1/d (README, "EM at the information bound"); a range is d.
 DEFAULT_BASIS = {"height_px": "inverse", "range_mm": "power"}
+#: The switch to the scoring finish (``EMOptions.switch_gain``) looks at the best likelihood's gain over
+#: this many iterations, and not before this many E-steps (the screening's included).
+SWITCH_WINDOW = 10
+SWITCH_MIN_ITER = 60
 
 
 @dataclass
@@ -51,6 +55,10 @@ class EMOptions:
     screen_iter: int = 30  # EM iterations each start runs before the most likely is chosen
     alias_search: bool = True  # search heading aliases after the fit (``learners.em.alias``); paper: off
     uncertainty: bool = True  # standard errors from the Fisher information (``learners.em.uncertainty``)
+    # after EM: "none" (EM's own stop, as the paper) or "scoring": EM stops early and Fisher scoring climbs to
+    # the likelihood's maximum (``learners.em.finish``; off by default: README, "EM at the information bound")
+    finish: str = "none"
+    switch_gain: float = 1.0  # with the finish, EM stops once SWITCH_WINDOW iterations gained less (nats)
     seed: int = 0
     frozen: tuple[str, ...] = ()  # effects held at their values (profile likelihood), by name
 
@@ -68,6 +76,8 @@ class EMOptions:
             raise ValueError(f"accel must be 'none' or 'squarem', got {self.accel!r}")
         if self.estep not in ("compiled", "numpy"):
             raise ValueError(f"estep must be 'compiled' or 'numpy', got {self.estep!r}")
+        if self.finish not in ("none", "scoring"):
+            raise ValueError(f"finish must be 'none' or 'scoring', got {self.finish!r}")
         if self.basis is not None and self.basis not in DEFAULT_DEGREE:
             raise ValueError(f"basis must be 'power' or 'inverse', got {self.basis!r}")
         for name in ("max_iter", "patience", "n_samples", "degree", "starts", "screen_iter"):
@@ -102,6 +112,7 @@ class EMState:
     seconds: list[float] = field(default_factory=list)
     record_iteration: int = -1  # last iteration that beat the best by more than min_improvement
     starts: list = field(default_factory=list)  # the screening report (``learners.em.starts``), JSON-able
+    switched: bool = False  # stopped by the switch to the scoring finish, not by the patience rule
 
 
 def e_step(params: Model, batch: Batch, estep: str, gate: float | None = None,
@@ -147,8 +158,8 @@ def initial_state(start: Model, batch: Batch, opts: EMOptions) -> EMState:
 class _Loop:
     """One fit's bookkeeping: every E-step is an iteration (pruning, likelihood, best, stop rule)."""
 
-    def __init__(self, batch: Batch, state: EMState, opts: EMOptions, on_iteration, on_cycle):
-        self.state, self.opts = state, opts
+    def __init__(self, batch: Batch, state: EMState, opts: EMOptions, on_iteration, on_cycle, switch: bool):
+        self.state, self.opts, self.switch = state, opts, switch
         self.batch = batch.with_used(state.used)
         self.rng = np.random.default_rng()
         self.rng.bit_generator.state = state.rng_state
@@ -183,12 +194,21 @@ class _Loop:
             st.best, st.best_loglik, st.best_iteration = params, ll, st.iteration
         st.iteration += 1
         st.converged = st.iteration - 1 - st.record_iteration >= opts.patience
+        if self.switch and not st.converged and self.switch_now():
+            st.converged = st.switched = True
         now = time.perf_counter()
         st.seconds.append(now - self.tick)
         self.tick = now
         if self.on_iteration is not None:
             self.on_iteration(st, params, ll)
         return post, ll
+
+    def switch_now(self) -> bool:
+        """Whether the best likelihood gained less than ``switch_gain`` over the last SWITCH_WINDOW iterations."""
+        ll = self.state.loglik
+        if self.state.iteration < max(SWITCH_MIN_ITER, SWITCH_WINDOW + 1):
+            return False
+        return max(ll) - max(ll[:-SWITCH_WINDOW]) < self.opts.switch_gain
 
     def m(self, params: Model, post: Posterior) -> Model:
         lo = self.lowered[1] if self.lowered[0] is params else None  # lowered by the E-step just run
@@ -230,14 +250,17 @@ def run(
     opts: EMOptions,
     on_iteration: Callable[[EMState, Model, float], None] | None = None,
     on_cycle: Callable[[EMState], None] | None = None,
+    switch: bool = False,
 ) -> EMState:
     """Iterate EM from ``state`` until the stop rule; returns the final state (best params in ``best``).
+    ``switch``: also stop once the likelihood's gain slows below ``opts.switch_gain`` (the caller then
+    runs the scoring finish, ``learners.em.finish``).
 
     ``on_iteration(state, params, loglik)`` follows every E-step; ``on_cycle(state)`` follows every
     point where ``state`` can be saved and resumed exactly (after each EM step, or SQUAREM cycle).
     """
     opts.validate()
-    loop = _Loop(batch, state, opts, on_iteration, on_cycle)
+    loop = _Loop(batch, state, opts, on_iteration, on_cycle, switch)
     packer = Packer(opts) if opts.accel == "squarem" else None
     while not loop.done():
         if packer is None:

@@ -12,12 +12,14 @@ from aibo_core.trajectory import Trajectory
 from learners.base import IterationRecord, LearnResult, ProgressFn
 from learners.em import checkpoint
 from learners.em.accel import Packer
-from learners.em.alias import close_call, search
+from learners.em.alias import alias_steps, close_call, search
+from learners.em.finish import fisher_scoring
 from learners.em.fit import EMOptions, EMState, e_step, initial_state, options_json, run
 from learners.em.start import initial_state_for
 from learners.em.starts import disagreement, screen
 from learners.em.support import check_support, curve_warnings, face_value_warnings
 from learners.inference.batch import Batch, make_batch
+from learners.inference.predictive import has_mixture
 from learners.model.initial import DEFAULT_INITIAL
 from learners.model.model import Model, start_model
 
@@ -145,8 +147,9 @@ class EMLearner:
                 checkpoint.save(self.checkpoint_path, st, fp)
                 last_saved[0] = st.iteration
 
-        state = run(batch, state, self.options, on_iteration, on_cycle)
+        state = run(batch, state, self.options, on_iteration, on_cycle, switch=self._switches(batch, start))
         alias = self._alias_search(batch, state)
+        scoring = self._finish(batch.with_used(state.used), state)
         info = {"best_iteration": state.best_iteration + 1, "resumed_from": resumed_from,
                 # the first iteration carries the one-time numba compile or cache load: reported apart
                 "first_iteration_seconds": float(state.seconds[0]) if state.seconds else 0.0,
@@ -162,7 +165,12 @@ class EMLearner:
             info["alias_search_seconds"] = alias.pop("seconds")  # top level: the model file leaves timings out
             info["alias_search"] = alias
             info["iterations_all_starts"] += alias["iterations"]
-        if self.options.uncertainty:
+        if scoring is not None:
+            info["scoring_seconds"] = scoring.record.pop("seconds")  # top level: the model file leaves timings out
+            info["scoring"] = {**scoring.record, "forward_passes": scoring.passes}
+        if self.options.uncertainty and scoring is not None and scoring.uncertainty is not None:
+            info.update(self._uncertainty_info(scoring.uncertainty, 0.0, 0.0))  # taken at the returned model
+        elif self.options.uncertainty:
             info.update(self._uncertainty(state.best, batch.with_used(state.used)))
         split = disagreement(state.starts)
         se = info.get("standard_errors", {}).get("action_model.velocities")
@@ -171,7 +179,8 @@ class EMLearner:
             [split] if split else []) + ([close] if close else []) + (
             [f"{len(undetermined)} parameter(s) not determined by the data (e.g. {undetermined[0]}): kept at their "
              "start values"] if undetermined else [])
-        return LearnResult("em", state.best, state.iteration, state.converged, list(state.loglik),
+        converged = state.converged and (scoring is None or scoring.record["converged"])
+        return LearnResult("em", state.best, state.iteration, converged, list(state.loglik),
                            state.pruned, history, info)
 
     def _alias_search(self, batch: Batch, state: EMState) -> dict | None:
@@ -184,6 +193,29 @@ class EMLearner:
             state.best, state.best_loglik = found.best, found.loglik
         return {**found.record, "seconds": found.seconds}
 
+    def _finishes(self, model: Model) -> bool:
+        """Whether the scoring finish applies: asked for, and the likelihood is the Gaussian filter's (a
+        mixture effect such as ``false_sightings`` has another one; EM then keeps its own stop)."""
+        return self.options.finish == "scoring" and not has_mixture(model)
+
+    def _switches(self, batch: Batch, start: Model) -> bool:
+        """Whether EM may stop early for the finish: not when the alias search will compare EM fits (it
+        measured its candidates against EM's own fixed point; ``learners.em.alias``)."""
+        aliases = (self.options.alias_search and batch.actions is not None and start.action.discrete
+                   and bool(alias_steps(batch.actions, batch.frame_start)))
+        return self._finishes(start) and not aliases
+
+    def _finish(self, batch: Batch, state: EMState):
+        """The scoring finish (``learners.em.finish``) from ``state.best``, which it replaces; None when it
+        does not apply."""
+        if not self._finishes(state.best):
+            return None
+        t0 = time.perf_counter()
+        done = fisher_scoring(state.best, batch, Packer(self.options).fixed)
+        state.best, state.best_loglik = done.model, done.loglik
+        done.record["seconds"] = time.perf_counter() - t0
+        return done
+
     def _uncertainty(self, best: Model, batch: Batch) -> dict:
         """``standard_errors`` and ``information`` for the model file's info (module uncertainty)."""
         from learners.em.uncertainty import parameter_uncertainty
@@ -193,8 +225,12 @@ class EMLearner:
             unc = parameter_uncertainty(best, batch, Packer(self.options).fixed)
         except (FloatingPointError, np.linalg.LinAlgError, ValueError) as exc:
             return {"information": {"error": f"standard errors not computed: {str(exc)[:200]}"}}
+        return self._uncertainty_info(unc, time.perf_counter() - t0, time.process_time() - c0)
+
+    @staticmethod
+    def _uncertainty_info(unc, seconds: float, cpu_seconds: float) -> dict:
         return {"standard_errors": unc.standard_errors, "information": unc.summary(),
-                "uncertainty_seconds": time.perf_counter() - t0, "uncertainty_cpu_seconds": time.process_time() - c0}
+                "uncertainty_seconds": seconds, "uncertainty_cpu_seconds": cpu_seconds}
 
     def discard_checkpoint(self) -> None:
         """Delete the checkpoint (call after the model is on disk)."""

@@ -54,6 +54,15 @@ class Uncertainty:
     weakest: list[str]  # coordinates carrying most of the weakest direction
     undetermined: list[str]  # coordinates no sighting depends on
     newton_decrement: float  # sqrt(g^T I^-1 g): distance to the likelihood's optimum in standard errors
+    free: np.ndarray  # (all coordinates,) bool: which coordinates ``names`` are (the others undetermined)
+    score: np.ndarray  # (p,) d loglik / d x over ``names`` (packed units)
+
+    def scoring_step(self) -> np.ndarray:
+        """The Fisher-scoring step I^-1 g over all coordinates (zero on the undetermined ones), in the
+        packed units of ``packed`` (Newton's step with the information in place of the Hessian)."""
+        step = np.zeros(len(self.free))
+        step[self.free] = self.covariance @ self.score
+        return step
 
     def summary(self) -> dict[str, Any]:
         """The JSON-ready part for a model file's ``info``."""
@@ -93,9 +102,21 @@ def _n_init(model: Model, fixed: frozenset[str]) -> int:
     return 0 if "init.mean" in fixed else len(model.init)
 
 
-def _packed(model: Model, fixed: frozenset[str]) -> np.ndarray:
+def packed(model: Model, fixed: frozenset[str]) -> np.ndarray:
+    """The coordinates the information is over: ``model.pack(fixed)``, then each log's initial pose mean
+    divided by INIT_SCALE (unless ``init.mean`` is fixed)."""
     means = [s.mean / INIT_SCALE for s in model.init[: _n_init(model, fixed)]]
     return np.concatenate([model.pack(fixed), *means])
+
+
+def unpacked(model: Model, x: np.ndarray, fixed: frozenset[str]) -> Model:
+    """Inverse of ``packed``: ``model`` with every coordinate read from ``x``."""
+    n = len(x) - 3 * _n_init(model, fixed)
+    new = model.unpack(x[:n], fixed)
+    init = list(new.init)
+    for k in range(_n_init(model, fixed)):
+        init[k] = replace(init[k], mean=x[n + 3 * k: n + 3 * k + 3] * INIT_SCALE)
+    return new.with_(init=tuple(init))
 
 
 def file_values(model: Model) -> dict[str, np.ndarray]:
@@ -170,9 +191,9 @@ class _Perturber:
 
 
 def _derivatives(model: Model, batch: Batch, x0: np.ndarray, fixed: frozenset[str], rows: np.ndarray,
-                 step: float) -> tuple[np.ndarray, np.ndarray]:
+                 step: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(G (p, n, 5) whitened derivatives, score (p,) = d loglik / dx) by differences of step ``step``
-    (> 0: forward, one pass per coordinate; < 0: central, two)."""
+    (one number or one per coordinate; > 0: forward, one pass per coordinate; < 0: central, two)."""
     ll0, innov0 = innovations_compiled(model.lower(batch), batch)
     base = innov0[rows]
     c = _whiten(base[:, 2:])
@@ -181,10 +202,11 @@ def _derivatives(model: Model, batch: Batch, x0: np.ndarray, fixed: frozenset[st
     plus = np.empty_like(innov0)
     minus = np.empty_like(innov0)
     perturb = _Perturber(model, x0, fixed)
-    h = abs(step)
+    steps = np.broadcast_to(np.asarray(step, dtype=float), x0.shape)
     for k in range(len(x0)):
+        h = abs(float(steps[k]))
         llp, _ = innovations_compiled(perturb.moved(k, h).lower(batch), batch, out=plus)
-        if step < 0:
+        if steps[k] < 0:
             llm, _ = innovations_compiled(perturb.moved(k, -h).lower(batch), batch, out=minus)
             lo, span = minus[rows], 2 * h
         else:
@@ -242,12 +264,13 @@ def _spectrum(info: np.ndarray, names: list[str]) -> tuple[float, float, list[st
 
 
 def parameter_uncertainty(model: Model, batch: Batch, fixed: frozenset[str] = frozenset(),
-                          step: float = STEP) -> Uncertainty:
+                          step: float | np.ndarray = STEP) -> Uncertainty:
     """Standard errors of every learned parameter of ``model`` (usually EM's estimate) on ``batch``
     (the fit's sightings, pruned ones excluded), from the Fisher information of the EKF innovations
-    (module docstring). ``fixed``: dotted parameter names held fixed (e.g. ``action.cov`` when the motion
+    (module docstring). ``step``: the difference step in packed units, one number or one per coordinate
+    of ``packed`` (negative: central differences). ``fixed``: dotted parameter names held fixed (e.g. ``action.cov`` when the motion
     noise is not learned; ``init.mean``: the initial poses)."""
-    x0 = _packed(model, fixed)
+    x0 = packed(model, fixed)
     names = _coordinate_names(model, fixed)
     rows = np.flatnonzero(batch.used)
     G, score = _derivatives(model, batch, x0, fixed, rows, step)
@@ -264,4 +287,4 @@ def parameter_uncertainty(model: Model, batch: Batch, fixed: frozenset[str] = fr
     shapes = {k: v.shape for k, v in file_values(model).items()}
     errors = _errors(_file_jacobian(model, x0, fixed), shapes, free, cov)
     return Uncertainty(errors, free_names, info, cov, lo, cond, weakest, [n for n, f in zip(names, free) if not f],
-                       newton)
+                       newton, free, g)
