@@ -17,7 +17,7 @@ from learners.em.finish import fisher_scoring
 from learners.em.fit import EMOptions, EMState, e_step, initial_state, options_json, run
 from learners.em.start import initial_state_for
 from learners.em.starts import disagreement, screen
-from learners.em.support import check_support, curve_warnings, face_value_warnings
+from learners.em.support import check_support, curve_warnings, face_value_warnings, weak_command_warnings
 from learners.inference.batch import Batch, make_batch
 from learners.inference.predictive import has_mixture
 from learners.model.initial import DEFAULT_INITIAL
@@ -176,7 +176,7 @@ class EMLearner:
         se = info.get("standard_errors", {}).get("action_model.velocities")
         close = close_call(alias, None if se is None else np.asarray(se, float)) if alias else ""
         info["warnings"] = curve_warnings(state.best) + face_value_warnings(state.best, batch.controls) + (
-            [split] if split else []) + ([close] if close else []) + (
+            [split] if split else []) + ([close] if close else []) + weak_command_warnings(state.best, se) + (
             [f"{len(undetermined)} parameter(s) not determined by the data (e.g. {undetermined[0]}): kept at their "
              "start values"] if undetermined else [])
         converged = state.converged and (scoring is None or scoring.record["converged"])
