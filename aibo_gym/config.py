@@ -177,24 +177,24 @@ def _pair_positive(key: str, v: Any) -> list[float]:
     return xs
 
 
-def _beacons(key: str, v: Any) -> list[list[float]]:
-    want = "a non-empty list of [x, y] positions, mm"
+def _rows(key: str, v: Any, n_rows: int | None, n_cols: int, want: str) -> list[list[float]]:
+    """``v`` as a non-empty list of ``n_rows`` (None: any number of) rows of ``n_cols`` numbers, else the
+    one-line error naming ``key`` and ``want``."""
     if isinstance(v, np.ndarray):
         v = v.tolist()
-    if not isinstance(v, (list, tuple)) or len(v) == 0:
+    if not isinstance(v, (list, tuple)) or len(v) == 0 or (n_rows is not None and len(v) != n_rows):
         raise _bad(key, v, want)
-    return [_numbers(key, b, 2, want) for b in v]
+    return [_numbers(key, row, n_cols, want) for row in v]
+
+
+def _beacons(key: str, v: Any) -> list[list[float]]:
+    return _rows(key, v, None, 2, "a non-empty list of [x, y] positions, mm")
 
 
 def _velocities(key: str, v: Any) -> list[list[float]] | None:
     if v is None:
         return None
-    want = "None or a 40 x 3 list of velocities (mm/s, mm/s, rad/s)"
-    if isinstance(v, np.ndarray):
-        v = v.tolist()
-    if not isinstance(v, (list, tuple)) or len(v) != 40:
-        raise _bad(key, v, want)
-    return [_numbers(key, row, 3, want) for row in v]
+    return _rows(key, v, 40, 3, "None or a 40 x 3 list of velocities (mm/s, mm/s, rad/s)")
 
 
 def _angle_range(key: str, v: Any, hi: float) -> float:
@@ -231,11 +231,7 @@ def _slip_cov(key: str, v: Any) -> list[list[float]] | None:
     if v is None:
         return None
     want = "None or a 3 x 3 symmetric positive definite covariance (mm^2, rad^2)"
-    if isinstance(v, np.ndarray):
-        v = v.tolist()
-    if not isinstance(v, (list, tuple)) or len(v) != 3:
-        raise _bad(key, v, want)
-    m = np.array([_numbers(key, row, 3, want) for row in v])
+    m = np.array(_rows(key, v, 3, 3, want))
     if not np.allclose(m, m.T, rtol=1e-9, atol=1e-12) or np.linalg.eigvalsh(0.5 * (m + m.T)).min() <= 0:
         raise _bad(key, v, want)
     return (0.5 * (m + m.T)).tolist()

@@ -65,8 +65,7 @@ def save(path: str | os.PathLike, state: EMState, fp: str) -> None:
     scalars = {
         "format": FORMAT, "fingerprint": fp, "iteration": state.iteration, "best_loglik": state.best_loglik,
         "best_iteration": state.best_iteration, "pruned": state.pruned, "rng_state": state.rng_state,
-        "converged": state.converged, "switched": state.switched, "record_iteration": state.record_iteration,
-        "starts": state.starts,
+        "converged": state.converged, "record_iteration": state.record_iteration, "starts": state.starts,
     }
     arrays = {"cur": np.array(_model_text(state.params)), "best": np.array(_model_text(state.best)),
               **_arrays("cur", state.params), **_arrays("best", state.best)}
@@ -97,8 +96,7 @@ def load(path: str | os.PathLike, fp: str) -> EMState | None:
             best_loglik=best_ll, best_iteration=int(scalars["best_iteration"]),
             loglik=d["loglik"].tolist(), used=d["used"].astype(bool), pruned=int(scalars["pruned"]),
             rng_state=scalars["rng_state"], converged=bool(scalars["converged"]), seconds=d["seconds"].tolist(),
-            record_iteration=int(scalars["record_iteration"]), switched=bool(scalars.get("switched", False)),
-            starts=list(scalars.get("starts", [])),
+            record_iteration=int(scalars["record_iteration"]), starts=list(scalars.get("starts", [])),
         )
     except (FileFormatError, KeyError, TypeError, OSError, json.JSONDecodeError, ValueError) as exc:
         if str(exc).startswith(f"{path}: checkpoint is for other"):

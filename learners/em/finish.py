@@ -27,6 +27,7 @@ evaluated once more, so the standard errors are those of the returned model.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -62,6 +63,7 @@ class Finish:
     uncertainty: Uncertainty | None  # at ``model`` (None when the last evaluation failed)
     record: dict[str, Any] = field(default_factory=dict)  # JSON-able: steps, gains, decrements
     passes: int = 0  # forward passes spent (2p per information evaluation, one per line-search point)
+    seconds: float = 0.0  # wall time (kept out of the record: model files are reproducible)
 
 
 def loglik_at(model: Model, batch: Batch) -> float:
@@ -90,7 +92,7 @@ def _line(model: Model, batch: Batch, x: np.ndarray, d: np.ndarray, ll: float, s
         if abs(t - 1.0) > 0.1:
             value(t)
     for t in BACKTRACK:
-        if max(v for v, _, _ in tried) > ll:
+        if max((v for v, _, _ in tried), default=-np.inf) > ll:
             break
         value(t)
     if not tried:  # every step length failed in the filter
@@ -135,6 +137,7 @@ def fisher_scoring(model: Model, batch: Batch, fixed: frozenset[str] = frozenset
     coordinate of ``learners.em.uncertainty.packed`` except ``fixed`` (module docstring). Stops after a
     step that gained less than ``gain_tol`` nats, when no step length raises the likelihood, or after
     ``max_steps``; the information is always evaluated at the returned model (its standard errors)."""
+    t0 = time.perf_counter()
     ll = loglik_at(model, batch)
     out = Finish(model, ll, None, {"start_loglik": ll, "steps": []}, passes=1)
     prev: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # (x, g, H^-1) of the last step
@@ -172,4 +175,5 @@ def fisher_scoring(model: Model, batch: Batch, fixed: frozenset[str] = frozenset
         out.model, out.loglik = model, ll
     out.record["gain_nats"] = out.loglik - out.record["start_loglik"]
     out.record["converged"] = out.record.get("stop") in ("converged", "no ascent")
+    out.seconds = time.perf_counter() - t0
     return out

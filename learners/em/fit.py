@@ -112,7 +112,6 @@ class EMState:
     seconds: list[float] = field(default_factory=list)
     record_iteration: int = -1  # last iteration that beat the best by more than min_improvement
     starts: list = field(default_factory=list)  # the screening report (``learners.em.starts``), JSON-able
-    switched: bool = False  # stopped by the switch to the scoring finish, not by the patience rule
 
 
 def e_step(params: Model, batch: Batch, estep: str, gate: float | None = None,
@@ -194,8 +193,8 @@ class _Loop:
             st.best, st.best_loglik, st.best_iteration = params, ll, st.iteration
         st.iteration += 1
         st.converged = st.iteration - 1 - st.record_iteration >= opts.patience
-        if self.switch and not st.converged and self.switch_now():
-            st.converged = st.switched = True
+        if self.switch and not st.converged:
+            st.converged = self.switch_now()
         now = time.perf_counter()
         st.seconds.append(now - self.tick)
         self.tick = now
@@ -208,7 +207,7 @@ class _Loop:
         ll = self.state.loglik
         if self.state.iteration < max(SWITCH_MIN_ITER, SWITCH_WINDOW + 1):
             return False
-        return max(ll) - max(ll[:-SWITCH_WINDOW]) < self.opts.switch_gain
+        return self.state.best_loglik - max(ll[:-SWITCH_WINDOW]) < self.opts.switch_gain
 
     def m(self, params: Model, post: Posterior) -> Model:
         lo = self.lowered[1] if self.lowered[0] is params else None  # lowered by the E-step just run

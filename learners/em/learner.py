@@ -148,14 +148,15 @@ class EMLearner:
                 last_saved[0] = st.iteration
 
         state = run(batch, state, self.options, on_iteration, on_cycle, switch=self._switches(batch, start))
-        alias = self._alias_search(batch, state)
-        scoring = self._finish(batch.with_used(state.used), state)
+        used = batch.with_used(state.used)  # the sightings the fit applied (first-iteration outliers pruned)
+        alias = self._alias_search(used, state)
+        scoring = self._finish(used, state)
         info = {"best_iteration": state.best_iteration + 1, "resumed_from": resumed_from,
                 # the first iteration carries the one-time numba compile or cache load: reported apart
                 "first_iteration_seconds": float(state.seconds[0]) if state.seconds else 0.0,
                 "seconds_per_iteration": float(np.median(state.seconds[1:])) if len(state.seconds) > 1 else 0.0,
                 "options": self.options.__dict__.copy()}
-        info["off_field_fraction"] = self._check(batch.with_used(state.used), state.best, logs)
+        info["off_field_fraction"] = self._check(used, state.best, logs)
         info["undetermined"] = undetermined  # parameters the data did not determine (kept at their start)
         if state.starts:
             info["starts"] = state.starts
@@ -166,12 +167,12 @@ class EMLearner:
             info["alias_search"] = alias
             info["iterations_all_starts"] += alias["iterations"]
         if scoring is not None:
-            info["scoring_seconds"] = scoring.record.pop("seconds")  # top level: the model file leaves timings out
+            info["scoring_seconds"] = scoring.seconds  # top level: the model file leaves timings out
             info["scoring"] = {**scoring.record, "forward_passes": scoring.passes}
         if self.options.uncertainty and scoring is not None and scoring.uncertainty is not None:
             info.update(self._uncertainty_info(scoring.uncertainty, 0.0, 0.0))  # taken at the returned model
         elif self.options.uncertainty:
-            info.update(self._uncertainty(state.best, batch.with_used(state.used)))
+            info.update(self._uncertainty(state.best, used))
         split = disagreement(state.starts)
         se = info.get("standard_errors", {}).get("action_model.velocities")
         close = close_call(alias, None if se is None else np.asarray(se, float)) if alias else ""
@@ -184,11 +185,12 @@ class EMLearner:
                            state.pruned, history, info)
 
     def _alias_search(self, batch: Batch, state: EMState) -> dict | None:
-        """The heading-alias search (``learners.em.alias``) after the fit of a command table, when enabled:
-        ``state.best`` is replaced by a more likely alias; returns the search's record (None: not run)."""
+        """The heading-alias search (``learners.em.alias``) on the fit's sightings ``batch``, after the fit of a
+        command table, when enabled: ``state.best`` is replaced by a more likely alias; returns the search's
+        record (None: not run)."""
         if not self.options.alias_search or batch.actions is None or not state.best.action.discrete:
             return None
-        found = search(batch.with_used(state.used), state.best, state.best_loglik, self.options)
+        found = search(batch, state.best, state.best_loglik, self.options)
         if found.record["changed"]:
             state.best, state.best_loglik = found.best, found.loglik
         return {**found.record, "seconds": found.seconds}
@@ -201,19 +203,18 @@ class EMLearner:
     def _switches(self, batch: Batch, start: Model) -> bool:
         """Whether EM may stop early for the finish: not when the alias search will compare EM fits (it
         measured its candidates against EM's own fixed point; ``learners.em.alias``)."""
-        aliases = (self.options.alias_search and batch.actions is not None and start.action.discrete
-                   and bool(alias_steps(batch.actions, batch.frame_start)))
-        return self._finishes(start) and not aliases
+        if not self._finishes(start):
+            return False
+        return not (self.options.alias_search and batch.actions is not None and start.action.discrete
+                    and alias_steps(batch.actions, batch.frame_start))
 
     def _finish(self, batch: Batch, state: EMState):
         """The scoring finish (``learners.em.finish``) from ``state.best``, which it replaces; None when it
         does not apply."""
         if not self._finishes(state.best):
             return None
-        t0 = time.perf_counter()
         done = fisher_scoring(state.best, batch, Packer(self.options).fixed)
         state.best, state.best_loglik = done.model, done.loglik
-        done.record["seconds"] = time.perf_counter() - t0
         return done
 
     def _uncertainty(self, best: Model, batch: Batch) -> dict:

@@ -117,11 +117,11 @@ def weak_command_warnings(model: Model, se_velocities: np.ndarray | None) -> lis
     se = np.asarray(se_velocities, dtype=float)
     v = model.action.velocities
     span = v.max(axis=0) - v.min(axis=0)
-    rel = np.where(span > 0, se / np.where(span > 0, span, 1.0), 0.0)
-    weak = np.flatnonzero(np.nan_to_num(rel, nan=0.0).max(axis=1) > WEAK_SE_FRACTION)
+    rel = np.nan_to_num(se / np.where(span > 0, span, np.inf), nan=0.0).max(axis=1)  # a flat component: never weak
+    weak = np.flatnonzero(rel > WEAK_SE_FRACTION)
     if len(weak) == 0:
         return []
-    worst = int(weak[np.argmax(np.nan_to_num(rel[weak], nan=0.0).max(axis=1))])
+    worst = int(weak[np.argmax(rel[weak])])
     units = ("mm/s", "mm/s", "rad/s")
     detail = ", ".join(f"{name} +-{se[worst, k]:.3g} {units[k]}" for k, name in enumerate(("vx", "vy", "vtheta")))
     return [f"weakly determined: command(s) {', '.join(str(int(a)) for a in weak)} have standard errors above "

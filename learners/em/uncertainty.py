@@ -57,13 +57,6 @@ class Uncertainty:
     free: np.ndarray  # (all coordinates,) bool: which coordinates ``names`` are (the others undetermined)
     score: np.ndarray  # (p,) d loglik / d x over ``names`` (packed units)
 
-    def scoring_step(self) -> np.ndarray:
-        """The Fisher-scoring step I^-1 g over all coordinates (zero on the undetermined ones), in the
-        packed units of ``packed`` (Newton's step with the information in place of the Hessian)."""
-        step = np.zeros(len(self.free))
-        step[self.free] = self.covariance @ self.score
-        return step
-
     def summary(self) -> dict[str, Any]:
         """The JSON-ready part for a model file's ``info``."""
         return {"method": "Fisher information of the EKF innovations (finite differences)",
