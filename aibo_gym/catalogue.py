@@ -16,9 +16,11 @@ beacon_height_scale        scale (one factor per beacon)                     bea
 off_center_shrink          k (height x (1 - k phi^2), phi rad in the image)  position in the image
 distance_dependent_noise   exponent (sigma ~ (d / 2500 mm)^exponent)         distance (the height variance)
 false_sightings            rate (fraction of sightings, <= 0.5)              none: outliers anywhere in the image
+landmark_bias              sigma_rel (stationary std, fraction), tau_s (s)   size residuals correlated in time,
+                                                                             per landmark
 =========================  ================================================  ==============================
 
-Physical effects on heights (height scale, off-centre shrink, distance noise) act on the beacon's
+Physical effects on heights (height scale, off-centre shrink, distance noise, landmark bias) act on the beacon's
 true height and leave the pixel noise additive; they leave spurious sightings alone. Camera
 calibration effects (``height_bias``, ``angle_bias``) act on every sighting.
 """
@@ -254,3 +256,46 @@ class FalseSightings(Effect):
         height = float(self.rng.uniform(lo, hi))
         bearing = wrap_angle(frame.head_pan + image_angle)
         return Sighting(beacon, height, bearing, math.nan, bearing, image_angle, math.nan, spurious=True)
+
+
+@register_effect
+class LandmarkBias(Effect):
+    """Each landmark's size measurement carries a slowly varying relative bias of its own.
+
+    The size of every (real) sighting of landmark l is multiplied by (1 + b_l(t)): the true size is
+    scaled and the measurement noise stays additive (as the other physical effects). b_l is a
+    first-order Gauss-Markov process, independent across landmarks, with stationary standard
+    deviation ``sigma_rel`` and correlation time ``tau_s`` (s): b_l ~ N(0, sigma_rel^2) at reset, then
+    every frame b_l <- phi b_l + sigma_rel sqrt(1 - phi^2) w, phi = exp(-dt / tau_s), w ~ N(0, 1), one
+    normal per landmark per frame from the effect's own stream (seen or not). Real range sensors
+    show this: MRCLAM's range errors are a per-landmark, per-pass bias (lag-1 correlation 0.92-0.97).
+    Residual signature: size residuals of one landmark correlated over seconds.
+    """
+
+    name = "landmark_bias"
+    defaults = {"sigma_rel": 0.0, "tau_s": 10.0}
+    bounds = {"sigma_rel": (0.0, 0.5), "tau_s": (1e-3, math.inf)}
+
+    def reset(self, rng: np.random.Generator) -> None:
+        super().reset(rng)
+        self.bias: np.ndarray | None = None
+
+    def _advance(self, frame: Frame) -> np.ndarray:
+        """The biases at the end of this frame (one step of the process per call: once per frame)."""
+        sigma, tau = self.params["sigma_rel"], self.params["tau_s"]
+        if self.bias is None:
+            self.bias = sigma * self.rng.standard_normal(len(frame.beacons))
+        phi = math.exp(-frame.dt / tau)
+        self.bias = phi * self.bias + sigma * math.sqrt(1.0 - phi * phi) * self.rng.standard_normal(len(self.bias))
+        return self.bias
+
+    def sense(self, sightings: list[Sighting], frame: Frame) -> list[Sighting]:
+        if not self.params["sigma_rel"]:
+            return sightings
+        bias = self._advance(frame)
+        for s in sightings:
+            if not s.spurious:
+                b = float(bias[s.beacon])
+                s.height = s.height + b * s.true_height
+                s.true_height = (1.0 + b) * s.true_height
+        return sightings

@@ -98,7 +98,9 @@ def try_candidate(name: str, base: Model, base_ll: float, base_heldout: float, t
     """Fit the base model extended with effect ``name``; score, test, probe identifiability."""
     t0 = time.perf_counter()
     cls = EFFECT_MODELS[name]
-    start = base.with_effect(cls.start(make_batch(train)))
+    batch = make_batch(train)
+    start = base.with_effect(cls.start(batch))
+    start = start.with_effect(start.effect(name).warm_start(start, batch))
     if cls.GRID:  # profile likelihood over the grid, the effect frozen at each value
         (pname, grid), = cls.GRID.items()
         frozen = replace(opts, frozen=opts.frozen + (name,), max_iter=min(opts.max_iter, 150))

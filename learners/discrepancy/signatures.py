@@ -16,6 +16,7 @@ from scipy import stats
 from aibo_core.geometry import rel_disp, wrap
 from aibo_core.trajectory import Trajectory
 from learners.em.fit import DEFAULT_GATE, e_step
+from learners.inference.augmented import size_factor_moments
 from learners.inference.batch import Batch, make_batch
 from learners.inference.posterior import Posterior
 from learners.model.model import Model
@@ -66,7 +67,8 @@ def sighting_residuals(model: Model, batch: Batch, post: Posterior) -> dict[str,
     pose = post.mu_gamma[batch.sight_pose]
     dx, dy = (batch.sight_xy - pose[:, :2]).T
     d = np.hypot(dx, dy)
-    pred = lo.size_scale * model.sensor.mean(d) + lo.size_offset
+    factor, _ = size_factor_moments(lo, batch, post)  # 1 without states; else the smoothed 1 + b (landmark_bias)
+    pred = lo.size_scale * factor * model.sensor.mean(d) + lo.size_offset
     sd = model.sensor.sigma_size * np.sqrt(lo.size_var_factor)
     bearing = wrap(np.arctan2(dy, dx) - pose[:, 2] + lo.bearing_offset)
     frame = batch.sight_frame

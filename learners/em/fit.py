@@ -127,6 +127,10 @@ def e_step(params: Model, batch: Batch, estep: str, gate: float | None = None,
         from learners.inference.kernels import smooth_compiled
 
         post = smooth_compiled(lo, batch, gate, out=reuse)
+    elif lo.extra is not None:
+        from learners.inference.augmented import smooth_augmented
+
+        post = smooth_augmented(lo, batch, gate)
     else:
         from learners.inference.reference import smooth
 
@@ -134,6 +138,9 @@ def e_step(params: Model, batch: Batch, estep: str, gate: float | None = None,
     from learners.inference.predictive import has_mixture, sightings_logdens
 
     if has_mixture(params):
+        if lo.extra is not None:
+            raise ValueError("a mixture effect (false_sightings) together with an effect that adds states "
+                             "(landmark_bias) is not supported yet")
         idx = np.flatnonzero(batch.used & ~(post.mahal2 > (gate if gate is not None else np.inf)))
         post.loglik = float(np.sum(sightings_logdens(params, batch, post, idx, lo)))
     return post

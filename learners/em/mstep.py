@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from learners.inference.augmented import displacement_statistics, sensor_update_augmented
 from learners.inference.batch import Batch
 from learners.inference.lowered import Lowered
 from learners.inference.posterior import Posterior
@@ -50,7 +51,10 @@ def maximize(model: Model, batch: Batch, post: Posterior, rng: np.random.Generat
     action_stats, resid_cov, sensor_update = _statistics(opts.estep == "compiled")
     lo = model.lower(batch) if lo is None else lo
     commands, scale = model.effective_commands(batch)
-    mu_star, C_sum = action_stats(lo, batch, post, opts.learn_motion_noise)
+    if post.extra is not None:  # an augmented E-step (extra states): its smoothed joint gives the statistics
+        mu_star, C_sum = displacement_statistics(lo, batch, post, opts.learn_motion_noise)
+    else:
+        mu_star, C_sum = action_stats(lo, batch, post, opts.learn_motion_noise)
     fused = opts.estep == "compiled" and model.action.discrete and scale is None  # the table's fused twin
     if fused:
         from learners.inference.kernels import table_means_compiled, table_residual_cov_compiled
@@ -67,9 +71,12 @@ def maximize(model: Model, batch: Batch, post: Posterior, rng: np.random.Generat
             pred = action.displacements(commands)
             R = resid_cov(mu_star, pred if scale is None else pred * scale[:, None], lo.cov_scale)
         action = action.with_values(cov=_sym(C_sum * inv_n + R * inv_n))
-    coef, sigma_size, sigma_bearing, drange = sensor_update(
-        lo, batch, post, rng, method=opts.sensor_method, n_samples=opts.n_samples,
-        degree=len(model.sensor.coef) - 1)
+    if post.extra is not None:  # the expectations over each sighting's joint belief of (pose, its size state)
+        coef, sigma_size, sigma_bearing, drange = sensor_update_augmented(lo, batch, post, len(model.sensor.coef) - 1)
+    else:
+        coef, sigma_size, sigma_bearing, drange = sensor_update(
+            lo, batch, post, rng, method=opts.sensor_method, n_samples=opts.n_samples,
+            degree=len(model.sensor.coef) - 1)
     sensor = replace(model.sensor, coef=coef, sigma_size=sigma_size, sigma_bearing=sigma_bearing,
                      distance_range_mm=(float(drange[0]), float(drange[1])))
     first = batch.pose_start[:-1]

@@ -11,6 +11,11 @@ Sighting j (of the end pose s'):    size    = size_scale[j] f(d) + size_offset[j
     e1 ~ N(0, sigma_size^2 size_var_factor[j]), e2 ~ N(0, sigma_bearing^2 bearing_var_factor[j]), d the distance (mm) to
     the landmark, f(d) = sum_k coef[k] x^k with x = d (``basis == BASIS_POWER``) or x = 1/d
     (``basis == BASIS_INVERSE``).
+
+Extra states (``ExtraStates``, None for the base model): K scalar states b beside the pose, x = (s, b),
+each a linear-Gaussian AR(1) chain, b_k' = phi[i, k] b_k + N(0, q[i, k]) in frame i; a sighting with
+slot[j] = k measures size = size_scale[j] f(d) (1 + b_k) + size_offset[j] + e1 (e.g. per-landmark biases).
+Inference then runs on the augmented state (``learners.inference.augmented`` and its compiled twin).
 """
 
 from __future__ import annotations
@@ -21,6 +26,21 @@ import numpy as np
 
 BASIS_POWER = 0  # f(d) = sum_k coef[k] d^k   (the paper's cubic: degree 3)
 BASIS_INVERSE = 1  # f(d) = sum_k coef[k] d^-k  (pinhole-like: c0 + c1/d + c2/d^2)
+
+
+@dataclass
+class ExtraStates:
+    """K extra scalar states beside the pose (module docstring). A frame with phi = 0 and q = v restarts
+    a state from N(0, v) (a slot handed to another landmark)."""
+
+    slot: np.ndarray  # (S,) int64: the state whose (1 + b) multiplies sighting j's size; -1: none
+    phi: np.ndarray  # (N, K) per-frame transition factor
+    q: np.ndarray  # (N, K) per-frame process noise variance
+    init_var: np.ndarray  # (L, K) variance of each state at each log's first pose (mean 0)
+
+    @property
+    def k(self) -> int:
+        return int(self.phi.shape[1])
 
 
 @dataclass
@@ -42,6 +62,7 @@ class Lowered:
     init_mean: np.ndarray  # (L, 3) first pose mean per log (mm, mm, rad)
     init_cov: np.ndarray  # (L, 3, 3)
     bearing_var_factor: np.ndarray | None = None  # (S,) multiplies sigma_bearing^2 (None: ones, filled in)
+    extra: ExtraStates | None = None  # extra states beside the pose (None: the pose alone)
 
     def __post_init__(self) -> None:
         if self.bearing_var_factor is None:

@@ -55,6 +55,11 @@ class EffectModel(Component):
     #: Constraints among the parameters (e.g. a normalization), subtracted from ``dof``.
     CONSTRAINTS: ClassVar[int] = 0
 
+    def warm_start(self, model: "Model", batch: Batch) -> "EffectModel":
+        """A start for EM given the rest of the model (``model`` holds this effect); default: itself.
+        An effect whose parameters EM moves slowly from ``start`` picks a better one here."""
+        return self
+
     def commands(self, commands: np.ndarray, batch: Batch) -> np.ndarray:
         """The commands in force per frame (e.g. delayed by a lag); default: as logged."""
         return commands
@@ -183,3 +188,4 @@ class BeaconHeightScale(EffectModel):
 
 from learners.model import catalogue as _catalogue  # noqa: E402,F401  (registers the catalogue's twins)
 from learners.model import catalogue_more as _catalogue_more  # noqa: E402,F401  (false_sightings, wall_contact)
+from learners.model import landmark_bias as _landmark_bias  # noqa: E402,F401  (the first effect with states)

@@ -29,7 +29,6 @@ from learners.inference.kernels.algebra import (
     _ZERO3,
     _ZERO33,
     _add,
-    _f64,
     _fin3,
     _fin33,
     _inv_i_plus,
@@ -44,6 +43,8 @@ from learners.inference.kernels.algebra import (
     _sym,
     _wrap,
 )
+from learners.inference.kernels.arguments import _inputs
+from learners.inference.kernels.augmented import innovations_augmented_compiled, smooth_augmented_compiled
 from learners.inference.kernels.fasttrig import _cos_sin
 from learners.inference.kernels.structured import (
     _FMA,
@@ -55,7 +56,7 @@ from learners.inference.kernels.structured import (
     _scale_sym,
     _symm,
 )
-from learners.inference.lowered import BASIS_INVERSE, BASIS_POWER, Lowered
+from learners.inference.lowered import Lowered
 from learners.inference.posterior import Posterior
 
 # ----------------------------------------------------------------------------------------------
@@ -274,33 +275,6 @@ def _smooth_kernel(
     return _OK, -1, -1, loglik
 
 
-def _inputs(lo: Lowered, batch: Batch, gate: float | None) -> tuple:
-    """The kernel's input arguments (checked, contiguous float64), up to and including the gate."""
-    n_logs = batch.n_logs
-    if len(lo.init_mean) != n_logs or len(lo.init_cov) != n_logs:
-        raise ValueError(f"lowered model has {len(lo.init_mean)} initial states for {n_logs} logs")
-    n, n_s = batch.n_frames, batch.n_sightings
-    frame_start = np.ascontiguousarray(batch.frame_start, dtype=np.int64)
-    sight_start = np.ascontiguousarray(batch.sight_start, dtype=np.int64)
-    used = np.ascontiguousarray(batch.used, dtype=np.bool_)
-    if sight_start.shape != (n + 1,) or used.shape != (n_s,):
-        raise ValueError("batch.sight_start must have N + 1 entries and batch.used one per sighting")
-    if lo.basis not in (BASIS_POWER, BASIS_INVERSE):
-        raise ValueError(f"unknown sensor basis {lo.basis}")
-    coef = _f64(lo.coef).reshape(-1)
-    if coef.size == 0:
-        coef = np.zeros(1)
-    return (
-        frame_start, sight_start, _f64(lo.disp, (n, 3)), _f64(lo.offset, (n, 3)), _f64(lo.cov_scale, (n,)),
-        _f64(lo.cov, (3, 3)), int(lo.basis), coef, float(lo.sigma_size) ** 2, float(lo.sigma_bearing) ** 2,
-        _f64(batch.sight_xy, (n_s, 2)), _f64(batch.sight_value, (n_s, 2)), used,
-        _f64(lo.size_scale, (n_s,)), _f64(lo.size_offset, (n_s,)), _f64(lo.size_var_factor, (n_s,)),
-        _f64(lo.bearing_offset, (n_s,)), _f64(lo.bearing_var_factor, (n_s,)),
-        _f64(lo.init_mean, (n_logs, 3)), _f64(lo.init_cov, (n_logs, 3, 3)),
-        gate is not None, float(gate) if gate is not None else np.inf,
-    )  # fmt: skip
-
-
 _NO_INNOV = np.empty((0, 5))
 
 
@@ -311,7 +285,10 @@ def smooth_compiled(lo: Lowered, batch: Batch, gate: float | None = None, out: P
     whose arrays are overwritten and returned (the caller must no longer need it). ``gate``: a used
     sighting whose mahal2 exceeds it is not applied (no update, no likelihood term, skipped by the
     backward pass); its mahal2 is still stored so the caller can prune it (``used & (mahal2 > gate)``).
+    With extra states (``lo.extra``) the augmented kernel runs instead (``kernels.augmented``).
     """
+    if lo.extra is not None:
+        return smooth_augmented_compiled(lo, batch, gate)
     args = _inputs(lo, batch, gate)
     n, n_s = batch.n_frames, batch.n_sightings
     n_poses = n + batch.n_logs
@@ -344,6 +321,8 @@ def innovations_compiled(lo: Lowered, batch: Batch, out: np.ndarray | None = Non
     """The forward EKF alone (no gate): (loglik, (S, 5) [v_size, v_bearing (rad, wrapped), S00, S01, S11])
     of every applied sighting (NaN rows for the others): the Gaussian innovations the likelihood is
     made of, in the size unit (px or mm) and rad. ``out``: an (S, 5) array to fill and return."""
+    if lo.extra is not None:
+        return innovations_augmented_compiled(lo, batch, out)
     args = _inputs(lo, batch, None)
     n, n_s = batch.n_frames, batch.n_sightings
     n_poses = n + batch.n_logs

@@ -1,0 +1,361 @@
+"""Compiled (numba) twin of the augmented E-step (``learners.inference.augmented``: the pose plus K extra
+scalar states, forward EKF + Rauch-Tung-Striebel backward pass); docs/em-math.md, "Extra states", is the
+specification. Used only when an effect adds states (``Lowered.extra``): the base model keeps the
+hand-unrolled 3x3 kernel of ``estep``.
+
+Dense n x n algebra (n = 3 + K) on preallocated work arrays, with the structure of the motion used
+where it is free: F = I except F[0,2], F[1,2] on the pose and diag(phi) on the extra states, so
+F P F^T is O(n^2); the sighting updates are rank-2 (Joseph form); the RTS gain solves P- X = F P by
+Cholesky (O(n^3) per frame). Equal to the reference to rounding (tests: 1e-9).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from learners.inference.augmented import posterior
+from learners.inference.batch import Batch
+from learners.inference.kernels.algebra import _BAD_BACKWARD, _BAD_FORWARD, _LOG_2PI, _OK, _curve, _f64, _raise, _scratch, _wrap
+from learners.inference.kernels.arguments import _inputs
+from learners.inference.lowered import Lowered
+from learners.inference.posterior import ExtraMoments, Posterior
+
+
+@njit(cache=True, error_model="numpy")
+def _f_rows(P, fa, fb, phi, out):
+    """out = F P for F = I + fa e0 e2^T + fb e1 e2^T on the pose and diag(phi) on the extra states."""
+    n = P.shape[0]
+    for c in range(n):
+        out[0, c] = P[0, c] + fa * P[2, c]
+        out[1, c] = P[1, c] + fb * P[2, c]
+        out[2, c] = P[2, c]
+        for e in range(n - 3):
+            out[3 + e, c] = phi[e] * P[3 + e, c]
+
+
+@njit(cache=True, error_model="numpy")
+def _predict_cov(P, fa, fb, phi, q, qpose, work):
+    """P <- F P F^T + Q in place (Q: the 3x3 pose block ``qpose`` and diag(q)), symmetrized."""
+    n = P.shape[0]
+    _f_rows(P, fa, fb, phi, work)
+    for r in range(n):
+        P[r, 0] = work[r, 0] + fa * work[r, 2]
+        P[r, 1] = work[r, 1] + fb * work[r, 2]
+        P[r, 2] = work[r, 2]
+        for e in range(n - 3):
+            P[r, 3 + e] = phi[e] * work[r, 3 + e]
+    for r in range(3):
+        for c in range(3):
+            P[r, c] += qpose[r, c]
+    for e in range(n - 3):
+        P[3 + e, 3 + e] += q[e]
+    _symmetrize(P)
+
+
+@njit(cache=True, error_model="numpy")
+def _symmetrize(P):
+    n = P.shape[0]
+    for r in range(n):
+        for c in range(r + 1, n):
+            v = 0.5 * (P[r, c] + P[c, r])
+            P[r, c] = v
+            P[c, r] = v
+
+
+@njit(cache=True, error_model="numpy")
+def _cholesky(A, L):
+    """Lower Cholesky factor of A into L; False if A is not positive definite."""
+    n = A.shape[0]
+    for r in range(n):
+        for c in range(r + 1):
+            s = A[r, c]
+            for k in range(c):
+                s -= L[r, k] * L[c, k]
+            if r == c:
+                if not s > 0.0:
+                    return False
+                L[r, r] = math.sqrt(s)
+            else:
+                L[r, c] = s / L[c, c]
+        for c in range(r + 1, n):
+            L[r, c] = 0.0
+    return True
+
+
+@njit(cache=True, error_model="numpy")
+def _chol_solve(L, B):
+    """B <- A^-1 B in place, A = L L^T (every column of B)."""
+    n = L.shape[0]
+    for col in range(B.shape[1]):
+        for r in range(n):
+            s = B[r, col]
+            for k in range(r):
+                s -= L[r, k] * B[k, col]
+            B[r, col] = s / L[r, r]
+        for r in range(n - 1, -1, -1):
+            s = B[r, col]
+            for k in range(r + 1, n):
+                s -= L[k, r] * B[k, col]
+            B[r, col] = s / L[r, r]
+
+
+@njit(cache=True, error_model="numpy")
+def _finite(mu, P):
+    ok = 0.0
+    for r in range(P.shape[0]):
+        ok += mu[r] - mu[r]
+        for c in range(P.shape[1]):
+            ok += P[r, c] - P[r, c]
+    return ok == 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def _update(mu, P, qq, sight_xy, sight_value, basis, coef, sc, so, bo, sl, var_h, vb, ph0, ph1, out):
+    """The innovation of sighting qq at the belief (mu, P), not applied: ``out`` = [v0, v1 (wrapped),
+    S00, S01, S11, then H's non-constant entries e0, e1, t0, t1 and the size's derivative in b], and
+    ph0, ph1 = P H^T."""
+    dx = sight_xy[qq, 0] - mu[0]
+    dy = sight_xy[qq, 1] - mu[1]
+    d2 = dx * dx + dy * dy
+    d = math.sqrt(d2)
+    fd, fp = _curve(basis, coef, d)
+    mfac = 1.0 + mu[3 + sl] if sl >= 0 else 1.0
+    cv = sc * fd  # size_scale f(d): the derivative of the size in b
+    e0 = -sc * fp * mfac * dx / d
+    e1 = -sc * fp * mfac * dy / d
+    t0 = dy / d2
+    t1 = -dx / d2
+    v0 = sight_value[qq, 0] - (cv * mfac + so)
+    v1 = _wrap(sight_value[qq, 1] - (math.atan2(dy, dx) - mu[2] + bo))
+    n = P.shape[0]
+    for r in range(n):
+        a = P[r, 0] * e0 + P[r, 1] * e1
+        if sl >= 0:
+            a += P[r, 3 + sl] * cv
+        ph0[r] = a
+        ph1[r] = P[r, 0] * t0 + P[r, 1] * t1 - P[r, 2]
+    h0ph1 = e0 * ph1[0] + e1 * ph1[1]
+    s00 = e0 * ph0[0] + e1 * ph0[1] + var_h
+    if sl >= 0:
+        s00 += cv * ph0[3 + sl]
+        h0ph1 += cv * ph1[3 + sl]
+    s11 = t0 * ph1[0] + t1 * ph1[1] - ph1[2] + vb
+    s01 = 0.5 * (h0ph1 + (t0 * ph0[0] + t1 * ph0[1] - ph0[2]))
+    out[0], out[1], out[2], out[3], out[4] = v0, v1, s00, s01, s11
+    out[5], out[6], out[7], out[8], out[9] = e0, e1, t0, t1, cv
+
+
+@njit(cache=True, error_model="numpy")
+def _apply(mu, P, sl, var_h, vb, ph0, ph1, X, xh0, xh1, k0, k1, o):
+    """The EKF update with the innovation prepared by ``_update`` (``o``), Joseph form:
+    K = P H^T S^-1, mu += K v, P = (I - K H) P (I - K H)^T + K R K^T (symmetrized)."""
+    v0, v1, s00, s01, s11, e0, e1, t0, t1, cv = o[0], o[1], o[2], o[3], o[4], o[5], o[6], o[7], o[8], o[9]
+    rdet = 1.0 / (s00 * s11 - s01 * s01)
+    i00, i11, i01 = s11 * rdet, s00 * rdet, -s01 * rdet
+    n = P.shape[0]
+    for r in range(n):
+        k0[r] = ph0[r] * i00 + ph1[r] * i01
+        k1[r] = ph0[r] * i01 + ph1[r] * i11
+        mu[r] += k0[r] * v0 + k1[r] * v1
+    for r in range(n):  # X = (I - K H) P = P - k0 ph0^T - k1 ph1^T
+        for c in range(n):
+            X[r, c] = P[r, c] - k0[r] * ph0[c] - k1[r] * ph1[c]
+    for r in range(n):  # X H^T
+        a = X[r, 0] * e0 + X[r, 1] * e1
+        if sl >= 0:
+            a += X[r, 3 + sl] * cv
+        xh0[r] = a
+        xh1[r] = X[r, 0] * t0 + X[r, 1] * t1 - X[r, 2]
+    for r in range(n):  # X (I - K H)^T + K R K^T
+        g0 = var_h * k0[r] - xh0[r]
+        g1 = vb * k1[r] - xh1[r]
+        for c in range(n):
+            P[r, c] = X[r, c] + g0 * k0[c] + g1 * k1[c]
+    _symmetrize(P)
+
+
+@njit(cache=True, error_model="numpy")
+def _augmented_kernel(
+    frame_start, sight_start, disp, offset, cov_scale, sig_a, basis, coef, var_s, var_b,
+    sight_xy, sight_value, used, size_scale, size_offset, size_var_factor, bearing_offset, bearing_var_factor,
+    init_mean, init_cov, use_gate, gate, slot, phi, q, init_var,
+    mf, Pf, g_pred, P_pred, fab, sm, sc, x_cross, mahal2, innov, forward_only,
+):  # fmt: skip
+    """Forward EKF + RTS on x = (pose, K extra states) for every log. mf (P, n), Pf (P, n, n): filtered
+    beliefs; g_pred (N, n), P_pred (N, n, n), fab (N, 2): each frame's prediction and F[0,2], F[1,2]
+    (kept for the backward pass). Outputs: the smoothed beliefs sm (P, n), sc (P, n, n), the extra states'
+    lag-one covariances x_cross (N, K), mahal2 (S,) and innov (S, 5) when it has S rows.
+    Returns (status, log, frame, loglik)."""
+    n = mf.shape[1]
+    K = n - 3
+    store = innov.shape[0] == mahal2.shape[0]
+    P = np.empty((n, n))
+    W = np.empty((n, n))
+    X = np.empty((n, n))
+    L = np.empty((n, n))
+    Pn = np.empty((n, n))
+    mu = np.empty(n)
+    mn = np.empty(n)
+    ph0, ph1, xh0, xh1, k0, k1 = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    o = np.empty(10)
+    qpose = np.empty((3, 3))
+    s00, s01, s02 = sig_a[0, 0], 0.5 * (sig_a[0, 1] + sig_a[1, 0]), 0.5 * (sig_a[0, 2] + sig_a[2, 0])
+    s11, s12, s22 = sig_a[1, 1], 0.5 * (sig_a[1, 2] + sig_a[2, 1]), sig_a[2, 2]
+    loglik = 0.0
+    for k in range(frame_start.shape[0] - 1):
+        f0 = frame_start[k]
+        nfr = frame_start[k + 1] - f0
+        ps = f0 + k
+        for r in range(n):
+            mu[r] = init_mean[k, r] if r < 3 else 0.0
+            for c in range(n):
+                P[r, c] = init_cov[k, r, c] if (r < 3 and c < 3) else 0.0
+        for e in range(K):
+            P[3 + e, 3 + e] = init_var[k, e]
+        mf[ps, :] = mu
+        Pf[ps, :, :] = P
+        if not _finite(mu, P):
+            return _BAD_FORWARD, k, 0, loglik
+        for j in range(nfr):
+            i = f0 + j
+            c = math.cos(mu[2])
+            s = math.sin(mu[2])
+            ux, uy = disp[i, 0], disp[i, 1]
+            fa = -s * ux - c * uy
+            fb = c * ux - s * uy
+            fab[i, 0], fab[i, 1] = fa, fb
+            mu[0], mu[1], mu[2] = (mu[0] + (c * ux - s * uy) + offset[i, 0], mu[1] + (s * ux + c * uy) + offset[i, 1],
+                                   mu[2] + disp[i, 2] + offset[i, 2])  # fmt: skip
+            for e in range(K):
+                mu[3 + e] = phi[i, e] * mu[3 + e]
+            # Q pose block = cov_scale R Sigma_A R^T
+            a00, a01, a02 = c * s00 - s * s01, c * s01 - s * s11, c * s02 - s * s12  # row 0 of R Sigma
+            a10, a11, a12 = s * s00 + c * s01, s * s01 + c * s11, s * s02 + c * s12  # row 1
+            cs = cov_scale[i]
+            qpose[0, 0] = cs * (a00 * c - a01 * s)
+            qpose[0, 1] = cs * (a00 * s + a01 * c)
+            qpose[0, 2] = cs * a02
+            qpose[1, 1] = cs * (a10 * s + a11 * c)
+            qpose[1, 2] = cs * a12
+            qpose[2, 2] = cs * s22
+            qpose[1, 0], qpose[2, 0], qpose[2, 1] = qpose[0, 1], qpose[0, 2], qpose[1, 2]
+            _predict_cov(P, fa, fb, phi[i], q[i], qpose, W)
+            g_pred[i, :] = mu
+            P_pred[i, :, :] = P
+            for qq in range(sight_start[i], sight_start[i + 1]):
+                mahal2[qq] = np.nan
+                if store:
+                    innov[qq, :] = np.nan
+                if not used[qq]:
+                    continue
+                var_h = var_s * size_var_factor[qq]
+                vb = var_b * bearing_var_factor[qq]
+                sl = slot[qq]
+                _update(mu, P, qq, sight_xy, sight_value, basis, coef, size_scale[qq], size_offset[qq],
+                        bearing_offset[qq], sl, var_h, vb, ph0, ph1, o)  # fmt: skip
+                v0, v1, S00, S01, S11 = o[0], o[1], o[2], o[3], o[4]
+                det_s = S00 * S11 - S01 * S01
+                m2v = (v0 * (S11 * v0 - S01 * v1) + v1 * (S00 * v1 - S01 * v0)) / det_s
+                mahal2[qq] = m2v
+                if not (math.isfinite(m2v) and det_s > 0.0 and S00 > 0.0):
+                    return _BAD_FORWARD, k, j, loglik
+                if use_gate and m2v > gate:
+                    continue
+                loglik += -0.5 * (m2v + math.log(det_s) + 2.0 * _LOG_2PI)
+                if store:
+                    innov[qq, 0], innov[qq, 1], innov[qq, 2], innov[qq, 3], innov[qq, 4] = v0, v1, S00, S01, S11
+                _apply(mu, P, sl, var_h, vb, ph0, ph1, X, xh0, xh1, k0, k1, o)
+            mf[ps + j + 1, :] = mu
+            Pf[ps + j + 1, :, :] = P
+            if not _finite(mu, P):
+                return _BAD_FORWARD, k, j, loglik
+        if forward_only:
+            continue
+        # ---------------- Rauch-Tung-Striebel backward pass ----------------
+        last = ps + nfr
+        mn[:] = mf[last]
+        Pn[:, :] = Pf[last]
+        sm[last, :] = mn
+        sc[last, :, :] = Pn
+        for j in range(nfr - 1, -1, -1):
+            i = f0 + j
+            p = ps + j
+            _f_rows(Pf[p], fab[i, 0], fab[i, 1], phi[i], X)  # X = F P_p, then P-^-1 F P_p = G^T
+            if not _cholesky(P_pred[i], L):
+                return _BAD_BACKWARD, k, j, loglik
+            _chol_solve(L, X)
+            for r in range(n):  # m_p = mu_p + G (m_{p+1} - g_p)
+                a = 0.0
+                for c in range(n):
+                    a += X[c, r] * (mn[c] - g_pred[i, c])
+                mu[r] = mf[p, r] + a
+            for r in range(n):  # W = (C_{p+1} - P-) X
+                for c in range(n):
+                    a = 0.0
+                    for m in range(n):
+                        a += (Pn[r, m] - P_pred[i, r, m]) * X[m, c]
+                    W[r, c] = a
+            for e in range(K):  # the extra states' lag-one covariances: diagonal of G C_{p+1}
+                a = 0.0
+                for m in range(n):
+                    a += X[m, 3 + e] * Pn[m, 3 + e]
+                x_cross[i, e] = a
+            for r in range(n):  # C_p = P_p + G W
+                for c in range(n):
+                    a = 0.0
+                    for m in range(n):
+                        a += X[m, r] * W[m, c]
+                    P[r, c] = Pf[p, r, c] + a
+            _symmetrize(P)
+            if not _finite(mu, P):
+                return _BAD_BACKWARD, k, j, loglik
+            mn[:] = mu
+            Pn[:, :] = P
+            sm[p, :] = mn
+            sc[p, :, :] = Pn
+    return _OK, -1, -1, loglik
+
+
+_NO_INNOV = np.empty((0, 5))
+
+
+def _run(lo: Lowered, batch: Batch, gate: float | None, innov: np.ndarray, forward_only: bool):
+    """The kernel on ``lo`` (which has extra states): (loglik, mahal2, ExtraMoments or None if forward_only)."""
+    ex = lo.extra
+    n, n_s, L, K = batch.n_frames, batch.n_sightings, batch.n_logs, ex.k
+    n_poses = n + L
+    dim = 3 + K
+    slot = np.ascontiguousarray(ex.slot, dtype=np.int64)
+    if slot.shape != (n_s,) or np.any(slot >= K):
+        raise ValueError(f"extra states: slot must have one entry per sighting, each < {K}")
+    if forward_only:  # the beliefs are not returned: reused work arrays
+        mf, Pf = _scratch("aug_mf", (n_poses, dim)), _scratch("aug_Pf", (n_poses, dim, dim))
+        g_pred, P_pred = _scratch("aug_g", (n, dim)), _scratch("aug_Pp", (n, dim, dim))
+    else:
+        mf, Pf, g_pred, P_pred = np.empty((n_poses, dim)), np.empty((n_poses, dim, dim)), np.empty((n, dim)), np.empty((n, dim, dim))
+    sm, sc, x_cross = np.empty((n_poses, dim)), np.empty((n_poses, dim, dim)), np.empty((n, K))
+    mahal2 = np.empty(n_s)
+    status, k, j, loglik = _augmented_kernel(
+        *_inputs(lo, batch, gate), slot, _f64(ex.phi, (n, K)), _f64(ex.q, (n, K)), _f64(ex.init_var, (L, K)),
+        mf, Pf, g_pred, P_pred, _scratch("aug_fab", (n, 2)), sm, sc, x_cross, mahal2, innov, forward_only)
+    _raise(status, k, j, batch)
+    if not math.isfinite(loglik):
+        raise FloatingPointError("non-finite log-likelihood in the augmented E-step")
+    return float(loglik), mahal2, None if forward_only else ExtraMoments(mf, Pf, g_pred, P_pred, sm, sc, x_cross)
+
+
+def smooth_augmented_compiled(lo: Lowered, batch: Batch, gate: float | None = None) -> Posterior:
+    """Compiled twin of ``augmented.smooth_augmented`` (same contract)."""
+    loglik, mahal2, extra = _run(lo, batch, gate, _NO_INNOV, False)
+    return posterior(extra, loglik, mahal2)
+
+
+def innovations_augmented_compiled(lo: Lowered, batch: Batch, out: np.ndarray | None = None) -> tuple[float, np.ndarray]:
+    """The augmented forward EKF alone (no gate): (loglik, (S, 5) innovations) as ``estep.innovations_compiled``."""
+    n_s = batch.n_sightings
+    innov = out if out is not None and out.shape == (n_s, 5) else np.empty((n_s, 5))
+    loglik, _, _ = _run(lo, batch, None, innov, True)
+    return loglik, innov

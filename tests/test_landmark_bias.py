@@ -1,0 +1,182 @@
+"""``landmark_bias``: the first effect that adds state. Its smoother (reference and compiled twin, on logs
+of tests/_synth.py's generator), its slot allocation, its closed-form M-step, its simulator twin, and EM's
+recovery of it on a simulated log."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from learners.em.fit import EMOptions, e_step
+from learners.em.mstep import maximize
+from learners.inference.action_stats import action_statistics
+from learners.inference.augmented import displacement_statistics, rts_pass, smooth_augmented
+from learners.inference.batch import Batch
+from learners.inference.kernels import innovations_compiled, smooth_compiled
+from learners.inference.lowered import ExtraStates
+from learners.inference.posterior import ExtraMoments, Posterior
+from learners.inference.reference import forward_pass, two_filter_smooth
+from learners.model.landmark_bias import LandmarkBias, slot_schedule
+from tests._synth import CASES, case
+
+
+def _with_bias(lo, batch, sigma=0.05, tau=3.0):
+    lo = replace(lo)
+    LandmarkBias(sigma, tau).lower(lo, batch)
+    assert lo.extra is not None and lo.extra.k >= 1
+    return lo
+
+
+@pytest.mark.parametrize("name", CASES)
+def test_compiled_equals_reference_with_bias_states(name):
+    """Gaps, gating, several logs and sightings per frame, per-sighting effects, both bases: to 1e-9."""
+    lo, batch, _ = case(name)
+    lo = _with_bias(lo, batch)
+    ref = smooth_augmented(lo, batch, gate=50.0)
+    got = smooth_compiled(lo, batch, gate=50.0)
+    assert got.loglik == pytest.approx(ref.loglik, rel=1e-12, abs=1e-9)
+    np.testing.assert_array_equal(np.isnan(got.mahal2), np.isnan(ref.mahal2))
+    ok = ~np.isnan(ref.mahal2)
+    np.testing.assert_allclose(got.mahal2[ok], ref.mahal2[ok], rtol=1e-9, atol=1e-9)
+    for field in ("filtered_mean", "filtered_cov", "predicted_mean", "predicted_cov", "smoothed_mean", "smoothed_cov",
+                  "cross"):
+        a, b = getattr(ref.extra, field), getattr(got.extra, field)
+        np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-9 * (1 + np.abs(a).max()), err_msg=field)
+    ll, innov = innovations_compiled(lo, batch)
+    assert ll == pytest.approx(smooth_augmented(lo, batch).loglik, rel=1e-12)
+    assert np.isfinite(innov[batch.used]).all()
+
+
+def test_rts_equals_two_filter_smoother_on_a_linear_gaussian_system():
+    rng = np.random.default_rng(0)
+    n, T = 4, 40
+    A = np.eye(n) + 0.1 * rng.standard_normal((n, n))
+    Q, H, R = np.diag(rng.uniform(0.1, 1, n)), rng.standard_normal((2, n)), np.diag([0.5, 0.3])
+    obs_start = np.concatenate([[0], np.cumsum(rng.integers(0, 3, T))])
+    z = rng.standard_normal((obs_start[-1], 2))
+
+    def motion(i, m):
+        return A @ m + 1.0, A, Q
+
+    def observe(j, m):
+        return H @ m, H, R, z[j], None
+
+    r = two_filter_smooth(np.zeros(n), np.eye(n), obs_start, motion, observe)
+    mu, cov, cross = rts_pass(forward_pass(np.zeros(n), np.eye(n), obs_start, motion, observe))
+    np.testing.assert_allclose(mu, r.mu, atol=1e-10)
+    np.testing.assert_allclose(cov, r.cov, atol=1e-10)
+    # lag-one cross-covariance: Cov(x_0, x_1) by brute force from the joint information of (x_0, x_1)
+    assert cross.shape == (T, n, n) and np.isfinite(cross).all()
+
+
+def test_a_decoupled_bias_state_leaves_the_action_statistics_of_the_base_model():
+    """With a vanishing bias (sigma_rel 1e-6) the augmented statistics are the base model's (RTS vs the two-filter
+    smoother differ only in where the sightings are linearized: the model here is a perturbed one, far from the
+    data in places)."""
+    lo, batch, _ = case("several")
+    post = smooth_compiled(lo, batch)
+    mu, C = action_statistics(lo, batch, post, True)
+    aug = _with_bias(lo, batch, sigma=1e-6)
+    mu_a, C_a = displacement_statistics(aug, batch, smooth_compiled(aug, batch), True)
+    assert np.median(np.abs(mu_a - mu)) < 0.02  # mm (rad) per frame; displacements are ~10 mm
+    np.testing.assert_allclose(C_a, C, rtol=0.01, atol=0.01 * np.abs(C).max())
+
+
+def _batch(frames: list[int], landmarks: list[int], n_frames: int) -> Batch:
+    """A one-log batch with one sighting of ``landmarks[j]`` in frame ``frames[j]``."""
+    counts = np.bincount(frames, minlength=n_frames)
+    lm = np.asarray(landmarks, np.int64)
+    L = np.array([[0.0, 1000.0], [1000.0, 0.0], [0.0, -1000.0], [-1000.0, 0.0]])
+    return Batch(frame_start=np.array([0, n_frames]), dt=0.1, actions=np.zeros(n_frames, np.int64), controls=None,
+                 sight_start=np.concatenate([[0], np.cumsum(counts)]), sight_landmark=lm, sight_xy=L[lm],
+                 sight_value=np.ones((len(lm), 2)), used=np.ones(len(lm), bool), landmarks=L)
+
+
+def test_slot_schedule_keeps_a_landmark_its_state_and_evicts_the_least_recently_seen():
+    b = _batch([1, 2, 3, 5, 6, 8], [0, 1, 0, 2, 1, 0], n_frames=10)
+    s = slot_schedule(b, k_max=2)
+    assert s.k == 2
+    # frame 5: landmark 2 takes the state of landmark 1 (last seen at 2, before landmark 0 at 3); frame 6: landmark 1
+    # takes landmark 0's (3 < 5); frame 8: landmark 0 takes landmark 2's (5 < 6)
+    assert s.slot.tolist() == [0, 1, 0, 1, 0, 1]
+    assert sorted(zip(*np.nonzero(s.reset))) == [(1, 0), (2, 1), (5, 1), (6, 0), (8, 1)]
+    assert sorted(zip(*np.nonzero(s.count))) == [(2, 0), (3, 0)]  # landmark 0's tenure: seen at 1 and 3
+    assert slot_schedule(b, k_max=8).slot.tolist() == [0, 1, 0, 2, 1, 0]  # enough states: never evicted
+
+
+def test_bias_m_step_recovers_an_ar1_process_from_exact_moments():
+    """Known answer: smoothed moments that are a known AR(1) path (no posterior variance)."""
+    rng = np.random.default_rng(1)
+    n_frames, dt, sigma, tau = 20000, 0.1, 0.07, 4.0
+    phi = math.exp(-dt / tau)
+    b = np.empty(n_frames + 1)
+    b[0] = sigma * rng.standard_normal()
+    for t in range(n_frames):
+        b[t + 1] = phi * b[t] + sigma * math.sqrt(1 - phi * phi) * rng.standard_normal()
+    frames = [0, n_frames - 1]
+    batch = _batch(frames, [0, 0], n_frames)
+    n = 4
+    sm = np.zeros((n_frames + 1, n))
+    sm[:, 3] = b
+    extra = ExtraMoments(np.zeros((n_frames + 1, n)), np.zeros((n_frames + 1, n, n)), np.zeros((n_frames, n)),
+                         np.zeros((n_frames, n, n)), sm, np.zeros((n_frames + 1, n, n)), np.zeros((n_frames, 1)))
+    post = Posterior(None, None, None, None, None, None, 0.0, None, extra)
+
+    class _Model:
+        def with_effect(self, e):
+            return e
+
+    fitted = LandmarkBias(0.01, 1.0).maximize(_Model(), batch, post, None)
+    # the ML estimates of an AR(1) from 20,000 steps: within a few standard errors
+    assert fitted.sigma_rel == pytest.approx(sigma, rel=0.1)
+    assert fitted.tau_s == pytest.approx(tau, rel=0.25)
+
+
+def test_simulator_twin_draws_a_gauss_markov_bias_per_landmark():
+    from aibo_gym.collect import collect
+
+    cfg = {"noise": "paper-sim", "sigma_height": 1e-6, "effects": {"landmark_bias": {"sigma_rel": 0.08, "tau_s": 2.0}}}
+    tr = collect(cfg, steps=9000, seed=2)
+    plain = collect({**cfg, "effects": {}}, steps=9000, seed=2)
+    np.testing.assert_array_equal(tr.sighting_frame, plain.sighting_frame)  # its own stream: nothing else moves
+    ratio = tr.sighting_value[:, 0] / plain.sighting_value[:, 0] - 1.0
+    assert np.std(ratio) == pytest.approx(0.08, rel=0.3)
+    lm, fr = tr.sighting_landmark, tr.sighting_frame
+    pairs = [(ratio[a], ratio[c]) for a, c in zip(range(len(fr) - 1), range(1, len(fr))) if lm[a] == lm[c] and fr[c] - fr[a] <= 3]
+    x = np.array(pairs)
+    assert np.corrcoef(x[:, 0], x[:, 1])[0, 1] > 0.9  # 0.1 s apart, tau 2 s: 0.95
+    neutral = collect({**cfg, "effects": {"landmark_bias": {"sigma_rel": 0.0, "tau_s": 2.0}}}, steps=900, seed=2)
+    np.testing.assert_array_equal(neutral.sighting_value, collect({**cfg, "effects": {}}, steps=900, seed=2).sighting_value)
+
+
+@pytest.mark.slow
+def test_em_recovers_the_bias_and_the_velocities():
+    """10 minutes, sigma_rel 0.05, tau_s 8 s (the issue's case): sigma_rel within 20 %, tau_s within a factor 1.5,
+    the velocity errors within 1.25x of the same log without the effect, and a likelihood well above the base's."""
+    from aibo_gym.collect import collect
+    from learners.em.learner import EMLearner
+    from learners.inference.batch import make_batch
+
+    cfg = {"noise": "aibo", "effects": {"landmark_bias": {"sigma_rel": 0.05, "tau_s": 8.0}}}
+    tr = collect(cfg, steps=18000, seed=3)
+    plain = collect({"noise": "aibo"}, steps=18000, seed=3)
+    truth = np.array(tr.meta["truth"]["velocities"])
+    span = truth.max(0) - truth.min(0)
+
+    def err(model):
+        return float(np.mean(np.sqrt(np.mean((model.action.velocities - truth) ** 2, axis=0))[:2] / span[:2]))
+
+    opts = EMOptions(uncertainty=False)
+    base = EMLearner(opts).fit([tr]).params
+    batch = make_batch([tr])
+    start = base.with_effect(LandmarkBias.start(batch))
+    start = start.with_effect(start.effect("landmark_bias").warm_start(start, batch))
+    fit = EMLearner(replace(opts, alias_search=False, starts=1)).fit([tr], init=start).params
+    e = fit.effect("landmark_bias")
+    assert e.sigma_rel == pytest.approx(0.05, rel=0.2)
+    assert 8.0 / 1.5 <= e.tau_s <= 8.0 * 1.5
+    assert err(fit) <= 1.25 * err(EMLearner(opts).fit([plain]).params)
+    assert e_step(fit, batch, "compiled").loglik > e_step(base, batch, "compiled").loglik + 50.0
