@@ -129,7 +129,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _add_experiment_commands(sub, commands) -> None:
-    """``aibo experiment policies`` and ``aibo train-explorer`` (issue 10)."""
+    """``aibo experiment policies`` and ``aibo train-explorer``."""
     ex = sub.add_parser("experiment", help="sweeps of collect -> learn -> score runs (resumable)")
     exs = ex.add_subparsers(dest="experiment", required=True, metavar="EXPERIMENT")
     ep = exs.add_parser("policies", help="exploration policies x log lengths x seeds: EM accuracy per policy")

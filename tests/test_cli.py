@@ -170,7 +170,7 @@ def test_learn_resumes_an_interrupted_run(log_path, tmp_path, capsys):
 
 
 def test_failed_model_write_keeps_the_checkpoint(log_path, tmp_path, monkeypatch):
-    """Issue 8, item 13: the checkpoint is deleted only after the model is on disk."""
+    """The checkpoint is deleted only after the model is on disk."""
     import learners.model.io as model_io
 
     def disk_full(*a, **k):

@@ -104,14 +104,14 @@ def test_resume_after_interruption_gives_the_same_fit(tmp_path, opts, saved_at):
     assert resumed.info["resumed_from"] == saved_at if saved_at else 4 <= resumed.info["resumed_from"] < 9
     np.testing.assert_allclose(resumed.loglik, full.loglik, rtol=1e-12)
     np.testing.assert_allclose(resumed.params.action.disp, full.params.action.disp, rtol=1e-12)
-    assert ckpt.exists()  # kept until the caller has the model safely on disk (issue 8, item 13)
+    assert ckpt.exists()  # kept until the caller has the model safely on disk
     learner.discard_checkpoint()
     assert not ckpt.exists()
 
 
 @pytest.mark.parametrize("damage", [b"", b"PK\x03\x04 truncated", b"not an npz at all"])
 def test_broken_checkpoint_names_the_file_and_no_resume(tmp_path, damage):
-    """Issue 8, item 12: a corrupt checkpoint is one line naming it and --no-resume."""
+    """A corrupt checkpoint is one line naming it and --no-resume."""
     ckpt = tmp_path / "m.json.checkpoint.npz"
     ckpt.write_bytes(damage)
     with pytest.raises(ValueError, match="broken checkpoint.*--no-resume"):
@@ -147,7 +147,7 @@ def test_a_start_that_puts_beacons_off_the_field_fails_loudly():
 
 @pytest.mark.parametrize("steps", [1, 30, 200])
 def test_too_little_data_is_refused_in_one_line(steps):
-    """Issue 8, item 14: a log too short for the sensor model is refused, saying what is missing."""
+    """A log too short for the sensor model is refused, saying what is missing."""
     from aibo_core.trajectory import head
     from learners.em.support import InsufficientDataError
 

@@ -1,4 +1,4 @@
-"""Heading aliases: a search after the fit for commands whose turn rate is off by one turn per hold (issue 11).
+"""Heading aliases: a search after the fit for commands whose turn rate is off by one turn per hold.
 
 A command held for n frames at a per-frame turn phi and displacement d (complex dx + i dy, robot frame)
 moves the robot by the chord S(phi) d, S(phi) = sum_k e^(i k phi) = (e^(i n phi) - 1) / (e^(i phi) - 1),

@@ -1,6 +1,6 @@
 """What a log can determine: refuse a fit the data cannot support, and name what it leaves open.
 
-Measured (issue 8, item 14): with 1 sighting EM wrote sigma_height 3.6e-15 px; with 5 sightings it
+Measured: with 1 sighting EM wrote sigma_height 3.6e-15 px; with 5 sightings it
 reported convergence with a curve 9 px off; with 30 it predicted -288 px at 1.3 m. A cubic sensor
 curve and two noise sigmas need many sightings spread over distances, and a command never executed
 says nothing about its velocity.
