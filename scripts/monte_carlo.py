@@ -1,6 +1,6 @@
 """Monte Carlo study of the EM learner: many independent simulated logs, every variant of the fit.
 
-    python scripts/monte_carlo.py --logs 12 --steps 27000 --json runs/mc15.json        # the README table
+    python scripts/monte_carlo.py --logs 12 --steps 27000 --json runs/mc15.json        # the docs/results.md table
     python scripts/monte_carlo.py --variants default --logs 100 --steps 9000 27000 108000 \\
         --robots 0 1 2 3 --noise paper-sim aibo --json runs/mc_sweep.json                # the failure sweep
     python scripts/monte_carlo.py --from-json runs/mc15.json                             # print the tables again

@@ -18,7 +18,7 @@ from tests._logs import sim_log
 def test_oracle_recovers_truth_from_true_poses():
     tr = sim_log()
     err = model_errors(OracleLearner().fit([tr]).params, [tr])
-    # 200 s of log: about 150 frames per action, so slip noise alone leaves ~1.5% (see the README)
+    # 200 s of log: about 150 frames per action, so slip noise alone leaves ~1.5% (see docs/results.md)
     assert err.vx_rel < 0.02 and err.vy_rel < 0.02 and err.vtheta_rel < 0.03
     assert err.sigma_height_rel < 0.05 and err.sigma_angle_rel < 0.05
     assert err.sensor_rms_px < 0.5
