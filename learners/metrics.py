@@ -126,6 +126,17 @@ def sensor_rms(sensor: SensorModel, truth: dict[str, Any], d_range: tuple[float,
     return float(np.sqrt(np.mean((sensor.mean(d) - true_height(truth, d)) ** 2)))
 
 
+def velocity_bound(se_velocities, true_velocities) -> dict[str, float]:
+    """The information bound of one log: the RMS over commands of the velocities' standard errors (NaN rows,
+    commands never executed, left out), relative to each component's true range (the errors' yardstick):
+    ``{"vx_bound", "vy_bound", "vtheta_bound"}``. An efficient learner's error is about this on average."""
+    se = np.array(se_velocities, dtype=float)
+    true = np.asarray(true_velocities, float)
+    span = true.max(axis=0) - true.min(axis=0)
+    rms = np.sqrt(np.nanmean(se**2, axis=0))
+    return {f"{n}_bound": float(r / w) for n, r, w in zip(("vx", "vy", "vtheta"), rms, span)}
+
+
 def observed_distance_range(logs) -> tuple[float, float]:
     """(min, max) true distance (mm) of the sightings in logs that carry poses."""
     ds = []
