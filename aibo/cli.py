@@ -1,10 +1,13 @@
 """The ``aibo`` command: one entry point for everything a user runs.
 
-    aibo collect    run the simulator with an exploration policy and write a log
-    aibo learn      learn action and sensor models from logs
-    aibo reproduce  the paper's simulated experiment, side by side with its numbers
-    aibo bench      speed of the E-step and of whole fits on this machine
-    aibo import     convert a real robot's logs (MRCLAM) to an aibo-trajectory/2 log
+    aibo collect         run the simulator with an exploration policy and write a log
+    aibo learn           learn action and sensor models from logs
+    aibo diagnose        find where model and data disagree, name the missing effect, refit
+    aibo reproduce       the paper's simulated experiment, side by side with its numbers
+    aibo bench           speed of the E-step and of whole fits on this machine
+    aibo import          convert a real robot's logs (MRCLAM) to an aibo-trajectory/2 log
+    aibo experiment      which exploration policy makes EM learn best per minute of robot time
+    aibo train-explorer  train an SB3 agent that chooses the held commands
 
 Bad input ends with one line ``aibo: error: ...`` and exit status 2 (``--debug`` shows the traceback).
 """
@@ -54,7 +57,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.set_defaults(run=commands.run_collect)
 
     lr = sub.add_parser("learn", help="learn action and sensor models from logs")
-    lr.add_argument("logs", nargs="+", help="aibo-trajectory/1 logs (.npz) of one robot")
+    lr.add_argument("logs", nargs="+", help="aibo-trajectory/2 logs (.npz; /1 files are converted on read) of one robot")
     lr.add_argument("--out", required=True, help="model file to write (aibo-model/1 JSON)")
     lr.add_argument("--learner", default="em", help="em (default), oracle, or an installed plugin")
     lr.add_argument("--max-iter", type=integer(1), default=3000)
@@ -98,7 +101,7 @@ def build_parser() -> argparse.ArgumentParser:
     rp.set_defaults(run=commands.run_reproduce)
 
     dg = sub.add_parser("diagnose", help="find where model and data disagree, name the missing effect, refit")
-    dg.add_argument("logs", nargs="+", help="aibo-trajectory/1 or /2 logs of one robot")
+    dg.add_argument("logs", nargs="+", help="aibo-trajectory/2 logs (.npz; /1 files are converted on read) of one robot")
     dg.add_argument("--out", required=True, help="folder for report.html, report.json, model.json and figures")
     dg.add_argument("--candidates", help="comma-separated effects to try (default: the whole catalogue)")
     dg.add_argument("--jobs", type=integer(1), default=2, help="worker processes for the candidates (default 2)")
@@ -129,7 +132,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _add_experiment_commands(sub, commands) -> None:
-    """``aibo experiment policies`` and ``aibo train-explorer`` (issue 10)."""
+    """``aibo experiment policies`` and ``aibo train-explorer``."""
     ex = sub.add_parser("experiment", help="sweeps of collect -> learn -> score runs (resumable)")
     exs = ex.add_subparsers(dest="experiment", required=True, metavar="EXPERIMENT")
     ep = exs.add_parser("policies", help="exploration policies x log lengths x seeds: EM accuracy per policy")

@@ -37,7 +37,7 @@ ROBOTS = (1, 2, 3, 4, 5)
 #: A ground-truth interval longer than this (s) is a dropout: poses inside it are flagged.
 GAP_S = 0.1
 CONTROL_NAMES = VELOCITY_CONTROLS
-#: Default frame length (s); see README "Real robot logs (MRCLAM)" for the speed/accuracy measurement.
+#: Default frame length (s); see docs/results.md "Real robot logs (MRCLAM)" for the speed/accuracy measurement.
 DEFAULT_DT = 0.1
 
 

@@ -1,4 +1,4 @@
-"""Simulator twins of the effect catalogue (issue 9). Names and parameter names are a contract.
+"""Simulator twins of the effect catalogue. Names and parameter names are a contract.
 
 Every effect is neutral at its defaults (an exact no-op: the same seed gives the same numbers as
 without it). The residual signature of an effect is the variable on which the residuals of a model

@@ -1,5 +1,5 @@
 """The calibrated simulator: ``AiboBeacons-v0`` built from a fitted model, replaying a measured log's
-commands, and the check that compares it with the measured log (issue 9, steps 2 and 4).
+commands, and the check that compares it with the measured log.
 
 The model becomes an env config (:func:`simulator_config`): its velocity table, its per-frame motion
 covariance (``slip_cov``), its sensor curve and noise (``sensor_curve``, ``sigma_height``,

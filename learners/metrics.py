@@ -44,6 +44,58 @@ class ModelErrors:
         return {k: float(v) for k, v in asdict(self).items()}
 
 
+def truth_problem(truth: Any, n_commands: int | None = None) -> str | None:
+    """Why a log's ``meta["truth"]`` cannot score a model ("field 'meta.truth.KEY': what is wrong"), or
+    None when it can. ``meta`` is free-form JSON: the truth is checked before any score reads it, so a
+    malformed one is reported (and ignored), never a crash. ``n_commands``: the command table's length
+    the true velocities must match (None: any)."""
+    if not isinstance(truth, dict):
+        return f"field 'meta.truth': expected a JSON object, got {type(truth).__name__}"
+    missing = [k for k in ("velocities", "sigma_height", "sigma_angle", "sensor") if k not in truth]
+    if missing:
+        return f"field 'meta.truth': missing key(s) {', '.join(missing)}"
+    rows = n_commands if n_commands is not None else "A"
+    try:
+        vel = np.asarray(truth["velocities"], dtype=float)
+    except (TypeError, ValueError):
+        vel = None
+    if vel is None or vel.ndim != 2 or vel.shape[1] != 3 or not len(vel) or (n_commands is not None and
+                                                                         len(vel) != n_commands):
+        got = "not a table of numbers" if vel is None else f"shape {vel.shape}"
+        return f"field 'meta.truth.velocities': expected shape ({rows}, 3) (mm/s, mm/s, rad/s), got {got}"
+    if not np.isfinite(vel).all():
+        return "field 'meta.truth.velocities': non-finite value"
+    for key in ("sigma_height", "sigma_angle"):
+        if not _positive(truth[key]):
+            return f"field 'meta.truth.{key}': expected a positive number, got {truth[key]!r}"
+    return _sensor_problem(truth["sensor"])
+
+
+def _positive(x: Any) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and bool(np.isfinite(x)) and x > 0
+
+
+def _sensor_problem(sensor: Any) -> str | None:
+    """The check of ``meta.truth.sensor``: ``{"model": "pinhole", "height_px_mm"}`` or ``{"model": "curve",
+    "basis", "coef"}`` (``true_height``)."""
+    def where(key: str = "") -> str:
+        return f"field 'meta.truth.sensor{'.' + key if key else ''}'"
+
+    if not isinstance(sensor, dict):
+        return f"{where()}: expected a JSON object, got {type(sensor).__name__}"
+    if sensor.get("model") == "pinhole":
+        k = sensor.get("height_px_mm")
+        return None if _positive(k) else f"{where('height_px_mm')}: expected a positive number, got {k!r}"
+    if sensor.get("model") == "curve":
+        if sensor.get("basis") not in BASES:
+            return f"{where('basis')}: expected one of {', '.join(BASES)}, got {sensor.get('basis')!r}"
+        coef = sensor.get("coef")
+        ok = isinstance(coef, list) and coef and all(isinstance(c, (int, float)) and not isinstance(c, bool)
+                                                    and np.isfinite(c) for c in coef)
+        return None if ok else f"{where('coef')}: expected a non-empty list of finite numbers, got {coef!r}"
+    return f"{where('model')}: expected 'pinhole' or 'curve', got {sensor.get('model')!r}"
+
+
 def true_height(truth: dict[str, Any], d: np.ndarray) -> np.ndarray:
     """The simulator's mean beacon height (px) at distance d (mm): pinhole k / d, or the curve of a
     calibrated simulator (``{"model": "curve", "basis", "coef"}``)."""
@@ -74,6 +126,17 @@ def sensor_rms(sensor: SensorModel, truth: dict[str, Any], d_range: tuple[float,
     return float(np.sqrt(np.mean((sensor.mean(d) - true_height(truth, d)) ** 2)))
 
 
+def velocity_bound(se_velocities, true_velocities) -> dict[str, float]:
+    """The information bound of one log: the RMS over commands of the velocities' standard errors (NaN rows,
+    commands never executed, left out), relative to each component's true range (the errors' yardstick):
+    ``{"vx_bound", "vy_bound", "vtheta_bound"}``. An efficient learner's error is about this on average."""
+    se = np.array(se_velocities, dtype=float)
+    true = np.asarray(true_velocities, float)
+    span = true.max(axis=0) - true.min(axis=0)
+    rms = np.sqrt(np.nanmean(se**2, axis=0))
+    return {f"{n}_bound": float(r / w) for n, r, w in zip(("vx", "vy", "vtheta"), rms, span)}
+
+
 def observed_distance_range(logs) -> tuple[float, float]:
     """(min, max) true distance (mm) of the sightings in logs that carry poses."""
     ds = []
@@ -93,6 +156,9 @@ def model_errors(params: Model, logs) -> ModelErrors:
     truth = logs[0].truth
     if truth is None:
         raise ValueError("log has no ground truth (meta['truth'])")
+    problem = truth_problem(truth, len(params.action.weights))
+    if problem:
+        raise ValueError(problem)
     executed = np.zeros(len(params.action.weights), bool)
     for tr in logs:
         executed[np.unique(tr.actions)] = True

@@ -3,7 +3,7 @@
     python scripts/compare_options.py [--seeds 11 12 13] [--noise paper-sim] [--json out.json]
 
 For each seed: simulate a 15-minute random-balanced log, fit every variant from the paper's
-start, and print the mean (and worst) error per variant, beside the oracle's. The README's
+start, and print the mean (and worst) error per variant, beside the oracle's. docs/results.md's
 options table is this script's output.
 """
 

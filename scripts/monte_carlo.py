@@ -1,6 +1,6 @@
 """Monte Carlo study of the EM learner: many independent simulated logs, every variant of the fit.
 
-    python scripts/monte_carlo.py --logs 12 --steps 27000 --json runs/mc15.json        # the README table
+    python scripts/monte_carlo.py --logs 12 --steps 27000 --json runs/mc15.json        # the docs/results.md table
     python scripts/monte_carlo.py --variants default --logs 100 --steps 9000 27000 108000 \\
         --robots 0 1 2 3 --noise paper-sim aibo --json runs/mc_sweep.json                # the failure sweep
     python scripts/monte_carlo.py --from-json runs/mc15.json                             # print the tables again
@@ -28,7 +28,7 @@ import numpy as np
 from aibo_gym.collect import collect
 from learners.em.fit import EMOptions
 from learners.em.learner import EMLearner
-from learners.metrics import model_errors
+from learners.metrics import model_errors, velocity_bound
 from learners.oracle import OracleLearner
 
 VARIANTS = {
@@ -71,19 +71,9 @@ def fit_one(tr, name: str, opts: EMOptions, seed: int, with_se: bool) -> dict:
         row["se_sigma_height"] = se["sensor_model.sigma_height"]
         row["se_sigma_angle"] = se["sensor_model.sigma_angle"]
         row["condition_number"] = res.info["information"]["condition_number"]
-        row.update(bound(row["se_velocities"], tr.truth["velocities"]))
+        row.update(velocity_bound(row["se_velocities"], tr.truth["velocities"]))
     row["scoring"] = res.info.get("scoring")
     return row
-
-
-def bound(se_velocities, true_velocities) -> dict[str, float]:
-    """The Cramer-Rao-type bound of one log: the RMS over commands of the velocities' standard errors,
-    relative to each component's true range (the errors' yardstick, ``learners.metrics``)."""
-    se = np.array(se_velocities, dtype=float)
-    true = np.asarray(true_velocities, float)
-    span = true.max(axis=0) - true.min(axis=0)
-    rms = np.sqrt(np.nanmean(se**2, axis=0))
-    return {f"{n}_bound": float(r / w) for n, r, w in zip(("vx", "vy", "vtheta"), rms, span)}
 
 
 def cell_logs(noise: str, steps: int, n: int, robots: list[int], seed: int):

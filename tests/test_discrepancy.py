@@ -59,7 +59,7 @@ def _normalized(scale):
 
 
 #: effect -> (simulator parameters, check of the estimate). Strengths are realistic for an Aibo-like
-#: robot; tolerances come from the measured estimates on these logs (README, "Discrepancy workflow").
+#: robot; tolerances come from the measured estimates on these logs (docs/results.md, "Discrepancy workflow").
 HIDDEN = {
     "floor_drift": ({"drift_mm_s": [15.0, -10.0]}, lambda p: np.allclose(p["drift_mm_s"], [15, -10], atol=5.0)),
     "velocity_fade": ({"fade_per_min": 0.03}, lambda p: abs(p["fade_per_min"] - 0.03) < 0.005),

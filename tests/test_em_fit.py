@@ -18,7 +18,7 @@ from tests._logs import sim_log
 def test_oracle_recovers_truth_from_true_poses():
     tr = sim_log()
     err = model_errors(OracleLearner().fit([tr]).params, [tr])
-    # 200 s of log: about 150 frames per action, so slip noise alone leaves ~1.5% (see the README)
+    # 200 s of log: about 150 frames per action, so slip noise alone leaves ~1.5% (see docs/results.md)
     assert err.vx_rel < 0.02 and err.vy_rel < 0.02 and err.vtheta_rel < 0.03
     assert err.sigma_height_rel < 0.05 and err.sigma_angle_rel < 0.05
     assert err.sensor_rms_px < 0.5
@@ -104,14 +104,14 @@ def test_resume_after_interruption_gives_the_same_fit(tmp_path, opts, saved_at):
     assert resumed.info["resumed_from"] == saved_at if saved_at else 4 <= resumed.info["resumed_from"] < 9
     np.testing.assert_allclose(resumed.loglik, full.loglik, rtol=1e-12)
     np.testing.assert_allclose(resumed.params.action.disp, full.params.action.disp, rtol=1e-12)
-    assert ckpt.exists()  # kept until the caller has the model safely on disk (issue 8, item 13)
+    assert ckpt.exists()  # kept until the caller has the model safely on disk
     learner.discard_checkpoint()
     assert not ckpt.exists()
 
 
 @pytest.mark.parametrize("damage", [b"", b"PK\x03\x04 truncated", b"not an npz at all"])
 def test_broken_checkpoint_names_the_file_and_no_resume(tmp_path, damage):
-    """Issue 8, item 12: a corrupt checkpoint is one line naming it and --no-resume."""
+    """A corrupt checkpoint is one line naming it and --no-resume."""
     ckpt = tmp_path / "m.json.checkpoint.npz"
     ckpt.write_bytes(damage)
     with pytest.raises(ValueError, match="broken checkpoint.*--no-resume"):
@@ -147,7 +147,7 @@ def test_a_start_that_puts_beacons_off_the_field_fails_loudly():
 
 @pytest.mark.parametrize("steps", [1, 30, 200])
 def test_too_little_data_is_refused_in_one_line(steps):
-    """Issue 8, item 14: a log too short for the sensor model is refused, saying what is missing."""
+    """A log too short for the sensor model is refused, saying what is missing."""
     from aibo_core.trajectory import head
     from learners.em.support import InsufficientDataError
 

@@ -41,7 +41,7 @@ def test_extras_keep_sb3_out_of_the_test_extra():
 def test_quick_start_does_not_name_torch_and_ci_installs_both_extras():
     readme = (ROOT / "README.md").read_text()
     assert "torch" not in _section(readme, "Quick start").lower()
-    env_section = _section(readme, "The environment")
+    env_section = _section(readme, "Environments")
     assert "pip install torch --index-url https://download.pytorch.org/whl/cpu" in env_section
     assert 'pip install -e ".[agents]"' in env_section and "torch==2.13.0" in env_section
     ci = (ROOT / ".ci" / "run").read_text()

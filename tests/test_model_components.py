@@ -57,7 +57,7 @@ def test_new_component_per_beacon_height_scale_is_recovered():
     EM estimates it with nothing changed in inference, the loop, packing, checkpoint or model file."""
     from aibo_gym.collect import collect
 
-    scale = np.array([1.08, 0.94, 1.04, 0.95])  # at +-15% the base model alone already fails (see README)
+    scale = np.array([1.08, 0.94, 1.04, 0.95])  # at +-15% the base model alone already fails (see docs/results.md)
     tr = collect({"noise": "paper-sim", "effects": {"beacon_height_scale": {"scale": scale.tolist()}}}, 9000, seed=2)
     plain = EMLearner(EMOptions()).fit([tr])
     # warm start: the base model first, then extended with the effect (as a discrepancy search does)

@@ -93,7 +93,7 @@ def test_not_json_and_missing(tmp_path):
 
 
 def test_same_model_same_bytes_without_wall_clock_timings(tmp_path):
-    """Model files keep no timings (issue 8, item 19): the same result writes the same bytes."""
+    """Model files keep no timings: the same result writes the same bytes."""
     res = _result()
     res.info.update(seconds_per_iteration=0.01, first_iteration_seconds=3.0, best_iteration=5)
     save_result(res, tmp_path / "a.json")

@@ -128,7 +128,7 @@ def test_a_fit_far_from_the_commands_face_value_says_it_may_be_wrong():
 
 
 needs_data = pytest.mark.skipif(not (DATA / "Robot1_Odometry.dat").is_file(),
-                                reason=f"MRCLAM Dataset 7 not found at {DATA} (see README, 'Real robot logs')")
+                                reason=f"MRCLAM Dataset 7 not found at {DATA} (see README, 'Real robot logs (MRCLAM)')")
 
 
 @pytest.mark.realdata
@@ -140,7 +140,7 @@ def test_real_robot1_learned_beats_face_value(tmp_path, capsys):
     9.5, unicycle 9.8 mm/s; the bar for both is 20% better than the face value. Lateral
     velocity: diff_drive wiggles sideways (29.3 mm/s RMS) where the unicycle, like the face value, has
     none (1.95 vs 1.99 mm/s): it must stay within 0.5 mm/s of the face value. The turn rate, range
-    curve and smoothed poses are NOT better than the face value on this data (README, "Real robot logs").
+    curve and smoothed poses are NOT better than the face value on this data (docs/results.md, "Real robot logs (MRCLAM)").
     """
     from learners import load_model
     from learners.scoring import score

@@ -77,7 +77,7 @@ def test_a_command_never_executed_is_undetermined():
 def test_standard_errors_match_the_spread_over_simulated_logs():
     """8 independent 10-minute logs of one robot, EM from the true velocities (so every fit is in the
     right basin): the pooled standard errors of the velocities match the spread of the estimates
-    (the Monte Carlo study in the README does the same with 15-minute logs from the paper's start).
+    (the Monte Carlo study in docs/results.md does the same with 15-minute logs from the paper's start).
     vtheta's Fisher SE is ~15% optimistic on logs this short (each command held ~2-3 times)."""
     from aibo_gym.collect import collect
     from learners.em.fit import EMOptions

@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 
 from aibo import diagnose_report as fig
+from aibo.data_errors import naming_files
 from aibo.errors import CLIError
 from aibo.paths import check_files
 from aibo_core import trajectory
@@ -54,7 +55,8 @@ def run(args) -> int:
         lines.append(line)
 
     say(f"diagnosing {len(logs)} log(s), {sum(tr.n_frames for tr in logs)} frames; candidates: {', '.join(names)}")
-    found = search(logs, names, opts, jobs=args.jobs, progress=say)
+    with naming_files(args.logs):
+        found = search(logs, names, opts, jobs=args.jobs, progress=say)
     logs = found["logs"]  # outliers set aside, as in every score of the search
     before, after = score(found["base"], logs), score(found["model"], logs)
     sig_before, sig_after = signatures(found["base"], logs), signatures(found["model"], logs)

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from aibo.data_errors import naming_files
 from aibo.paths import check_files, checkpoint_path
 from aibo.report import Progress, error_table
 from aibo_core import trajectory
@@ -14,7 +15,7 @@ from aibo_core.compat import check_compatible
 from learners.base import LearnResult, get_learner
 from learners.em.alias import fixed_line
 from learners.em.fit import EMOptions
-from learners.metrics import model_errors, observed_distance_range, true_height, velocity_errors
+from learners.metrics import model_errors, observed_distance_range, true_height, truth_problem, velocity_errors
 from learners.model import io as model_io
 
 
@@ -113,7 +114,8 @@ def run(args) -> int:
     init = model_io.load_model(args.init) if args.init else None
     learner = make_learner(args)
     progress = Progress(args.learner)
-    result = learner.fit(logs, init=init, progress=progress, action_model=args.action_model)
+    with naming_files(args.logs, args.init):
+        result = learner.fit(logs, init=init, progress=progress, action_model=args.action_model)
     progress.close()
     model_io.save_result(result, args.out)
     if hasattr(learner, "discard_checkpoint"):
@@ -128,7 +130,7 @@ def run(args) -> int:
     for line in starts_report(result.info) + ([fixed] if fixed else []) + scoring_report(result.info) + \
             uncertainty_report(result):
         print(line)
-    if all(tr.truth is not None and tr.pose is not None for tr in logs):
+    if scorable_truth(logs, args.logs, result.params):
         print(error_table({args.learner: model_errors(result.params, logs)}))
     elif all(tr.truth is None and tr.pose is not None and not tr.discrete for tr in logs):
         print_scores(result.params, logs)
@@ -136,6 +138,20 @@ def run(args) -> int:
         write_plots(Path(args.plots), result, logs, start=init)
         print(f"figures in {args.plots}/")
     return 0
+
+
+def scorable_truth(logs, paths, model) -> bool:
+    """Whether every log carries a usable ground truth (``meta["truth"]`` and ``pose``) to score ``model``
+    against. A malformed truth is ignored with a one-line note naming the file and the field: ``meta`` is
+    free-form, and the fit does not depend on it."""
+    if not model.action.discrete or not all(tr.truth is not None and tr.pose is not None for tr in logs):
+        return False
+    for tr, path in zip(logs, paths):
+        problem = truth_problem(tr.truth, len(model.action.weights))
+        if problem:
+            print(f"aibo: note: {path}: {problem}; the model is not scored against it", file=sys.stderr)
+            return False
+    return True
 
 
 def print_scores(model, logs) -> None:
@@ -161,6 +177,9 @@ def write_plots(folder: Path, result: LearnResult, logs, start=None, oracle=None
         paths.append(folder / f"{prefix}{PLOT_NAMES[0]}")
         figures.loglik_curve(paths[-1], result.loglik, best)
     truth = logs[0].truth if logs[0].pose is not None else None
+    action = result.params.action
+    if truth is not None and truth_problem(truth, len(action.weights) if action.discrete else None) is not None:
+        truth = None  # unusable (``scorable_truth`` has said why): no true curves
     d_range = observed_distance_range(logs) if truth else result.params.sensor.distance_range_mm
     start_sensor = start.sensor if start else SensorModel.start(logs[0].sensor_kind)
     curves = {"start": start_sensor, f"learned ({result.learner})": result.params.sensor}

@@ -13,7 +13,8 @@ def run(args) -> int:
     from aibo.paths import check_files
 
     if importlib.util.find_spec("stable_baselines3") is None:
-        raise CLIError("train-explorer needs Stable-Baselines3: pip install -e '.[agents]' (CPU torch first, see README)")
+        raise CLIError("train-explorer needs Stable-Baselines3: pip install -e '.[agents]' "
+                       "(CPU torch first, see docs/environments.md)")
     check_files([], [("--out", args.out)])
     from aibo_gym.train import train_explorer
 

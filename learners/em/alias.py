@@ -1,4 +1,4 @@
-"""Heading aliases: a search after the fit for commands whose turn rate is off by one turn per hold (issue 11).
+"""Heading aliases: a search after the fit for commands whose turn rate is off by one turn per hold.
 
 A command held for n frames at a per-frame turn phi and displacement d (complex dx + i dy, robot frame)
 moves the robot by the chord S(phi) d, S(phi) = sum_k e^(i k phi) = (e^(i n phi) - 1) / (e^(i phi) - 1),
@@ -6,7 +6,7 @@ and turns it by n phi. The turn phi' = phi +/- 2 pi / n with d' = d (e^(i phi') 
 gives the same chord and the same final heading: every hold of that length ends at the same pose, only
 the loop in between differs. Only the sightings during the hold tell the two apart, so on short logs,
 where a command is held once or twice (5 s each: an alias of 2 pi / 5 s = 1.26 rad/s), EM can settle
-on the alias, a wrong local optimum that reports ``converged`` (README, "EM at the information bound").
+on the alias, a wrong local optimum that reports ``converged`` (docs/results.md, "EM at the information bound").
 
 The search (``search``), after the main fit:
 

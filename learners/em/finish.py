@@ -1,6 +1,6 @@
 """Fisher scoring after EM: the maximum of the likelihood the learner reports, reached in a few steps.
 
-Two measured facts (README, "EM at the information bound") make EM's own stop a poor place to end:
+Two measured facts (docs/results.md, "EM at the information bound") make EM's own stop a poor place to end:
 
 - EM's fixed point is not the maximum of the EKF likelihood it reports. Its M-step maximizes the
   expected complete-data likelihood under the *linearized* smoother's posterior, which is not the

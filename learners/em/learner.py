@@ -17,7 +17,7 @@ from learners.em.finish import fisher_scoring
 from learners.em.fit import EMOptions, EMState, e_step, initial_state, options_json, run
 from learners.em.start import initial_state_for
 from learners.em.starts import disagreement, screen
-from learners.em.support import check_support, curve_warnings, face_value_warnings, weak_command_warnings
+from learners.em.support import StartModelError, check_support, curve_warnings, face_value_warnings, weak_command_warnings
 from learners.inference.batch import Batch, make_batch
 from learners.inference.predictive import has_mixture
 from learners.model.initial import DEFAULT_INITIAL
@@ -105,12 +105,14 @@ class EMLearner:
         start = init or start_model(batch, tr.dt, tr.sensor_kind, n_commands, names, fmap, basis,
                                     degree).with_(init=tuple(initial_state_for(t) for t in logs))
         if tr.discrete and start.action.discrete and len(start.action.weights) != len(tr.attempted):
-            raise ValueError(f"the start model has {len(start.action.weights)} commands, the log "
-                             f"{len(tr.attempted)}")
+            raise StartModelError(f"the start model has {len(start.action.weights)} commands, the log "
+                                  f"{len(tr.attempted)}", "action_model.velocities", "attempted")
         if start.action.discrete != tr.discrete:
-            raise ValueError("the start model's action model does not fit this log's kind of commands")
+            raise StartModelError("the start model's action model does not fit this log's kind of commands",
+                                  "action_model.feature_map", "actions" if tr.discrete else "controls")
         if start.sensor.kind != tr.sensor_kind:
-            raise ValueError(f"the start model's sensor measures {start.sensor.kind}, the log {tr.sensor_kind}")
+            raise StartModelError(f"the start model's sensor measures {start.sensor.kind}, the log {tr.sensor_kind}",
+                                  "sensor_model.kind", "sensor_kind")
         start = start.with_(sensor=start.sensor.in_basis(basis, degree))
         if len(start.init) != len(logs):
             start = replace(start, init=tuple(start.init[0] if len(start.init) == 1 else DEFAULT_INITIAL

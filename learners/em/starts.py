@@ -1,4 +1,4 @@
-"""Several starts, screened cheaply, the most likely one kept (issue 11).
+"""Several starts, screened cheaply, the most likely one kept.
 
 EM finds a local maximum of the likelihood. The one start EM is given (the paper's, or ``--init``)
 fixes the scale of the world through its sensor curve: a curve whose implied distances are about

@@ -1,6 +1,6 @@
 """What a log can determine: refuse a fit the data cannot support, and name what it leaves open.
 
-Measured (issue 8, item 14): with 1 sighting EM wrote sigma_height 3.6e-15 px; with 5 sightings it
+Measured: with 1 sighting EM wrote sigma_height 3.6e-15 px; with 5 sightings it
 reported convergence with a curve 9 px off; with 30 it predicted -288 px at 1.3 m. A cubic sensor
 curve and two noise sigmas need many sightings spread over distances, and a command never executed
 says nothing about its velocity.
@@ -43,7 +43,28 @@ MAX_FACE_VALUE_DEPARTURE = 0.4
 
 
 class InsufficientDataError(ValueError):
-    """The logs cannot determine the model (one line saying what is missing)."""
+    """The logs cannot determine the model (one line saying what is missing); ``field``: the log field
+    that lacks it (``sighting_frame``, ``actions``, ``controls``), so a caller that knows the files can
+    name them. Pickles with its field (fits run in worker processes)."""
+
+    def __init__(self, message: str, field: str = ""):
+        super().__init__(message, field)
+        self.field = field
+
+    def __str__(self) -> str:
+        return str(self.args[0])
+
+
+class StartModelError(ValueError):
+    """The start model (``--init``) does not fit the logs: ``model_field`` (of the model file) disagrees
+    with ``field`` (of the log). Pickles with its fields."""
+
+    def __init__(self, message: str, model_field: str = "", field: str = ""):
+        super().__init__(message, model_field, field)
+        self.model_field, self.field = model_field, field
+
+    def __str__(self) -> str:
+        return str(self.args[0])
 
 
 def check_support(batch: Batch, start: Model) -> list[str]:
@@ -51,16 +72,19 @@ def check_support(batch: Batch, start: Model) -> list[str]:
     parameters they leave undetermined (e.g. ``action_model.velocities[7]``: a command never executed)."""
     n_params = len(start.sensor.coef) + 2
     need = MIN_SIGHTINGS_PER_PARAMETER * n_params
+    commands_field = "actions" if batch.actions is not None else "controls"
     if batch.n_sightings < need:
         raise InsufficientDataError(
             f"the logs hold {batch.n_sightings} sightings; a sensor model of {n_params} parameters needs at least "
-            f"{need} ({MIN_SIGHTINGS_PER_PARAMETER} per parameter): record a longer log")
+            f"{need} ({MIN_SIGHTINGS_PER_PARAMETER} per parameter): record a longer log", "sighting_frame")
     if batch.n_frames < 2:
-        raise InsufficientDataError(f"the logs hold {batch.n_frames} frame(s): nothing to learn a motion from")
+        raise InsufficientDataError(f"the logs hold {batch.n_frames} frame(s): nothing to learn a motion from",
+                                    commands_field)
     commands = batch.actions if batch.actions is not None else batch.controls
     determined = start.action.determined(commands)
     if not determined.any():
-        raise InsufficientDataError("the commands in the logs determine none of the action model's weights")
+        raise InsufficientDataError("the commands in the logs determine none of the action model's weights",
+                                    commands_field)
     label = "velocities" if start.action.discrete else "weights"
     return [f"action_model.{label}[{i}]" for i in np.flatnonzero(~determined)]
 

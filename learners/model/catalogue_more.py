@@ -9,17 +9,17 @@ name               how the model carries it                        its M-step
 false_sightings    a mixture: real (the Gaussian) with probability  responsibilities w = P(real | z) at the
                    1 - rate, spurious (uniform over the data's      smoothed path; rate = mean(1 - w); the
                    box of sizes x image positions) with ``rate``;   sensor's sigmas re-weighted by w
-                   in the filter a sighting's size variance x 1/w
+                   in the filter a sighting's variances x 1/w
 wall_contact       frames whose smoothed end pose is within          the contact frames and their walls
                    ``MARGIN_MM`` of a wall, moving outward: the     (signs) from the smoothed path
                    outward world motion cancelled (``offset``)
 =================  ==============================================  =======================================
 
-false_sightings, in the filter: the EKF cannot carry a mixture; each sighting's size variance is
-multiplied by 1/w (w floored at ``W_FLOOR``). The lowered arrays have one bearing variance for all
-sightings, so a spurious sighting's BEARING still enters the filter at full weight: only those
-that survive the outlier gate (Mahalanobis^2 <= 50 at the first iteration, which for a bearing is
-within ~7 sigma) are left, and their pull is bounded by that. The likelihood (the E-step's and the
+false_sightings, in the filter: the EKF cannot carry a mixture; each sighting's size and bearing
+variances are multiplied by 1/w (w floored at ``W_FLOOR``; ``size_var_factor`` and
+``bearing_var_factor`` of the lowered arrays), so a spurious sighting pulls the path little. Only
+the spurious sightings that survive the outlier gate (Mahalanobis^2 <= 50 at the first iteration)
+are left for the mixture to weigh. The likelihood (the E-step's and the
 held-out score's) is the mixture's: (1 - rate) N(z; filter's prediction, un-inflated noise) + rate u.
 In the held-out score the responsibilities are not applied (they belong to the training batch):
 the filter there is the plain Gaussian one, the densities the mixture's (causal, conservative).

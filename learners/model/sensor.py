@@ -100,7 +100,7 @@ class SensorModel(Component):
 
         Heights: the paper's very poor line 40 - 0.005 d px (``power``; in ``inverse``, the curve
         12.5 + 30000 / d through the same values at 1.5 m and 4 m), sigma 10 px, 0.2 rad: its implied
-        distances fit the field (README). Ranges: range = d (``power``), sigma 100 mm, 0.2 rad.
+        distances fit the field (docs/results.md). Ranges: range = d (``power``), sigma 100 mm, 0.2 rad.
         """
         lines = {("height_px", "power"): [40.0, -0.005], ("height_px", "inverse"): [12.5, 30000.0],
                  ("range_mm", "power"): [0.0, 1.0], ("range_mm", "inverse"): [3000.0, 0.0]}
