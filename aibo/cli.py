@@ -103,6 +103,9 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument("--candidates", help="comma-separated effects to try (default: the whole catalogue)")
     dg.add_argument("--jobs", type=integer(1), default=2, help="worker processes for the candidates (default 2)")
     dg.add_argument("--seed", type=integer(0), default=0)
+    dg.add_argument("--action-model", choices=["table", "features", "unicycle"], default=None,
+                    help="the base fit's action model, as in 'aibo learn' (unicycle for a wheeled robot's (v, omega) "
+                         "commands; default: table for discrete logs, features otherwise)")
     dg.add_argument("--replicas", type=integer(0), default=8,
                     help="replays of the measured commands in the calibrated simulator, before and after (default 8; 0: none)")
     dg.set_defaults(run=commands.run_diagnose)

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 import matplotlib
+import numpy as np
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -85,6 +86,13 @@ def calibrated_bars(path: Path, before: dict[str, Any], after: dict[str, Any] | 
     _save(fig, path)
 
 
+def z_text(z: float | None) -> str:
+    """``z = +3.1``; ``z = +-inf`` for a z that is infinite (None in report.json: the replicas had no
+    spread, and the measured value differs from them)."""
+    return "z = +-inf (the replicas all agree, the measured value differs)" if z is None or not np.isfinite(z) \
+        else f"z = {z:+.1f}"
+
+
 def short(params: dict[str, Any]) -> str:
     """Effect parameters with 4 significant digits: ``lag_s 0.2, scale [1.056, 0.9454]``."""
     def num(v: Any) -> str:
@@ -106,13 +114,13 @@ def _calibrated(cal: dict[str, Any] | None, unexplained: list[dict[str, Any]]) -
 
     def worst(check: dict[str, Any]) -> str:
         d = check["disagreements"]
-        return (", ".join(f"{html.escape(x['statistic'])} (z = {x['z']:+.1f})" for x in d[:4])
+        return (", ".join(f"{html.escape(x['statistic'])} ({z_text(x['z'])})" for x in d[:4])
                 + (f" and {len(d) - 4} more" if len(d) > 4 else "")) if d else "nothing"
     return (f"<p>Calibrated simulator ({cal['before']['replicas']} replays of the measured commands): the measured "
             f"log differs in <b>{len(cal['before']['disagreements'])}</b> statistics from the base model's simulation "
             f"({worst(cal['before'])}), and in <b>{len(cal['after']['disagreements'])}</b> from the simulation with the "
             f"named effects ({worst(cal['after'])}).</p>" + "".join(
-                f"<p><b>Still unlike its simulation:</b> {html.escape(u['statistic'])} (z = {u['z']:+.1f}), the residual "
+                f"<p><b>Still unlike its simulation:</b> {html.escape(u['statistic'])} ({z_text(u['z'])}), the residual "
                 f"signature of <b>{html.escape(u['effect'])}</b>, which was not named ({html.escape(u['why_not_named'])}).</p>"
                 for u in unexplained))
 

@@ -5,7 +5,11 @@ Every command calls ``check_files(inputs, outputs)`` before any work. It refuses
 - an output that is the same file as an input: the same path, a symlink to it or a hard link
   (``os.path.samefile``: same device and inode), so an input is never overwritten;
 - two outputs that are the same file (one would clobber the other);
-- an output that is an existing folder, or whose name is longer than the file system allows.
+- an output that is an existing folder, or whose name is longer than the file system allows;
+- the same input given twice under one label (e.g. a log and a symlink to it): it would count twice.
+
+``check_replaceable(label, folder, names)``: a folder of outputs replaced whole
+(``aibo_core.atomic.atomic_folder``) may hold only those outputs, so nothing else in it is lost.
 
 ``checkpoint_path(out)`` derives the checkpoint file name beside a model file so that it never
 exceeds the file system's NAME_MAX, however long the model's name is.
@@ -57,6 +61,10 @@ def check_files(inputs: Sequence[Named], outputs: Sequence[Named], folders: Sequ
     for label, path in folders:
         if os.path.exists(path) and not os.path.isdir(path):
             raise CLIError(f"{label} {path}: is a file, not a folder")
+    for i, (label, path) in enumerate(inputs):
+        for other_label, other in inputs[:i]:
+            if label == other_label and same_file(path, other):
+                raise CLIError(f"{label} {path} is the same file as {other_label} {other}: give each {label} once")
     for i, (label, path) in enumerate(outputs):
         _check_output_name(label, path)
         for in_label, in_path in inputs:
@@ -66,6 +74,22 @@ def check_files(inputs: Sequence[Named], outputs: Sequence[Named], folders: Sequ
         for other_label, other in outputs[:i]:
             if same_file(path, other):
                 raise CLIError(f"{label} {path} is the same file as {other_label} {other}: choose another name")
+
+
+def check_replaceable(label: str, folder: str | os.PathLike, names: Sequence[str]) -> None:
+    """Refuse (CLIError) an existing ``folder`` holding anything but ``names`` (and temp files of ours):
+    the folder is about to be replaced whole, and nothing else a user keeps there may be lost."""
+    from aibo_core.atomic import is_stale
+
+    try:
+        entries = sorted(os.listdir(folder))
+    except (FileNotFoundError, NotADirectoryError):
+        return
+    other = [e for e in entries if e not in names and not is_stale(e, float("inf"))]
+    if other:
+        more = f" and {len(other) - 1} more" if len(other) > 1 else ""
+        raise CLIError(f"{label} {folder}: holds {other[0]!r}{more}, not an output of this command; the folder is "
+                       "replaced whole, so give a new folder or one this command wrote")
 
 
 def _check_output_name(label: str, path: str | os.PathLike) -> None:

@@ -58,3 +58,116 @@ def test_import_mrclam_refuses_huge_values(tmp_path, capsys):
     assert main(["import", "mrclam", str(data), "--robot", "1", "--out", str(tmp_path / "x.npz")]) == 2
     _one_line_error(capsys, "Landmark_Groundtruth.dat", "row 2", "column 2", "1e+300")
     assert not (tmp_path / "x.npz").exists()
+
+
+@pytest.fixture(scope="module")
+def blind_log(tmp_path_factory):
+    path = tmp_path_factory.mktemp("diag") / "log.npz"
+    assert main(["collect", "--steps", "3000", "--seed", "2", "--blind", "--out", str(path)]) == 0
+    return path
+
+
+def _diagnose(log, out, *extra: str) -> int:
+    return main(["diagnose", str(log), "--out", str(out), "--candidates", "floor_drift", "--jobs", "1",
+                 "--replicas", "0", *extra])
+
+
+def _snapshot(folder: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
+
+
+def test_diagnose_folder_appears_whole_or_not_at_all(blind_log, tmp_path, monkeypatch, capsys):
+    from aibo import diagnose_report
+
+    out = tmp_path / "D"
+    assert _diagnose(blind_log, out) == 0
+    assert "calibrated.png" not in capsys.readouterr().out  # --replicas 0: not written, not claimed
+    first = _snapshot(out)
+    assert set(first) == {"report.json", "model.json", "report.html", "signatures.png", "gap.png"}
+
+    def full_disk(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(diagnose_report, "html_page", full_disk)  # fails after model.json and the figures
+    assert _diagnose(blind_log, out, "--seed", "3") == 2
+    assert _snapshot(out) == first  # the earlier diagnosis, untouched
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["D"]  # no temp folder left
+    monkeypatch.undo()
+    assert _diagnose(blind_log, out, "--seed", "3") == 0
+    assert set(_snapshot(out)) == set(first) and _snapshot(out)["model.json"] != first["model.json"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["D"]
+
+
+def test_diagnose_refuses_a_folder_with_other_files(blind_log, tmp_path, capsys):
+    out = tmp_path / "D"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    assert _diagnose(blind_log, out) == 2
+    _one_line_error(capsys, "--out", "notes.txt", "replaced whole")
+    assert (out / "notes.txt").read_text() == "mine"
+
+
+def test_a_killed_swap_leaves_the_old_folder_and_its_temp_is_cleaned(tmp_path):
+    """A process killed inside ``atomic_folder`` leaves the old folder whole; its temp folder is
+    removed by the next write beside it once the process is gone and the grace has passed."""
+    import subprocess
+    import sys
+    import time
+
+    from aibo_core.atomic import DEAD_OWNER_GRACE_S, atomic_folder
+
+    target = tmp_path / "out"
+    target.mkdir()
+    (target / "a.txt").write_text("old")
+    code = ("import os, sys; from aibo_core.atomic import atomic_folder\n"
+            "with atomic_folder(sys.argv[1]) as tmp:\n"
+            "    (tmp / 'a.txt').write_text('new'); os.kill(os.getpid(), 9)\n")
+    proc = subprocess.run([sys.executable, "-c", code, str(target)], cwd=Path(__file__).resolve().parents[1])
+    assert proc.returncode == -9
+    assert (target / "a.txt").read_text() == "old"
+    left = [p for p in tmp_path.iterdir() if p.name != "out"]
+    assert len(left) == 1 and left[0].is_dir()
+    old = time.time() - DEAD_OWNER_GRACE_S - 5
+    os.utime(left[0], (old, old))
+    with atomic_folder(target) as tmp:
+        (tmp / "b.txt").write_text("newer")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+    assert sorted(p.name for p in target.iterdir()) == ["b.txt"]
+
+
+@pytest.mark.parametrize("value", [",", " , "])
+def test_diagnose_refuses_empty_candidates(value, blind_log, tmp_path, capsys):
+    assert main(["diagnose", str(blind_log), "--out", str(tmp_path / "D"), "--candidates", value]) == 2
+    _one_line_error(capsys, "--candidates", "no effect named")
+    assert not (tmp_path / "D").exists()
+
+
+def test_diagnose_and_learn_refuse_the_same_log_twice(blind_log, tmp_path, capsys):
+    link = tmp_path / "link.npz"
+    link.symlink_to(blind_log)
+    assert main(["diagnose", str(blind_log), str(link), "--out", str(tmp_path / "D")]) == 2
+    _one_line_error(capsys, f"log {link}", "same file", "once")
+    assert main(["learn", str(blind_log), str(blind_log), "--out", str(tmp_path / "m.json")]) == 2
+    _one_line_error(capsys, "same file", "once")
+
+
+def test_diagnose_action_model_is_checked_against_the_log(blind_log, tmp_path, capsys):
+    assert main(["diagnose", str(blind_log), "--out", str(tmp_path / "D"), "--action-model", "unicycle"]) == 2
+    _one_line_error(capsys, "--action-model unicycle", str(blind_log), "discrete")
+
+
+def test_report_page_with_infinite_z(tmp_path):
+    """A statistic whose replicas all agree and the measured value differs has z = +-inf (null in
+    report.json): the page and the text say so instead of crashing."""
+    from aibo.diagnose_report import html_page
+    from aibo_core.atomic import json_text
+
+    check = {"replicas": 8, "disagree_z": 3.9, "failed_replicas": [],
+             "statistics": [{"statistic": "sightings per frame", "z": None}],
+             "disagreements": [{"statistic": "sightings per frame", "z": float("inf")}]}
+    report = {"effects": [], "candidates": [], "gap_metric": "g", "gap_before": 1.0, "gap_after": 1.0,
+              "calibrated_simulation": {"before": check, "after": check},
+              "unexplained": [{"statistic": "sightings per frame", "z": None, "effect": "e", "why_not_named": "w"}]}
+    html_page(tmp_path / "r.html", report, "text", [])
+    assert "z = +-inf" in (tmp_path / "r.html").read_text()
+    assert '"z": null' in json_text(report)
