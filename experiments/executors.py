@@ -22,7 +22,7 @@ import os
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
-from aibo_core.atomic import atomic_write
+from aibo_core.atomic import atomic_write, json_text
 from experiments.run import RunSpec, load_record, run_json
 
 BACKENDS = ("serial", "pool", "ray")
@@ -35,7 +35,7 @@ def worker_env() -> dict[str, str]:
 
 
 def write_results(out_dir: Path, records: list[dict[str, Any]]) -> None:
-    text = "".join(json.dumps(r, sort_keys=True) + "\n" for r in records)
+    text = "".join(json_text(r, indent=None, sort_keys=True) + "\n" for r in records)
     atomic_write(out_dir / "results.jsonl", lambda f: f.write(text.encode()))
 
 
@@ -115,9 +115,11 @@ def run_all(specs: list[RunSpec], out_dir: str | Path, backend: str = "pool", jo
     def ordered() -> list[dict]:
         return [found[i] for i in ids if i in found]
 
-    write_results(out, ordered())
     if not todo:
+        write_results(out, ordered())
         return ordered()
+    # results.jsonl is rewritten only once a run of this sweep completes: a sweep refused or failing
+    # before then leaves an earlier sweep's results as they were
     if backend == "serial":
         stream: Iterable[dict] = (run_json(s, str(out)) for s in todo)
     elif backend == "pool":

@@ -171,3 +171,70 @@ def test_report_page_with_infinite_z(tmp_path):
     html_page(tmp_path / "r.html", report, "text", [])
     assert "z = +-inf" in (tmp_path / "r.html").read_text()
     assert '"z": null' in json_text(report)
+
+
+def _strict_json(path: Path):
+    import json
+
+    def refuse(constant):
+        raise ValueError(f"{path}: {constant} is not JSON")
+
+    return json.loads(path.read_text(), parse_constant=refuse)
+
+
+@pytest.fixture(scope="module")
+def sweep(tmp_path_factory):
+    out = tmp_path_factory.mktemp("sweep") / "s"
+    argv = ["experiment", "policies", "--policies", "uniform", "--minutes", "0.2", "--seeds", "2", "--out", str(out),
+            "--max-iter", "5", "--holdout-minutes", "0", "--backend", "serial"]
+    assert main(argv) == 0
+    return out, argv
+
+
+@pytest.mark.parametrize("bad, expect", [
+    (["--config", '{"nope": 1}'], ["--config", "nope"]),
+    (["--config", '{"robot_seed": -3}'], ["--config", "robot_seed"]),
+    (["--minutes", "inf"], ["--minutes", "inf"]),
+    (["--minutes", "nan"], ["--minutes"]),
+    (["--policy-params", '{"uniform": 5}'], ["--policy-params", "uniform", "JSON object"]),
+])
+def test_a_refused_sweep_rerun_touches_no_result(bad, expect, sweep, capsys):
+    out, argv = sweep
+    capsys.readouterr()
+    before = {name: (out / name).read_bytes() for name in ("results.jsonl", "summary.json")}
+    assert len(before["results.jsonl"].splitlines()) == 2
+    assert main(argv + bad) == 2
+    _one_line_error(capsys, *expect)
+    assert {name: (out / name).read_bytes() for name in before} == before
+
+
+def test_a_bad_record_is_one_line_and_a_nan_is_null(sweep, capsys):
+    import json
+
+    out, argv = sweep
+    record = next((out / "runs").glob("*/record.json"))
+    good = record.read_text()
+    try:
+        record.write_text("[1, 2]")
+        assert main(argv) == 2
+        _one_line_error(capsys, str(record), "not a JSON object")
+        rec = json.loads(good)
+        del rec["vx_rel"]
+        record.write_text(json.dumps(rec))
+        assert main(argv) == 2
+        _one_line_error(capsys, str(record), "'vx_rel'")
+        rec = json.loads(good)
+        rec["vy_rel"] = float("nan")
+        record.write_text(json.dumps(rec))  # Python writes NaN, which is not JSON
+        assert main(argv) == 0
+        summary = _strict_json(out / "summary.json")
+        assert summary["policies"]["uniform"]["0.2"]["vy_rel"]["mean"] is None
+        assert all(_strict_json_line(line) for line in (out / "results.jsonl").read_text().splitlines())
+    finally:
+        record.write_text(good)
+
+
+def _strict_json_line(line: str):
+    import json
+
+    return json.loads(line, parse_constant=lambda c: (_ for _ in ()).throw(ValueError(c)))
