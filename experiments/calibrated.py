@@ -28,7 +28,6 @@ R - 1 dof, widened by sqrt(1 + 1/R)): a model that is right shows no disagreemen
 from __future__ import annotations
 
 import math
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -37,6 +36,7 @@ from scipy import stats
 
 from aibo_core.actions import N_ACTIONS
 from aibo_core.trajectory import Trajectory
+from aibo_core.workers import process_pool
 from learners.discrepancy.search import drop_outliers
 from learners.discrepancy.split import training_log
 from learners.discrepancy.statistics import check_statistics
@@ -176,7 +176,7 @@ def predictive_check(model: Model, logs: list[Trajectory], replicas: int = 8, se
     measured = _compared(check_statistics(model, logs))
     args = [(model, logs, 1_000_003 * (seed + 1) + r) for r in range(replicas)]
     if jobs > 1:
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
+        with process_pool(jobs) as pool:
             results = list(pool.map(_replica_job, args))
     else:
         results = [_replica_job(a) for a in args]

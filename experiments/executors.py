@@ -48,10 +48,12 @@ def read_results(out_dir: str | Path) -> list[dict[str, Any]]:
 
 def _pool_map(todo: list[dict], out: str, jobs: int) -> Iterable[dict]:
     import multiprocessing as mp
-    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+    from concurrent.futures import FIRST_COMPLETED, wait
+
+    from aibo_core.workers import process_pool
 
     os.environ.update(worker_env())  # spawned workers inherit it
-    with ProcessPoolExecutor(max_workers=jobs, mp_context=mp.get_context("spawn")) as ex:
+    with process_pool(jobs, mp.get_context("spawn")) as ex:
         pending = {ex.submit(run_json, s, out) for s in todo}
         try:
             while pending:

@@ -16,7 +16,6 @@ tell the effect from the base model (a flat profile) and it is reported as not i
 from __future__ import annotations
 
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Any, Callable
 
@@ -24,6 +23,7 @@ import numpy as np
 from scipy import stats
 
 from aibo_core.trajectory import Trajectory
+from aibo_core.workers import process_pool
 from learners.em.fit import EMOptions
 from learners.em.learner import EMLearner
 from learners.inference.batch import make_batch
@@ -191,7 +191,7 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
                for c in candidates if c not in remaining}
     for name, why in skipped.items():
         progress(f"  {name}: not tried ({why})")
-    with ProcessPoolExecutor(max_workers=max(jobs, 1)) as pool:
+    with process_pool(max(jobs, 1)) as pool:
         for _ in range(MAX_ROUNDS):
             if not remaining:
                 break
