@@ -294,3 +294,110 @@ def test_workers_exit_when_their_parent_is_killed(method, tmp_path):
                 os.kill(pid, signal.SIGKILL)
             except ProcessLookupError:
                 pass
+
+
+@pytest.fixture(scope="module")
+def learned(blind_log, tmp_path_factory):
+    """A model file learned from ``blind_log`` (a few iterations), as parsed JSON."""
+    import json
+
+    path = tmp_path_factory.mktemp("model") / "m.json"
+    assert main(["learn", str(blind_log), "--out", str(path), "--max-iter", "3", "--starts", "1",
+                 "--no-alias-search"]) == 0
+    return json.loads(path.read_text())
+
+
+def _write_model(doc: dict, path: Path, edit) -> Path:
+    import copy
+    import json
+
+    doc = copy.deepcopy(doc)
+    edit(doc)
+    path.write_text(json.dumps(doc))
+    return path
+
+
+def _set(dotted: str, value):
+    def edit(doc):
+        node = doc
+        *parents, last = dotted.split(".")
+        for part in parents:
+            node = node[int(part)] if isinstance(node, list) else node[part]
+        node[int(last) if isinstance(node, list) else last] = value
+    return edit
+
+
+def _effects(*entries):
+    return _set("effects", list(entries))
+
+
+@pytest.mark.parametrize("edit, field, what", [
+    (_set("sensor_model.coef", ["1", "2"]), "sensor_model.coef", "expected numbers"),
+    (_set("sensor_model.sigma_angle", True), "sensor_model.sigma_angle", "expected numbers"),
+    (_set("action_model.dt", "0.033"), "action_model.dt", "expected numbers"),
+    (_set("action_model.velocities.0.0", 1e300), "action_model.velocities", "larger than"),
+    (_set("action_model.motion_cov", [[1e300, 0, 0], [0, 1e300, 0], [0, 0, 1e300]]), "action_model.motion_cov",
+     "larger than"),
+    (_set("action_model.motion_cov", [[1e14, 0, 0], [0, 1, 0], [0, 0, -1]]), "action_model.motion_cov",
+     "positive definite"),
+    (_set("action_model.motion_cov", [[1e14, 0, 0], [0, 1e14, 0], [0, 0, 1e14]]), "action_model.motion_cov",
+     "standard deviation above 10000 mm"),
+    (_effects({"name": "actuation_lag", "parameters": {"lag_s": -5}}), "effects.actuation_lag.parameters.lag_s",
+     "must be in [0, 60]"),
+    (_effects({"name": "false_sightings", "parameters": {"rate": 5}}), "effects.false_sightings.parameters.rate",
+     "must be in [0, 0.5]"),
+    (_effects({"name": "false_sightings", "parameters": {"rate": 0}}), "effects.false_sightings.parameters.rate",
+     "> 0"),
+    (_effects({"name": "distance_dependent_noise", "parameters": {"exponent": -1}}),
+     "effects.distance_dependent_noise.parameters.exponent", "must be in"),
+    (_effects({"name": "actuation_lag", "parameters": {"lag_s": [0.1, 0.2]}}),
+     "effects.actuation_lag.parameters.lag_s", "expected a number"),
+    (_effects({"name": "floor_drift", "parameters": {"drift_mm_s": 3.0}}),
+     "effects.floor_drift.parameters.drift_mm_s", "a list of 2 numbers"),
+    (_effects({"name": "floor_drift", "parameters": {"drift_mm_s": [1e300, 0]}}),
+     "effects.floor_drift.parameters.drift_mm_s", "larger than"),
+    (_effects({"name": "actuation_lag", "parameters": {"lag_s": "0.1"}}), "effects.actuation_lag.parameters.lag_s",
+     "expected numbers"),
+    (_effects({"name": "actuation_lag", "parameters": {"lag_s": 0.1}}, {"name": "actuation_lag",
+                                                                       "parameters": {"lag_s": 0.2}}),
+     "effects", "2 times"),
+])
+def test_a_bad_model_file_is_one_line_naming_its_field(edit, field, what, learned, blind_log, tmp_path, capsys):
+    init = _write_model(learned, tmp_path / "bad.json", edit)
+    assert main(["learn", str(blind_log), "--init", str(init), "--out", str(tmp_path / "m.json")]) == 2
+    _one_line_error(capsys, str(init), f"'{field}'", what)
+    assert not (tmp_path / "m.json").exists()
+
+
+@pytest.mark.parametrize("entry, field, what", [
+    ({"name": "beacon_height_scale", "parameters": {"scale": [1.0, 1.0]}}, "effects.beacon_height_scale.parameters.scale",
+     "these logs need"),
+    ({"name": "off_center_shrink", "parameters": {"k": 0.1}}, "effects.off_center_shrink", "head_pan"),
+])
+def test_an_init_model_the_log_cannot_use_is_one_line(entry, field, what, learned, blind_log, tmp_path, capsys):
+    from dataclasses import replace
+
+    from aibo_core import trajectory
+
+    log = tmp_path / "nopan.npz"
+    trajectory.save(replace(trajectory.load(blind_log), head_pan=None), log)
+    init = _write_model(learned, tmp_path / "init.json", _effects(entry))
+    assert main(["learn", str(log), "--init", str(init), "--out", str(tmp_path / "m.json")]) == 2
+    _one_line_error(capsys, f"--init {init}", f"'{field}'", what)
+
+
+def test_an_init_model_with_other_control_names_is_refused(tmp_path, capsys):
+    from aibo_core import trajectory
+    from aibo_core.mrclam import import_robot
+    from learners.inference.batch import make_batch
+    from learners.model.io import save_model
+    from learners.model.model import start_model
+
+    (tmp_path / "data").mkdir()
+    tr = import_robot(tiny_dataset(tmp_path / "data"), 1, dt=0.1)
+    trajectory.save(tr, tmp_path / "log.npz")
+    model = start_model(make_batch([tr]), tr.dt, tr.sensor_kind, control_names=("left_mm_s", "right_mm_s"))
+    save_model(tmp_path / "init.json", model, {"learner": "test"})
+    assert main(["learn", str(tmp_path / "log.npz"), "--init", str(tmp_path / "init.json"),
+                 "--out", str(tmp_path / "m.json")]) == 2
+    _one_line_error(capsys, "'action_model.control_names'", "left_mm_s", "v_mm_s")

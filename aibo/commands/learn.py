@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from aibo.errors import CLIError
 from aibo.paths import check_files, checkpoint_path
 from aibo.report import Progress, error_table
 from aibo_core import trajectory
@@ -14,6 +15,7 @@ from aibo_core.compat import check_compatible
 from learners.base import LearnResult, get_learner
 from learners.em.alias import fixed_line
 from learners.em.fit import EMOptions
+from learners.em.learner import check_model_fits
 from learners.metrics import model_errors, observed_distance_range, true_height, velocity_errors
 from learners.model import io as model_io
 
@@ -111,6 +113,11 @@ def run(args) -> int:
     for warning in check_compatible(logs, list(args.logs)):
         print(f"aibo: warning: {warning}", file=sys.stderr)
     init = model_io.load_model(args.init) if args.init else None
+    if init is not None:
+        try:
+            check_model_fits(init, logs)
+        except ValueError as err:
+            raise CLIError(f"--init {args.init}: {err}") from None
     learner = make_learner(args)
     progress = Progress(args.learner)
     result = learner.fit(logs, init=init, progress=progress, action_model=args.action_model)
