@@ -401,3 +401,19 @@ def test_an_init_model_with_other_control_names_is_refused(tmp_path, capsys):
     assert main(["learn", str(tmp_path / "log.npz"), "--init", str(tmp_path / "init.json"),
                  "--out", str(tmp_path / "m.json")]) == 2
     _one_line_error(capsys, "'action_model.control_names'", "left_mm_s", "v_mm_s")
+
+
+def test_replay_refuses_a_log_of_another_frame_rate(learned, blind_log, tmp_path, capsys):
+    import json
+    from dataclasses import replace
+
+    from aibo_core import trajectory
+
+    model = tmp_path / "m.json"
+    model.write_text(json.dumps(learned))
+    log = tmp_path / "slow.npz"
+    trajectory.save(replace(trajectory.load(blind_log), dt=0.1), log)
+    assert main(["collect", "--model", str(model), "--replay", str(log), "--out", str(tmp_path / "r.npz")]) == 2
+    _one_line_error(capsys, f"--replay {log}", "'dt'", "0.1 s", "0.0333333 s")
+    assert not (tmp_path / "r.npz").exists()
+    assert main(["collect", "--model", str(model), "--replay", str(blind_log), "--out", str(tmp_path / "r.npz")]) == 0

@@ -6,6 +6,8 @@ from __future__ import annotations
 import sys
 import time
 
+import numpy as np
+
 from aibo.errors import CLIError
 from aibo.paths import check_files
 from aibo_core import trajectory
@@ -55,6 +57,9 @@ def calibrated_config(model_path: str | None, replay_path: str | None):
 
     model = load_model(model_path)
     log = trajectory.load(replay_path) if replay_path else None
+    if log is not None and not np.isclose(log.dt, model.action.dt, rtol=1e-6):
+        raise CLIError(f"--replay {replay_path}: field 'dt': {log.dt:g} s per frame, but the model {model_path} "
+                       f"steps {model.action.dt:g} s per frame; replay a log of the model's frame rate")
     if log is not None and log.actions is None:
         raise CLIError(f"{replay_path}: field 'actions': the log has continuous commands; the simulator replays "
                        "only the 40 discrete walk commands")
