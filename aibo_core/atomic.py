@@ -53,22 +53,35 @@ def atomic_write(path: str | os.PathLike, write: Callable[[Any], None]) -> None:
     docstring). The file gets the usual mode (0666 less the umask), not mkstemp's 0600.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    remove_stale_temps(path.parent)
-    fd, tmp = tempfile.mkstemp(prefix=f".aibo-{os.getpid()}-", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            write(f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, path)
-    except BaseException:
+    with _naming(path):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        remove_stale_temps(path.parent)
+        fd, tmp = tempfile.mkstemp(prefix=f".aibo-{os.getpid()}-", suffix=".tmp", dir=path.parent)
         try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+            with os.fdopen(fd, "wb") as f:
+                write(f)
+                f.flush()
+                os.fsync(f.fileno())
+            os.chmod(tmp, 0o666 & ~_umask())
+            os.replace(tmp, path)
+        except BaseException:
+            try:
+                os.unlink(tmp)
+            except FileNotFoundError:
+                pass
+            raise
+
+
+@contextmanager
+def _naming(path: Path) -> Iterator[None]:
+    """Re-raise an OSError of the block (a full disk names no file, a read-only folder names our temp
+    file) as one naming ``path``, the output the user asked for."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.filename == str(path) or exc.errno is None:
+            raise
+        raise OSError(exc.errno, f"{exc.strerror} (writing {path})") from exc
 
 
 @contextmanager
@@ -76,20 +89,22 @@ def atomic_folder(path: str | os.PathLike) -> Iterator[Path]:
     """Yield an empty temp folder beside ``path``; when the block ends normally it replaces ``path``
     (a folder, or nothing yet) whole; when it raises, it is removed and ``path`` is untouched."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    remove_stale_temps(path.parent)
-    tmp = Path(tempfile.mkdtemp(prefix=f".aibo-{os.getpid()}-", suffix=".tmp", dir=path.parent))
+    with _naming(path):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        remove_stale_temps(path.parent)
+        tmp = Path(tempfile.mkdtemp(prefix=f".aibo-{os.getpid()}-", suffix=".tmp", dir=path.parent))
     try:
         yield tmp
-        os.chmod(tmp, 0o777 & ~_umask())
-        if not path.exists():
-            os.rename(tmp, path)
-            return
-        if not _exchange(tmp, path):
-            old = Path(tempfile.mkdtemp(prefix=f".aibo-{os.getpid()}-", suffix=".tmp", dir=path.parent))
-            os.rename(path, old)  # onto the empty folder just made: the name is ours
-            os.rename(tmp, path)
-            tmp = old
+        with _naming(path):
+            os.chmod(tmp, 0o777 & ~_umask())
+            if not path.exists():
+                os.rename(tmp, path)
+                return
+            if not _exchange(tmp, path):
+                old = Path(tempfile.mkdtemp(prefix=f".aibo-{os.getpid()}-", suffix=".tmp", dir=path.parent))
+                os.rename(path, old)  # onto the empty folder just made: the name is ours
+                os.rename(tmp, path)
+                tmp = old
     finally:
         shutil.rmtree(tmp, ignore_errors=True)  # the new folder after a failure, else the old one
 

@@ -417,3 +417,26 @@ def test_replay_refuses_a_log_of_another_frame_rate(learned, blind_log, tmp_path
     _one_line_error(capsys, f"--replay {log}", "'dt'", "0.1 s", "0.0333333 s")
     assert not (tmp_path / "r.npz").exists()
     assert main(["collect", "--model", str(model), "--replay", str(blind_log), "--out", str(tmp_path / "r.npz")]) == 0
+
+
+@pytest.mark.parametrize("fail", ["fsync", "mkstemp"])
+def test_write_errors_name_the_output(fail, blind_log, tmp_path, monkeypatch, capsys):
+    """A full disk (no file named) or a read-only folder (our temp file named): the error names the
+    output the user asked for."""
+    import tempfile
+
+    def full(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    def read_only(*args, dir=None, **kwargs):
+        raise PermissionError(13, "Permission denied", os.path.join(dir, ".aibo-1-abcdefgh.tmp"))
+
+    out = tmp_path / "o.npz"
+    if fail == "fsync":
+        monkeypatch.setattr(os, "fsync", full)
+    else:
+        monkeypatch.setattr(tempfile, "mkstemp", read_only)
+    assert main(["collect", "--steps", "30", "--out", str(out)]) == 2
+    line = _one_line_error(capsys, f"(writing {out})")
+    assert ".tmp" not in line and not out.exists()
+    assert [p.name for p in tmp_path.iterdir()] == []
