@@ -4,7 +4,8 @@
 is already in ``out_dir`` (an interrupted sweep resumes; nothing finished is lost or redone), runs
 the rest, and after each completed run rewrites ``out_dir/results.jsonl`` atomically (one record
 per line, in the order of ``specs``). A run is deterministic in its spec, so every backend gives
-the same records (``timing`` aside).
+the same records (``timing`` aside) at the same BLAS thread count (the workers' is 1; a serial run
+with more threads differs in the last bits of the information matrix's eigenvalues).
 
 * ``serial``: in this process;
 * ``pool``: ``concurrent.futures.ProcessPoolExecutor`` (spawned workers, ``OMP_NUM_THREADS=1``
