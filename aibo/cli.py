@@ -95,6 +95,8 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--seed", type=integer(0), default=1)
     rp.add_argument("--paper-recipe", action="store_true",
                     help="use the paper's exact recipe (fixed motion noise, one sample per frame)")
+    rp.add_argument("--no-resume", action="store_true",
+                    help="ignore the checkpoint an interrupted identical run left in --out")
     rp.set_defaults(run=commands.run_reproduce)
 
     dg = sub.add_parser("diagnose", help="find where model and data disagree, name the missing effect, refit")

@@ -440,3 +440,46 @@ def test_write_errors_name_the_output(fail, blind_log, tmp_path, monkeypatch, ca
     line = _one_line_error(capsys, f"(writing {out})")
     assert ".tmp" not in line and not out.exists()
     assert [p.name for p in tmp_path.iterdir()] == []
+
+
+def test_reproduce_never_mixes_two_runs(tmp_path, monkeypatch, capsys):
+    """Another run's checkpoint is never read (no failure naming an option reproduce lacks), a failed
+    run leaves the earlier folder whole, and a completed one leaves no checkpoint behind."""
+    from argparse import Namespace
+
+    from aibo.commands import reproduce
+
+    monkeypatch.setattr(reproduce, "QUICK_STEPS", 3000)
+    out = tmp_path / "R"
+    first = ["reproduce", "--quick", "--out", str(out), "--seed", "2"]
+    other = Namespace(seed=3, paper_recipe=False, quick=True)
+    leftover = reproduce.run_checkpoint(out, other, 3000)  # an interrupted run of another seed
+    leftover.parent.mkdir(parents=True)
+    leftover.write_bytes(b"not a checkpoint of this run")
+    assert main(first) == 0
+    assert "resumed" not in capsys.readouterr().out
+    old = _snapshot(out)
+    assert set(old) == set(reproduce.OUTPUTS)  # the other run's checkpoint went with the old folder
+
+    def full_disk(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(reproduce, "write_plots", full_disk)  # after log.npz and the models are written
+    fourth = ["reproduce", "--quick", "--out", str(out), "--seed", "4"]
+    assert main(fourth) == 2
+    checkpoint = reproduce.run_checkpoint(out, Namespace(seed=4, paper_recipe=False, quick=True), 3000)
+    assert {k: v for k, v in _snapshot(out).items() if k != checkpoint.name} == old  # the old run, whole
+    assert checkpoint.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["R"]
+    monkeypatch.undo()
+    monkeypatch.setattr(reproduce, "QUICK_STEPS", 3000)
+    capsys.readouterr()
+    assert main(fourth) == 0  # the identical run resumes, and says so
+    assert f"resumed from the checkpoint {checkpoint}" in capsys.readouterr().out
+    assert set(_snapshot(out)) == set(reproduce.OUTPUTS) and _snapshot(out)["log.npz"] != old["log.npz"]
+
+
+def test_reproduce_refuses_a_folder_with_other_files(tmp_path, capsys):
+    (tmp_path / "R").mkdir()
+    (tmp_path / "R" / "thesis.tex").write_text("mine")
+    assert main(["reproduce", "--quick", "--out", str(tmp_path / "R")]) == 2
+    _one_line_error(capsys, "thesis.tex", "replaced whole")
