@@ -483,3 +483,24 @@ def test_reproduce_refuses_a_folder_with_other_files(tmp_path, capsys):
     (tmp_path / "R" / "thesis.tex").write_text("mine")
     assert main(["reproduce", "--quick", "--out", str(tmp_path / "R")]) == 2
     _one_line_error(capsys, "thesis.tex", "replaced whole")
+
+
+def test_config_takes_a_json_file_too(tmp_path, capsys):
+    import json
+
+    from aibo_core import trajectory
+
+    cfg = tmp_path / "cfg.json"
+    cfg.write_text(json.dumps({"noise": "aibo", "robot_seed": 7}))
+    assert main(["collect", "--steps", "30", "--config", str(cfg), "--out", str(tmp_path / "a.npz")]) == 0
+    meta = trajectory.load(tmp_path / "a.npz").meta["config"]
+    assert meta["robot_seed"] == 7 and meta["noise"] == "aibo"
+    capsys.readouterr()
+    (tmp_path / "bad.json").write_text('{"noise": ')
+    for value, expect in ((str(tmp_path / "missing.json"), ["neither inline JSON", "missing.json"]),
+                          (str(tmp_path / "bad.json"), ["--config", "bad.json", "not valid JSON"]),
+                          ('{"noise": NaN}', ["inline JSON", "non-finite"])):
+        with pytest.raises(SystemExit) as stop:  # refused by argparse, before any work
+            main(["collect", "--steps", "30", "--config", value, "--out", str(tmp_path / "b.npz")])
+        assert stop.value.code == 2
+        _one_line_error(capsys, "argument --config", *expect)
