@@ -504,3 +504,30 @@ def test_config_takes_a_json_file_too(tmp_path, capsys):
             main(["collect", "--steps", "30", "--config", value, "--out", str(tmp_path / "b.npz")])
         assert stop.value.code == 2
         _one_line_error(capsys, "argument --config", *expect)
+
+
+def test_velocity_of_one_command_like_mean_of_one_distance(learned, tmp_path):
+    import json
+
+    import numpy as np
+
+    from learners.model.io import load_model
+
+    (tmp_path / "m.json").write_text(json.dumps(learned))
+    model = load_model(tmp_path / "m.json")
+    one = model.action.velocity(7)
+    assert one.shape == (3,) and np.array_equal(one, model.action.velocity([7])[0])
+    assert np.array_equal(model.action.velocity(np.int64(7)), one)
+    assert np.shape(model.sensor.mean(1500.0)) == ()
+    with pytest.raises(ValueError, match="outside"):
+        model.action.velocity(99)
+
+
+def test_velocity_of_one_continuous_command():
+    import numpy as np
+
+    from learners.model.action import ActionModel
+
+    act = ActionModel(np.array([[1.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.0, 0.2]]), np.eye(3), 0.1, "linear", ("v", "w"))
+    assert np.allclose(act.velocity([100.0, 0.5]), act.velocity([[100.0, 0.5]])[0])
+    assert act.velocity([100.0, 0.5]).shape == (3,)
