@@ -28,6 +28,7 @@ R - 1 dof, widened by sqrt(1 + 1/R)): a model that is right shows no disagreemen
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -108,8 +109,10 @@ class Check:
 
     @property
     def moments(self) -> tuple[np.ndarray, np.ndarray]:
-        """(K,) mean and (K,) sample sd of the replicas' statistics."""
-        return np.nanmean(self.replicas, axis=0), np.nanstd(self.replicas, axis=0, ddof=1)
+        """(K,) mean and (K,) sample sd of the replicas' statistics (NaN where fewer than 2 replicas have one)."""
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # too few replicas: NaN, said by the caller
+            return np.nanmean(self.replicas, axis=0), np.nanstd(self.replicas, axis=0, ddof=1)
 
     @property
     def z(self) -> np.ndarray:

@@ -531,3 +531,36 @@ def test_velocity_of_one_continuous_command():
     act = ActionModel(np.array([[1.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.0, 0.2]]), np.eye(3), 0.1, "linear", ("v", "w"))
     assert np.allclose(act.velocity([100.0, 0.5]), act.velocity([[100.0, 0.5]])[0])
     assert act.velocity([100.0, 0.5]).shape == (3,)
+
+
+def test_diagnose_reports_candidates_the_log_cannot_support(blind_log, tmp_path, capsys):
+    import json
+    from dataclasses import replace
+
+    from aibo_core import trajectory
+
+    log = tmp_path / "nopan.npz"
+    trajectory.save(replace(trajectory.load(blind_log), head_pan=None), log)
+    out = tmp_path / "D"
+    assert main(["diagnose", str(log), "--out", str(out), "--candidates", "floor_drift,off_center_shrink",
+                 "--jobs", "1", "--replicas", "0"]) == 0
+    text = capsys.readouterr().out
+    assert "off_center_shrink: not tried" in text and "head_pan" in text
+    report = json.loads((out / "report.json").read_text())
+    assert list(report["not_tried"]) == ["off_center_shrink"]
+    assert [c["name"] for c in report["candidates"]] == ["floor_drift"]
+
+
+def test_diagnose_says_when_every_replica_failed(blind_log, tmp_path, monkeypatch, capsys):
+    from experiments import calibrated
+
+    def fails(model, logs, seed):
+        raise ValueError("the replica's fit diverged")
+
+    monkeypatch.setattr(calibrated, "replica_statistics", fails)
+    out = tmp_path / "D"
+    assert _diagnose(blind_log, out, "--replicas", "3") == 0
+    text = capsys.readouterr().out
+    assert "statistics disagree" not in text
+    assert text.count("no comparison: 0 of 3 replicas ran (3 failed") == 2
+    assert "calibrated.png" not in text and not (out / "calibrated.png").exists()

@@ -102,7 +102,7 @@ def write_outputs(out: Path, final, report: dict, lines: list[str], sig_before, 
         fig.signature_panels(tmp / FIGURES[0], sig_before, sig_after)
         fig.gap_bars(tmp / FIGURES[1], before.as_dict(), after.as_dict())
         cal = report["calibrated_simulation"]
-        if "before" in cal:
+        if "before" in cal and cal["before"]["disagree_z"] is not None:  # None: too few replicas ran to compare
             fig.calibrated_bars(tmp / FIGURES[2], cal["before"], cal["after"])
         write_json(tmp / "report.json", report)
         fig.html_page(tmp / "report.html", report, "\n".join(lines), [tmp / f for f in FIGURES])
