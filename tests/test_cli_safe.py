@@ -564,3 +564,16 @@ def test_diagnose_says_when_every_replica_failed(blind_log, tmp_path, monkeypatc
     assert "statistics disagree" not in text
     assert text.count("no comparison: 0 of 3 replicas ran (3 failed") == 2
     assert "calibrated.png" not in text and not (out / "calibrated.png").exists()
+
+
+def test_report_page_leads_with_the_verdict(tmp_path):
+    from aibo.diagnose_report import html_page
+
+    report = {"effects": [{"name": "actuation_lag", "parameters": {"lag_s": 0.2}}], "candidates": [],
+              "gap_metric": "heldout_nll_per_sighting", "gap_before": 3.0, "gap_after": 2.5}
+    html_page(tmp_path / "r.html", report, "text", [])
+    page = (tmp_path / "r.html").read_text()
+    verdict = page.index("Verdict: the base model misses <b>actuation_lag</b> (lag_s 0.2 (lag_s on a grid of step 0.1")
+    assert verdict < page.index("better by 0.5000 nats per sighting") < page.index("descriptive")
+    html_page(tmp_path / "n.html", {**report, "effects": []}, "text", [])
+    assert "Verdict: <b>no missing effect found</b>" in (tmp_path / "n.html").read_text()
