@@ -72,6 +72,12 @@ def steps(text: str) -> int:
     return value
 
 
+class JSONFile(dict):
+    """A JSON object read from a file; ``path`` is that file (an input no output may replace)."""
+
+    path: str = ""
+
+
 def json_object(text: str) -> dict:
     """An option type: a JSON object of finite values (NaN and Infinity are refused), given inline
     (``'{"noise": "aibo"}'``) or as the path of a file holding one (anything not starting with ``{``)."""
@@ -79,9 +85,9 @@ def json_object(text: str) -> dict:
     def refuse(constant: str):
         raise ValueError(f"non-finite number {constant}")
 
-    source = "inline JSON"
+    source, path = "inline JSON", ""
     if not text.lstrip().startswith(("{", "[")):
-        source = f"file {text}"
+        source, path = f"file {text}", text
         try:
             with open(text, encoding="utf-8") as f:
                 text = f.read(MAX_JSON_FILE_BYTES + 1)
@@ -100,4 +106,7 @@ def json_object(text: str) -> dict:
         raise argparse.ArgumentTypeError(f"{source}: {exc} (only finite numbers)") from None
     if not isinstance(value, dict):
         raise argparse.ArgumentTypeError(f"{source}: must be a JSON object")
+    if path:
+        value = JSONFile(value)
+        value.path = path
     return value

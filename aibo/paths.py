@@ -53,6 +53,32 @@ def name_max(folder: str | os.PathLike) -> int:
         return _DEFAULT_NAME_MAX
 
 
+#: (label, argparse attribute) of the options that name files a command reads.
+INPUT_OPTIONS = (("log", "logs"), ("--init", "init"), ("--model", "model"), ("--replay", "replay"))
+
+
+def declared_inputs(args, extra: Sequence[Named] = ()) -> list[Named]:
+    """Every file a command reads, from its parsed options: logs, ``--init``, ``--model``, ``--replay``,
+    JSON options given as a file (``aibo.options.JSONFile``), agent files of ``sb3:PATH`` policies;
+    then ``extra`` (e.g. a dataset's files). Every command passes these to ``check_files``."""
+    found: list[Named] = []
+    for label, attr in INPUT_OPTIONS:
+        value = getattr(args, attr, None)
+        for path in (value if isinstance(value, list) else [value] if value else []):
+            found.append((label, path))
+    for attr, value in sorted(vars(args).items()):
+        path = getattr(value, "path", None)
+        if isinstance(value, dict) and path:
+            found.append((f"--{attr.replace('_', '-')}", path))
+    for attr in ("policy", "policies"):
+        for name in str(getattr(args, attr, "") or "").split(","):
+            if name.strip().startswith("sb3:"):
+                agent = name.strip()[4:]
+                root = agent[:-4] if agent.endswith(".zip") else agent
+                found += [("agent", agent), ("agent", agent + ".zip"), ("agent", root + ".json")]
+    return found + list(extra)
+
+
 def check_files(inputs: Sequence[Named], outputs: Sequence[Named], folders: Sequence[Named] = ()) -> None:
     """Refuse (CLIError, one line naming both) outputs that would overwrite an input or each other.
 

@@ -577,3 +577,23 @@ def test_report_page_leads_with_the_verdict(tmp_path):
     assert verdict < page.index("better by 0.5000 nats per sighting") < page.index("descriptive")
     html_page(tmp_path / "n.html", {**report, "effects": []}, "text", [])
     assert "Verdict: <b>no missing effect found</b>" in (tmp_path / "n.html").read_text()
+
+
+@pytest.mark.parametrize("option", ["--config", "--policy-params", "--policy"])
+def test_every_file_a_command_reads_is_an_input(option, tmp_path, capsys):
+    """JSON options given as files and sb3 agent files are inputs too (aibo.paths.declared_inputs)."""
+    src = tmp_path / ("agent.zip" if option == "--policy" else "in.json")
+    src.write_text("{}")
+    value = f"sb3:{src}" if option == "--policy" else str(src)
+    link = tmp_path / "link"
+    link.symlink_to(src)
+    assert main(["collect", "--steps", "30", option, value, "--out", str(link)]) == 2
+    _one_line_error(capsys, f"--out {link}", str(src), "never overwritten")
+    assert src.read_text() == "{}"
+
+
+def test_an_agent_description_is_an_input_of_collect(tmp_path, capsys):
+    (tmp_path / "agent.json").write_text("{}")
+    assert main(["collect", "--steps", "30", "--policy", f"sb3:{tmp_path / 'agent.zip'}", "--out",
+                 str(tmp_path / "agent.json")]) == 2
+    _one_line_error(capsys, "agent.json", "never overwritten")

@@ -9,7 +9,7 @@ import time
 import numpy as np
 
 from aibo.errors import CLIError
-from aibo.paths import check_files
+from aibo.paths import check_files, declared_inputs
 from aibo_core import trajectory
 
 
@@ -17,8 +17,7 @@ def run(args) -> int:
     from aibo_gym.collect import collect, replay
     from aibo_gym.config import default_config
 
-    inputs = [(flag, p) for flag, p in (("--model", args.model), ("--replay", args.replay)) if p]
-    check_files(inputs=inputs, outputs=[("--out", args.out)] + ([("--plot", args.plot)] if args.plot else []))
+    check_files(inputs=declared_inputs(args), outputs=[("--out", args.out)] + ([("--plot", args.plot)] if args.plot else []))
     if args.replay and not args.model:
         raise CLIError("--replay needs --model (the model whose simulator replays the log)")
     model_config, log = calibrated_config(args.model, args.replay)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from aibo import diagnose_report as fig
 from aibo.errors import CLIError
-from aibo.paths import check_files, check_replaceable
+from aibo.paths import check_files, check_replaceable, declared_inputs
 from aibo_core import trajectory
 from aibo_core.atomic import atomic_folder, write_json
 from aibo_core.compat import check_compatible
@@ -44,7 +44,7 @@ def candidates(arg: str | None) -> list[str]:
 def run(args) -> int:
     out = Path(args.out)
     names = candidates(args.candidates)
-    check_files([("log", p) for p in args.logs], [("--out file", out / f) for f in OUTPUTS], folders=[("--out", out)])
+    check_files(declared_inputs(args), [("--out file", out / f) for f in OUTPUTS], folders=[("--out", out)])
     check_replaceable("--out", out, OUTPUTS)
     logs = [trajectory.load(p) for p in args.logs]
     for warning in check_compatible(logs, list(args.logs)):

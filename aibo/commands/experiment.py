@@ -18,6 +18,8 @@ def _list(text: str, kind, what: str) -> list:
     return out
 
 
+#: The files a sweep writes into --out (besides runs/).
+OUTPUTS = ("results.jsonl", "summary.json", "errors_vs_minutes.png")
 #: Longest log of one run (minutes): 10^8 frames at 30 Hz, the cap of ``aibo collect --steps``.
 MAX_MINUTES = 1e8 / 30 / 60
 
@@ -34,12 +36,12 @@ def validate_configs(specs) -> None:
 
 
 def run(args) -> int:
-    from aibo.paths import check_files
+    from aibo.paths import check_files, declared_inputs
     from experiments import policies as sweep
     from experiments.executors import run_all
 
     out = Path(args.out)
-    check_files([], [], folders=[("--out", out)])
+    check_files(declared_inputs(args), [("--out file", out / name) for name in OUTPUTS], folders=[("--out", out)])
     minutes = _list(args.minutes, float, "--minutes")
     if any(not 0 < m <= MAX_MINUTES for m in minutes):
         raise CLIError(f"--minutes {args.minutes}: every length must be a number of minutes in (0, {MAX_MINUTES:g}]")

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from aibo.errors import CLIError
-from aibo.paths import check_files, checkpoint_path
+from aibo.paths import check_files, checkpoint_path, declared_inputs
 from aibo.report import Progress, error_table
 from aibo_core import trajectory
 from aibo_core.compat import check_compatible
@@ -100,7 +100,7 @@ PLOT_NAMES = ("loglik.png", "sensor_model.png", "velocity_error.png")
 
 def check_learn_files(args) -> None:
     """Refuse outputs (model, checkpoint, figures) that are an input (logs, --init) or each other."""
-    inputs = [("log", p) for p in args.logs] + ([("--init", args.init)] if args.init else [])
+    inputs = declared_inputs(args)
     outputs = [("--out", args.out), ("checkpoint", checkpoint_path(args.out))]
     if args.plots:
         outputs += [("--plots figure", Path(args.plots) / name) for name in PLOT_NAMES]

@@ -13,7 +13,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from aibo.commands.learn import PLOT_NAMES, write_plots
-from aibo.paths import CHECKPOINT_SUFFIX, check_files, check_replaceable, checkpoint_path
+from aibo.paths import CHECKPOINT_SUFFIX, check_files, check_replaceable, checkpoint_path, declared_inputs
 from aibo.report import Progress, error_table
 from aibo_core import trajectory
 from aibo_core.atomic import atomic_folder, write_json
@@ -54,7 +54,7 @@ def run_checkpoint(out: Path, args, steps: int) -> Path:
 
 def run(args) -> int:
     out = Path(args.out)
-    check_files([], [], folders=[("--out", out)])
+    check_files(declared_inputs(args), [], folders=[("--out", out)])
     steps = QUICK_STEPS if args.quick else FULL_STEPS
     checkpoint = run_checkpoint(out, args, steps)
     check_replaceable("--out", out, OUTPUTS + tuple(p.name for p in out.glob(f"model_em*{CHECKPOINT_SUFFIX}")))
