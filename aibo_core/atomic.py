@@ -87,8 +87,9 @@ def _naming(path: Path) -> Iterator[None]:
 @contextmanager
 def atomic_folder(path: str | os.PathLike) -> Iterator[Path]:
     """Yield an empty temp folder beside ``path``; when the block ends normally it replaces ``path``
-    (a folder, or nothing yet) whole; when it raises, it is removed and ``path`` is untouched."""
-    path = Path(path)
+    (a folder, or nothing yet) whole; when it raises, it is removed and ``path`` is untouched. A
+    symlink to a folder: the folder it names is replaced, the link kept."""
+    path = Path(os.path.realpath(path)) if os.path.islink(path) else Path(path)
     with _naming(path):
         path.parent.mkdir(parents=True, exist_ok=True)
         remove_stale_temps(path.parent)

@@ -597,3 +597,17 @@ def test_an_agent_description_is_an_input_of_collect(tmp_path, capsys):
     assert main(["collect", "--steps", "30", "--policy", f"sb3:{tmp_path / 'agent.zip'}", "--out",
                  str(tmp_path / "agent.json")]) == 2
     _one_line_error(capsys, "agent.json", "never overwritten")
+
+
+def test_atomic_folder_through_a_symlink_keeps_the_link(tmp_path):
+    from aibo_core.atomic import atomic_folder
+
+    real = tmp_path / "real"
+    real.mkdir()
+    (real / "a.txt").write_text("old")
+    link = tmp_path / "link"
+    link.symlink_to(real)
+    with atomic_folder(link) as tmp:
+        (tmp / "b.txt").write_text("new")
+    assert link.is_symlink() and sorted(p.name for p in real.iterdir()) == ["b.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["link", "real"]
