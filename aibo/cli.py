@@ -98,6 +98,8 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--seed", type=integer(0), default=1)
     rp.add_argument("--paper-recipe", action="store_true",
                     help="use the paper's exact recipe (fixed motion noise, one sample per frame)")
+    rp.add_argument("--no-resume", action="store_true",
+                    help="ignore the checkpoint an interrupted identical run left in --out")
     rp.set_defaults(run=commands.run_reproduce)
 
     dg = sub.add_parser("diagnose", help="find where model and data disagree, name the missing effect, refit")
@@ -106,6 +108,9 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument("--candidates", help="comma-separated effects to try (default: the whole catalogue)")
     dg.add_argument("--jobs", type=integer(1), default=2, help="worker processes for the candidates (default 2)")
     dg.add_argument("--seed", type=integer(0), default=0)
+    dg.add_argument("--action-model", choices=["table", "features", "unicycle"], default=None,
+                    help="the base fit's action model, as in 'aibo learn' (unicycle for a wheeled robot's (v, omega) "
+                         "commands; default: table for discrete logs, features otherwise)")
     dg.add_argument("--replicas", type=integer(0), default=8,
                     help="replays of the measured commands in the calibrated simulator, before and after (default 8; 0: none)")
     dg.set_defaults(run=commands.run_diagnose)

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 import matplotlib
+import numpy as np
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -42,7 +43,7 @@ def signature_panels(path: Path, before: list, after: list, n: int = 6) -> None:
     for ax in axes.ravel()[len(top):]:
         ax.axis("off")
     axes.ravel()[0].legend(fontsize=8)
-    fig.suptitle("Where the base model and the data disagree (mean residual per bin, +- 1 s.e.)")
+    fig.suptitle("Residual signatures of the base model (mean residual per bin, +- 1 s.e.; p-values descriptive)")
     fig.tight_layout()
     _save(fig, path)
 
@@ -85,6 +86,23 @@ def calibrated_bars(path: Path, before: dict[str, Any], after: dict[str, Any] | 
     _save(fig, path)
 
 
+def z_text(z: float | None) -> str:
+    """``z = +3.1``; ``z = +-inf`` for a z that is infinite (None in report.json: the replicas had no
+    spread, and the measured value differs from them)."""
+    return "z = +-inf (the replicas all agree, the measured value differs)" if z is None or not np.isfinite(z) \
+        else f"z = {z:+.1f}"
+
+
+def grid_note(name: str) -> str:
+    """`` (lag_s on a grid of step 0.1)`` for an effect whose parameters are profiled over a grid: the
+    estimate is good to that step; "" otherwise."""
+    from learners.model.effects import EFFECT_MODELS
+
+    grid = getattr(EFFECT_MODELS.get(name), "GRID", {})
+    return "".join(f" ({k} on a grid of step {float(np.min(np.diff(g))):g}: good to that step)"
+                   for k, g in grid.items() if len(g) > 1)
+
+
 def short(params: dict[str, Any]) -> str:
     """Effect parameters with 4 significant digits: ``lag_s 0.2, scale [1.056, 0.9454]``."""
     def num(v: Any) -> str:
@@ -106,21 +124,25 @@ def _calibrated(cal: dict[str, Any] | None, unexplained: list[dict[str, Any]]) -
 
     def worst(check: dict[str, Any]) -> str:
         d = check["disagreements"]
-        return (", ".join(f"{html.escape(x['statistic'])} (z = {x['z']:+.1f})" for x in d[:4])
+        return (", ".join(f"{html.escape(x['statistic'])} ({z_text(x['z'])})" for x in d[:4])
                 + (f" and {len(d) - 4} more" if len(d) > 4 else "")) if d else "nothing"
     return (f"<p>Calibrated simulator ({cal['before']['replicas']} replays of the measured commands): the measured "
             f"log differs in <b>{len(cal['before']['disagreements'])}</b> statistics from the base model's simulation "
             f"({worst(cal['before'])}), and in <b>{len(cal['after']['disagreements'])}</b> from the simulation with the "
             f"named effects ({worst(cal['after'])}).</p>" + "".join(
-                f"<p><b>Still unlike its simulation:</b> {html.escape(u['statistic'])} (z = {u['z']:+.1f}), the residual "
+                f"<p><b>Still unlike its simulation:</b> {html.escape(u['statistic'])} ({z_text(u['z'])}), the residual "
                 f"signature of <b>{html.escape(u['effect'])}</b>, which was not named ({html.escape(u['why_not_named'])}).</p>"
                 for u in unexplained))
 
 
 def html_page(path: Path, report: dict[str, Any], text: str, figures: list[Path]) -> None:
     """One self-contained page: the verdict first, then the figures, the candidates and the full text."""
-    verdict = ("Named: " + ", ".join(f"<b>{html.escape(e['name'])}</b> {html.escape(short(e['parameters']))}"
-                                    for e in report["effects"])) if report["effects"] else "Named: <b>none</b>"
+    verdict = ("Verdict: the base model misses " + ", ".join(
+        f"<b>{html.escape(e['name'])}</b> ({html.escape(short(e['parameters']) + grid_note(e['name']))})"
+        for e in report["effects"])) if report["effects"] else \
+        "Verdict: <b>no missing effect found</b>: no candidate improved the fit significantly on both halves of the log"
+    gain = report["gap_before"] - report["gap_after"]
+    change = f"better by {gain:.4f}" if gain >= 0 else f"worse by {-gain:.4f}"
     rows = "".join(
         f"<tr><td>{c['round']}</td><td>{html.escape(c['name'])}</td><td>{c['gain_train']:.1f}</td>"
         f"<td>{c['gain_heldout']:.1f}</td><td>{c['p_value']:.2g}</td><td>{'yes' if c['significant'] else ''}</td>"
@@ -130,8 +152,12 @@ def html_page(path: Path, report: dict[str, Any], text: str, figures: list[Path]
 <style>body{{font-family:sans-serif;max-width:1100px;margin:2em auto}}td,th{{padding:2px 8px;border-bottom:1px solid #ddd}}
 pre{{background:#f6f6f6;padding:1em;overflow:auto}}</style></head><body>
 <h1>Discrepancy report</h1><p>{verdict}</p>
-<p>Gap ({html.escape(report['gap_metric'])}): <b>{report['gap_before']:.4f}</b> before,
-<b>{report['gap_after']:.4f}</b> after (lower is better).</p>
+<p>Gap ({html.escape(report['gap_metric'])}: how unlikely the held-out half of the log is under the model, in nats per
+sighting; lower is better): <b>{report['gap_before']:.4f}</b> before, <b>{report['gap_after']:.4f}</b> after
+{f"the named effects: {change} nats per sighting" if report["effects"] else "(nothing named: the same model)"}.</p>
+<p>The residual signatures below are descriptive: each p-value tests one residual against one variable, many pairs are
+tried, and a long log makes tiny drifts "significant". The verdict rests on the candidates' likelihood-ratio tests and
+held-out gains (table below).</p>
 {_calibrated(report.get("calibrated_simulation"), report.get("unexplained", []))}
 {''.join(_img(p) for p in figures if p.exists())}
 <h2>Candidates</h2><table><tr><th>round</th><th>effect</th><th>train gain (nats)</th><th>held-out gain (nats)</th>

@@ -17,6 +17,8 @@ COLLECT_BYTES_PER_FRAME = 160
 #: Most frames one ``aibo collect`` run may simulate: 10^8 frames are 926 hours of robot time at
 #: 30 Hz (a real log is about 27,000), about 16 GB while simulating and 15 minutes of CPU.
 MAX_STEPS = 10**8
+#: Largest JSON file an option (``--config FILE``) may name.
+MAX_JSON_FILE_BYTES = 16 * 2**20
 
 
 def integer(least: int) -> Callable[[str], int]:
@@ -70,18 +72,41 @@ def steps(text: str) -> int:
     return value
 
 
+class JSONFile(dict):
+    """A JSON object read from a file; ``path`` is that file (an input no output may replace)."""
+
+    path: str = ""
+
+
 def json_object(text: str) -> dict:
-    """An option type: a JSON object of finite values (NaN and Infinity are refused)."""
+    """An option type: a JSON object of finite values (NaN and Infinity are refused), given inline
+    (``'{"noise": "aibo"}'``) or as the path of a file holding one (anything not starting with ``{``)."""
 
     def refuse(constant: str):
         raise ValueError(f"non-finite number {constant}")
 
+    source, path = "inline JSON", ""
+    if not text.lstrip().startswith(("{", "[")):
+        source, path = f"file {text}", text
+        try:
+            with open(text, encoding="utf-8") as f:
+                text = f.read(MAX_JSON_FILE_BYTES + 1)
+        except OSError as exc:
+            raise argparse.ArgumentTypeError(f"{text!r} is neither inline JSON (it does not start with '{{') nor a "
+                                             f"readable file ({exc.strerror})") from None
+        except UnicodeDecodeError:
+            raise argparse.ArgumentTypeError(f"{source}: not UTF-8 text") from None
+        if len(text) > MAX_JSON_FILE_BYTES:
+            raise argparse.ArgumentTypeError(f"{source}: larger than {MAX_JSON_FILE_BYTES // 2**20} MiB")
     try:
         value = json.loads(text, parse_constant=refuse)
     except json.JSONDecodeError as exc:
-        raise argparse.ArgumentTypeError(f"not valid JSON ({exc.msg})") from None
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(f"{exc} (only finite numbers)") from None
+        raise argparse.ArgumentTypeError(f"{source}: not valid JSON ({exc.msg}, line {exc.lineno})") from None
+    except (ValueError, RecursionError) as exc:
+        raise argparse.ArgumentTypeError(f"{source}: {exc} (only finite numbers)") from None
     if not isinstance(value, dict):
-        raise argparse.ArgumentTypeError("must be a JSON object")
+        raise argparse.ArgumentTypeError(f"{source}: must be a JSON object")
+    if path:
+        value = JSONFile(value)
+        value.path = path
     return value

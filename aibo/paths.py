@@ -5,7 +5,11 @@ Every command calls ``check_files(inputs, outputs)`` before any work. It refuses
 - an output that is the same file as an input: the same path, a symlink to it or a hard link
   (``os.path.samefile``: same device and inode), so an input is never overwritten;
 - two outputs that are the same file (one would clobber the other);
-- an output that is an existing folder, or whose name is longer than the file system allows.
+- an output that is an existing folder, or whose name is longer than the file system allows;
+- the same input given twice under one label (e.g. a log and a symlink to it): it would count twice.
+
+``check_replaceable(label, folder, names)``: a folder of outputs replaced whole
+(``aibo_core.atomic.atomic_folder``) may hold only those outputs, so nothing else in it is lost.
 
 ``checkpoint_path(out)`` derives the checkpoint file name beside a model file so that it never
 exceeds the file system's NAME_MAX, however long the model's name is.
@@ -49,6 +53,32 @@ def name_max(folder: str | os.PathLike) -> int:
         return _DEFAULT_NAME_MAX
 
 
+#: (label, argparse attribute) of the options that name files a command reads.
+INPUT_OPTIONS = (("log", "logs"), ("--init", "init"), ("--model", "model"), ("--replay", "replay"))
+
+
+def declared_inputs(args, extra: Sequence[Named] = ()) -> list[Named]:
+    """Every file a command reads, from its parsed options: logs, ``--init``, ``--model``, ``--replay``,
+    JSON options given as a file (``aibo.options.JSONFile``), agent files of ``sb3:PATH`` policies;
+    then ``extra`` (e.g. a dataset's files). Every command passes these to ``check_files``."""
+    found: list[Named] = []
+    for label, attr in INPUT_OPTIONS:
+        value = getattr(args, attr, None)
+        for path in (value if isinstance(value, list) else [value] if value else []):
+            found.append((label, path))
+    for attr, value in sorted(vars(args).items()):
+        path = getattr(value, "path", None)
+        if isinstance(value, dict) and path:
+            found.append((f"--{attr.replace('_', '-')}", path))
+    for attr in ("policy", "policies"):
+        for name in str(getattr(args, attr, "") or "").split(","):
+            if name.strip().startswith("sb3:"):
+                agent = name.strip()[4:]
+                root = agent[:-4] if agent.endswith(".zip") else agent
+                found += [("agent", agent), ("agent", agent + ".zip"), ("agent", root + ".json")]
+    return found + list(extra)
+
+
 def check_files(inputs: Sequence[Named], outputs: Sequence[Named], folders: Sequence[Named] = ()) -> None:
     """Refuse (CLIError, one line naming both) outputs that would overwrite an input or each other.
 
@@ -57,6 +87,10 @@ def check_files(inputs: Sequence[Named], outputs: Sequence[Named], folders: Sequ
     for label, path in folders:
         if os.path.exists(path) and not os.path.isdir(path):
             raise CLIError(f"{label} {path}: is a file, not a folder")
+    for i, (label, path) in enumerate(inputs):
+        for other_label, other in inputs[:i]:
+            if label == other_label and same_file(path, other):
+                raise CLIError(f"{label} {path} is the same file as {other_label} {other}: give each {label} once")
     for i, (label, path) in enumerate(outputs):
         _check_output_name(label, path)
         for in_label, in_path in inputs:
@@ -66,6 +100,22 @@ def check_files(inputs: Sequence[Named], outputs: Sequence[Named], folders: Sequ
         for other_label, other in outputs[:i]:
             if same_file(path, other):
                 raise CLIError(f"{label} {path} is the same file as {other_label} {other}: choose another name")
+
+
+def check_replaceable(label: str, folder: str | os.PathLike, names: Sequence[str]) -> None:
+    """Refuse (CLIError) an existing ``folder`` holding anything but ``names`` (and temp files of ours):
+    the folder is about to be replaced whole, and nothing else a user keeps there may be lost."""
+    from aibo_core.atomic import is_stale
+
+    try:
+        entries = sorted(os.listdir(folder))
+    except (FileNotFoundError, NotADirectoryError):
+        return
+    other = [e for e in entries if e not in names and not is_stale(e, float("inf"))]
+    if other:
+        more = f" and {len(other) - 1} more" if len(other) > 1 else ""
+        raise CLIError(f"{label} {folder}: holds {other[0]!r}{more}, not an output of this command; the folder is "
+                       "replaced whole, so give a new folder or one this command wrote")
 
 
 def _check_output_name(label: str, path: str | os.PathLike) -> None:

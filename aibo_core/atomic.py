@@ -13,17 +13,28 @@ stale when
   ``STALE_AFTER_S`` (1 hour: far longer than any write takes).
 
 Nothing else is ever deleted.
+
+``atomic_folder`` does the same for a folder of outputs: they are written into a temp folder (same
+name pattern) beside the target, which then takes the target's place in one exchange of names
+(``renameat2(RENAME_EXCHANGE)`` on Linux; elsewhere two renames a few microseconds apart). An
+interrupted run leaves the old folder as it was; the temp folder of a killed run is removed, by the
+rule above but only once its process is gone, the next time anything is written beside it.
 """
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
+import json
 import os
 import re
+import shutil
 import tempfile
 import time
 import zipfile
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 import numpy as np
 
@@ -42,22 +53,77 @@ def atomic_write(path: str | os.PathLike, write: Callable[[Any], None]) -> None:
     docstring). The file gets the usual mode (0666 less the umask), not mkstemp's 0600.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    remove_stale_temps(path.parent)
-    fd, tmp = tempfile.mkstemp(prefix=f".aibo-{os.getpid()}-", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            write(f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, path)
-    except BaseException:
+    with _naming(path):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        remove_stale_temps(path.parent)
+        fd, tmp = tempfile.mkstemp(prefix=f".aibo-{os.getpid()}-", suffix=".tmp", dir=path.parent)
         try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+            with os.fdopen(fd, "wb") as f:
+                write(f)
+                f.flush()
+                os.fsync(f.fileno())
+            os.chmod(tmp, 0o666 & ~_umask())
+            os.replace(tmp, path)
+        except BaseException:
+            try:
+                os.unlink(tmp)
+            except FileNotFoundError:
+                pass
+            raise
+
+
+@contextmanager
+def _naming(path: Path) -> Iterator[None]:
+    """Re-raise an OSError of the block (a full disk names no file, a read-only folder names our temp
+    file) as one naming ``path``, the output the user asked for."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.filename == str(path) or exc.errno is None:
+            raise
+        raise OSError(exc.errno, f"{exc.strerror} (writing {path})") from exc
+
+
+@contextmanager
+def atomic_folder(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield an empty temp folder beside ``path``; when the block ends normally it replaces ``path``
+    (a folder, or nothing yet) whole; when it raises, it is removed and ``path`` is untouched. A
+    symlink to a folder: the folder it names is replaced, the link kept."""
+    path = Path(os.path.realpath(path)) if os.path.islink(path) else Path(path)
+    with _naming(path):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        remove_stale_temps(path.parent)
+        tmp = Path(tempfile.mkdtemp(prefix=f".aibo-{os.getpid()}-", suffix=".tmp", dir=path.parent))
+    try:
+        yield tmp
+        with _naming(path):
+            os.chmod(tmp, 0o777 & ~_umask())
+            if not path.exists():
+                os.rename(tmp, path)
+                return
+            if not _exchange(tmp, path):
+                old = Path(tempfile.mkdtemp(prefix=f".aibo-{os.getpid()}-", suffix=".tmp", dir=path.parent))
+                os.rename(path, old)  # onto the empty folder just made: the name is ours
+                os.rename(tmp, path)
+                tmp = old
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)  # the new folder after a failure, else the old one
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap the names of ``a`` and ``b`` in one step (Linux renameat2); False where not supported."""
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or None, use_errno=True)
+        renameat2 = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    at_fdcwd, rename_exchange = -100, 2
+    if renameat2(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), rename_exchange) == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (22, 38, 95):  # EINVAL, ENOSYS, EOPNOTSUPP: this file system or kernel cannot
+        return False
+    raise OSError(err, os.strerror(err), str(b))
 
 
 def is_stale(name: str, age_s: float) -> bool:
@@ -86,9 +152,20 @@ def remove_stale_temps(folder: str | os.PathLike) -> list[str]:
             if entry.is_file(follow_symlinks=False) and is_stale(entry.name, now - entry.stat().st_mtime):
                 os.unlink(entry.path)
                 removed.append(entry.name)
+            elif entry.is_dir(follow_symlinks=False) and _dead_owner(entry.name) and \
+                    is_stale(entry.name, now - entry.stat().st_mtime):
+                shutil.rmtree(entry.path)
+                removed.append(entry.name)
         except OSError:
             continue  # gone already, or not ours to delete
     return removed
+
+
+def _dead_owner(name: str) -> bool:
+    """True when ``name`` is a temp name of ours whose process is no longer running (a temp folder
+    is removed only then: a long run may leave its folder unmodified for hours)."""
+    m = _TEMP_NAME.fullmatch(name)
+    return m is not None and m["pid"] is not None and not _running(int(m["pid"]))
 
 
 def _running(pid: int) -> bool:
@@ -104,6 +181,30 @@ def _running(pid: int) -> bool:
     except OverflowError:
         return False  # no such pid can exist
     return True
+
+
+def finite_json(value: Any) -> Any:
+    """``value`` with every non-finite float (NaN, +-inf) replaced by None, so that it is valid JSON."""
+    if isinstance(value, dict):
+        return {k: finite_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite_json(v) for v in value]
+    if isinstance(value, (float, np.floating)):
+        return float(value) if np.isfinite(value) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
+
+
+def json_text(value: Any, indent: int | None = 1, sort_keys: bool = False) -> str:
+    """Strict JSON of ``value`` (``finite_json``: NaN and infinities become null)."""
+    return json.dumps(finite_json(value), indent=indent, sort_keys=sort_keys, allow_nan=False)
+
+
+def write_json(path: str | os.PathLike, value: Any, indent: int | None = 1) -> None:
+    """Write ``value`` to ``path`` as strict JSON (``json_text``), atomically."""
+    text = json_text(value, indent)
+    atomic_write(path, lambda f: f.write(text.encode()))
 
 
 def write_npz(f, arrays: dict[str, np.ndarray]) -> None:

@@ -37,6 +37,9 @@ ROBOTS = (1, 2, 3, 4, 5)
 #: A ground-truth interval longer than this (s) is a dropout: poses inside it are flagged.
 GAP_S = 0.1
 CONTROL_NAMES = VELOCITY_CONTROLS
+#: Largest magnitude of any number in the dataset's tables (times are ~1.3e9 s; anything larger is no
+#: measurement and would overflow the learner's arithmetic).
+MAX_ABS = 1e12
 #: Default frame length (s); see docs/results.md "Real robot logs (MRCLAM)" for the speed/accuracy measurement.
 DEFAULT_DT = 0.1
 
@@ -55,8 +58,11 @@ def _read(path: Path, ncols: int) -> np.ndarray:
         raise MRCLAMError(f"{path}: not a table of numbers ({exc})") from None
     if a.shape[1] < ncols or len(a) == 0:
         raise MRCLAMError(f"{path}: expected rows of {ncols} numbers, got shape {a.shape}")
-    if not np.isfinite(a[:, :ncols]).all():
-        raise MRCLAMError(f"{path}: non-finite value in row {int(np.argwhere(~np.isfinite(a[:, :ncols]))[0, 0])}")
+    bad = ~(np.abs(a[:, :ncols]) <= MAX_ABS)  # also NaN
+    if bad.any():
+        row, col = (int(i) for i in np.argwhere(bad)[0])
+        raise MRCLAMError(f"{path}: row {row + 1} of the data, column {col + 1}: {a[row, col]!r} is not a finite "
+                          f"number of magnitude <= {MAX_ABS:g}")
     return a[:, :ncols]
 
 
@@ -85,6 +91,20 @@ def _runs(idx: np.ndarray) -> list[list[int]]:
     return [[int(a), int(b)] for a, b in zip(starts, ends)]
 
 
+def file_names(robot: int) -> dict[str, str]:
+    """The dataset files the import of robot ``robot`` reads, by role."""
+    return {"barcodes": "Barcodes.dat", "landmarks": "Landmark_Groundtruth.dat",
+            "odometry": f"Robot{robot}_Odometry.dat", "measurement": f"Robot{robot}_Measurement.dat",
+            "groundtruth": f"Robot{robot}_Groundtruth.dat"}
+
+
+def dataset_files(folder: str | os.PathLike) -> list[Path]:
+    """Every file of the MRCLAM dataset in ``folder`` (all robots'), whether present or not: the
+    files no output may replace."""
+    names = {name for robot in ROBOTS for name in file_names(robot).values()}
+    return [Path(folder) / name for name in sorted(names)]
+
+
 def import_robot(folder: str | os.PathLike, robot: int, dt: float = DEFAULT_DT, start_s: float = 0.0,
                  seconds: float | None = None, lag_s: float = 0.0) -> Trajectory:
     """Robot ``robot`` of the MRCLAM dataset in ``folder`` as an aibo-trajectory/2 log (module docstring).
@@ -98,9 +118,7 @@ def import_robot(folder: str | os.PathLike, robot: int, dt: float = DEFAULT_DT, 
         raise MRCLAMError(f"--robot {robot}: MRCLAM robots are numbered {ROBOTS[0]}-{ROBOTS[-1]}")
     if not (np.isfinite(dt) and dt > 0):
         raise MRCLAMError(f"--dt {dt}: must be a positive number of seconds")
-    names = {"barcodes": "Barcodes.dat", "landmarks": "Landmark_Groundtruth.dat",
-             "odometry": f"Robot{robot}_Odometry.dat", "measurement": f"Robot{robot}_Measurement.dat",
-             "groundtruth": f"Robot{robot}_Groundtruth.dat"}
+    names = file_names(robot)
     barcodes = _read(folder / names["barcodes"], 2).astype(np.int64)
     lm_table = _read(folder / names["landmarks"], 3)
     odo = _read(folder / names["odometry"], 3)

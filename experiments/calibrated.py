@@ -28,7 +28,7 @@ R - 1 dof, widened by sqrt(1 + 1/R)): a model that is right shows no disagreemen
 from __future__ import annotations
 
 import math
-from concurrent.futures import ProcessPoolExecutor
+import warnings
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -37,6 +37,7 @@ from scipy import stats
 
 from aibo_core.actions import N_ACTIONS
 from aibo_core.trajectory import Trajectory
+from aibo_core.workers import process_pool
 from learners.discrepancy.search import drop_outliers
 from learners.discrepancy.split import training_log
 from learners.discrepancy.statistics import check_statistics
@@ -108,8 +109,10 @@ class Check:
 
     @property
     def moments(self) -> tuple[np.ndarray, np.ndarray]:
-        """(K,) mean and (K,) sample sd of the replicas' statistics."""
-        return np.nanmean(self.replicas, axis=0), np.nanstd(self.replicas, axis=0, ddof=1)
+        """(K,) mean and (K,) sample sd of the replicas' statistics (NaN where fewer than 2 replicas have one)."""
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # too few replicas: NaN, said by the caller
+            return np.nanmean(self.replicas, axis=0), np.nanstd(self.replicas, axis=0, ddof=1)
 
     @property
     def z(self) -> np.ndarray:
@@ -176,7 +179,7 @@ def predictive_check(model: Model, logs: list[Trajectory], replicas: int = 8, se
     measured = _compared(check_statistics(model, logs))
     args = [(model, logs, 1_000_003 * (seed + 1) + r) for r in range(replicas)]
     if jobs > 1:
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
+        with process_pool(jobs) as pool:
             results = list(pool.map(_replica_job, args))
     else:
         results = [_replica_job(a) for a in args]

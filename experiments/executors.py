@@ -4,7 +4,8 @@
 is already in ``out_dir`` (an interrupted sweep resumes; nothing finished is lost or redone), runs
 the rest, and after each completed run rewrites ``out_dir/results.jsonl`` atomically (one record
 per line, in the order of ``specs``). A run is deterministic in its spec, so every backend gives
-the same records (``timing`` aside).
+the same records (``timing`` aside) at the same BLAS thread count (the workers' is 1; a serial run
+with more threads differs in the last bits of the information matrix's eigenvalues).
 
 * ``serial``: in this process;
 * ``pool``: ``concurrent.futures.ProcessPoolExecutor`` (spawned workers, ``OMP_NUM_THREADS=1``
@@ -22,7 +23,7 @@ import os
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
-from aibo_core.atomic import atomic_write
+from aibo_core.atomic import atomic_write, json_text
 from experiments.run import RunSpec, load_record, run_json
 
 BACKENDS = ("serial", "pool", "ray")
@@ -35,7 +36,7 @@ def worker_env() -> dict[str, str]:
 
 
 def write_results(out_dir: Path, records: list[dict[str, Any]]) -> None:
-    text = "".join(json.dumps(r, sort_keys=True) + "\n" for r in records)
+    text = "".join(json_text(r, indent=None, sort_keys=True) + "\n" for r in records)
     atomic_write(out_dir / "results.jsonl", lambda f: f.write(text.encode()))
 
 
@@ -48,10 +49,12 @@ def read_results(out_dir: str | Path) -> list[dict[str, Any]]:
 
 def _pool_map(todo: list[dict], out: str, jobs: int) -> Iterable[dict]:
     import multiprocessing as mp
-    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+    from concurrent.futures import FIRST_COMPLETED, wait
+
+    from aibo_core.workers import process_pool
 
     os.environ.update(worker_env())  # spawned workers inherit it
-    with ProcessPoolExecutor(max_workers=jobs, mp_context=mp.get_context("spawn")) as ex:
+    with process_pool(jobs, mp.get_context("spawn")) as ex:
         pending = {ex.submit(run_json, s, out) for s in todo}
         try:
             while pending:
@@ -115,9 +118,11 @@ def run_all(specs: list[RunSpec], out_dir: str | Path, backend: str = "pool", jo
     def ordered() -> list[dict]:
         return [found[i] for i in ids if i in found]
 
-    write_results(out, ordered())
     if not todo:
+        write_results(out, ordered())
         return ordered()
+    # results.jsonl is rewritten only once a run of this sweep completes: a sweep refused or failing
+    # before then leaves an earlier sweep's results as they were
     if backend == "serial":
         stream: Iterable[dict] = (run_json(s, str(out)) for s in todo)
     elif backend == "pool":

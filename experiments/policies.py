@@ -12,14 +12,13 @@ Outputs in the sweep folder: ``results.jsonl`` (one record per run, see ``RECORD
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from aibo_core.atomic import atomic_write
+from aibo_core.atomic import atomic_write, write_json
 from experiments.run import RunSpec
 
 #: The contract of results.jsonl: every record has at least these keys.
@@ -39,7 +38,11 @@ def policy_specs(names: list[str], params: dict[str, dict] | None = None) -> lis
     for name in names:
         spec = validate_policy(name)
         label = policy_label(spec)
-        extra = dict(params.get(label, params.get(name, {})))
+        extra = params.get(label, params.get(name, {}))
+        if not isinstance(extra, dict):
+            raise ValueError(f"the parameters of policy {label!r} must be a JSON object {{param: value}}, "
+                             f"got {extra!r}")
+        extra = dict(extra)
         if spec["name"] == "random-balanced":
             extra.setdefault("localizer", "ekf")
         out.append(validate_policy({"name": spec["name"], "params": {**spec["params"], **extra}}))
@@ -189,6 +192,5 @@ def plot(summary: dict[str, Any], path: str | Path) -> None:
 
 def write_summary(out_dir: str | Path, records: list[dict]) -> dict[str, Any]:
     summary = summarize(records)
-    text = json.dumps(summary, indent=1)
-    atomic_write(Path(out_dir) / "summary.json", lambda f: f.write(text.encode()))
+    write_json(Path(out_dir) / "summary.json", summary)  # NaN -> null: always valid JSON
     return summary

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from aibo_core import trajectory
-from aibo_core.atomic import atomic_write
+from aibo_core.atomic import write_json
 from learners.em.learner import MAX_OFF_FIELD
 
 FPS = 30.0
@@ -126,8 +126,7 @@ def run(spec: RunSpec, out_dir: str | Path) -> dict[str, Any]:
         "spec": spec.to_json(),
         "timing": {"collect_s": t1 - t0, "learn_s": t2 - t1, "score_s": t3 - t2, "total_s": t3 - t0},
     }
-    text = json.dumps(record, indent=1)
-    atomic_write(folder / "record.json", lambda f: f.write(text.encode()))
+    write_json(folder / "record.json", record)  # NaN -> null: always valid JSON
     return record
 
 
@@ -136,11 +135,25 @@ def run_json(spec_json: dict[str, Any], out_dir: str) -> dict[str, Any]:
     return run(spec_from_json(spec_json), out_dir)
 
 
+#: Keys every record.json holds (a record without one is refused, not resumed).
+REQUIRED_KEYS = ("id", "policy", "minutes", "seed", "vx_rel", "vy_rel", "vth_rel", "sensor_rms_px", "log", "model",
+                 "spec", "timing")
+
+
 def load_record(out_dir: str | Path, spec: RunSpec) -> dict[str, Any] | None:
-    """The record of a completed run of ``spec`` in ``out_dir``, or None (missing, unreadable or another spec)."""
+    """The record of a completed run of ``spec`` in ``out_dir``, or None (missing, unreadable or another
+    spec). A record of this spec that is not an object with every ``REQUIRED_KEYS`` raises a ValueError
+    (one line naming the file and the key)."""
     path = Path(out_dir) / "runs" / spec.run_id / "record.json"
     try:
         rec = json.loads(path.read_text())
     except (OSError, ValueError):
         return None
-    return rec if rec.get("spec") == spec.to_json() else None
+    if not isinstance(rec, dict):
+        raise ValueError(f"{path}: not a JSON object but {type(rec).__name__} (delete the file to redo the run)")
+    if rec.get("spec") != spec.to_json():
+        return None
+    missing = [k for k in REQUIRED_KEYS if k not in rec]
+    if missing:
+        raise ValueError(f"{path}: no key {missing[0]!r} (delete the file to redo the run)")
+    return rec

@@ -126,10 +126,10 @@ def scaling(log_path: Path, sizes) -> list[dict]:
 
 
 def run(args) -> int:
-    from aibo.paths import check_files
+    from aibo.paths import check_files, declared_inputs
     from experiments.loop import simulate
 
-    check_files([], [("--json", args.json)] if args.json else [])
+    check_files(declared_inputs(args), [("--json", args.json)] if args.json else [])
 
     sizes = QUICK_SIZES if args.quick else SIZES
     paper_frames = QUICK_PAPER_FRAMES if args.quick else PAPER_FRAMES

@@ -6,8 +6,10 @@ from __future__ import annotations
 import sys
 import time
 
+import numpy as np
+
 from aibo.errors import CLIError
-from aibo.paths import check_files
+from aibo.paths import check_files, declared_inputs
 from aibo_core import trajectory
 
 
@@ -15,8 +17,7 @@ def run(args) -> int:
     from aibo_gym.collect import collect, replay
     from aibo_gym.config import default_config
 
-    inputs = [(flag, p) for flag, p in (("--model", args.model), ("--replay", args.replay)) if p]
-    check_files(inputs=inputs, outputs=[("--out", args.out)] + ([("--plot", args.plot)] if args.plot else []))
+    check_files(inputs=declared_inputs(args), outputs=[("--out", args.out)] + ([("--plot", args.plot)] if args.plot else []))
     if args.replay and not args.model:
         raise CLIError("--replay needs --model (the model whose simulator replays the log)")
     model_config, log = calibrated_config(args.model, args.replay)
@@ -55,6 +56,9 @@ def calibrated_config(model_path: str | None, replay_path: str | None):
 
     model = load_model(model_path)
     log = trajectory.load(replay_path) if replay_path else None
+    if log is not None and not np.isclose(log.dt, model.action.dt, rtol=1e-6):
+        raise CLIError(f"--replay {replay_path}: field 'dt': {log.dt:g} s per frame, but the model {model_path} "
+                       f"steps {model.action.dt:g} s per frame; replay a log of the model's frame rate")
     if log is not None and log.actions is None:
         raise CLIError(f"{replay_path}: field 'actions': the log has continuous commands; the simulator replays "
                        "only the 40 discrete walk commands")

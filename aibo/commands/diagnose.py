@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 from pathlib import Path
@@ -10,26 +9,33 @@ from pathlib import Path
 from aibo import diagnose_report as fig
 from aibo.data_errors import naming_files
 from aibo.errors import CLIError
-from aibo.paths import check_files
+from aibo.paths import check_files, check_replaceable, declared_inputs
 from aibo_core import trajectory
-from aibo_core.atomic import atomic_write
+from aibo_core.atomic import atomic_folder, write_json
 from aibo_core.compat import check_compatible
 from learners.discrepancy.score import GAP_METRIC, score
 from learners.discrepancy.search import search
 from learners.discrepancy.signatures import signatures
 from learners.em.fit import EMOptions
-from learners.em.learner import EMLearner
+from learners.em.learner import EMLearner, feature_map_for
 from learners.model.effects import EFFECT_MODELS
 from learners.model.io import save_result
 
 FIGURES = ("signatures.png", "gap.png", "calibrated.png")
+#: Every file of a diagnosis: the --out folder holds these and nothing else (it is replaced whole).
+OUTPUTS = ("report.json", "model.json", "report.html", *FIGURES)
 
 
 def candidates(arg: str | None) -> list[str]:
     """The effects to try: all of the catalogue, or the comma-separated names given."""
-    if not arg:
+    if arg is None:
         return sorted(EFFECT_MODELS)
     names = [n.strip() for n in arg.split(",") if n.strip()]
+    if not names:
+        raise CLIError(f"--candidates {arg!r}: no effect named (give comma-separated names, or leave the option out "
+                       "for the whole catalogue)")
+    if len(set(names)) != len(names):
+        raise CLIError(f"--candidates {arg!r}: an effect is named twice")
     unknown = [n for n in names if n not in EFFECT_MODELS]
     if unknown:
         raise CLIError(f"--candidates: unknown effect {unknown[0]!r} (valid choices: {', '.join(sorted(EFFECT_MODELS))})")
@@ -39,13 +45,16 @@ def candidates(arg: str | None) -> list[str]:
 def run(args) -> int:
     out = Path(args.out)
     names = candidates(args.candidates)
-    check_files([("log", p) for p in args.logs], [("--out file", out / f) for f in
-                                                   ("report.json", "model.json", "report.html", *FIGURES)],
-                folders=[("--out", out)])
+    check_files(declared_inputs(args), [("--out file", out / f) for f in OUTPUTS], folders=[("--out", out)])
+    check_replaceable("--out", out, OUTPUTS)
     logs = [trajectory.load(p) for p in args.logs]
     for warning in check_compatible(logs, list(args.logs)):
         print(f"aibo: warning: {warning}", file=sys.stderr)
-    out.mkdir(parents=True, exist_ok=True)
+    for path, tr in zip(args.logs, logs):
+        try:
+            feature_map_for(args.action_model, tr.discrete, tr.control_names)
+        except ValueError as err:
+            raise CLIError(f"--action-model {args.action_model}: log {path}: {err}") from None
     t0 = time.perf_counter()
     opts = EMOptions(seed=args.seed)
     lines: list[str] = []
@@ -56,41 +65,52 @@ def run(args) -> int:
 
     say(f"diagnosing {len(logs)} log(s), {sum(tr.n_frames for tr in logs)} frames; candidates: {', '.join(names)}")
     with naming_files(args.logs):
-        found = search(logs, names, opts, jobs=args.jobs, progress=say)
+        found = search(logs, names, opts, jobs=args.jobs, progress=say, action_model=args.action_model)
     logs = found["logs"]  # outliers set aside, as in every score of the search
     before, after = score(found["base"], logs), score(found["model"], logs)
     sig_before, sig_after = signatures(found["base"], logs), signatures(found["model"], logs)
     final = EMLearner(opts, check_field=False).fit(logs, init=found["model"])
-    save_result(final, out / "model.json")
     report = _report(found, before, after, sig_before)
     say("")
-    say("where the base model disagrees with the data (strongest residual signatures):")
-    for s in sig_before[:6]:
-        say(f"  {s.residual:24s} vs {s.variable:32s} p = {s.p_value:.1g}")
     say(f"named effects, in order: {', '.join(e['name'] for e in report['effects']) or 'none'}")
     for e in report["effects"]:
-        say(f"  {e['name']}: {fig.short(e['parameters'])}")
+        say(f"  {e['name']}: {fig.short(e['parameters'])}{fig.grid_note(e['name'])}")
     for name, note in {c["name"]: c["note"] for c in report["candidates"] if not c["identifiable"]}.items():
         say(f"  {name}: present or not, {note}")
+    for name, why in report["not_tried"].items():
+        say(f"  {name}: not tried, {why}")
     say(f"gap ({GAP_METRIC}): {before.gap:.4f} before, {after.gap:.4f} after; mean NIS {before.nis_mean:.2f} -> "
         f"{after.nis_mean:.2f} (2 expected)")
+    say("where the base model's residuals drift (strongest signatures; descriptive: many pairs are tried and "
+        "long logs make tiny drifts 'significant', the verdict rests on the candidates' tests above):")
+    for s in sig_before[:6]:
+        say(f"  {s.residual:24s} vs {s.variable:32s} p = {s.p_value:.1g}")
     report["calibrated_simulation"] = calibrated(found, logs, args, say)
     report["unexplained"] = unexplained(report)
     for u in report["unexplained"]:
-        say(f"  still unlike its simulation: {u['statistic']} (z = {u['z']:+.1f}), the signature of {u['effect']}, "
+        say(f"  still unlike its simulation: {u['statistic']} ({fig.z_text(u['z'])}), the signature of {u['effect']}, "
             f"not named ({u['why_not_named']})")
     report["seconds"] = time.perf_counter() - t0
     say(f"{report['seconds']:.1f} s in all")
-    fig.signature_panels(out / FIGURES[0], sig_before, sig_after)
-    fig.gap_bars(out / FIGURES[1], before.as_dict(), after.as_dict())
-    cal = report["calibrated_simulation"]
-    if "before" in cal:
-        fig.calibrated_bars(out / FIGURES[2], cal["before"], cal["after"])
-    text = json.dumps(report, indent=1)
-    atomic_write(out / "report.json", lambda f: f.write(text.encode()))
-    fig.html_page(out / "report.html", report, "\n".join(lines), [out / f for f in FIGURES])
-    print(f"wrote {out}/: report.html, report.json, model.json, {', '.join(FIGURES)}")
+    written = write_outputs(out, final, report, lines, sig_before, sig_after, before, after)
+    print(f"wrote {out}/: {', '.join(written)}")
     return 0
+
+
+def write_outputs(out: Path, final, report: dict, lines: list[str], sig_before, sig_after, before, after) -> list[str]:
+    """Every output, built in a temp folder beside ``out`` that then replaces it whole: an interrupted
+    or failed run leaves the earlier diagnosis as it was, never a mix. The names written."""
+    with atomic_folder(out) as tmp:
+        save_result(final, tmp / "model.json")
+        fig.signature_panels(tmp / FIGURES[0], sig_before, sig_after)
+        fig.gap_bars(tmp / FIGURES[1], before.as_dict(), after.as_dict())
+        cal = report["calibrated_simulation"]
+        if "before" in cal and cal["before"]["disagree_z"] is not None:  # None: too few replicas ran to compare
+            fig.calibrated_bars(tmp / FIGURES[2], cal["before"], cal["after"])
+        write_json(tmp / "report.json", report)
+        fig.html_page(tmp / "report.html", report, "\n".join(lines), [tmp / f for f in FIGURES])
+        written = [f for f in ("report.html", "report.json", "model.json", *FIGURES) if (tmp / f).exists()]
+    return written
 
 
 def calibrated(found: dict, logs: list, args, say) -> dict:
@@ -112,8 +132,12 @@ def calibrated(found: dict, logs: list, args, say) -> dict:
         check = predictive_check(found[key], logs, args.replicas, args.seed, args.jobs)
         checks["before" if key == "base" else "after"] = check.as_dict()
         worst = check.disagreements()
-        say(f"  {when}: {len(worst)} statistics disagree (|z| > {check.threshold:.2g})"
-            + "".join(f"\n    {n:70s} z = {z:+.1f}" for n, z in worst[:6]))
+        if len(check.replicas) < 3:
+            say(f"  {when}: no comparison: {len(check.replicas)} of {args.replicas} replicas ran "
+                f"({len(check.failed)} failed; 3 are needed)")
+        else:
+            say(f"  {when}: {len(worst)} statistics disagree (|z| > {check.threshold:.2g})"
+                + "".join(f"\n    {n:70s} {fig.z_text(z)}" for n, z in worst[:6]))
         for failure in check.failed:
             say(f"    {failure}")
     return checks
@@ -154,4 +178,5 @@ def _report(found: dict, before, after, sig_before) -> dict:
         "consistency_before": before.as_dict(),
         "consistency_after": after.as_dict(),
         "signatures": [s.as_dict() for s in sig_before[:12]],
+        "not_tried": found["skipped"],
     }

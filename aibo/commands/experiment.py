@@ -18,24 +18,45 @@ def _list(text: str, kind, what: str) -> list:
     return out
 
 
+#: The files a sweep writes into --out (besides runs/).
+OUTPUTS = ("results.jsonl", "summary.json", "errors_vs_minutes.png")
+#: Longest log of one run (minutes): 10^8 frames at 30 Hz, the cap of ``aibo collect --steps``.
+MAX_MINUTES = 1e8 / 30 / 60
+
+
+def validate_configs(specs) -> None:
+    """Refuse (CLIError, one line) a sweep whose env config (``--config``) the simulator would refuse."""
+    from aibo_gym.config import make_config
+
+    for spec in specs:
+        try:
+            make_config(spec.env)
+        except ValueError as err:
+            raise CLIError(f"--config: {err}") from None
+
+
 def run(args) -> int:
-    from aibo.paths import check_files
+    from aibo.paths import check_files, declared_inputs
     from experiments import policies as sweep
     from experiments.executors import run_all
 
     out = Path(args.out)
-    check_files([], [], folders=[("--out", out)])
+    check_files(declared_inputs(args), [("--out file", out / name) for name in OUTPUTS], folders=[("--out", out)])
     minutes = _list(args.minutes, float, "--minutes")
-    if any(not m > 0 for m in minutes):
-        raise CLIError(f"--minutes: every length must be > 0, got {args.minutes}")
+    if any(not 0 < m <= MAX_MINUTES for m in minutes):
+        raise CLIError(f"--minutes {args.minutes}: every length must be a number of minutes in (0, {MAX_MINUTES:g}]")
     names = [n.strip() for n in args.policies.split(",") if n.strip()]
     if not names:
         raise CLIError("--policies: empty list")
-    pols = sweep.policy_specs(names, args.policy_params)
+    try:
+        pols = sweep.policy_specs(names, args.policy_params)
+    except ValueError as err:
+        raise CLIError(f"--policy-params: {err}") from None
     learner = {} if args.max_iter is None else {"max_iter": args.max_iter}
     seeds = list(range(args.seed_base, args.seed_base + args.seeds))
     specs = sweep.build_specs(pols, sorted(minutes), seeds, args.config, args.robot_seed_base, learner,
                               args.holdout_minutes)
+    validate_configs(specs)  # everything is checked before results.jsonl or summary.json is touched
     t0 = time.perf_counter()
 
     def on_record(rec, done, total):

@@ -5,13 +5,13 @@ from __future__ import annotations
 import time
 
 from aibo.errors import CLIError
-from aibo.paths import check_files
+from aibo.paths import check_files, declared_inputs
 from aibo_core import trajectory
-from aibo_core.mrclam import MRCLAMError, import_robot
+from aibo_core.mrclam import MRCLAMError, dataset_files, import_robot
 
 
 def run(args) -> int:
-    check_files(inputs=[], outputs=[("--out", args.out)])
+    check_files(inputs=declared_inputs(args, [("dataset file", p) for p in dataset_files(args.folder)]), outputs=[("--out", args.out)])
     t0 = time.perf_counter()
     try:
         tr = import_robot(args.folder, args.robot, dt=args.dt, start_s=args.start, seconds=args.seconds, lag_s=args.lag)

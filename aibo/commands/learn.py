@@ -8,13 +8,15 @@ from pathlib import Path
 import numpy as np
 
 from aibo.data_errors import naming_files
-from aibo.paths import check_files, checkpoint_path
+from aibo.errors import CLIError
+from aibo.paths import check_files, checkpoint_path, declared_inputs
 from aibo.report import Progress, error_table
 from aibo_core import trajectory
 from aibo_core.compat import check_compatible
 from learners.base import LearnResult, get_learner
 from learners.em.alias import fixed_line
 from learners.em.fit import EMOptions
+from learners.em.learner import check_model_fits
 from learners.metrics import model_errors, observed_distance_range, true_height, truth_problem, velocity_errors
 from learners.model import io as model_io
 
@@ -99,7 +101,7 @@ PLOT_NAMES = ("loglik.png", "sensor_model.png", "velocity_error.png")
 
 def check_learn_files(args) -> None:
     """Refuse outputs (model, checkpoint, figures) that are an input (logs, --init) or each other."""
-    inputs = [("log", p) for p in args.logs] + ([("--init", args.init)] if args.init else [])
+    inputs = declared_inputs(args)
     outputs = [("--out", args.out), ("checkpoint", checkpoint_path(args.out))]
     if args.plots:
         outputs += [("--plots figure", Path(args.plots) / name) for name in PLOT_NAMES]
@@ -112,6 +114,11 @@ def run(args) -> int:
     for warning in check_compatible(logs, list(args.logs)):
         print(f"aibo: warning: {warning}", file=sys.stderr)
     init = model_io.load_model(args.init) if args.init else None
+    if init is not None:
+        try:
+            check_model_fits(init, logs)
+        except ValueError as err:
+            raise CLIError(f"--init {args.init}: {err}") from None
     learner = make_learner(args)
     progress = Progress(args.learner)
     with naming_files(args.logs, args.init):

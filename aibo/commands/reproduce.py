@@ -6,15 +6,17 @@ the paper's starting models, and print the errors beside the paper's and the ora
 
 from __future__ import annotations
 
+import hashlib
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 
-from aibo.commands.learn import write_plots
-from aibo.paths import check_files, checkpoint_path
+from aibo.commands.learn import PLOT_NAMES, write_plots
+from aibo.paths import CHECKPOINT_SUFFIX, check_files, check_replaceable, checkpoint_path, declared_inputs
 from aibo.report import Progress, error_table
 from aibo_core import trajectory
-from aibo_core.atomic import atomic_write
+from aibo_core.atomic import atomic_folder, write_json
 from learners.em.fit import EMOptions
 from learners.em.learner import EMLearner
 from learners.inference.batch import make_batch
@@ -34,6 +36,8 @@ BAR = {"vx_rel": 0.032, "vy_rel": 0.022, "vtheta_rel": 0.027, "sigma_height_rel"
 #: fit at the bound has error / bound ~1 (0.96-1.08 over 10-log Monte Carlo means, ~10% from log to log), so
 #: 1.5x the bound flags a fit that stopped short of the likelihood's maximum or settled in a wrong optimum.
 BOUND_FACTOR = 1.5
+#: Every file of the --out folder (it is replaced whole, so it holds these and EM's checkpoints only).
+OUTPUTS = ("log.npz", "trajectory.png", "model_oracle.json", "model_em.json", "report.json", *PLOT_NAMES)
 
 
 def em_options(args) -> EMOptions:
@@ -46,25 +50,36 @@ def em_options(args) -> EMOptions:
     return opts
 
 
+def run_checkpoint(out: Path, args, steps: int) -> Path:
+    """EM's checkpoint in ``out``, named for this run (steps, seed, recipe): only the identical run
+    resumes from it; another run's checkpoint is never read, and goes when the folder is replaced."""
+    run_id = json.dumps({"steps": steps, "seed": args.seed, "paper_recipe": args.paper_recipe, "quick": args.quick},
+                        sort_keys=True)
+    return checkpoint_path(out / f"model_em.{hashlib.sha1(run_id.encode()).hexdigest()[:8]}.json")
+
+
 def run(args) -> int:
     out = Path(args.out)
-    check_files([], [], folders=[("--out", out)])
-    out.mkdir(parents=True, exist_ok=True)
+    check_files(declared_inputs(args), [], folders=[("--out", out)])
+    steps = QUICK_STEPS if args.quick else FULL_STEPS
+    checkpoint = run_checkpoint(out, args, steps)
+    check_replaceable("--out", out, OUTPUTS + tuple(p.name for p in out.glob(f"model_em*{CHECKPOINT_SUFFIX}")))
     from aibo_gym.plot import plot_trajectory
     from experiments.loop import fit_em, score, simulate
 
-    steps = QUICK_STEPS if args.quick else FULL_STEPS
     print(f"simulating {steps} frames ({steps / 30 / 60:.0f} min, paper-sim noise, random-balanced, seed {args.seed})")
     tr = simulate({"noise": "paper-sim"}, steps, args.seed)
-    trajectory.save(tr, out / "log.npz")
-    plot_trajectory(tr, out / "trajectory.png", title=f"reproduce: {steps} frames, seed {args.seed}")
     logs = [tr]
 
     oracle = OracleLearner().fit(logs)
-    model_io.save_result(oracle, out / "model_oracle.json")
 
     opts = em_options(args)
-    start = EMLearner(opts).start_params(logs, None, make_batch(logs))
+    batch = make_batch(logs)
+    start = EMLearner(opts).start_params(logs, None, batch)
+    t0 = time.perf_counter()
+    # the one-time numba compile (or cache load) of every kernel, timed on its own: two iterations
+    EMLearner(replace(opts, max_iter=2, starts=1), check_field=False).fit(logs, init=start)
+    compile_s = time.perf_counter() - t0
     x = "d" if start.sensor.basis == "power" else "/d"
     print(f"EM from the paper's start (zero velocities, height = {start.sensor.coef[0]:g} "
           f"{start.sensor.coef[1]:+g}{x} px, {opts.starts} start(s)): motion noise "
@@ -72,10 +87,12 @@ def run(args) -> int:
           f"'{start.sensor.basis}', acceleration '{opts.accel}'")
     progress = Progress("EM", every=50)
     t0 = time.perf_counter()
-    em = fit_em(logs, opts, init=start, progress=progress, checkpoint_path=checkpoint_path(out / "model_em.json"))
+    em = fit_em(logs, opts, init=start, progress=progress, checkpoint_path=checkpoint, resume=not args.no_resume)
     wall = time.perf_counter() - t0
     progress.close()
-    model_io.save_result(em, out / "model_em.json")
+    if em.info.get("resumed_from"):
+        print(f"resumed from the checkpoint {checkpoint} at iteration {em.info['resumed_from']} "
+              "(--no-resume starts over)")
 
     errs = {"EM": score(em.params, logs), "oracle": score(oracle.params, logs)}
     errs["EM"]["iterations"] = em.iterations
@@ -85,24 +102,28 @@ def run(args) -> int:
     print(f"{'sensor RMS at start':22s}{PAPER_SIM['sensor_rms_start_px']:>12.2f}{start_rms:>12.2f}")
     print(f"{'iterations':22s}{PAPER_SIM['iterations']:>12d}{em.iterations:>12d}   "
           f"(best at {em.info['best_iteration']}, converged={em.converged})")
-    print(f"EM wall time {wall:.1f} s: first iteration {em.info['first_iteration_seconds']:.1f} s (with the one-time "
-          f"numba compile or cache load), then {1000 * em.info['seconds_per_iteration']:.1f} ms/iteration; "
-          f"{em.pruned_observations} sightings pruned")
+    print(f"EM wall time {wall:.1f} s (first iteration {em.info['first_iteration_seconds']:.1f} s, then "
+          f"{1000 * em.info['seconds_per_iteration']:.1f} ms/iteration), after {compile_s:.1f} s of one-time numba "
+          f"compile or cache load; {em.pruned_observations} sightings pruned")
     se = (em.info.get("standard_errors") or {}).get("action_model.velocities")
     bound = velocity_bound(se, tr.truth["velocities"]) if se is not None else None
     verdict = check_bar(errs["EM"], errs["oracle"], bound)
     for line in verdict["lines"]:
         print(line)
-    figs = write_plots(out, em, logs, start=start, oracle=oracle.params)
-    report = {"steps": steps, "seed": args.seed, "quick": args.quick, "options": opts.__dict__,
-              "paper": PAPER_SIM, "em": errs["EM"], "oracle": errs["oracle"], "sensor_rms_start_px": start_rms,
-              "iterations": em.iterations, "best_iteration": em.info["best_iteration"], "converged": em.converged,
-              "wall_seconds": wall, "seconds_per_iteration": em.info["seconds_per_iteration"],
-              "first_iteration_seconds": em.info["first_iteration_seconds"],
-              "pruned_observations": em.pruned_observations, "bound": bound, "bar": verdict["passed"],
-              "figures": [p.name for p in figs] + ["trajectory.png"]}
-    text = json.dumps(report, indent=1)
-    atomic_write(out / "report.json", lambda f: f.write(text.encode()))
+    with atomic_folder(out) as tmp:  # the folder is replaced whole: never half one run, half another
+        trajectory.save(tr, tmp / "log.npz")
+        plot_trajectory(tr, tmp / "trajectory.png", title=f"reproduce: {steps} frames, seed {args.seed}")
+        model_io.save_result(oracle, tmp / "model_oracle.json")
+        model_io.save_result(em, tmp / "model_em.json")
+        figs = write_plots(tmp, em, logs, start=start, oracle=oracle.params)
+        report = {"steps": steps, "seed": args.seed, "quick": args.quick, "options": opts.__dict__,
+                  "paper": PAPER_SIM, "em": errs["EM"], "oracle": errs["oracle"], "sensor_rms_start_px": start_rms,
+                  "iterations": em.iterations, "best_iteration": em.info["best_iteration"], "converged": em.converged,
+                  "wall_seconds": wall, "seconds_per_iteration": em.info["seconds_per_iteration"],
+                  "first_iteration_seconds": em.info["first_iteration_seconds"], "compile_seconds": compile_s,
+                  "pruned_observations": em.pruned_observations, "bound": bound, "bar": verdict["passed"],
+                  "figures": [p.name for p in figs] + ["trajectory.png"]}
+        write_json(tmp / "report.json", report)
     print(f"wrote {out}/: log.npz, model_em.json, model_oracle.json, report.json, "
           + ", ".join(report["figures"]))
     return 0

@@ -10,12 +10,12 @@ from aibo.errors import CLIError
 
 
 def run(args) -> int:
-    from aibo.paths import check_files
+    from aibo.paths import check_files, declared_inputs
 
     if importlib.util.find_spec("stable_baselines3") is None:
         raise CLIError("train-explorer needs Stable-Baselines3: pip install -e '.[agents]' "
                        "(CPU torch first, see docs/environments.md)")
-    check_files([], [("--out", args.out)])
+    check_files(declared_inputs(args), [("--out", args.out), ("--out's description", args.out[:-4] + ".json")])
     from aibo_gym.train import train_explorer
 
     if args.tensorboard and importlib.util.find_spec("tensorboard") is None:

@@ -16,7 +16,6 @@ tell the effect from the base model (a flat profile) and it is reported as not i
 from __future__ import annotations
 
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Any, Callable
 
@@ -24,6 +23,7 @@ import numpy as np
 from scipy import stats
 
 from aibo_core.trajectory import Trajectory
+from aibo_core.workers import process_pool
 from learners.em.fit import EMOptions
 from learners.em.learner import EMLearner
 from learners.inference.batch import make_batch
@@ -81,12 +81,13 @@ def applicable(name: str, logs: list[Trajectory]) -> bool:
     return all(all(getattr(tr, need) is not None for tr in logs) for need in EFFECT_MODELS[name].NEEDS)
 
 
-def _fit(logs: list[Trajectory], init: Model, opts: EMOptions) -> Model:
+def _fit(logs: list[Trajectory], init: Model, opts: EMOptions, action_model: str | None = None) -> Model:
     """EM on ``logs`` from ``init`` (the paper's start when None); candidates are compared by
     ``_train_loglik`` on the same sightings, not by the fit's own (gated) likelihood. The alias search
     (``learners.em.alias``) runs in the base fit from the paper's start only: a warm-started refit that
     switched a command to its alias would credit the jump in likelihood to the effect tried."""
-    return EMLearner(opts if init is None else replace(opts, alias_search=False), check_field=False).fit(logs, init=init).params
+    learner = EMLearner(opts if init is None else replace(opts, alias_search=False), check_field=False)
+    return learner.fit(logs, init=init, action_model=action_model).params
 
 
 def _with(effect: EffectModel, values: dict[str, Any]) -> EffectModel:
@@ -169,12 +170,14 @@ def _train_loglik(model: Model, train: list[Trajectory]) -> float:
 
 
 def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs: int = 2,
-           progress: Callable[[str], None] = print) -> dict[str, Any]:
+           progress: Callable[[str], None] = print, action_model: str | None = None) -> dict[str, Any]:
     """The whole search (module docstring): returns the base fit, every round's candidates, the named
     effects in order, and the current model after each addition (all fitted on the training half),
-    and the logs without outliers that every score uses."""
+    the logs without outliers that every score uses, and the candidates the logs cannot support
+    (``"skipped"``: name -> what the log lacks). ``action_model``: of the base fit (``aibo learn
+    --action-model``)."""
     t0 = time.perf_counter()
-    base = _fit([training_log(tr) for tr in logs], None, opts)
+    base = _fit([training_log(tr) for tr in logs], None, opts, action_model)
     logs, n_out = drop_outliers(base, logs)
     train = [training_log(tr) for tr in logs]
     opts = replace(opts, gate=None, max_iter=min(opts.max_iter, 200))  # candidates are warm-started
@@ -185,7 +188,12 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
     current, current_ll = base, base_ll
     rounds, named = [], []
     remaining = [c for c in candidates if applicable(c, logs)]
-    with ProcessPoolExecutor(max_workers=max(jobs, 1)) as pool:
+    skipped = {c: "the log(s) hold no " + ", ".join(need for need in EFFECT_MODELS[c].NEEDS
+                                                    if any(getattr(tr, need) is None for tr in logs))
+               for c in candidates if c not in remaining}
+    for name, why in skipped.items():
+        progress(f"  {name}: not tried ({why})")
+    with process_pool(max(jobs, 1)) as pool:
         for _ in range(MAX_ROUNDS):
             if not remaining:
                 break
@@ -205,4 +213,4 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
             current_ll = _train_loglik(current, train)
             remaining = [n for n in remaining if n != best.name]
             progress(f"named: {best.name} {best.as_dict()['parameters']}")
-    return {"base": base, "rounds": rounds, "named": named, "model": current, "logs": logs}
+    return {"base": base, "rounds": rounds, "named": named, "model": current, "logs": logs, "skipped": skipped}

@@ -72,6 +72,27 @@ def feature_map_for(action_model: str | None, discrete: bool, control_names: tup
     return "diff_drive" if len(control_names) == 2 else "linear"
 
 
+def check_model_fits(model: Model, logs: list[Trajectory], batch: Batch | None = None) -> None:
+    """Refuse (ValueError, one line naming the field) a start model that does not describe these logs:
+    other control names, an effect the logs cannot support (``EffectModel.NEEDS``), or effect
+    parameters of another shape than the logs need (e.g. one height scale per landmark)."""
+    tr = logs[0]
+    act = model.action
+    if not act.discrete and not tr.discrete and tuple(act.control_names) != tuple(tr.control_names or ()):
+        raise ValueError(f"field 'action_model.control_names': {list(act.control_names)}, but the log's controls are "
+                         f"{list(tr.control_names or ())}")
+    batch = batch if batch is not None else make_batch(logs)
+    for effect in model.effects:
+        lacking = [need for need in effect.NEEDS if any(getattr(t, need) is None for t in logs)]
+        if lacking:
+            raise ValueError(f"field 'effects.{effect.name}': needs the log's {', '.join(lacking)}, which the log(s) lack")
+        neutral = type(effect).start(batch).values()
+        for key, value in effect.values().items():
+            if value.shape != neutral[key].shape:
+                raise ValueError(f"field 'effects.{effect.name}.parameters.{key}': shape {value.shape}, these logs need "
+                                 f"{neutral[key].shape} ({effect.PARAMS[key].unit})")
+
+
 class EMLearner:
     """Maximum-likelihood action and sensor models by EM (Stronger & Stone).
 
@@ -102,6 +123,8 @@ class EMLearner:
         fmap = feature_map_for(action_model, tr.discrete, names)
         basis = self.options.sensor_basis(tr.sensor_kind, init.sensor.basis if init else None)
         degree = self.options.sensor_degree(basis)
+        if init is not None:
+            check_model_fits(init, logs, batch)
         start = init or start_model(batch, tr.dt, tr.sensor_kind, n_commands, names, fmap, basis,
                                     degree).with_(init=tuple(initial_state_for(t) for t in logs))
         if tr.discrete and start.action.discrete and len(start.action.weights) != len(tr.attempted):

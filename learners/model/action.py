@@ -109,10 +109,14 @@ class ActionModel(Component):
             return self.weights[idx]
         return self.features(commands) @ self.weights
 
-    def velocity(self, commands: np.ndarray) -> np.ndarray:
+    def velocity(self, commands) -> np.ndarray:
         """(N, 3) velocities [forward mm/s, lateral mm/s, turn rad/s] for discrete command indices (N,)
-        or continuous commands (N, k) in the units the log declared (public API)."""
-        return self.displacements(commands) / self.dt
+        or continuous commands (N, k) in the units the log declared (public API); (3,) for one
+        command (an index, or k controls), as ``SensorModel.mean`` takes one distance."""
+        c = np.asarray(commands)
+        one = c.ndim == (0 if self.discrete else 1)
+        v = self.displacements(c[None] if one else c) / self.dt
+        return v[0] if one else v
 
     def regress(self, commands: np.ndarray, mu_star: np.ndarray, scale: np.ndarray | None = None) -> np.ndarray:
         """New weights: least squares of the per-frame displacement estimates ``mu_star`` (N, 3) on the

@@ -56,7 +56,8 @@ class FloorDrift(EffectModel):
 
     name: ClassVar[str] = "floor_drift"
     SIGNATURE: ClassVar[str] = "motion (sigma) vs world heading"
-    PARAMS: ClassVar[dict[str, Param]] = {"drift_mm_s": Param("mm/s, world frame", "scaled", (10.0, 10.0))}
+    PARAMS: ClassVar[dict[str, Param]] = {"drift_mm_s": Param("mm/s, world frame", "scaled", (10.0, 10.0), low=-1e4,
+                                                                      high=1e4, shape=(2,))}
 
     @classmethod
     def start(cls, batch: Batch) -> "FloorDrift":
@@ -92,7 +93,7 @@ class VelocityFade(EffectModel):
 
     name: ClassVar[str] = "velocity_fade"
     SIGNATURE: ClassVar[str] = "motion (sigma) vs elapsed time"
-    PARAMS: ClassVar[dict[str, Param]] = {"fade_per_min": Param("1/min", "scaled", 0.01)}
+    PARAMS: ClassVar[dict[str, Param]] = {"fade_per_min": Param("1/min", "scaled", 0.01, low=-1.0, high=1.0, shape=())}
 
     def disp_scale(self, batch: Batch) -> np.ndarray:
         return np.maximum(0.0, 1.0 - self.fade_per_min * batch.frame_time / 60.0)
@@ -124,7 +125,8 @@ class ActuationLag(EffectModel):
 
     name: ClassVar[str] = "actuation_lag"
     SIGNATURE: ClassVar[str] = "vs time since command change"
-    PARAMS: ClassVar[dict[str, Param]] = {"lag_s": Param("s", "scaled", 0.1, trainable=False)}
+    PARAMS: ClassVar[dict[str, Param]] = {"lag_s": Param("s", "scaled", 0.1, trainable=False, low=0.0, high=60.0,
+                                                                 shape=())}
     GRID: ClassVar[dict[str, tuple[float, ...]]] = {"lag_s": (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)}
 
     def commands(self, commands: np.ndarray, batch: Batch) -> np.ndarray:
@@ -149,7 +151,7 @@ class AngleBias(EffectModel):
     bias_rad: float
 
     name: ClassVar[str] = "angle_bias"
-    PARAMS: ClassVar[dict[str, Param]] = {"bias_rad": Param("rad", "scaled", 0.01)}
+    PARAMS: ClassVar[dict[str, Param]] = {"bias_rad": Param("rad", "scaled", 0.01, low=-math.pi, high=math.pi, shape=())}
 
     def lower(self, lo: Lowered, batch: Batch) -> None:
         lo.bearing_offset = lo.bearing_offset + self.bias_rad
@@ -192,7 +194,7 @@ class OffCenterShrink(EffectModel):
 
     name: ClassVar[str] = "off_center_shrink"
     SIGNATURE: ClassVar[str] = "size (sigma) vs position in the image"
-    PARAMS: ClassVar[dict[str, Param]] = {"k": Param("1/rad^2", "scaled", 0.05)}
+    PARAMS: ClassVar[dict[str, Param]] = {"k": Param("1/rad^2", "scaled", 0.05, low=-10.0, high=10.0, shape=())}
     NEEDS: ClassVar[tuple[str, ...]] = ("head_pan",)
 
     def factor(self, batch: Batch) -> np.ndarray:
@@ -222,7 +224,7 @@ class DistanceDependentNoise(EffectModel):
 
     name: ClassVar[str] = "distance_dependent_noise"
     SIGNATURE: ClassVar[str] = "|size| (sigma) vs distance"
-    PARAMS: ClassVar[dict[str, Param]] = {"exponent": Param("", "scaled", 0.1)}
+    PARAMS: ClassVar[dict[str, Param]] = {"exponent": Param("", "scaled", 0.1, low=0.0, high=10.0, shape=())}
 
     def factor(self, lo: Lowered, batch: Batch) -> np.ndarray:
         """(S,) variance factor (d / 2500 mm)^(2 exponent), d the distance whose predicted size is measured."""

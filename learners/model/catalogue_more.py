@@ -91,7 +91,7 @@ class FalseSightings(EffectModel):
     log_u: float | None = None  # log density of a spurious sighting (set by ``start`` or the first M-step)
 
     name: ClassVar[str] = "false_sightings"
-    PARAMS: ClassVar[dict[str, Param]] = {"rate": Param("fraction of sightings", "log")}
+    PARAMS: ClassVar[dict[str, Param]] = {"rate": Param("fraction of sightings", "log", low=0.0, high=0.5, shape=())}
 
     @classmethod
     def start(cls, batch: Batch) -> "FalseSightings":

@@ -24,7 +24,7 @@ import numpy as np
 from learners.inference.batch import Batch
 from learners.inference.lowered import Lowered
 from learners.inference.posterior import Posterior
-from learners.model.parameters import Component, Param
+from learners.model.parameters import Component, Param, as_numbers
 
 if TYPE_CHECKING:
     from learners.model.model import Model
@@ -111,19 +111,26 @@ def register_effect(cls: type[EffectModel]) -> type[EffectModel]:
 
 
 def effect_from_json(doc: Any, source: str) -> EffectModel:
-    """An effect from its model-file entry ``{"name": ..., "parameters": {...}}``."""
+    """An effect from its model-file entry ``{"name": ..., "parameters": {...}}``: every parameter a
+    number (or list) in its declared shape and domain (``Param.domain_error``); ValueError naming the
+    file and the field otherwise."""
     if not isinstance(doc, dict) or doc.get("name") not in EFFECT_MODELS:
         valid = ", ".join(sorted(EFFECT_MODELS))
-        raise ValueError(f"{source}: field 'effects': unknown effect {doc!r} (valid choices: {valid})")
+        raise ValueError(f"{source}: field 'effects': unknown effect {doc!r:.80} (valid choices: {valid})")
     cls = EFFECT_MODELS[doc["name"]]
     params = doc.get("parameters")
     if not isinstance(params, dict) or set(params) != set(cls.PARAMS):
         raise ValueError(f"{source}: field 'effects.{cls.name}.parameters': expected keys {sorted(cls.PARAMS)}")
     values = {}
     for key, value in params.items():
-        arr = np.asarray(value, dtype=float)
-        if not np.all(np.isfinite(arr)):
-            raise ValueError(f"{source}: field 'effects.{cls.name}.parameters.{key}': non-finite value")
+        where = f"{source}: field 'effects.{cls.name}.parameters.{key}'"
+        try:
+            arr = as_numbers(value)
+        except ValueError as err:
+            raise ValueError(f"{where}: {err}") from None
+        problem = cls.PARAMS[key].domain_error(arr)
+        if problem:
+            raise ValueError(f"{where}: {problem}")
         values[key] = float(arr) if arr.shape == () else arr
     return cls(**values)
 
@@ -156,7 +163,7 @@ class BeaconHeightScale(EffectModel):
     name: ClassVar[str] = "beacon_height_scale"
     SIGNATURE: ClassVar[str] = "size (sigma) vs landmark"
     CONSTRAINTS: ClassVar[int] = 1  # normalized to geometric mean 1
-    PARAMS: ClassVar[dict[str, Param]] = {"scale": Param("factor per landmark", "log")}
+    PARAMS: ClassVar[dict[str, Param]] = {"scale": Param("factor per landmark", "log", high=1e3, shape=(-1,))}
 
     @classmethod
     def start(cls, batch: Batch) -> "BeaconHeightScale":

@@ -28,9 +28,12 @@ from learners.model.action import PAPER_MOTION_STD, ZERO_OUTPUTS, ActionModel
 from learners.model.effects import effect_from_json
 from learners.model.initial import DEFAULT_INITIAL, InitialState
 from learners.model.model import Model
+from learners.model.parameters import as_numbers
 from learners.model.sensor import NODE_RANGE_MM, SensorModel
 
 FORMAT = "aibo-model/1"
+#: Largest per-frame motion variances a model file may hold: (10 m)^2, (10 m)^2, pi^2 rad^2.
+MAX_MOTION_VAR = np.array([1e8, 1e8, np.pi**2])
 MAX_JSON_BYTES = 256 * 2**20
 
 
@@ -91,15 +94,13 @@ class _Reader:
     def array(self, dotted: str, shape: tuple | None = None, ndim: int | None = None, default: Any = KeyError):
         value = self.get(dotted, default)
         try:
-            arr = np.asarray(value, dtype=float)
-        except (TypeError, ValueError, OverflowError, RecursionError):
-            self.fail(dotted, "expected numbers")
+            arr = as_numbers(value)
+        except (ValueError, RecursionError) as err:
+            self.fail(dotted, str(err) if isinstance(err, ValueError) else "expected numbers")
         if shape is not None and arr.shape != shape:
             self.fail(dotted, f"expected shape {shape}, got {arr.shape}")
         if ndim is not None and arr.ndim != ndim:
             self.fail(dotted, f"expected a {ndim}-d array, got shape {arr.shape}")
-        if not np.all(np.isfinite(arr)):
-            self.fail(dotted, "non-finite value")
         return arr
 
     def positive(self, dotted: str, default: Any = KeyError, limit: float = 1e12) -> float:
@@ -110,7 +111,12 @@ class _Reader:
 
     def spd(self, dotted: str, default: Any = KeyError) -> np.ndarray:
         cov = self.array(dotted, shape=(3, 3), default=default)
-        if not np.allclose(cov, cov.T) or np.any(np.linalg.eigvalsh(0.5 * (cov + cov.T)) <= 0):
+        try:
+            spd = np.allclose(cov, cov.T) and np.all(np.linalg.eigvalsh(0.5 * (cov + cov.T)) > 0)
+            np.linalg.cholesky(cov)
+        except np.linalg.LinAlgError:
+            spd = False
+        if not spd:
             self.fail(dotted, "not symmetric positive definite")
         return cov
 
@@ -125,6 +131,9 @@ def _action(r: _Reader) -> ActionModel:
     fmap = r.choice("action_model.feature_map", ("table", "diff_drive", "unicycle", "linear"), "table")
     dt = r.positive("action_model.dt", limit=3600.0)
     cov = r.spd("action_model.motion_cov", default=np.diag(np.square(PAPER_MOTION_STD)).tolist())
+    if np.any(np.diag(cov) > MAX_MOTION_VAR):
+        r.fail("action_model.motion_cov", f"a per-frame standard deviation above {np.sqrt(MAX_MOTION_VAR[0]):g} mm "
+               f"or {np.pi:.4g} rad (diagonal {np.diag(cov).tolist()}): no robot moves that unpredictably in a frame")
     if fmap == "table":
         vel = r.array("action_model.velocities", ndim=2)
         if vel.shape[1] != 3 or len(vel) < 1:
@@ -183,6 +192,10 @@ def model_from_json(doc: Any, source: str) -> Model:
         fx = tuple(effect_from_json(e, source) for e in effects)
     except ValueError as exc:
         raise ModelFileError(str(exc)) from None
+    names = [e.name for e in fx]
+    for name in names:
+        if names.count(name) > 1:
+            r.fail("effects", f"effect '{name}' is listed {names.count(name)} times (each effect at most once)")
     return Model(_action(r), _sensor(r), _initial(r) or (DEFAULT_INITIAL,), fx)
 
 

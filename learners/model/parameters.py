@@ -10,11 +10,15 @@ comparison are generic loops over components:
   positive definite: log-Cholesky), or a component's own (``pack_<name>`` / ``unpack_<name>``);
 - ``scale``: the typical size of one unit of the parameter (a "noise width");
 - ``trainable``: estimated by EM (False: kept fixed);
-- ``order``: noise covariances (order 1) are packed after the curves (order 0).
+- ``order``: noise covariances (order 1) are packed after the curves (order 0);
+- ``low``, ``high``: the domain, inclusive bounds on every entry (a ``"log"`` parameter is also > 0),
+  and ``shape``: ``()`` a number, ``(n,)`` n numbers, ``(-1,)`` a list of any length, None unchecked;
+  a model file's values outside them are refused (``Param.domain_error``).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields, replace
 from typing import Any, ClassVar
 
@@ -30,6 +34,49 @@ class Param:
     scale: float | tuple[float, ...] = 1.0
     trainable: bool = True
     order: int = 0  # packing order: parameters are packed by (order, component, declaration)
+    low: float = -math.inf
+    high: float = math.inf
+    shape: tuple[int, ...] | None = None
+
+    def domain_error(self, value: np.ndarray) -> str:
+        """What is wrong with ``value`` (finite floats) for this parameter's shape and domain; "" if nothing."""
+        if self.shape is not None and (value.ndim != len(self.shape) or any(
+                n not in (-1, m) for n, m in zip(self.shape, value.shape))):
+            want = "a number" if self.shape == () else "a list of numbers" if self.shape == (-1,) else \
+                f"a list of {self.shape[0]} numbers"
+            return f"expected {want}, got shape {value.shape}"
+        if self.transform == "log" and np.any(value <= 0):
+            return f"must be > 0, got {value.min():g}"
+        if np.any(value < self.low) or np.any(value > self.high):
+            bad = value[(value < self.low) | (value > self.high)].ravel()[0]
+            return f"must be in [{self.low:g}, {self.high:g}] ({self.unit or 'no unit'}), got {bad:g}"
+        return ""
+
+
+#: Largest magnitude of any number a model file may hold: no quantity of a model comes near it, and
+#: larger ones overflow the learner's squares and products (1e300).
+MAX_ABS = 1e15
+
+
+def as_numbers(value: Any) -> np.ndarray:
+    """``value`` (a JSON number or nested lists of numbers) as a float array; ValueError saying what is
+    wrong for anything else: strings, booleans, null, NaN/inf, magnitudes above ``MAX_ABS``, ragged lists."""
+    def check(v: Any) -> None:
+        if isinstance(v, list):
+            for x in v:
+                check(x)
+        elif isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise ValueError(f"expected numbers, got {v!r:.40}")
+    check(value)
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (ValueError, OverflowError):
+        raise ValueError("expected numbers in lists of equal length") from None
+    if not np.all(np.isfinite(arr)):
+        raise ValueError("non-finite value")
+    if np.any(np.abs(arr) > MAX_ABS):
+        raise ValueError(f"{np.abs(arr).max():g} is larger than {MAX_ABS:g} in magnitude")
+    return arr
 
 
 def chol_vec(cov: np.ndarray) -> np.ndarray:

@@ -68,7 +68,11 @@ class SensorModel(Component):
         return SIZE_UNITS[self.kind]
 
     def mean(self, distances_mm) -> np.ndarray:
-        """Mean size measurement (px or mm, as the log declared) at distances (mm) (public API)."""
+        """Mean size measurement (px or mm, as the log declared) at distances (mm) (public API).
+
+        The curve is learned from the distances in ``distance_range_mm``; outside it, it is an
+        extrapolation of the fitted basis (a polynomial may bend away): check a distance against that
+        range before trusting the value there."""
         return curve(self.basis_id, self.coef, distances_mm)[0]
 
     def dmean(self, distances_mm) -> np.ndarray:
