@@ -11,12 +11,10 @@ import numpy as np
 import pytest
 
 from learners.em.fit import EMOptions, e_step
-from learners.em.mstep import maximize
 from learners.inference.action_stats import action_statistics
 from learners.inference.augmented import displacement_statistics, rts_pass, smooth_augmented
 from learners.inference.batch import Batch
 from learners.inference.kernels import innovations_compiled, smooth_compiled
-from learners.inference.lowered import ExtraStates
 from learners.inference.posterior import ExtraMoments, Posterior
 from learners.inference.reference import forward_pass, two_filter_smooth
 from learners.model.landmark_bias import LandmarkBias, slot_schedule
