@@ -5,14 +5,16 @@ gets a cruise speed uniform in [``v_min_frac``, 1] x ``v_max_mm_s``; the turn ra
 ``gain`` x heading error, clipped to +-``omega_max_rad_s``; the forward speed is the cruise speed
 x cos(heading error), 0 when the waypoint is behind (turning on the spot). Each command is held for
 ``hold_s`` seconds (default 1 s). A waypoint within ``reach_mm`` ends the leg; with probability
-``pause_prob`` the next leg is a stop of about 1-3 s (v = 0, omega = 0).
+``pause_prob`` the next leg is a stop of about 1-3 s (v = 0, omega = 0). Commands stay in
+[0, v_max] x [-omega_max, omega_max] (defaults: MRCLAM's 86 mm/s and 0.57 rad/s).
 
 Why the hold: a command recomputed every frame from the pose carries information about the pose's
 noise that a learner treating commands as given cannot use; on 10-minute logs EM then learned the
 turn gain 4% low (0.863 for 0.9 at ``hold_s`` = one frame, 0.91 on the same commands replayed open
-loop). Real closed-loop robots have the same feedback. Commands stay in [0, v_max] x [-omega_max, omega_max] (defaults: MRCLAM's 86 mm/s and
-0.57 rad/s). It steers on the true pose (``info["pose"]``): a simulator's driver, whose commands
-are what the log keeps. Its random choices come from its own seeded stream.
+loop; 0.893 with the 1 s hold). Real closed-loop robots have the same feedback.
+
+It steers on the true pose (``info["pose"]``): a simulator's driver, whose commands are what the log
+keeps. Its random choices come from its own seeded stream.
 """
 
 from __future__ import annotations
