@@ -159,3 +159,24 @@ def test_features_in_aibo_core_are_the_learners():
     np.testing.assert_array_equal(model.features(c), diff_drive(c))
     with pytest.raises(ValueError, match="takes 2 controls"):
         features("diff_drive", np.zeros((3, 3)))
+
+
+def test_sensing_effects_act_on_the_range_as_the_size_measurement():
+    """``Sighting.height`` carries the range (mm): the catalogue's size effects act on it unchanged."""
+    landmarks = [[1000.0, 0.0], [2000.0, 500.0]]
+    base = {**QUIET, "beacons": landmarks}
+    plain = run(WheeledRobotEnv(base), [[0.0, 0.0]])[1][1]["sightings"]["range"][:2]
+    scaled = run(WheeledRobotEnv({**base, "effects": {"beacon_height_scale": {"scale": [1.1, 0.95]},
+                                                      "height_bias": {"offset_px": 20.0}}}), [[0.0, 0.0]])
+    np.testing.assert_allclose(scaled[1][1]["sightings"]["range"][:2], plain * [1.1, 0.95] + 20.0)
+    env = WheeledRobotEnv({**base, "effects": {"false_sightings": {"rate": 0.25}}})
+    s = [i["sightings"] for _, i in run(env, [[0.0, 0.0]] * 300, seed=2)[1:]]
+    fake = np.concatenate([x["range"][:x["count"]][x["spurious"][:x["count"]]] for x in s])
+    bearing = np.concatenate([x["bearing"][:x["count"]][x["spurious"][:x["count"]]] for x in s])
+    assert 160 < len(fake) < 240  # with probability rate / (1 - rate) = 1/3 per real sighting: about 600 / 3
+    assert fake.min() >= 850.0 - 1e-9 and fake.max() <= 8500.0 and np.abs(bearing).max() <= 0.59
+
+
+def test_a_bad_image_mask_is_refused():
+    with pytest.raises(ValueError, match="reset option 'images'"):
+        WheeledRobotEnv().reset(seed=0, options={"images": [[True, False]]})
