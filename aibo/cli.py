@@ -37,11 +37,16 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     c = sub.add_parser("collect", help="simulate and write an aibo-trajectory/2 log")
-    c.add_argument("--steps", type=steps, default=27000, help="frames to simulate (default 27000 = 15 min at 30 Hz; at most 10^8, "
-                   "or what half the memory holds at 160 bytes/frame)")
+    c.add_argument("--steps", type=steps, default=None, help="frames to simulate (default 27000 = 15 min at 30 Hz; --env wheeled: "
+                   "6000 = 10 min at 10 Hz; at most 10^8, or what half the memory holds at 160 bytes/frame)")
+    c.add_argument("--env", choices=["aibo", "wheeled"], default=None,
+                   help="aibo: AiboBeacons-v0 (40 walk commands, height camera); wheeled: WheeledRobot-v0 ((v, omega) "
+                   "commands, range/bearing camera, random-waypoint driver). Default: the --model's (wheeled for "
+                   "continuous-command models), else aibo")
     c.add_argument("--seed", type=integer(0), default=0)
-    c.add_argument("--policy", default="random-balanced", metavar="NAME|sb3:PATH",
-                   help="random-balanced (default), uniform, informed, or sb3:AGENT.zip (see aibo_gym.policies)")
+    c.add_argument("--policy", default=None, metavar="NAME|sb3:PATH",
+                   help="random-balanced (default), uniform, informed, or sb3:AGENT.zip (see aibo_gym.policies); "
+                   "--env wheeled: waypoints (the only one, its parameters in aibo_gym.policies.waypoints)")
     c.add_argument("--policy-params", type=json_object, default={}, metavar="JSON", help="the policy's parameters")
     c.add_argument("--localizer", default=None, choices=["truth", "ekf"],
                    help="pose estimate random-balanced steers with (default: the true pose); the others use the EKF")

@@ -30,7 +30,7 @@ class MeanHeight:
 
     def __init__(self, cfg: dict[str, Any]) -> None:
         curve = cfg.get("sensor_curve")
-        self.k = cfg["focal_px"] * cfg["beacon_height_mm"]
+        self.k = cfg["focal_px"] * cfg["beacon_height_mm"] if curve is None else 0.0
         self.coef = None if curve is None else [float(c) for c in curve["coef"]]
         self.sign = 1 if curve is None or curve["basis"] == "power" else -1
 

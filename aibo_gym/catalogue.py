@@ -46,6 +46,8 @@ class ActuationLag(Effect):
 
     The executed command of frame t is the one commanded at frame t - n, n = ceil(lag_s / dt)
     frames (the robot stands still for the first n frames after reset). Slip noise is unchanged.
+    Works for discrete commands (an index) and continuous ones (a tuple of k floats, its velocity
+    through ``Frame.velocity``).
     Residual signature: time since the last command change.
     """
 
@@ -55,7 +57,7 @@ class ActuationLag(Effect):
 
     def reset(self, rng: np.random.Generator) -> None:
         super().reset(rng)
-        self.history: deque[int] = deque()
+        self.history: deque = deque()  # commands: indices or tuples of floats
 
     def motion(self, m: Motion, frame: Frame) -> Motion:
         n = math.ceil(self.params["lag_s"] / frame.dt - 1e-9)
@@ -64,9 +66,14 @@ class ActuationLag(Effect):
         self.history.append(frame.command)
         executed = self.history.popleft() if len(self.history) > n else NO_COMMAND
         if executed != frame.command:
-            v = np.zeros(3) if executed == NO_COMMAND else frame.velocities[executed]
+            v = np.zeros(3) if _no_command(executed) else frame.velocity(executed)
             m.set_velocity(v, frame.dt)
         return m
+
+
+def _no_command(command) -> bool:
+    """True for ``NO_COMMAND`` (the index -1; a continuous command is a tuple, never equal to it)."""
+    return not isinstance(command, tuple) and command == NO_COMMAND
 
 
 @register_effect

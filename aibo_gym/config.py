@@ -318,7 +318,16 @@ def make_config(config: dict[str, Any] | None = None) -> dict[str, Any]:
     Nested dicts are merged (a user dict updates the default dict). Lists are replaced.
     Raises ValueError naming the key and the valid choices on an unknown key or a bad value.
     """
-    cfg = default_config()
+    cfg = merge_config(default_config(), config)
+    out = {key: CHECKS[key](key, value) for key, value in cfg.items()}
+    _cross_checks(out)
+    out["effects"] = finalize_effects(out["effects"], out)
+    return out
+
+
+def merge_config(cfg: dict[str, Any], config: dict[str, Any] | None) -> dict[str, Any]:
+    """``cfg`` (a fresh dict of defaults) updated with the user's ``config``, unvalidated: nested dicts
+    merged, anything else replaced (deep copies). An unknown key raises ValueError naming the valid keys."""
     if config is None:
         config = {}
     if not isinstance(config, dict):
@@ -331,10 +340,7 @@ def make_config(config: dict[str, Any] | None = None) -> dict[str, Any]:
             merged.update(value)
             value = merged
         cfg[key] = copy.deepcopy(value)
-    out = {key: CHECKS[key](key, value) for key, value in cfg.items()}
-    _cross_checks(out)
-    out["effects"] = finalize_effects(out["effects"], out)
-    return out
+    return cfg
 
 
 def sensor_sigmas(cfg: dict[str, Any]) -> tuple[float, float]:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any, Callable
 
 import numpy as np
 
@@ -33,7 +34,8 @@ class Frame:
     index: frames stepped since reset before this one (0 on the first step).
     time: s, ``index * dt``: the elapsed time at the start of the frame.
     dt: s per frame.
-    command: the action executed this frame (0..39).
+    command: the command of this frame: an action index 0..39 (``AiboBeacons-v0``) or, for continuous
+        commands (``WheeledRobot-v0``), a tuple of k floats (e.g. (v mm/s, omega rad/s)).
     previous_command: the command in force before ``command`` started (``NO_COMMAND`` = -1 when
         ``command`` has run since reset: before it the robot stood still).
     command_start: frame index at which ``command`` started (consecutive equal actions are one command).
@@ -45,7 +47,10 @@ class Frame:
         False during the motion hooks).
     field: (length x, width y) mm, origin at the centre.
     beacons: (B, 2) beacon positions, mm.
-    velocities: (40, 3) true velocities of the actions (mm/s, mm/s, rad/s, robot frame).
+    velocities: (40, 3) true velocities of the actions (mm/s, mm/s, rad/s, robot frame); (0, 3) for
+        continuous commands.
+    velocity_fn: for continuous commands, the true velocity (3,) of a command (a tuple of k floats);
+        None for discrete ones (``velocities`` is their table). Use :meth:`velocity` for either.
     """
 
     index: int
@@ -61,6 +66,13 @@ class Frame:
     field: tuple[float, float]
     beacons: np.ndarray
     velocities: np.ndarray
+    velocity_fn: Callable[[Any], np.ndarray] | None = None
+
+    def velocity(self, command: Any) -> np.ndarray:
+        """(3,) true velocity (mm/s, mm/s, rad/s, robot frame) of ``command`` (an index or a tuple of k floats)."""
+        if self.velocity_fn is not None:
+            return self.velocity_fn(command)
+        return self.velocities[command]
 
     @property
     def since_command(self) -> float:

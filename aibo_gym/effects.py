@@ -188,11 +188,12 @@ def finalize_effects(spec: dict[str, dict[str, Any]], cfg: dict[str, Any]) -> di
 class EffectChain:
     """The enabled effects of one env, in config order, with their motion and sensing hooks."""
 
-    def __init__(self, cfg: dict[str, Any]) -> None:
+    def __init__(self, cfg: dict[str, Any], sensor_capacity: int = 1) -> None:
+        """``sensor_capacity``: most sightings the env's sensor reports in a frame before the effects."""
         self.effects = [EFFECTS[name](params, cfg) for name, params in cfg["effects"].items()]
         self.motion_effects = [e for e in self.effects if type(e).motion is not Effect.motion]
         self.sense_effects = [e for e in self.effects if type(e).sense is not Effect.sense]
-        self.max_sightings = 1
+        self.max_sightings = sensor_capacity
         for e in self.sense_effects:
             self.max_sightings = e.capacity(self.max_sightings)
 

@@ -25,7 +25,7 @@ import numpy as np
 
 from aibo_core.actions import attempted_velocities
 
-from .config import make_config
+from .config import START_MARGIN_MM, make_config
 from .context import wrap_angle  # noqa: F401  (re-exported: its historical home)
 
 
@@ -58,6 +58,18 @@ def true_velocities(config: dict[str, Any] | None = None) -> np.ndarray:
     if cfg["velocities"] is not None:
         return np.asarray(cfg["velocities"], dtype=float)
     return _draw_true_velocities(cfg)
+
+
+def draw_start(cfg: dict[str, Any], rng: np.random.Generator) -> tuple[float, float, float]:
+    """The start pose (x mm, y mm, theta rad) of config ``start_pose``: the fixed pose, or for ``"random"``
+    3 uniforms from ``rng``: on the field with a ``START_MARGIN_MM`` margin, any heading."""
+    sp = cfg["start_pose"]
+    if sp != "random":
+        return float(sp[0]), float(sp[1]), float(sp[2])
+    hl = 0.5 * cfg["field"][0] - START_MARGIN_MM
+    hw = 0.5 * cfg["field"][1] - START_MARGIN_MM
+    r = rng.uniform([-hl, -hw, -math.pi], [hl, hw, math.pi])
+    return float(r[0]), float(r[1]), float(r[2])
 
 
 def move(x: float, y: float, theta: float, dx: float, dy: float, dtheta: float) -> tuple[float, float, float]:

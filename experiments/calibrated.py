@@ -1,5 +1,6 @@
 """The calibrated simulator: ``AiboBeacons-v0`` built from a fitted model, replaying a measured log's
-commands, and the check that compares it with the measured log.
+commands, and the check that compares it with the measured log. A model with
+continuous commands (and a range sensor) gets ``WheeledRobot-v0`` instead (:mod:`experiments.calibrated_wheeled`).
 
 The model becomes an env config (:func:`simulator_config`): its velocity table, its per-frame motion
 covariance (``slip_cov``), its sensor curve and noise (``sensor_curve``, ``sigma_height``,
@@ -38,6 +39,7 @@ from scipy import stats
 from aibo_core.actions import N_ACTIONS
 from aibo_core.trajectory import Trajectory
 from aibo_core.workers import process_pool
+from experiments.calibrated_wheeled import image_frames, wheeled_config
 from learners.discrepancy.search import drop_outliers
 from learners.discrepancy.split import training_log
 from learners.discrepancy.statistics import check_statistics
@@ -53,11 +55,19 @@ REFIT = EMOptions(starts=1, max_iter=60, patience=10, uncertainty=False)  # repl
 FIELD_MARGIN_MM = 1000.0  # a log without a field: the landmarks' bounding box grown by this
 
 
+def simulator_env(model: Model) -> str:
+    """The env id of ``model``'s simulator: ``WheeledRobot-v0`` for continuous commands, else ``AiboBeacons-v0``."""
+    return "AiboBeacons-v0" if model.action.discrete else "WheeledRobot-v0"
+
+
 def simulator_config(model: Model, log: Trajectory | None = None, index: int = 0) -> dict[str, Any]:
-    """The env config of a simulator built from ``model`` (module docstring); ``log`` (the measured
-    one, the ``index``-th of the fit) gives landmarks, field and camera. ValueError (one line) when
-    the simulator cannot represent the model."""
+    """The env config of a simulator built from ``model`` (module docstring; for continuous commands,
+    ``WheeledRobot-v0``'s: :mod:`experiments.calibrated_wheeled`); ``log`` (the measured one, the
+    ``index``-th of the fit) gives landmarks, field and camera. ValueError (one line) when the
+    simulator cannot represent the model."""
     act, sen = model.action, model.sensor
+    if not act.discrete:
+        return wheeled_config(model, log, index)
     if not act.discrete or act.weights.shape[0] != N_ACTIONS:
         raise ValueError(f"the simulator walks {N_ACTIONS} discrete commands; this model's action model is "
                          f"'{act.feature_map}' with {act.weights.shape[0]} rows")
@@ -87,14 +97,19 @@ def _bounding_field(landmarks: np.ndarray) -> np.ndarray:
 
 
 def replay_log(model: Model, log: Trajectory, seed: int, index: int = 0) -> Trajectory:
-    """``log``'s commands (and head pan) replayed in the simulator of ``model``: a log of the same
-    length, as the model says the robot would have made it."""
+    """``log``'s commands (and head pan, or for continuous commands its image frames) replayed in the
+    simulator of ``model``: a log of the same length, as the model says the robot would have made it."""
     from aibo_gym.collect import replay
+    from aibo_gym.collect_wheeled import replay_wheeled
 
-    if log.actions is None:
-        raise ValueError("replay: the log has no discrete commands ('actions') to replay")
     cfg = simulator_config(model, log, index)
     src = str(log.meta.get("source", log.meta.get("generator", "")))
+    if not model.action.discrete:
+        if log.controls is None:
+            raise ValueError("replay: the log has no continuous commands ('controls') for this model to replay")
+        return replay_wheeled(cfg, log.controls, seed, images=image_frames(log), source=src)
+    if log.actions is None:
+        raise ValueError("replay: the log has no discrete commands ('actions') to replay")
     return replay(cfg, log.actions, seed, head_pan=log.head_pan, source=src)
 
 

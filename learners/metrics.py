@@ -1,7 +1,8 @@
 """Errors of learned models against a simulated log's ground truth (``meta["truth"]``).
 
 The figures are those of the paper's section IV-B: RMS velocity errors over the actions
-(absolute and as a fraction of each component's range over the 40 true velocities),
+(absolute and as a fraction of each component's range over the 40 true velocities; for continuous
+commands, over every frame's command of the logs, NaN for a component that never varies),
 relative errors of the two noise sigmas, and the sensor model's RMS error over the range
 of observed distances.
 """
@@ -13,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from aibo_core.features import features
 from learners.inference.lowered import curve
 from learners.model.model import Model
 from learners.model.sensor import BASES, SensorModel
@@ -116,7 +118,7 @@ def velocity_errors(learned: np.ndarray, true: np.ndarray, executed: np.ndarray 
     span = true.max(axis=0) - true.min(axis=0)
     names = ("vx", "vy", "vtheta")
     out = {f"{n}_rms": float(r) for n, r in zip(names, rms)}
-    out.update({f"{n}_rel": float(r / s) for n, r, s in zip(names, rms, span)})
+    out.update({f"{n}_rel": float(r / s) if s > 0 else float("nan") for n, r, s in zip(names, rms, span)})
     return out
 
 
@@ -151,19 +153,34 @@ def observed_distance_range(logs) -> tuple[float, float]:
     return float(d.min()), float(d.max())
 
 
+def continuous_velocity_errors(params: Model, logs) -> dict[str, float]:
+    """RMS velocity errors over every frame's command of continuous-command ``logs`` whose truth gives
+    a feature map and true weights (``aibo_gym.collect_wheeled``: velocity per unit feature)."""
+    truth = logs[0].truth
+    if "weights" not in truth or "feature_map" not in truth:
+        raise ValueError("the log's truth has no true 'weights' and 'feature_map' for its continuous commands")
+    commands = np.concatenate([tr.controls for tr in logs])
+    true = features(truth["feature_map"], commands) @ np.asarray(truth["weights"], dtype=float)
+    return velocity_errors(params.action.velocity(commands), true)
+
+
 def model_errors(params: Model, logs) -> ModelErrors:
     """All errors of ``params`` against the truth of ``logs`` (simulated, same robot)."""
     truth = logs[0].truth
     if truth is None:
         raise ValueError("log has no ground truth (meta['truth'])")
-    problem = truth_problem(truth, len(params.action.weights))
-    if problem:
-        raise ValueError(problem)
-    executed = np.zeros(len(params.action.weights), bool)
-    for tr in logs:
-        executed[np.unique(tr.actions)] = True
-    v = velocity_errors(params.action.velocities, np.asarray(truth["velocities"]), executed)
-    sh, sa = float(truth["sigma_height"]), float(truth["sigma_angle"])
+    if params.action.discrete:
+        problem = truth_problem(truth, len(params.action.weights))
+        if problem:
+            raise ValueError(problem)
+        executed = np.zeros(len(params.action.weights), bool)
+        for tr in logs:
+            executed[np.unique(tr.actions)] = True
+        v = velocity_errors(params.action.velocities, np.asarray(truth["velocities"]), executed)
+    else:
+        v = continuous_velocity_errors(params, logs)
+    sh = float(truth.get("sigma_height", truth.get("sigma_range_mm", np.nan)))
+    sa = float(truth.get("sigma_angle", truth.get("sigma_bearing", np.nan)))
     s = params.sensor
     return ModelErrors(
         **v,

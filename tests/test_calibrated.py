@@ -55,8 +55,11 @@ def test_a_replay_steps_the_measured_commands_and_pans_and_is_seeded(fitted):
 def test_models_the_simulator_cannot_represent_are_refused_in_one_line(fitted):
     tr, result = fitted
     features = replace(result.params.action, feature_map="diff_drive", weights=np.zeros((5, 3)))
-    with pytest.raises(ValueError, match="40 discrete commands; this model's action model is 'diff_drive'"):
+    # continuous commands go to WheeledRobot-v0, whose camera measures ranges (tests/test_calibrated_wheeled.py)
+    with pytest.raises(ValueError, match="wheeled simulator's camera reports ranges in mm; this model's sensor is 'height_px'"):
         simulator_config(result.params.with_(action=features))
+    with pytest.raises(ValueError, match="40 discrete commands; this model's action model is 'table' with 12 rows"):
+        simulator_config(result.params.with_(action=replace(result.params.action, weights=np.zeros((12, 3)))))
     with pytest.raises(ValueError, match="reports heights in px; this model's sensor is 'range_mm'"):
         simulator_config(result.params.with_(sensor=replace(result.params.sensor, kind="range_mm")))
 

@@ -1,5 +1,9 @@
 """``aibo collect``: run the simulator with an exploration policy and write a log; with ``--model``,
-the simulator is calibrated to a fitted model, and with ``--replay`` it replays a measured log."""
+the simulator is calibrated to a fitted model, and with ``--replay`` it replays a measured log.
+
+Two simulators (``--env``): ``AiboBeacons-v0`` (``aibo``: 40 discrete walk commands, a height camera)
+and ``WheeledRobot-v0`` (``wheeled``: continuous (v, omega) commands, a range/bearing camera, driven
+to random waypoints). A model with continuous commands is simulated by the wheeled env."""
 
 from __future__ import annotations
 
@@ -12,26 +16,17 @@ from aibo.errors import CLIError
 from aibo.paths import check_files, declared_inputs
 from aibo_core import trajectory
 
+DEFAULT_STEPS = {"aibo": 27000, "wheeled": 6000}
+
 
 def run(args) -> int:
-    from aibo_gym.collect import collect, replay
-    from aibo_gym.config import default_config
-
     check_files(inputs=declared_inputs(args), outputs=[("--out", args.out)] + ([("--plot", args.plot)] if args.plot else []))
     if args.replay and not args.model:
         raise CLIError("--replay needs --model (the model whose simulator replays the log)")
-    model_config, log = calibrated_config(args.model, args.replay)
-    # --steps frames, also past the default episode limit, unless --config sets max_steps
-    config = {"max_steps": max(args.steps, default_config()["max_steps"]), **model_config, **args.config}
-    if args.preset:
-        config["noise"] = args.preset
+    model_config, log, env = calibrated_config(args.model, args.replay, args.env)
+    steps = args.steps or DEFAULT_STEPS[env]
     t0 = time.perf_counter()
-    if log is not None:
-        tr = replay(config, log.actions, args.seed, head_pan=log.head_pan, source=str(args.replay),
-                    progress=sys.stderr.isatty())
-    else:
-        tr = collect(config, steps=args.steps, seed=args.seed, policy=args.policy, localizer=args.localizer,
-                     progress=sys.stderr.isatty(), policy_params=args.policy_params)
+    tr = (run_wheeled if env == "wheeled" else run_aibo)(args, model_config, log, steps)
     seconds = time.perf_counter() - t0
     if args.plot:
         from aibo_gym.plot import plot_trajectory
@@ -47,22 +42,64 @@ def run(args) -> int:
     return 0
 
 
-def calibrated_config(model_path: str | None, replay_path: str | None):
-    """(env config of the model's simulator, the log to replay or None); ({}, None) without a model."""
+def run_aibo(args, model_config: dict, log, steps: int):
+    """The log of ``AiboBeacons-v0``: collected with ``--policy`` or replaying ``log``'s commands."""
+    from aibo_gym.collect import collect, replay
+    from aibo_gym.config import default_config
+
+    # --steps frames, also past the default episode limit, unless --config sets max_steps
+    config = {"max_steps": max(steps, default_config()["max_steps"]), **model_config, **args.config}
+    if args.preset:
+        config["noise"] = args.preset
+    if log is not None:
+        return replay(config, log.actions, args.seed, head_pan=log.head_pan, source=str(args.replay),
+                      progress=sys.stderr.isatty())
+    return collect(config, steps=steps, seed=args.seed, policy=args.policy or "random-balanced",
+                   localizer=args.localizer, progress=sys.stderr.isatty(), policy_params=args.policy_params)
+
+
+def run_wheeled(args, model_config: dict, log, steps: int):
+    """The log of ``WheeledRobot-v0``: driven to random waypoints or replaying ``log``'s controls."""
+    from aibo_gym.collect_wheeled import collect_wheeled, replay_wheeled
+    from aibo_gym.wheeled_config import default_config
+    from experiments.calibrated_wheeled import image_frames
+
+    for flag, value, ok in (("--policy", args.policy, (None, "waypoints")), ("--localizer", args.localizer, (None,)),
+                            ("--preset", args.preset, (None,))):
+        if value not in ok:
+            raise CLIError(f"{flag} {value}: not available with the wheeled simulator (it drives to random waypoints "
+                           "on its true pose; its sensor noise is config 'sigma_range_mm' and 'sigma_bearing')")
+    config = {"max_steps": max(steps, default_config()["max_steps"]), **model_config, **args.config}
+    try:
+        if log is not None:
+            return replay_wheeled(config, log.controls, args.seed, images=image_frames(log), source=str(args.replay))
+        return collect_wheeled(config, steps, args.seed, policy_params=args.policy_params)
+    except ValueError as err:
+        raise CLIError(str(err)) from None
+
+
+def calibrated_config(model_path: str | None, replay_path: str | None, env: str | None = None):
+    """(env config of the model's simulator, the log to replay or None, the env: "aibo" or "wheeled");
+    ({}, None, ``env`` or "aibo") without a model."""
     if not model_path:
-        return {}, None
+        return {}, None, env or "aibo"
     from experiments.calibrated import simulator_config
     from learners.model.io import load_model
 
     model = load_model(model_path)
+    own = "aibo" if model.action.discrete else "wheeled"
+    if env is not None and env != own:
+        raise CLIError(f"--env {env}: {model_path} is a model of the {own} simulator (its action model is "
+                       f"'{model.action.feature_map}')")
     log = trajectory.load(replay_path) if replay_path else None
     if log is not None and not np.isclose(log.dt, model.action.dt, rtol=1e-6):
         raise CLIError(f"--replay {replay_path}: field 'dt': {log.dt:g} s per frame, but the model {model_path} "
                        f"steps {model.action.dt:g} s per frame; replay a log of the model's frame rate")
-    if log is not None and log.actions is None:
-        raise CLIError(f"{replay_path}: field 'actions': the log has continuous commands; the simulator replays "
-                       "only the 40 discrete walk commands")
+    if log is not None and log.discrete != model.action.discrete:
+        have, want = ("discrete", "continuous") if log.discrete else ("continuous", "discrete")
+        raise CLIError(f"{replay_path}: field '{'actions' if log.discrete else 'controls'}': the log has {have} "
+                       f"commands; the model {model_path} takes {want} ones")
     try:
-        return simulator_config(model, log), log
+        return simulator_config(model, log), log, own
     except ValueError as err:
         raise CLIError(f"{model_path}: {err}") from None

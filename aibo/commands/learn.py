@@ -84,7 +84,8 @@ def uncertainty_report(result: LearnResult) -> list[str]:
             *np.sqrt(np.nanmean(v**2, axis=0))))
     for key in ("sensor_model.sigma_height", "sensor_model.sigma_range_mm", "sensor_model.sigma_angle"):
         if key in se:
-            lines.append(f"  {key.split('.')[1]}: {getattr(result.params.sensor, _SIGMA[key]):.4g} +- {se[key]:.2g}")
+            err = "undetermined" if se[key] is None else format(se[key], ".2g")
+            lines.append(f"  {key.split('.')[1]}: {getattr(result.params.sensor, _SIGMA[key]):.4g} +- {err}")
     if inf["undetermined"]:
         lines.append(f"  undetermined (no sighting depends on them): {', '.join(inf['undetermined'][:6])}"
                      + (" ..." if len(inf["undetermined"]) > 6 else ""))

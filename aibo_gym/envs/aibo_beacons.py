@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import gymnasium as gym
@@ -12,11 +11,11 @@ from gymnasium import spaces
 from aibo_core.actions import N_ACTIONS, attempted_velocities
 
 from ..camera import Camera, head_pan
-from ..config import REWARD_TERMS, START_MARGIN_MM, make_config, sensor_sigmas
+from ..config import REWARD_TERMS, make_config, sensor_sigmas
 from ..context import NO_COMMAND, Frame, Motion, Sighting
 from ..effects import EffectChain
 from ..policies.onboard import OnboardTracker
-from ..robot import move, true_velocities, wrap_angle
+from ..robot import draw_start, move, true_velocities, wrap_angle
 from ..walls import make_walls
 
 HEIGHT_BOUND_PX = 1000.0  # observation bound for the beacon height; raw values are in info
@@ -209,7 +208,7 @@ class AiboBeaconsEnv(gym.Env):
         super().reset(seed=seed)
         self._episode = 0 if seed is not None else self._episode + 1
         self.effects.reset(max(self.np_random_seed, 0), self._episode)
-        x, y, th = self._draw_start()
+        x, y, th = draw_start(self.config, self.np_random)
         x, y = self.walls.reset(x, y)
         self.pose = (x, y, wrap_angle(th))
         self.start_pose = list(self.pose)
@@ -303,15 +302,6 @@ class AiboBeaconsEnv(gym.Env):
         if sched is not None and 1 <= step <= len(sched):
             return float(sched[step - 1])
         return head_pan(step * self.dt, self.config["pan_amplitude"], self.config["pan_period"])
-
-    def _draw_start(self) -> tuple[float, float, float]:
-        sp = self.config["start_pose"]
-        if sp != "random":
-            return float(sp[0]), float(sp[1]), float(sp[2])
-        hl = 0.5 * self.config["field"][0] - START_MARGIN_MM
-        hw = 0.5 * self.config["field"][1] - START_MARGIN_MM
-        r = self.np_random.uniform([-hl, -hw, -math.pi], [hl, hw, math.pi])
-        return float(r[0]), float(r[1]), float(r[2])
 
     def _check_action(self, action: Any) -> int:
         """``action`` as an int; ValueError for anything ``action_space.contains`` rejects."""

@@ -1,7 +1,7 @@
 """The action model: mean robot-frame displacement per frame = features(command) x weights.
 
-Feature maps (``feature_map``; the model file records the name and, for continuous commands, the
-log's ``control_names`` and units):
+Feature maps (``feature_map``, defined in :mod:`aibo_core.features` and shared with the simulator; the
+model file records the name and, for continuous commands, the log's ``control_names`` and units):
 
 =============  =====================  ========================================================
 name           command                features (F)
@@ -27,35 +27,15 @@ per-frame displacement covariance Sigma_A (mm^2, rad^2), shared by all frames.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, ClassVar
+from typing import ClassVar
 
 import numpy as np
 
+from aibo_core.features import FEATURE_MAPS, ZERO_OUTPUTS  # noqa: F401  (re-exported: their historical home)
 from learners.model.parameters import Component, Param
 
 #: The paper's fixed per-frame motion noise: 10 mm, 10 mm, 0.1 rad standard deviations (footnote 2).
 PAPER_MOTION_STD = (10.0, 10.0, 0.1)
-
-
-def _diff_drive(c: np.ndarray) -> np.ndarray:
-    v, w = c[:, 0], c[:, 1]
-    aw = np.abs(w)
-    return np.stack([v, w, v * aw, aw, np.ones_like(v)], axis=1)
-
-
-def _linear(c: np.ndarray) -> np.ndarray:
-    return np.concatenate([c, np.ones((len(c), 1))], axis=1)
-
-
-#: name -> (features of (N, k) continuous commands, number of features for k inputs)
-FEATURE_MAPS: dict[str, tuple[Callable[[np.ndarray], np.ndarray], Callable[[int], int]]] = {
-    "diff_drive": (_diff_drive, lambda k: 5 if k == 2 else -1),
-    "unicycle": (_diff_drive, lambda k: 5 if k == 2 else -1),
-    "linear": (_linear, lambda k: k + 1),
-}
-
-#: name -> output columns (0 dx, 1 dy, 2 dtheta) whose weights are held at exactly 0
-ZERO_OUTPUTS: dict[str, tuple[int, ...]] = {"unicycle": (1,)}
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,62 @@
+"""Feature maps of continuous commands: the mean velocity of a command is ``features(command) @ weights``.
+
+Shared by the simulator (``aibo_gym``: the true motion of a velocity-commanded robot) and the learners
+(``learners.model.action``: the action model fitted to a log), so both mean the same thing by a name.
+NumPy only. Commands are (N, k) arrays in the units the log declares (``control_names``), e.g.
+[v mm/s, omega rad/s]; ``weights`` are (F, 3) (vx, vy, vtheta per unit feature, robot frame).
+
+=============  =====================  ========================================================
+name           command                features (F)
+=============  =====================  ========================================================
+``diff_drive`` (v mm/s, omega rad/s)  [v, omega, v |omega|, |omega|, 1]
+``unicycle``   (v mm/s, omega rad/s)  the ``diff_drive`` features; the lateral (vy) column of
+                                      the weights is held at exactly 0 (``ZERO_OUTPUTS``)
+``linear``     any k numbers          [c_1, ..., c_k, 1]
+=============  =====================  ========================================================
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+
+def diff_drive(c: np.ndarray) -> np.ndarray:
+    """(N, 5) features [v, omega, v |omega|, |omega|, 1] of (N, 2) commands [v, omega]."""
+    v, w = c[:, 0], c[:, 1]
+    aw = np.abs(w)
+    return np.stack([v, w, v * aw, aw, np.ones_like(v)], axis=1)
+
+
+def linear(c: np.ndarray) -> np.ndarray:
+    """(N, k + 1) features [c_1, ..., c_k, 1] of (N, k) commands."""
+    return np.concatenate([c, np.ones((len(c), 1))], axis=1)
+
+
+#: name -> (features of (N, k) continuous commands, number of features for k inputs; -1: k not accepted)
+FEATURE_MAPS: dict[str, tuple[Callable[[np.ndarray], np.ndarray], Callable[[int], int]]] = {
+    "diff_drive": (diff_drive, lambda k: 5 if k == 2 else -1),
+    "unicycle": (diff_drive, lambda k: 5 if k == 2 else -1),
+    "linear": (linear, lambda k: k + 1),
+}
+
+#: name -> output columns (0 x, 1 y, 2 theta) whose weights are held at exactly 0
+ZERO_OUTPUTS: dict[str, tuple[int, ...]] = {"unicycle": (1,)}
+
+
+def n_features(name: str, k: int) -> int:
+    """Number of features of map ``name`` for k-dimensional commands; ValueError when it takes no such commands."""
+    if name not in FEATURE_MAPS:
+        raise ValueError(f"unknown feature map {name!r} (valid choices: {', '.join(FEATURE_MAPS)})")
+    n = FEATURE_MAPS[name][1](k)
+    if n < 0:
+        raise ValueError(f"feature map '{name}' takes 2 controls (v mm/s, omega rad/s), got {k}")
+    return n
+
+
+def features(name: str, commands: np.ndarray) -> np.ndarray:
+    """(N, F) features of (N, k) commands under map ``name``."""
+    c = np.asarray(commands, dtype=float)
+    n_features(name, c.shape[1])
+    return FEATURE_MAPS[name][0](c)

@@ -1,0 +1,124 @@
+"""Collect an ``aibo-trajectory/2`` log by running ``WheeledRobot-v0``: with the random-waypoint driver
+(:mod:`aibo_gym.policies.waypoints`), or replaying a measured log's continuous commands.
+
+The log has ``controls`` (T, k) with the env's ``control_names``, ``sensor_kind="range_mm"``, every
+sighting of every frame, the true ``pose``, no ``field`` unless the env has walls, and
+``meta["truth"]`` (:func:`truth_of`). A sighting whose measured range is not positive (possible only
+with a large noise or an offset near the camera) cannot be logged (the format wants sizes > 0): it is
+dropped and counted in ``meta["dropped_nonpositive_ranges"]``.
+"""
+
+from __future__ import annotations
+
+import copy
+from typing import Any, Callable
+
+import numpy as np
+
+from aibo_core.trajectory import Trajectory
+
+from . import WHEELED_ENV_ID, __version__
+from .collect import _check_steps
+from .envs.wheeled_robot import WheeledRobotEnv
+from .policies.waypoints import WaypointDriver, validate_waypoint_params
+
+
+def truth_of(env: WheeledRobotEnv, spurious: list[int] | None = None) -> dict[str, Any]:
+    """The ground truth of a (reset) env, as recorded in ``meta["truth"]``.
+
+    feature_map, control_names; weights: F x 3 true velocity per unit feature (mm/s, mm/s, rad/s; the
+    learner's per-frame weights are these x dt); motion_noise_cov: 3 x 3 per-frame robot-frame
+    covariance (mm^2, rad^2); sensor: ``{"model": "curve", "basis", "coef"}`` (range mm of distance mm);
+    sigma_range_mm; sigma_bearing rad; effects: validated effect parameters; start_pose;
+    spurious_sightings (only when an effect can create sightings): indices into the log's sightings.
+    """
+    cfg = env.config
+    truth = {
+        "feature_map": cfg["feature_map"],
+        "control_names": list(cfg["control_names"]),
+        "weights": env.weights.tolist(),
+        "motion_noise_cov": [list(row) for row in cfg["motion_cov"]],
+        "sensor": {"model": "curve", **copy.deepcopy(cfg["sensor_curve"])},
+        "sigma_range_mm": float(cfg["sigma_range_mm"]),
+        "sigma_bearing": float(cfg["sigma_bearing"]),
+        "effects": copy.deepcopy(cfg["effects"]),
+        "start_pose": [float(v) for v in env.start_pose],
+    }
+    if env.max_sightings > env.n_landmarks:
+        truth["spurious_sightings"] = [] if spurious is None else [int(i) for i in spurious]
+    return truth
+
+
+def collect_wheeled(config: dict[str, Any] | None, steps: int, seed: int,
+                    policy_params: dict[str, Any] | None = None) -> Trajectory:
+    """Drive ``WheeledRobot-v0`` (``config``) to random waypoints for ``steps`` frames (fewer if it
+    terminates) and return the log; ``policy_params``: the driver's (:mod:`aibo_gym.policies.waypoints`)."""
+    _check_steps(steps)
+    env = WheeledRobotEnv(config)
+    params = validate_waypoint_params(policy_params)
+    driver = WaypointDriver(env.config, seed, **params)
+    meta = {"policy": "waypoints", "policy_params": params, "localizer": "truth"}
+    return _run(env, driver.reset, driver.act, steps, seed, None, meta)
+
+
+def replay_wheeled(config: dict[str, Any] | None, controls: np.ndarray, seed: int,
+                   images: np.ndarray | None = None, source: str = "") -> Trajectory:
+    """Step ``WheeledRobot-v0`` through the given commands (a measured log's ``controls``, (T, k)) and
+    return the log. ``images`` (T,) bool: the frames that take an image (e.g. the measured log's frames
+    with a sighting); None: the config's schedule. The action space is widened to hold the commands."""
+    controls = np.asarray(controls, dtype=float)
+    if controls.ndim != 2 or len(controls) == 0 or not np.isfinite(controls).all():
+        raise ValueError("replay: controls must be a non-empty (T, k) array of finite numbers")
+    cfg = dict(config or {}, max_steps=len(controls))
+    lo = np.minimum(controls.min(axis=0), cfg.get("control_low", controls.min(axis=0)))
+    hi = np.maximum(controls.max(axis=0), cfg.get("control_high", controls.max(axis=0)))
+    cfg["control_low"], cfg["control_high"] = lo.tolist(), np.where(hi > lo, hi, lo + 1.0).tolist()
+    env = WheeledRobotEnv(cfg)
+    rows = iter(controls)
+    options = None if images is None else {"images": np.asarray(images, bool)}
+    meta = {"policy": "replay", "policy_params": {}, "localizer": "none", "replay_of": source}
+    return _run(env, lambda info: None, lambda obs, info: next(rows), len(controls), seed, options, meta)
+
+
+def _run(env: WheeledRobotEnv, reset: Callable, act: Callable, steps: int, seed: int,
+         options: dict[str, Any] | None, meta: dict[str, Any]) -> Trajectory:
+    """Reset ``env`` with ``seed`` (and ``options``), call ``reset(info)``, step ``act(obs, info)`` for up
+    to ``steps`` frames and record the log; ``meta`` adds the policy's keys to the log's meta."""
+    obs, info = env.reset(seed=seed, options=options)
+    reset(info)
+    controls = np.empty((steps, env.k))
+    pose = np.empty((steps + 1, 3))
+    pose[0] = info["pose"]
+    frame: list[int] = []
+    landmark: list[int] = []
+    value: list[tuple[float, float]] = []
+    spurious: list[int] = []
+    dropped = 0
+    n = 0
+    for t in range(steps):
+        obs, _, terminated, truncated, info = env.step(act(obs, info))
+        controls[t] = info["command"]
+        pose[t + 1] = info["pose"]
+        s = info["sightings"]
+        for j in range(s["count"]):
+            if not s["range"][j] > 0:
+                dropped += 1
+                continue
+            if s["spurious"][j]:
+                spurious.append(len(frame))
+            frame.append(t)
+            landmark.append(int(s["beacon"][j]))
+            value.append((float(s["range"][j]), float(s["bearing"][j])))
+        n = t + 1
+        if terminated or truncated:
+            break
+    cfg = env.config
+    meta = {"generator": f"aibo_gym {__version__} {WHEELED_ENV_ID}", "seed": seed, **meta,
+            "config": copy.deepcopy(cfg), "truth": truth_of(env, spurious), "dropped_nonpositive_ranges": dropped}
+    walled = cfg["walls"] in ("clamp", "pymunk", "none")
+    return Trajectory(
+        dt=env.dt, landmarks=np.array(env.landmarks), sighting_frame=np.asarray(frame, dtype=np.int64),
+        sighting_landmark=np.asarray(landmark, dtype=np.int64), sighting_value=np.asarray(value, float).reshape(-1, 2),
+        sensor_kind="range_mm", controls=controls[:n], control_names=tuple(cfg["control_names"]),
+        field=np.asarray(cfg["field"], float) if walled else None, pose=pose[: n + 1], meta=meta,
+    ).validate(f"{WHEELED_ENV_ID} log")

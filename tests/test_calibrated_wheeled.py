@@ -1,0 +1,149 @@
+"""Wheeled logs end to end: ``aibo collect --env wheeled``, ``aibo learn`` recovering the true weights, and the
+calibrated simulator of a continuous-command model (``aibo collect --model --replay``), also on an MRCLAM log."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from aibo.cli import main
+from aibo_core import trajectory
+from aibo_core.features import features
+from experiments.calibrated import replay_log, simulator_config, simulator_env
+from experiments.calibrated_wheeled import image_frames
+from learners.model.catalogue import ActuationLag
+from learners.model.io import load_model
+
+DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "mrclam7"
+#: the simulated robot (rows v, omega, v|omega|, |omega|, 1; columns vx mm/s, vy mm/s, vtheta rad/s): 15% slow,
+#: 20% short on turns, loses speed while turning, drifts; far from its commands' face value
+WEIGHTS = [[0.85, 0.0, 0.0005], [0.0, 0.0, 0.8], [-0.3, 0.0, 0.0], [6.0, 0.0, 0.02], [3.0, 0.0, -0.01]]
+#: the commands the waypoint driver gives (MRCLAM's): v 0..86 mm/s, |omega| <= 0.57 rad/s
+GRID = np.array([[v, w] for v in np.linspace(0.0, 86.0, 9) for w in np.linspace(-0.57, 0.57, 13)])
+
+
+@pytest.fixture(scope="module")
+def sim(tmp_path_factory):
+    """A 10-minute simulated log and the models ``aibo learn`` fits to it."""
+    folder = tmp_path_factory.mktemp("wheeled")
+    log = folder / "sim.npz"
+    config = json.dumps({"weights": WEIGHTS, "start_pose": "random"})
+    assert main(["collect", "--env", "wheeled", "--steps", "6000", "--seed", "7", "--config", config, "--out", str(log)]) == 0
+    models = {}
+    for action_model in ("unicycle", "features"):
+        models[action_model] = folder / f"{action_model}.json"
+        assert main(["learn", str(log), "--action-model", action_model, "--out", str(models[action_model])]) == 0
+    return log, models
+
+
+def grid_errors(velocity) -> np.ndarray:
+    """(3,) RMS velocity error over GRID as a fraction of each true component's span (vy: absolute, mm/s)."""
+    true = features("diff_drive", GRID) @ np.array(WEIGHTS)
+    rms = np.sqrt(np.mean((velocity(GRID) - true) ** 2, axis=0))
+    return np.array([rms[0] / np.ptp(true[:, 0]), rms[1], rms[2] / np.ptp(true[:, 2])])
+
+
+def test_collected_log_is_a_wheeled_robot_log(sim):
+    tr = trajectory.load(sim[0])
+    assert tr.controls.shape == (6000, 2) and tr.control_names == ("v_mm_s", "omega_rad_s") and tr.actions is None
+    assert tr.sensor_kind == "range_mm" and tr.dt == pytest.approx(0.1) and tr.pose.shape == (6001, 3)
+    assert tr.controls[:, 0].min() >= 0.0 and tr.controls[:, 0].max() <= 86.0 and np.abs(tr.controls[:, 1]).max() <= 0.57
+    assert np.bincount(tr.sighting_frame).max() >= 3  # several landmarks in one image
+    truth = tr.truth
+    assert truth["feature_map"] == "diff_drive" and truth["weights"] == WEIGHTS
+    assert truth["sensor"] == {"model": "curve", "basis": "power", "coef": [0.0, 1.0]}
+    assert tr.meta["generator"].endswith("WheeledRobot-v0") and tr.meta["policy"] == "waypoints"
+
+
+def test_learning_recovers_the_true_weights(sim, capsys):
+    """RMS velocity error over the driven commands as a fraction of the vx / vtheta spans. Measured (10 min,
+    seed 7): unicycle 0.85% / 0.66%, features 1.3% / 0.65% (vy 1.8 mm/s); the commands at face value are
+    off by 12% / 7.8%. The single weights are less sure than the velocities (v, v|omega| and |omega| are
+    nearly collinear over these commands): the test holds the velocities."""
+    log, models = sim
+    face = grid_errors(lambda c: np.column_stack([c[:, 0], np.zeros(len(c)), c[:, 1]]))
+    assert face[0] > 0.1 and face[2] > 0.06, face
+    for action_model, path in models.items():
+        m = load_model(path)
+        err = grid_errors(m.action.velocity)
+        assert err[0] < 0.03 and err[2] < 0.02, (action_model, err)
+        assert err[1] < (1e-12 if action_model == "unicycle" else 4.0), (action_model, err)  # mm/s
+        assert m.sensor.kind == "range_mm" and m.sensor.sigma_size == pytest.approx(50.0, rel=0.05)
+        assert m.sensor.sigma_bearing == pytest.approx(0.02, rel=0.05)
+        d = np.linspace(1000.0, 6000.0, 20)
+        assert np.abs(m.sensor.mean(d) - d).max() < 30.0  # mm; the true range is d
+    assert np.all(load_model(models["unicycle"]).action.weights[:, 1] == 0.0)
+
+
+def test_the_calibrated_simulator_is_built_from_the_model_and_the_log(sim):
+    log, models = sim
+    tr, m = trajectory.load(log), load_model(models["unicycle"])
+    assert simulator_env(m) == "WheeledRobot-v0"
+    cfg = simulator_config(m, tr)
+    np.testing.assert_allclose(cfg["weights"], m.action.weights / m.action.dt)
+    np.testing.assert_allclose(cfg["motion_cov"], m.action.cov)
+    assert cfg["feature_map"] == "unicycle" and cfg["sensor_curve"]["coef"] == m.sensor.coef.tolist()
+    assert cfg["sigma_range_mm"] == m.sensor.sigma_size and cfg["sigma_bearing"] == m.sensor.sigma_bearing
+    assert cfg["beacons"] == tr.landmarks.tolist() and cfg["walls"] == "open" and cfg["max_steps"] == 6000
+    assert cfg["start_pose"] == pytest.approx(m.init[0].mean.tolist())
+    made = tr.meta["config"]
+    assert all(cfg[k] == made[k] for k in ("fov", "range_mm", "detect_prob"))  # a log of this simulator: its camera
+    lagged = m.with_effect(ActuationLag(0.3))
+    assert simulator_config(lagged, tr)["effects"] == {"actuation_lag": {"lag_s": 0.3}}
+
+
+def test_replay_takes_the_logs_controls_and_image_frames_and_is_seeded(sim):
+    log, models = sim
+    tr, m = trajectory.load(log), load_model(models["unicycle"])
+    first = replay_log(m, tr, seed=3)
+    np.testing.assert_array_equal(first.controls, tr.controls)
+    assert first.n_frames == tr.n_frames and set(first.sighting_frame) <= set(np.flatnonzero(image_frames(tr)))
+    again, other = replay_log(m, tr, seed=3), replay_log(m, tr, seed=4)
+    np.testing.assert_array_equal(again.pose, first.pose)
+    np.testing.assert_array_equal(again.sighting_value, first.sighting_value)
+    assert not np.array_equal(other.pose, first.pose)
+    # the same seed draws the same noise: with the model's lag the path changes, and only by the lag
+    lagged = replay_log(m.with_effect(ActuationLag(0.3)), tr, seed=3)
+    np.testing.assert_array_equal(lagged.pose[0], first.pose[0])
+    assert np.abs(lagged.pose[1:, :2] - first.pose[1:, :2]).max() > 10.0
+
+
+def test_aibo_collect_replays_a_continuous_log_with_its_model(sim, tmp_path, capsys):
+    log, models = sim
+    out = tmp_path / "replay.npz"
+    assert main(["collect", "--model", str(models["features"]), "--replay", str(log), "--out", str(out), "--seed", "2"]) == 0
+    rep, tr = trajectory.load(out), trajectory.load(log)
+    np.testing.assert_array_equal(rep.controls, tr.controls)
+    assert rep.meta["replay_of"] == str(log) and rep.truth["feature_map"] == "diff_drive"
+    # a model and a log (or --env) that do not go together: one line, exit 2, nothing written
+    aibo_log = tmp_path / "aibo.npz"
+    assert main(["collect", "--steps", "100", "--out", str(aibo_log)]) == 0
+    capsys.readouterr()
+    for argv in (["--replay", str(aibo_log)], ["--env", "aibo"]):
+        assert main(["collect", "--model", str(models["features"]), *argv, "--out", str(tmp_path / "x.npz")]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("aibo: error:") and "\n" not in err
+        assert not (tmp_path / "x.npz").exists()
+
+
+needs_data = pytest.mark.skipif(not (DATA / "Robot2_Odometry.dat").is_file(),
+                                reason=f"MRCLAM Dataset 7 not found at {DATA} (see README, 'Real robot logs')")
+
+
+@pytest.mark.realdata
+@needs_data
+def test_an_mrclam_log_replays_in_its_calibrated_simulator(tmp_path):
+    """Robot 2, 300 s: import, learn (unicycle), replay its controls and image frames through ``aibo collect``."""
+    log, model, out = tmp_path / "r2.npz", tmp_path / "r2.json", tmp_path / "sim.npz"
+    assert main(["import", "mrclam", str(DATA), "--robot", "2", "--seconds", "300", "--out", str(log)]) == 0
+    assert main(["learn", str(log), "--action-model", "unicycle", "--out", str(model)]) == 0
+    assert main(["collect", "--model", str(model), "--replay", str(log), "--out", str(out)]) == 0
+    real, sim = trajectory.load(log), trajectory.load(out)
+    np.testing.assert_array_equal(sim.controls, real.controls)
+    assert sim.sensor_kind == "range_mm" and sim.n_frames == real.n_frames == 3000 and sim.n_sightings > 0
+    assert set(sim.sighting_frame) <= set(np.flatnonzero(image_frames(real)))
+    cfg = simulator_config(load_model(model), real)
+    assert 0.0 < cfg["detect_prob"] <= 1.0 and cfg["fov"] == pytest.approx(2 * (np.abs(real.sighting_value[:, 1]).max() + 0.01))
