@@ -5,6 +5,7 @@
     aibo reproduce  the paper's simulated experiment, side by side with its numbers
     aibo bench      speed of the E-step and of whole fits on this machine
     aibo import     convert a real robot's logs (MRCLAM) to an aibo-trajectory/2 log
+    aibo export     logs as an offline-RL dataset (Minari)
 
 Bad input ends with one line ``aibo: error: ...`` and exit status 2 (``--debug`` shows the traceback).
 """
@@ -123,6 +124,15 @@ def build_parser() -> argparse.ArgumentParser:
     mr.add_argument("--seconds", type=finite(1e-3), help="keep at most this many seconds")
     mr.add_argument("--lag", type=finite(0), default=0.0, help="delay the commands by this many seconds (default 0)")
     mr.set_defaults(run=commands.run_import_mrclam)
+
+    ex = sub.add_parser("export", help="logs as an offline-RL dataset")
+    xsub = ex.add_subparsers(dest="format", required=True, metavar="FORMAT")
+    mi = xsub.add_parser("minari", help="a Minari dataset, one AiboBeacons-v0 episode per log ('minari' extra)")
+    mi.add_argument("logs", nargs="+", help="aibo-trajectory/2 logs (.npz) of discrete commands")
+    mi.add_argument("--dataset-id", required=True, help="Minari dataset id, (namespace/)name-vN")
+    mi.add_argument("--out", help="datasets folder (default: MINARI_DATASETS_PATH, else ~/.minari/datasets)")
+    mi.add_argument("--force", action="store_true", help="replace a dataset of that id in the folder")
+    mi.set_defaults(run=commands.run_export)
 
     _add_experiment_commands(sub, commands)
     return p
