@@ -39,7 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "or what half the memory holds at 160 bytes/frame)")
     c.add_argument("--seed", type=integer(0), default=0)
     c.add_argument("--policy", default="random-balanced", metavar="NAME|sb3:PATH",
-                   help="random-balanced (default), uniform, informed, or sb3:AGENT.zip (see aibo_gym.policies)")
+                   help="random-balanced (default), uniform, informed, greedy, or sb3:AGENT.zip (see aibo_gym.policies)")
     c.add_argument("--policy-params", type=json_object, default={}, metavar="JSON", help="the policy's parameters")
     c.add_argument("--localizer", default=None, choices=["truth", "ekf"],
                    help="pose estimate random-balanced steers with (default: the true pose); the others use the EKF")
