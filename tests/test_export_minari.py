@@ -90,6 +90,8 @@ def test_export_round_trip(minari, logs, tmp_path, monkeypatch):
     ds = minari.load_dataset("aibo/explore-v0")
     assert ds.total_episodes == 2 and ds.total_steps == 1800
     assert ds.spec.env_spec.id == "AiboBeacons-v0"
+    log_config = AiboBeaconsEnv(trajectory.load(logs[0]).meta["config"]).config
+    assert ds.recover_environment().unwrapped.config == log_config  # the spec carries the logs' config
     assert ds.storage.metadata["source_logs"] == [str(p) for p in logs]
     space = AiboBeaconsEnv().observation_space
     for path, episode in zip(logs, ds.iterate_episodes()):
@@ -139,3 +141,13 @@ def test_export_bad_input_is_one_line(minari, logs, tmp_path, capsys):
     err = capsys.readouterr().err
     assert f"{cont}: field 'controls'" in err and err.count("\n") == 1
     assert not (tmp_path / "datasets" / "x-v0").exists()
+    assert main(["export", "minari", str(logs[0]), "--dataset-id", "x-v0", "--out", str(logs[1])]) == 2
+    assert f"--out {logs[1]}: is a file, not a folder" in capsys.readouterr().err
+
+
+def test_blind_logs_export_without_pose(minari, tmp_path, monkeypatch):
+    log = tmp_path / "blind.npz"
+    assert main(["collect", "--steps", "300", "--seed", "1", "--blind", "--out", str(log)]) == 0
+    assert main(["export", "minari", str(log), "--dataset-id", "blind-v0"]) == 0
+    episode = next(minari.load_dataset("blind-v0").iterate_episodes())
+    assert "pose" not in episode.infos and episode.observations.shape == (301, 11)

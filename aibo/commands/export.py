@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any, Iterator
 
 from aibo.errors import CLIError
+from aibo.paths import check_files
 from aibo_core import trajectory
 
 MINARI_HINT = "pip install 'aibo-gym[minari]' (Python >= 3.11)"
@@ -37,8 +38,7 @@ def run(args) -> int:
         raise CLIError(f"--dataset-id {args.dataset_id!r}: malformed; expected (namespace/)name-vN, e.g. "
                        "aibo/random-balanced-v0") from None
     root = Path(os.path.abspath(args.out or _default_root()))
-    if root.exists() and not root.is_dir():
-        raise CLIError(f"--out {root}: is a file, not a folder")
+    check_files(inputs=[("log", p) for p in args.logs], outputs=[], folders=[("--out", root)])
     target = root / args.dataset_id
     _check_target(target, args)
     episodes = [_episode(path) for path in args.logs]
