@@ -17,6 +17,10 @@ information is used; the hold's start pose is a nuisance with the onboard EKF's 
 prior, so a velocity is informed by sightings whose geometry changes during the hold, not by a
 sighting alone. Left out (one step, not a plan): slip over the hold, the coupling of the sensor
 curve with the poses, and the information of one hold about the next.
+
+Measured (``aibo experiment policies``, robots 101-105, mean velocity error against
+random-balanced): 5 min, 5 seeds: greedy -21%, informed -22%; 15 min, 3 seeds: greedy -11%,
+informed -19% (greedy's sensor curve the best of the three: 0.046 px RMS against 0.066 and 0.093).
 """
 
 from __future__ import annotations
