@@ -18,7 +18,7 @@ prior, so a velocity is informed by sightings whose geometry changes during the 
 sighting alone. Left out (one step, not a plan): slip over the hold, the coupling of the sensor
 curve with the poses, and the information of one hold about the next.
 
-Measured (``aibo experiment policies``, robots 101-105, mean velocity error against
+Measured (``aibo experiment policies``, robot_seed 100 + seed, mean velocity error against
 random-balanced): 5 min, 5 seeds: greedy -21%, informed -22%; 15 min, 3 seeds: greedy -11%,
 informed -19% (greedy's sensor curve the best of the three: 0.046 px RMS against 0.066 and 0.093).
 """
