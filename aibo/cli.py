@@ -8,6 +8,7 @@
     aibo import          convert a real robot's logs (MRCLAM) to an aibo-trajectory/2 log
     aibo experiment      which exploration policy makes EM learn best per minute of robot time
     aibo train-explorer  train an SB3 agent that chooses the held commands
+    aibo export          logs as an offline-RL dataset (Minari)
 
 Bad input ends with one line ``aibo: error: ...`` and exit status 2 (``--debug`` shows the traceback).
 """
@@ -45,7 +46,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "continuous-command models), else aibo")
     c.add_argument("--seed", type=integer(0), default=0)
     c.add_argument("--policy", default=None, metavar="NAME|sb3:PATH",
-                   help="random-balanced (default), uniform, informed, or sb3:AGENT.zip (see aibo_gym.policies); "
+                   help="random-balanced (default), uniform, informed, greedy, or sb3:AGENT.zip (see aibo_gym.policies); "
                    "--env wheeled: waypoints (the only one, its parameters in aibo_gym.policies.waypoints)")
     c.add_argument("--policy-params", type=json_object, default={}, metavar="JSON", help="the policy's parameters")
     c.add_argument("--localizer", default=None, choices=["truth", "ekf"],
@@ -136,6 +137,15 @@ def build_parser() -> argparse.ArgumentParser:
     mr.add_argument("--seconds", type=finite(1e-3), help="keep at most this many seconds")
     mr.add_argument("--lag", type=finite(0), default=0.0, help="delay the commands by this many seconds (default 0)")
     mr.set_defaults(run=commands.run_import_mrclam)
+
+    ex = sub.add_parser("export", help="logs as an offline-RL dataset")
+    xsub = ex.add_subparsers(dest="format", required=True, metavar="FORMAT")
+    mi = xsub.add_parser("minari", help="a Minari dataset, one AiboBeacons-v0 episode per log ('minari' extra)")
+    mi.add_argument("logs", nargs="+", help="aibo-trajectory/2 logs (.npz) of discrete commands")
+    mi.add_argument("--dataset-id", required=True, help="Minari dataset id, (namespace/)name-vN")
+    mi.add_argument("--out", help="datasets folder (default: MINARI_DATASETS_PATH, else ~/.minari/datasets)")
+    mi.add_argument("--force", action="store_true", help="replace a dataset of that id in the folder")
+    mi.set_defaults(run=commands.run_export)
 
     _add_experiment_commands(sub, commands)
     return p

@@ -22,7 +22,7 @@ def test_registry_and_specs():
 
 
 @pytest.mark.parametrize("spec, words", [
-    ("greedy", ["'greedy'", "valid choices", "informed"]),
+    ("clever", ["'clever'", "valid choices", "informed"]),
     ({"informed": {"speed": 1}}, ["'informed'", "unknown parameter 'speed'", "prior_sightings"]),
     ({"uniform": {"hold_s": "x"}}, ["'uniform'", "'hold_s'", "finite number"]),
     ({"random-balanced": {"localizer": "gps"}}, ["'localizer'", "'ekf'"]),
@@ -35,7 +35,7 @@ def test_bad_specs_are_one_line(spec, words):
     assert "\n" not in msg and all(w in msg for w in words), msg
 
 
-@pytest.mark.parametrize("policy", ["uniform", "informed"])
+@pytest.mark.parametrize("policy", ["uniform", "informed", "greedy"])
 def test_onboard_policies_need_no_true_pose_and_keep_on_field(policy):
     from aibo_gym.envs import AiboBeaconsEnv
 

@@ -40,6 +40,12 @@ def run_import_mrclam(args) -> int:
     return run(args)
 
 
+def run_export(args) -> int:
+    from aibo.commands.export import run
+
+    return run(args)
+
+
 def run_experiment(args) -> int:
     from aibo.commands.experiment import run
 

@@ -8,11 +8,14 @@ random-balanced    the paper's: random, least-used safe command every 5 s (``loc
 uniform            a uniformly random safe command every 5 s (onboard EKF)
 informed           greedy in the expected information (sightings per command, coverage)
 sb3                a trained SB3 agent: ``"sb3:AGENT.zip"`` (``aibo train-explorer``)
+greedy             one-step D-optimal: the largest predicted log-det gain of the onboard
+                   information about the velocity table and the sensor curve
 =================  =========================================================================
 """
 
 from ..config import REWARD_TERMS
 from .base import POLICIES, HoldPolicy, make_policy, policy_label, register_policy, validate_policy
+from .greedy import GreedyPolicy
 from .informed import InformedPolicy
 from .localizer import EKFLocalizer
 from .onboard import OnboardTracker
@@ -21,8 +24,8 @@ from .sb3 import SB3Policy
 from .uniform import UniformPolicy
 
 register_policy(RandomBalancedPolicy)
-POLICIES.update({k: POLICIES.pop(k) for k in ["random-balanced", "uniform", "informed", "sb3"]})  # table order
+POLICIES.update({k: POLICIES.pop(k) for k in ["random-balanced", "uniform", "informed", "sb3", "greedy"]})  # table order
 
-__all__ = ["EKFLocalizer", "HoldPolicy", "InformedPolicy", "OnboardTracker", "POLICIES", "REWARD_TERMS",
+__all__ = ["EKFLocalizer", "GreedyPolicy", "HoldPolicy", "InformedPolicy", "OnboardTracker", "POLICIES", "REWARD_TERMS",
            "RandomBalancedPolicy", "SB3Policy", "UniformPolicy", "make_policy", "policy_label", "register_policy",
            "validate_policy"]
