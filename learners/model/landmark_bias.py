@@ -128,7 +128,10 @@ class LandmarkBias(EffectModel):
     tau_s: float  # correlation time (s)
 
     name: ClassVar[str] = "landmark_bias"
-    PARAMS: ClassVar[dict[str, Param]] = {"sigma_rel": Param("fraction of the size", "log"), "tau_s": Param("s", "log")}
+    PARAMS: ClassVar[dict[str, Param]] = {
+        "sigma_rel": Param("fraction of the size", "log", low=0.0, high=0.5, shape=()),  # as the simulator's bounds
+        "tau_s": Param("s", "log", low=1e-3, high=1e6, shape=()),
+    }
 
     @classmethod
     def start(cls, batch: Batch) -> "LandmarkBias":
