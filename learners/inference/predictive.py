@@ -33,6 +33,8 @@ def predictive_logdens(lo: Lowered, batch: Batch, post: Posterior, idx: np.ndarr
     ``lo_own``: the lowered arrays whose noise R the sighting's OWN density uses (default ``lo``; an
     effect may inflate a sighting's variance in the filter from the sighting itself, e.g. by its
     responsibility, which its own density must not see)."""
+    if lo.extra is not None:  # extra states change the prediction: the augmented forward filter's own innovations
+        return _augmented_logdens(lo, batch, idx)
     lo_own = lo if lo_own is None else lo_own
     out = np.empty(len(idx))
     frame = batch.sight_frame[idx]
@@ -59,6 +61,18 @@ def predictive_logdens(lo: Lowered, batch: Batch, post: Posterior, idx: np.ndarr
     m2 = (S[:, 1, 1] * v[:, 0] ** 2 - 2 * S[:, 0, 1] * v[:, 0] * v[:, 1] + S[:, 0, 0] * v[:, 1] ** 2) / det
     out[:] = -0.5 * (m2 + np.log(det) + 2.0 * np.log(2.0 * np.pi))
     return out
+
+
+def _augmented_logdens(lo: Lowered, batch: Batch, idx: np.ndarray) -> np.ndarray:
+    """log N(v; 0, S) of sightings ``idx`` from the augmented forward filter (every used sighting applied, no
+    gate): the predictive density each got from the belief on (pose, extra states) before it."""
+    from learners.inference.kernels.estep import innovations_compiled
+
+    _, innov = innovations_compiled(lo, batch)
+    v0, v1, s00, s01, s11 = innov[idx].T
+    det = s00 * s11 - s01 * s01
+    m2 = (s11 * v0 * v0 - 2.0 * s01 * v0 * v1 + s00 * v1 * v1) / det
+    return -0.5 * (m2 + np.log(det) + 2.0 * np.log(2.0 * np.pi))
 
 
 def has_mixture(model: "Model") -> bool:
