@@ -138,9 +138,6 @@ def e_step(params: Model, batch: Batch, estep: str, gate: float | None = None,
     from learners.inference.predictive import has_mixture, sightings_logdens
 
     if has_mixture(params):
-        if lo.extra is not None:
-            raise ValueError("a mixture effect (false_sightings) together with an effect that adds states "
-                             "(landmark_bias) is not supported yet")
         idx = np.flatnonzero(batch.used & ~(post.mahal2 > (gate if gate is not None else np.inf)))
         post.loglik = float(np.sum(sightings_logdens(params, batch, post, idx, lo)))
     return post

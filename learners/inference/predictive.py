@@ -33,9 +33,9 @@ def predictive_logdens(lo: Lowered, batch: Batch, post: Posterior, idx: np.ndarr
     ``lo_own``: the lowered arrays whose noise R the sighting's OWN density uses (default ``lo``; an
     effect may inflate a sighting's variance in the filter from the sighting itself, e.g. by its
     responsibility, which its own density must not see)."""
-    if lo.extra is not None:  # extra states change the prediction: the augmented forward filter's own innovations
-        return _augmented_logdens(lo, batch, idx)
     lo_own = lo if lo_own is None else lo_own
+    if lo.extra is not None:  # extra states change the prediction: the augmented forward filter's own innovations
+        return _augmented_logdens(lo, batch, idx, lo_own)
     out = np.empty(len(idx))
     frame = batch.sight_frame[idx]
     first = batch.sight_start[frame]
@@ -63,13 +63,16 @@ def predictive_logdens(lo: Lowered, batch: Batch, post: Posterior, idx: np.ndarr
     return out
 
 
-def _augmented_logdens(lo: Lowered, batch: Batch, idx: np.ndarray) -> np.ndarray:
+def _augmented_logdens(lo: Lowered, batch: Batch, idx: np.ndarray, lo_own: Lowered) -> np.ndarray:
     """log N(v; 0, S) of sightings ``idx`` from the augmented forward filter (every used sighting applied, no
-    gate): the predictive density each got from the belief on (pose, extra states) before it."""
+    gate): the predictive density each got from the belief on (pose, extra states) before it, with the
+    sighting's OWN noise (``lo_own``'s variance factors in place of the filter's: S is H P- H^T + R)."""
     from learners.inference.kernels.estep import innovations_compiled
 
     _, innov = innovations_compiled(lo, batch)
     v0, v1, s00, s01, s11 = innov[idx].T
+    s00 = s00 + lo.sigma_size ** 2 * (lo_own.size_var_factor[idx] - lo.size_var_factor[idx])
+    s11 = s11 + lo.sigma_bearing ** 2 * (lo_own.bearing_var_factor[idx] - lo.bearing_var_factor[idx])
     det = s00 * s11 - s01 * s01
     m2 = (s11 * v0 * v0 - 2.0 * s01 * v0 * v1 + s00 * v1 * v1) / det
     return -0.5 * (m2 + np.log(det) + 2.0 * np.log(2.0 * np.pi))
