@@ -90,6 +90,9 @@ def build_parser() -> argparse.ArgumentParser:
     lr.add_argument("--alias-search", action=argparse.BooleanOptionalAction, default=None,
                     help="after the fit, search heading aliases of commands held once or a few times (default on; "
                          "paper: off)")
+    lr.add_argument("--lag-search", action=argparse.BooleanOptionalAction, default=None,
+                    help="continuous commands: after the fit, profile an actuation lag (0.1-0.5 s) and keep it when "
+                         "significant (default on; paper: off)")
     lr.add_argument("--finish", choices=["none", "scoring"],
                     help="after EM: none (EM's own stop, default) or scoring (EM stops early, Fisher scoring climbs "
                          "to the likelihood's maximum; fewer EM iterations, about the same errors)")

@@ -51,7 +51,7 @@ from learners.model.model import Model
 SIMULATOR_KEYS = ("fov", "range_mm", "detect_prob", "pan_amplitude", "pan_period", "focal_px", "beacon_height_mm")
 EXCLUDED = ("distance to walls",)  # statistics naming these: the open-loop replay cannot reproduce them
 FAMILY_ALPHA = 0.05  # chance that a right model shows any disagreement in one check
-REFIT = EMOptions(starts=1, max_iter=60, patience=10, uncertainty=False)  # replicas: warm-started polish
+REFIT = EMOptions(starts=1, max_iter=60, patience=10, uncertainty=False, lag_search=False)  # replicas: warm-started polish
 FIELD_MARGIN_MM = 1000.0  # a log without a field: the landmarks' bounding box grown by this
 
 

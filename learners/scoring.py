@@ -29,6 +29,7 @@ import numpy as np
 
 from aibo_core.geometry import wrap
 from aibo_core.trajectory import VELOCITY_CONTROLS, Trajectory
+from learners.inference.batch import make_batch
 from learners.inference.sensor_stats import fit_polynomial
 from learners.model.model import Model
 
@@ -54,7 +55,7 @@ def face_value_model(model: Model) -> Model:
     if model.sensor.kind != "range_mm" or model.sensor.basis != "power":
         raise ValueError("face value needs a range sensor in the power basis")
     coef[1] = 1.0
-    return model.with_(action=a.with_values(weights=w), sensor=replace(model.sensor, coef=coef))
+    return model.with_(action=a.with_values(weights=w), sensor=replace(model.sensor, coef=coef), effects=())
 
 
 def _windows(tr: Trajectory, window_s: float) -> np.ndarray:
@@ -85,8 +86,12 @@ def measured_window_velocities(tr: Trajectory, window_s: float = 1.0) -> tuple[n
 
 
 def model_window_velocities(model: Model, tr: Trajectory, win: np.ndarray) -> np.ndarray:
-    """(n, 3) the model's velocities over the windows: its per-frame displacements composed."""
-    disp = model.action.displacements(tr.controls)
+    """(n, 3) the model's velocities over the windows: its per-frame displacements composed, after the effects
+    that act on the commands (a lag shifts them) or scale the motion, as the model predicts them."""
+    commands, scale = model.effective_commands(make_batch([tr]))
+    disp = model.action.displacements(commands)
+    if scale is not None:
+        disp = disp * scale[:, None]
     W = int(win[0, 1] - win[0, 0])
     pose = np.zeros((len(win), 3))
     for k in range(W):
@@ -106,7 +111,7 @@ def fit_action_to_truth(model: Model, logs: list[Trajectory], window_s: float = 
         phi.append((cum[win[:, 1]] - cum[win[:, 0]]) / (win[:, 1] - win[:, 0])[:, None])
         vel.append(v)
     w = model.action.constrain(np.linalg.lstsq(np.concatenate(phi), np.concatenate(vel), rcond=None)[0] * model.action.dt)
-    return model.with_(action=model.action.with_values(weights=w))
+    return model.with_(action=model.action.with_values(weights=w), effects=())  # of the raw commands: no lag
 
 
 def velocity_scores(model: Model, logs: list[Trajectory], window_s: float = 1.0) -> dict[str, float]:

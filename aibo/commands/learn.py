@@ -25,7 +25,7 @@ def em_options(args) -> EMOptions:
     """Defaults (or the paper's recipe), overridden by every option the user gave."""
     opts = EMOptions.paper() if args.paper_recipe else EMOptions()
     opts.max_iter, opts.patience, opts.seed, opts.estep = args.max_iter, args.patience, args.seed, args.estep
-    for name in ("sensor_method", "learn_motion_noise", "accel", "alias_search", "finish"):
+    for name in ("sensor_method", "learn_motion_noise", "accel", "alias_search", "lag_search", "finish"):
         if getattr(args, name) is not None:
             setattr(opts, name, getattr(args, name))
     if args.gate is not None:
@@ -35,6 +35,17 @@ def em_options(args) -> EMOptions:
     if args.sensor_basis is not None:
         opts.basis = args.sensor_basis
     return opts.validate()
+
+
+def lag_report(info: dict) -> list[str]:
+    """One line on the actuation-lag search of a continuous-command fit (``learners.em.lag``)."""
+    lag = info.get("lag_search")
+    if not lag:
+        return []
+    if lag["lag_s"] > 0:
+        return [f"actuation lag: {lag['lag_s']:g} s kept (+{lag['gain_nats']:.1f} nats over no lag; grid "
+                f"{', '.join(f'{g:g}' for g in lag['grid_s'])} s); the model carries it (--no-lag-search: without)"]
+    return [f"actuation lag: none significant (grid {', '.join(f'{g:g}' for g in lag['grid_s'])} s)"]
 
 
 def make_learner(args):
@@ -135,8 +146,8 @@ def run(args) -> int:
     print(f"wrote {args.out}: {result.iterations} iterations, converged={result.converged}, "
           f"{result.pruned_observations} sightings pruned as outliers")
     fixed = fixed_line(result.info.get("alias_search") or {})
-    for line in starts_report(result.info) + ([fixed] if fixed else []) + scoring_report(result.info) + \
-            uncertainty_report(result):
+    for line in starts_report(result.info) + ([fixed] if fixed else []) + lag_report(result.info) + \
+            scoring_report(result.info) + uncertainty_report(result):
         print(line)
     if scorable_truth(logs, args.logs, result.params):
         print(error_table({args.learner: model_errors(result.params, logs)}))

@@ -86,6 +86,8 @@ def _fit(logs: list[Trajectory], init: Model, opts: EMOptions, action_model: str
     ``_train_loglik`` on the same sightings, not by the fit's own (gated) likelihood. The alias search
     (``learners.em.alias``) runs in the base fit from the paper's start only: a warm-started refit that
     switched a command to its alias would credit the jump in likelihood to the effect tried."""
+    # no lag search: the search profiles actuation_lag itself, as a candidate (named, tested like the others)
+    opts = replace(opts, lag_search=False)
     learner = EMLearner(opts if init is None else replace(opts, alias_search=False), check_field=False)
     return learner.fit(logs, init=init, action_model=action_model).params
 

@@ -54,6 +54,8 @@ class EMOptions:
     starts: int = 3  # starts screened, the most likely continued (``learners.em.starts``); paper: 1
     screen_iter: int = 30  # EM iterations each start runs before the most likely is chosen
     alias_search: bool = True  # search heading aliases after the fit (``learners.em.alias``); paper: off
+    # continuous commands: after the fit, profile an actuation lag and keep it when significant (``learners.em.lag``)
+    lag_search: bool = True
     uncertainty: bool = True  # standard errors from the Fisher information (``learners.em.uncertainty``)
     # after EM: "none" (EM's own stop, as the paper) or "scoring": EM stops early and Fisher scoring climbs to
     # the likelihood's maximum (``learners.em.finish``; off by default: README, "EM at the information bound")
@@ -66,7 +68,7 @@ class EMOptions:
     def paper(cls, **overrides) -> "EMOptions":
         """The paper's recipe: fixed motion noise, one sample per sighting, plain EM, strict stop rule."""
         base = dict(sensor_method="sample", learn_motion_noise=False, accel="none", min_improvement=0.0,
-                    basis="power", degree=3, starts=1, alias_search=False)
+                    basis="power", degree=3, starts=1, alias_search=False, lag_search=False)
         return cls(**{**base, **overrides})
 
     def validate(self) -> "EMOptions":

@@ -11,6 +11,7 @@ import numpy as np
 from aibo_core.trajectory import Trajectory
 from learners.base import IterationRecord, LearnResult, ProgressFn
 from learners.em import checkpoint
+from learners.em import lag as lag_search
 from learners.em.accel import Packer
 from learners.em.alias import alias_steps, close_call, search
 from learners.em.finish import fisher_scoring
@@ -175,6 +176,7 @@ class EMLearner:
         state = run(batch, state, self.options, on_iteration, on_cycle, switch=self._switches(batch, start))
         used = batch.with_used(state.used)  # the sightings the fit applied (first-iteration outliers pruned)
         alias = self._alias_search(used, state)
+        lag = self._lag_search(used, state)
         scoring = self._finish(used, state)
         info = {"best_iteration": state.best_iteration + 1, "resumed_from": resumed_from,
                 # the first iteration carries the one-time numba compile or cache load: reported apart
@@ -191,6 +193,10 @@ class EMLearner:
             info["alias_search_seconds"] = alias.pop("seconds")  # top level: the model file leaves timings out
             info["alias_search"] = alias
             info["iterations_all_starts"] += alias["iterations"]
+        if lag is not None:
+            info["lag_search_seconds"] = lag.pop("seconds")  # top level: the model file leaves timings out
+            info["lag_search"] = lag
+            info["iterations_all_starts"] += lag["iterations"]
         if scoring is not None:
             info["scoring_seconds"] = scoring.seconds  # top level: the model file leaves timings out
             info["scoring"] = {**scoring.record, "forward_passes": scoring.passes}
@@ -218,6 +224,16 @@ class EMLearner:
         found = search(batch, state.best, state.best_loglik, self.options)
         if found.record["changed"]:
             state.best, state.best_loglik = found.best, found.loglik
+        return {**found.record, "seconds": found.seconds}
+
+    def _lag_search(self, batch: Batch, state: EMState) -> dict | None:
+        """The actuation-lag search (``learners.em.lag``) on the fit's sightings ``batch`` after the fit of a
+        continuous-command log, when enabled: ``state.best`` gains the lag when it is significant; returns the
+        search's record (None: not run)."""
+        if not lag_search.applies(batch, state.best, self.options):
+            return None
+        found = lag_search.search(batch, state.best, state.best_loglik, self.options)
+        state.best, state.best_loglik = found.best, found.loglik
         return {**found.record, "seconds": found.seconds}
 
     def _finishes(self, model: Model) -> bool:
