@@ -152,6 +152,7 @@ def html_page(path: Path, report: dict[str, Any], text: str, figures: list[Path]
 <style>body{{font-family:sans-serif;max-width:1100px;margin:2em auto}}td,th{{padding:2px 8px;border-bottom:1px solid #ddd}}
 pre{{background:#f6f6f6;padding:1em;overflow:auto}}</style></head><body>
 <h1>Discrepancy report</h1><p>{verdict}</p>
+{"".join(f'<p style="color:#b00"><b>Warning:</b> {html.escape(w)}</p>' for w in report.get("warnings", []))}
 <p>Gap ({html.escape(report['gap_metric'])}: how unlikely the held-out half of the log is under the model, in nats per
 sighting; lower is better): <b>{report['gap_before']:.4f}</b> before, <b>{report['gap_after']:.4f}</b> after
 {f"the named effects: {change} nats per sighting" if report["effects"] else "(nothing named: the same model)"}.</p>

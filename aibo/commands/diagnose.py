@@ -56,7 +56,7 @@ def run(args) -> int:
         except ValueError as err:
             raise CLIError(f"--action-model {args.action_model}: log {path}: {err}") from None
     t0 = time.perf_counter()
-    opts = EMOptions(seed=args.seed)
+    opts = EMOptions(seed=args.seed, lag_search=False)  # the search tries actuation_lag itself, as a candidate
     lines: list[str] = []
 
     def say(line: str) -> None:
@@ -90,6 +90,10 @@ def run(args) -> int:
     for u in report["unexplained"]:
         say(f"  still unlike its simulation: {u['statistic']} ({fig.z_text(u['z'])}), the signature of {u['effect']}, "
             f"not named ({u['why_not_named']})")
+    report["warnings"] = list(final.info.get("warnings", []))  # e.g. a fit that may be a wrong world: said loudly
+    for w in report["warnings"]:
+        print(f"aibo: warning: the diagnosed model: {w}", file=sys.stderr)
+        lines.append(f"warning: {w}")
     report["seconds"] = time.perf_counter() - t0
     say(f"{report['seconds']:.1f} s in all")
     written = write_outputs(out, final, report, lines, sig_before, sig_after, before, after)
