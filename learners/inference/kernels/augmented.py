@@ -18,8 +18,21 @@ from numba import njit
 
 from learners.inference.augmented import posterior
 from learners.inference.batch import Batch
-from learners.inference.kernels.algebra import _BAD_BACKWARD, _BAD_FORWARD, _LOG_2PI, _OK, _curve, _f64, _raise, _scratch, _wrap
+from learners.inference.kernels.algebra import (
+    _BAD_BACKWARD,
+    _BAD_FORWARD,
+    _LOG_2PI,
+    _OK,
+    _curve,
+    _f64,
+    _ld33,
+    _raise,
+    _scratch,
+    _sym,
+    _wrap,
+)
 from learners.inference.kernels.arguments import _inputs
+from learners.inference.kernels.structured import _rot_sym, _scale_sym
 from learners.inference.lowered import Lowered
 from learners.inference.posterior import ExtraMoments, Posterior
 
@@ -202,8 +215,7 @@ def _augmented_kernel(
     ph0, ph1, xh0, xh1, k0, k1 = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
     o = np.empty(10)
     qpose = np.empty((3, 3))
-    s00, s01, s02 = sig_a[0, 0], 0.5 * (sig_a[0, 1] + sig_a[1, 0]), 0.5 * (sig_a[0, 2] + sig_a[2, 0])
-    s11, s12, s22 = sig_a[1, 1], 0.5 * (sig_a[1, 2] + sig_a[2, 1]), sig_a[2, 2]
+    sig = _sym(_ld33(sig_a.reshape(1, 3, 3), 0))
     loglik = 0.0
     for k in range(frame_start.shape[0] - 1):
         f0 = frame_start[k]
@@ -231,17 +243,10 @@ def _augmented_kernel(
                                    mu[2] + disp[i, 2] + offset[i, 2])  # fmt: skip
             for e in range(K):
                 mu[3 + e] = phi[i, e] * mu[3 + e]
-            # Q pose block = cov_scale R Sigma_A R^T
-            a00, a01, a02 = c * s00 - s * s01, c * s01 - s * s11, c * s02 - s * s12  # row 0 of R Sigma
-            a10, a11, a12 = s * s00 + c * s01, s * s01 + c * s11, s * s02 + c * s12  # row 1
-            cs = cov_scale[i]
-            qpose[0, 0] = cs * (a00 * c - a01 * s)
-            qpose[0, 1] = cs * (a00 * s + a01 * c)
-            qpose[0, 2] = cs * a02
-            qpose[1, 1] = cs * (a10 * s + a11 * c)
-            qpose[1, 2] = cs * a12
-            qpose[2, 2] = cs * s22
-            qpose[1, 0], qpose[2, 0], qpose[2, 1] = qpose[0, 1], qpose[0, 2], qpose[1, 2]
+            Q = _rot_sym(c, s, _scale_sym(cov_scale[i], sig))  # pose block: cov_scale R Sigma_A R^T (as estep)
+            for r in range(3):
+                for cc in range(3):
+                    qpose[r, cc] = Q[3 * r + cc]
             _predict_cov(P, fa, fb, phi[i], q[i], qpose, W)
             g_pred[i, :] = mu
             P_pred[i, :, :] = P
