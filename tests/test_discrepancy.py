@@ -124,4 +124,9 @@ def test_a_log_from_another_generator(tmp_path):
     assert main(["diagnose", str(log), "--out", str(out), "--candidates", "floor_drift,velocity_fade,beacon_height_scale"]) == 0
     report = json.loads((out / "report.json").read_text())
     assert report["effect"] == "floor_drift" and np.allclose(report["parameters"]["drift_mm_s"], [12, 0], atol=4.0)
-    assert report["calibrated_simulation"]["note"].startswith("not available: the simulator walks 40 discrete commands")
+    # a continuous-command model with a range sensor gets the wheeled simulator (WheeledRobot-v0): the check runs,
+    # and the named drift takes the world-heading signature out of the disagreements
+    cal = report["calibrated_simulation"]
+    assert {"before", "after"} <= set(cal) and cal["before"]["replicas"] == 8, cal.get("note")
+    named = [d["statistic"] for d in cal["after"]["disagreements"]]
+    assert not any("world heading" in n for n in named), named
