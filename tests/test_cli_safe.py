@@ -145,7 +145,9 @@ def test_diagnose_refuses_empty_candidates(value, blind_log, tmp_path, capsys):
 @pytest.mark.parametrize("value", ["1", "2"])
 def test_diagnose_refuses_too_few_replicas_to_reject_anything(value, blind_log, tmp_path, capsys):
     """With fewer than 3 replicas the disagreement threshold is infinite: refused, not a silent '0 disagree'."""
-    assert main(["diagnose", str(blind_log), "--out", str(tmp_path / "D"), "--replicas", value]) == 2
+    with pytest.raises(SystemExit) as stop:  # refused by argparse, before any work
+        main(["diagnose", str(blind_log), "--out", str(tmp_path / "D"), "--replicas", value])
+    assert stop.value.code == 2
     _one_line_error(capsys, "--replicas", "at least 3", f"got {value}")
     assert not (tmp_path / "D").exists()
 

@@ -37,6 +37,27 @@ def test_pack_unpack_round_trip_with_an_effect():
     np.testing.assert_allclose(lo.size_scale, model.effects[0].scale[batch.sight_landmark])
 
 
+def test_a_far_extrapolated_packed_vector_unpacks_without_overflow():
+    """SQUAREM extrapolates the packed vector; a step far out used to overflow ``exp`` (a RuntimeWarning
+    reaching the user). Unpacked with warnings as errors: finite, positive, within the clip (the likelihood, not the unpacking, rejects such a step)."""
+    import warnings
+
+    from learners.model.parameters import MAX_ABS
+
+    tr = sim_log(600)
+    model = paper_start([tr]).with_effect(BeaconHeightScale(np.ones(4)))
+    x = model.pack()
+    for far in (x + 1e4, x - 1e4, x * 1e6):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            back = model.unpack(far)
+            cov = np.asarray(back.action.cov)
+        scale = back.effects[0].scale
+        assert np.all(np.isfinite(cov)) and np.allclose(cov, cov.T) and np.all((scale > 0) & (scale <= MAX_ABS) & (scale >= 1 / MAX_ABS))
+        assert 0 < back.sensor.sigma_size <= MAX_ABS
+    assert max(model.max_abs_difference(model.unpack(x)).values()) < 1e-9  # ordinary values untouched
+
+
 def test_public_api_on_a_model_file(tmp_path):
     tr = sim_log(3000)
     res = EMLearner(EMOptions(max_iter=30)).fit([tr])
