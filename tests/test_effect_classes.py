@@ -60,3 +60,16 @@ def test_the_search_reads_probe_and_remedy_from_the_classes():
 
     assert not hasattr(search, "PROBE") and not hasattr(search, "REMEDY")
     assert "heading" in EFFECT_MODELS["angle_bias"].REMEDY and EFFECT_MODELS["angle_bias"].PROBE
+
+
+def test_every_signature_names_a_statistic_the_check_computes(batch):
+    """``SIGNATURE`` is matched (as a substring) against the calibrated check's statistic names: one that
+    matches none would never report the effect as unexplained."""
+    from learners.discrepancy.signatures import signatures
+    from learners.discrepancy.statistics import signature_key
+
+    tr = collect(None, 600, seed=5)
+    names = [signature_key(s.residual, s.variable) for s in signatures(start_model(batch, 1 / 30, "height_px", 40), [tr])]
+    for name, cls in EFFECT_MODELS.items():
+        if cls.SIGNATURE:
+            assert any(cls.SIGNATURE in n for n in names), (name, cls.SIGNATURE, names)
