@@ -3,6 +3,8 @@ over the registries, so a new effect is checked as soon as both twins are regist
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -10,7 +12,7 @@ from aibo_gym.collect import collect
 from aibo_gym.effects import EFFECTS
 from aibo_gym.envs import AiboBeaconsEnv
 from learners.inference.batch import make_batch
-from learners.model.effects import EFFECT_MODELS
+from learners.model.effects import EFFECT_MODELS, effect_from_json
 from learners.model.model import start_model
 
 NAMES = sorted(EFFECT_MODELS)
@@ -42,6 +44,17 @@ def test_the_example_lowers_into_a_model(name, batch):
     lo = start_model(batch, 1 / 30, "height_px", 40).with_effect(effect).lower(batch)
     arrays = [v for v in vars(lo).values() if isinstance(v, np.ndarray) and v.dtype.kind == "f"]
     assert arrays and all(np.all(np.isfinite(a)) for a in arrays)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_the_example_round_trips_through_the_model_file_entry(name, batch):
+    cls = EFFECT_MODELS[name]
+    effect = cls.start(batch).with_values(**cls.EXAMPLE)
+    doc = json.loads(json.dumps(effect.to_json()))
+    back = effect_from_json(doc, "model.json")
+    assert type(back) is cls
+    for key, value in cls.EXAMPLE.items():
+        np.testing.assert_allclose(back.values()[key], value)
 
 
 @pytest.mark.parametrize("name", NAMES)
