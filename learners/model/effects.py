@@ -77,7 +77,8 @@ class EffectModel(Component):
         return commands
 
     def disp_scale(self, batch: Batch) -> np.ndarray | None:
-        """(N,) factor on each frame's mean displacement (e.g. a fading battery), or None."""
+        """Factor on each frame's mean displacement, or None: (N,) one per frame for all three components
+        (e.g. a fading battery), or (N, 3) per component (forward, lateral, turn; e.g. a turn scale)."""
         return None
 
     def lower(self, lo: Lowered, batch: Batch) -> None:
