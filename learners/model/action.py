@@ -38,6 +38,12 @@ from learners.model.parameters import Component, Param
 PAPER_MOTION_STD = (10.0, 10.0, 0.1)
 
 
+def per_component(scale: np.ndarray) -> np.ndarray:
+    """A displacement factor as (N, 3) (forward, lateral, turn): an (N,) factor repeated on the three."""
+    scale = np.asarray(scale, dtype=float)
+    return np.broadcast_to(np.reshape(scale, (len(scale), -1)), (len(scale), 3))
+
+
 @dataclass(frozen=True)
 class ActionModel(Component):
     """features(command) x weights, with a shared per-frame noise covariance (module docstring)."""
@@ -104,7 +110,7 @@ class ActionModel(Component):
         component). ``table``: the mean over the frames of each command (commands never executed keep
         their weights); otherwise ordinary least squares over all frames (equal weights: one shared noise
         covariance), each component on its own scaled features."""
-        s3 = None if scale is None else np.broadcast_to(np.reshape(scale, (len(scale), -1)), (len(scale), 3))
+        s3 = None if scale is None else per_component(scale)
         if s3 is not None and self.discrete:  # per command and component: sum s mu / sum s^2 (diagonal)
             n_act = len(self.weights)
             out = np.array(self.weights, dtype=float)

@@ -13,7 +13,7 @@ import numpy as np
 
 from learners.inference.batch import Batch
 from learners.inference.lowered import Lowered
-from learners.model.action import ActionModel
+from learners.model.action import ActionModel, per_component
 from learners.model.effects import EffectModel
 from learners.model.initial import DEFAULT_INITIAL, InitialState
 from learners.model.parameters import Component
@@ -76,7 +76,7 @@ class Model:
             commands = e.commands(commands, batch)
             s = e.disp_scale(batch)
             if s is not None:
-                s = np.broadcast_to(np.reshape(s, (len(s), -1)), (len(s), 3))
+                s = per_component(s)
                 scale = s if scale is None else scale * s
         return commands, scale
 
