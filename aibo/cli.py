@@ -19,7 +19,7 @@ import argparse
 import sys
 
 from aibo.errors import CLIError
-from aibo.options import finite, integer, json_object, steps
+from aibo.options import finite, integer, json_object, replica_count, steps
 from aibo_core.trajectory import TrajectoryError
 
 
@@ -120,8 +120,9 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument("--action-model", choices=["table", "features", "unicycle"], default=None,
                     help="the base fit's action model, as in 'aibo learn' (unicycle for a wheeled robot's (v, omega) "
                          "commands; default: table for discrete logs, features otherwise)")
-    dg.add_argument("--replicas", type=integer(0), default=8,
-                    help="replays of the measured commands in the calibrated simulator, before and after (default 8; 0: none)")
+    dg.add_argument("--replicas", type=replica_count, default=8,
+                    help="replays of the measured commands in the calibrated simulator, before and after (default 8; "
+                         "0: none; else at least 3)")
     dg.set_defaults(run=commands.run_diagnose)
 
     b = sub.add_parser("bench", help="measure E-step and fit speed on this machine")

@@ -21,6 +21,18 @@ MAX_STEPS = 10**8
 MAX_JSON_FILE_BYTES = 16 * 2**20
 
 
+def replica_count(text: str) -> int:
+    """An option type: 0 (no calibrated-simulator check) or at least ``experiments.calibrated.MIN_REPLICAS``
+    (fewer replicas cannot reject anything: their threshold is infinite)."""
+    from experiments.calibrated import MIN_REPLICAS
+
+    value = integer(0)(text)
+    if 0 < value < MIN_REPLICAS:
+        raise argparse.ArgumentTypeError(f"must be 0 (no check) or at least {MIN_REPLICAS} (with fewer the replicas' "
+                                         f"spread cannot reject any statistic), got {value}")
+    return value
+
+
 def integer(least: int) -> Callable[[str], int]:
     """An option type: an integer >= ``least``."""
 

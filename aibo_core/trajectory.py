@@ -339,8 +339,13 @@ def save(tr: Trajectory, path: str | os.PathLike) -> None:
 
 
 def blind(tr: Trajectory) -> Trajectory:
-    """The same log as a real robot would have it: no ``pose`` and no ``truth`` in meta."""
-    return replace(tr, pose=None, meta={k: v for k, v in tr.meta.items() if k != "truth"})
+    """The same log as a real robot would have it: no ``pose``, and nothing in meta that names what the
+    simulator hid: no ``truth`` and no ``config["effects"]`` (the rest of the config, e.g. the field and
+    the camera, stays: a real robot's owner knows those). ``tr`` is not changed."""
+    meta = {k: v for k, v in tr.meta.items() if k != "truth"}
+    if isinstance(meta.get("config"), dict):
+        meta["config"] = {k: v for k, v in meta["config"].items() if k != "effects"}
+    return replace(tr, pose=None, meta=meta)
 
 
 def sightings_per_frame(tr: Trajectory) -> np.ndarray:

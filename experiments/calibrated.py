@@ -51,6 +51,9 @@ from learners.model.model import Model
 SIMULATOR_KEYS = ("fov", "range_mm", "detect_prob", "pan_amplitude", "pan_period", "focal_px", "beacon_height_mm")
 EXCLUDED = ("distance to walls",)  # statistics naming these: the open-loop replay cannot reproduce them
 FAMILY_ALPHA = 0.05  # chance that a right model shows any disagreement in one check
+#: The fewest replicas whose spread can reject a statistic (fewer: the threshold is infinite, nothing
+#: disagrees whatever the data); ``aibo diagnose --replicas`` refuses 1 and 2.
+MIN_REPLICAS = 3
 REFIT = EMOptions(starts=1, max_iter=60, patience=10, uncertainty=False, lag_search=False)  # replicas: warm-started polish
 FIELD_MARGIN_MM = 1000.0  # a log without a field: the landmarks' bounding box grown by this
 
@@ -140,9 +143,9 @@ class Check:
 
     @property
     def threshold(self) -> float:
-        """|z| above which a statistic disagrees (module docstring); inf with fewer than 3 replicas."""
+        """|z| above which a statistic disagrees (module docstring); inf with fewer than ``MIN_REPLICAS``."""
         r, k = len(self.replicas), max(len(self.names), 1)
-        if r < 3:
+        if r < MIN_REPLICAS:
             return math.inf
         return float(stats.t.ppf(1.0 - FAMILY_ALPHA / (2 * k), r - 1) * math.sqrt(1.0 + 1.0 / r))
 

@@ -91,7 +91,7 @@ def model_window_velocities(model: Model, tr: Trajectory, win: np.ndarray) -> np
     commands, scale = model.effective_commands(make_batch([tr]))
     disp = model.action.displacements(commands)
     if scale is not None:
-        disp = disp * scale[:, None]
+        disp = disp * scale
     W = int(win[0, 1] - win[0, 0])
     pose = np.zeros((len(win), 3))
     for k in range(W):

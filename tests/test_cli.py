@@ -41,6 +41,22 @@ def test_collect_blind_has_no_truth(tmp_path):
     assert tr.meta["config"]["noise"] == "aibo"
 
 
+def test_collect_blind_does_not_name_the_hidden_effect(tmp_path):
+    """A blind log keeps its field and camera settings but nothing that names the hidden effect."""
+    out = tmp_path / "b.npz"
+    config = '{"effects": {"floor_drift": {"drift_mm_s": [15.0, -10.0]}}, "noise": "aibo"}'
+    assert main(["collect", "--steps", "200", "--seed", "1", "--blind", "--config", config, "--out", str(out)]) == 0
+    with np.load(out, allow_pickle=False) as raw:
+        stored = " ".join(str(raw[k]) for k in raw.files)
+    assert "floor_drift" not in stored and "drift_mm_s" not in stored
+    tr = trajectory.load(out)
+    assert "effects" not in tr.meta["config"] and "truth" not in tr.meta and tr.pose is None
+    assert tr.meta["config"]["noise"] == "aibo" and tr.meta["config"]["field"] == [5400.0, 3600.0]
+    seen = main(["collect", "--steps", "200", "--seed", "1", "--config", config, "--out", str(tmp_path / "s.npz")])
+    assert seen == 0 and trajectory.load(tmp_path / "s.npz").meta["config"]["effects"] == {
+        "floor_drift": {"drift_mm_s": [15.0, -10.0]}}  # not blind: kept
+
+
 def test_collect_same_seed_same_bytes(tmp_path):
     a, b = tmp_path / "a.npz", tmp_path / "b.npz"
     for p in (a, b):

@@ -142,6 +142,16 @@ def test_diagnose_refuses_empty_candidates(value, blind_log, tmp_path, capsys):
     assert not (tmp_path / "D").exists()
 
 
+@pytest.mark.parametrize("value", ["1", "2"])
+def test_diagnose_refuses_too_few_replicas_to_reject_anything(value, blind_log, tmp_path, capsys):
+    """With fewer than 3 replicas the disagreement threshold is infinite: refused, not a silent '0 disagree'."""
+    with pytest.raises(SystemExit) as stop:  # refused by argparse, before any work
+        main(["diagnose", str(blind_log), "--out", str(tmp_path / "D"), "--replicas", value])
+    assert stop.value.code == 2
+    _one_line_error(capsys, "--replicas", "at least 3", f"got {value}")
+    assert not (tmp_path / "D").exists()
+
+
 def test_diagnose_and_learn_refuse_the_same_log_twice(blind_log, tmp_path, capsys):
     link = tmp_path / "link.npz"
     link.symlink_to(blind_log)

@@ -37,6 +37,29 @@ def test_pack_unpack_round_trip_with_an_effect():
     np.testing.assert_allclose(lo.size_scale, model.effects[0].scale[batch.sight_landmark])
 
 
+def test_a_far_extrapolated_packed_vector_unpacks_without_overflow():
+    """SQUAREM extrapolates the packed vector; a step far out used to overflow ``exp`` (a RuntimeWarning
+    reaching the user). Unpacked with warnings as errors: finite, positive, within the clip (the
+    likelihood, not the unpacking, rejects such a step)."""
+    import warnings
+
+    from learners.model.parameters import MAX_ABS
+
+    tr = sim_log(600)
+    model = paper_start([tr]).with_effect(BeaconHeightScale(np.ones(4)))
+    x = model.pack()
+    for far in (x + 1e4, x - 1e4, x * 1e6):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            back = model.unpack(far)
+            cov = np.asarray(back.action.cov)
+        scale = back.effects[0].scale
+        assert np.all(np.isfinite(cov)) and np.allclose(cov, cov.T)
+        assert np.all((scale >= 1 / MAX_ABS) & (scale <= MAX_ABS))
+        assert 0 < back.sensor.sigma_size <= MAX_ABS
+    assert max(model.max_abs_difference(model.unpack(x)).values()) < 1e-9  # ordinary values untouched
+
+
 def test_public_api_on_a_model_file(tmp_path):
     tr = sim_log(3000)
     res = EMLearner(EMOptions(max_iter=30)).fit([tr])
@@ -104,6 +127,55 @@ def test_unicycle_regression_holds_lateral_weights_at_zero():
     np.testing.assert_allclose(w[:, [0, 2]], free[:, [0, 2]], rtol=0, atol=1e-12)
     scaled = held.regress(commands, mu, scale=np.full(500, 0.9))
     assert np.all(scaled[:, 1] == 0.0)
+
+
+@pytest.mark.parametrize("feature_map", ["table", "diff_drive"])
+def test_regression_takes_a_factor_per_component(feature_map):
+    """An effect may scale each displacement component by its own factor (``disp_scale`` (N, 3), e.g. a
+    turn scale): the regression recovers the weights exactly from noise-free scaled displacements, and a
+    factor common to the three components gives the same weights as the (N,) factor."""
+    rng = np.random.default_rng(2)
+    if feature_map == "table":
+        model = ActionModel.zeros(6, 0.1)
+        commands = rng.integers(0, 6, 400)
+    else:
+        model = ActionModel.zeros(5, 0.1, "diff_drive", ("v_mm_s", "omega_rad_s"))
+        commands = np.column_stack([rng.uniform(-100, 400, 400), rng.uniform(-1.2, 1.2, 400)])
+    truth = model.with_values(weights=rng.normal(size=np.shape(model.weights)))
+    per_component = np.column_stack([np.ones(400), rng.uniform(0.8, 1.2, 400), rng.uniform(0.5, 1.5, 400)])
+    mu = truth.displacements(commands) * per_component
+    np.testing.assert_allclose(model.regress(commands, mu, per_component), truth.weights, atol=1e-9)
+    common = rng.uniform(0.5, 1.0, 400)
+    np.testing.assert_allclose(model.regress(commands, mu, np.column_stack([common] * 3)),
+                               model.regress(commands, mu, common), rtol=0, atol=1e-12)
+
+
+def test_effects_per_component_factors_compose_into_the_lowered_displacements():
+    """``Model.effective_commands``: a per-frame factor (velocity_fade) and a per-component one (a turn
+    scale, defined here) multiply into one (N, 3) factor on the lowered displacements."""
+    from dataclasses import dataclass
+    from typing import ClassVar
+
+    from learners.model.catalogue import VelocityFade
+    from learners.model.effects import EffectModel
+
+    @dataclass(frozen=True)
+    class TurnScale(EffectModel):  # not registered: the registries stay the catalogue
+        s: float
+        name: ClassVar[str] = "test_turn_scale"
+
+        def disp_scale(self, batch):
+            return np.tile([1.0, 1.0, self.s], (batch.n_frames, 1))
+
+    tr = sim_log(600)
+    batch = make_batch([tr])
+    model = paper_start([tr])
+    model = model.with_(action=model.action.with_values(weights=np.random.default_rng(3).normal(size=(40, 3))))
+    both = model.with_effect(VelocityFade(0.05)).with_effect(TurnScale(1.3))
+    _, scale = both.effective_commands(batch)
+    fade = VelocityFade(0.05).disp_scale(batch)
+    np.testing.assert_allclose(scale, fade[:, None] * [1.0, 1.0, 1.3])
+    np.testing.assert_allclose(both.lower(batch).disp, model.lower(batch).disp * scale)
 
 
 @pytest.mark.slow

@@ -13,11 +13,8 @@ from aibo_gym.context import NO_COMMAND
 from aibo_gym.effects import EFFECTS, Effect, register_effect
 from aibo_gym.envs import AiboBeaconsEnv
 
-CATALOGUE = {
-    "actuation_lag": ["lag_s"], "floor_drift": ["drift_mm_s"], "velocity_fade": ["fade_per_min"],
-    "wall_contact": [], "angle_bias": ["bias_rad"], "beacon_height_scale": ["scale"],
-    "off_center_shrink": ["k"], "distance_dependent_noise": ["exponent"], "false_sightings": ["rate"],
-}
+#: The catalogue (the simulator twins in ``aibo_gym.catalogue``): name -> its parameter names.
+CATALOGUE = {name: sorted(cls.defaults) for name, cls in EFFECTS.items() if cls.__module__ == "aibo_gym.catalogue"}
 EXACT_SENSING = {"sigma_height": 0.0, "sigma_angle": 0.0, "detect_prob": 1.0}
 DT = 1 / 30
 
@@ -54,8 +51,12 @@ def wrapped(a: np.ndarray) -> np.ndarray:
 
 # ---------------------------------------------------------------- the contract
 def test_catalogue_names_and_parameters_are_the_contract():
+    """Every simulator twin has a learner twin of the same name and parameter names, and back."""
+    from learners.model.effects import EFFECT_MODELS
+
+    assert len(CATALOGUE) >= 10 and set(CATALOGUE) == set(EFFECT_MODELS)
     for name, params in CATALOGUE.items():
-        assert sorted(EFFECTS[name].defaults) == params
+        assert sorted(EFFECT_MODELS[name].PARAMS) == params, name
         doc = EFFECTS[name].__doc__
         assert "Residual signature" in doc and len(doc.strip().splitlines()[0]) > 20
 

@@ -48,6 +48,18 @@ def test_round_trip(tr, tmp_path):
     assert b.pose is None and b.truth is None and b.meta["seed"] == 0
 
 
+def test_blind_drops_what_names_the_hidden_effect(tr):
+    from dataclasses import replace
+
+    meta = {"seed": 3, "truth": {"effects": {"angle_bias": {"bias_rad": 0.05}}},
+            "config": {"noise": "aibo", "field": [5400.0, 3600.0], "effects": {"angle_bias": {"bias_rad": 0.05}}}}
+    b = blind(replace(tr, meta=meta))
+    assert b.pose is None and "truth" not in b.meta and "angle_bias" not in json.dumps(b.meta)
+    assert b.meta == {"seed": 3, "config": {"noise": "aibo", "field": [5400.0, 3600.0]}}
+    assert meta["config"]["effects"] and meta["truth"]  # the input is not changed
+    assert blind(replace(tr, meta={"source": "a real robot"})).meta == {"source": "a real robot"}
+
+
 def test_v1_files_load_as_v2(tr, tmp_path):
     path = tmp_path / "old.npz"
     np.savez_compressed(path, **arrays_v1(tr))

@@ -120,7 +120,7 @@ def write_outputs(out: Path, final, report: dict, lines: list[str], sig_before, 
 def calibrated(found: dict, logs: list, args, say) -> dict:
     """The measured logs against the calibrated simulators of the base and the final model
     (``experiments.calibrated``): ``{"before", "after"}`` checks, or ``{"note"}`` why not."""
-    from experiments.calibrated import predictive_check, simulator_config
+    from experiments.calibrated import MIN_REPLICAS, predictive_check, simulator_config
 
     if args.replicas == 0:
         return {"note": "not run (--replicas 0)"}
@@ -136,9 +136,9 @@ def calibrated(found: dict, logs: list, args, say) -> dict:
         check = predictive_check(found[key], logs, args.replicas, args.seed, args.jobs)
         checks["before" if key == "base" else "after"] = check.as_dict()
         worst = check.disagreements()
-        if len(check.replicas) < 3:
+        if len(check.replicas) < MIN_REPLICAS:
             say(f"  {when}: no comparison: {len(check.replicas)} of {args.replicas} replicas ran "
-                f"({len(check.failed)} failed; 3 are needed)")
+                f"({len(check.failed)} failed; {MIN_REPLICAS} are needed)")
         else:
             say(f"  {when}: {len(worst)} statistics disagree (|z| > {check.threshold:.2g})"
                 + "".join(f"\n    {n:70s} {fig.z_text(z)}" for n, z in worst[:6]))

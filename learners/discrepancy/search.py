@@ -9,8 +9,9 @@ smoothed path, nothing is estimated) has no likelihood-ratio test: it is signifi
 training and its held-out gains exceed ``ZERO_DOF_NATS`` (its p-value is reported as if it had one
 dof, for reference only). Where the effect does nothing (no contact frames) both gains are exactly 0.
 Identifiability: a candidate that is not significant is refitted with its parameter frozen at a
-plausible strength (``PROBE``); if the likelihood does not drop by ``FLAT_NATS``, the data cannot
-tell the effect from the base model (a flat profile) and it is reported as not identifiable.
+plausible strength (the effect class's ``PROBE``, ``learners.model.effects``); if the likelihood does
+not drop by ``FLAT_NATS``, the data cannot tell the effect from the base model (a flat profile) and
+it is reported as not identifiable, with the class's ``REMEDY`` (what would make it identifiable) when it has one.
 """
 
 from __future__ import annotations
@@ -37,22 +38,6 @@ ALPHA = 0.01  # false-alarm level of one round of the search (all candidates tog
 FLAT_NATS = 2.0  # a frozen probe within this many nats of the free fit: a flat profile
 MAX_ROUNDS = 3
 ZERO_DOF_NATS = 3.0  # a zero-parameter effect must gain this much, on the training AND the held-out half
-
-#: A plausible strength per effect (in its units): the identifiability probe moves the estimate by it.
-PROBE: dict[str, dict[str, Any]] = {
-    "angle_bias": {"bias_rad": 0.1},
-    "floor_drift": {"drift_mm_s": np.array([20.0, 0.0])},
-    "velocity_fade": {"fade_per_min": 0.03},
-    "off_center_shrink": {"k": 0.3},
-    "distance_dependent_noise": {"exponent": 1.0},
-}
-#: What would make an effect identifiable when the data cannot tell it from the base model.
-REMEDY: dict[str, str] = {
-    "angle_bias": "a constant bearing offset b is explained exactly by a heading offset of b and every velocity "
-                  "rotated by b; a known start heading (an --init model with a tight initial heading) or known "
-                  "velocities would make it identifiable",
-}
-
 
 @dataclass
 class Candidate:
@@ -128,15 +113,15 @@ def try_candidate(name: str, base: Model, base_ll: float, base_heldout: float, t
     small = model.effect(name).negligible(sum(tr.n_sightings for tr in logs)) if c.significant else ""
     if small:
         c.significant, c.note = False, small
-    if not c.significant and name in PROBE and not cls.GRID:
-        shifted = {k: np.asarray(v) + np.asarray(model.effect(name).values()[k]) for k, v in PROBE[name].items()}
+    if not c.significant and cls.PROBE and not cls.GRID:
+        shifted = {k: np.asarray(v) + np.asarray(model.effect(name).values()[k]) for k, v in cls.PROBE.items()}
         probe = model.with_effect(_with(model.effect(name), shifted))  # the estimate moved by a plausible step
         fitted = _fit(train, probe, replace(opts, frozen=opts.frozen + (name,), max_iter=min(opts.max_iter, 150)))
         ll_probe = _train_loglik(fitted, train)
         flat = ll - ll_probe < FLAT_NATS
     if flat:
         c.identifiable, c.significant = False, False
-        c.note = "not identifiable from these data: " + REMEDY.get(name, "its profile likelihood is flat")
+        c.note = "not identifiable from these data: " + (cls.REMEDY or "its profile likelihood is flat")
     c.seconds = time.perf_counter() - t0
     return c
 

@@ -69,7 +69,7 @@ def maximize(model: Model, batch: Batch, post: Posterior, rng: np.random.Generat
             R = table_residual_cov_compiled(commands, mu_star, weights, lo.cov_scale)
         else:
             pred = action.displacements(commands)
-            R = resid_cov(mu_star, pred if scale is None else pred * scale[:, None], lo.cov_scale)
+            R = resid_cov(mu_star, pred if scale is None else pred * scale, lo.cov_scale)
         action = action.with_values(cov=_sym(C_sum * inv_n + R * inv_n))
     if post.extra is not None:  # the expectations over each sighting's joint belief of (pose, its size state)
         coef, sigma_size, sigma_bearing, drange = sensor_update_augmented(lo, batch, post, len(model.sensor.coef) - 1)

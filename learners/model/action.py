@@ -38,6 +38,12 @@ from learners.model.parameters import Component, Param
 PAPER_MOTION_STD = (10.0, 10.0, 0.1)
 
 
+def per_component(scale: np.ndarray) -> np.ndarray:
+    """A displacement factor as (N, 3) (forward, lateral, turn): an (N,) factor repeated on the three."""
+    scale = np.asarray(scale, dtype=float)
+    return np.broadcast_to(np.reshape(scale, (len(scale), -1)), (len(scale), 3))
+
+
 @dataclass(frozen=True)
 class ActionModel(Component):
     """features(command) x weights, with a shared per-frame noise covariance (module docstring)."""
@@ -100,16 +106,19 @@ class ActionModel(Component):
 
     def regress(self, commands: np.ndarray, mu_star: np.ndarray, scale: np.ndarray | None = None) -> np.ndarray:
         """New weights: least squares of the per-frame displacement estimates ``mu_star`` (N, 3) on the
-        features (times ``scale`` (N,) per frame when an effect scales the motion). ``table``: the mean
-        over the frames of each command (commands never executed keep their weights); otherwise
-        ordinary least squares over all frames (equal weights: one shared noise covariance)."""
-        if scale is not None and self.discrete:  # per command: sum s mu / sum s^2 (diagonal normal equations)
+        features (times ``scale`` when an effect scales the motion: (N,) per frame, or (N, 3) per frame and
+        component). ``table``: the mean over the frames of each command (commands never executed keep
+        their weights); otherwise ordinary least squares over all frames (equal weights: one shared noise
+        covariance), each component on its own scaled features."""
+        s3 = None if scale is None else per_component(scale)
+        if s3 is not None and self.discrete:  # per command and component: sum s mu / sum s^2 (diagonal)
             n_act = len(self.weights)
-            den = np.bincount(commands, weights=scale * scale, minlength=n_act)
-            num = np.stack([np.bincount(commands, weights=scale * mu_star[:, k], minlength=n_act) for k in range(3)], 1)
             out = np.array(self.weights, dtype=float)
-            seen = den > 0
-            out[seen] = num[seen] / den[seen, None]
+            for k in range(3):
+                den = np.bincount(commands, weights=s3[:, k] * s3[:, k], minlength=n_act)
+                num = np.bincount(commands, weights=s3[:, k] * mu_star[:, k], minlength=n_act)
+                seen = den > 0
+                out[seen, k] = num[seen] / den[seen]
             return out
         if self.discrete:
             n_act = len(self.weights)
@@ -122,8 +131,12 @@ class ActionModel(Component):
             out[seen] = sums[seen] / counts[seen, None]
             return out
         phi = self.features(commands)
-        if scale is not None:
-            phi = phi * scale[:, None]
+        if s3 is not None and not np.all(s3 == s3[:, :1]):  # a factor per component: a design matrix each
+            cols = [phi * s3[:, k, None] for k in range(3)]
+            return self.constrain(np.stack([np.linalg.lstsq(c.T @ c, c.T @ mu_star[:, k], rcond=None)[0]
+                                            for k, c in enumerate(cols)], axis=1))
+        if s3 is not None:
+            phi = phi * s3[:, :1]
         return self.constrain(np.linalg.lstsq(phi.T @ phi, phi.T @ mu_star, rcond=None)[0])  # normal equations: F x F
 
     def constrain(self, weights: np.ndarray) -> np.ndarray:

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
@@ -58,6 +58,8 @@ class FloorDrift(EffectModel):
     SIGNATURE: ClassVar[str] = "motion (sigma) vs world heading"
     PARAMS: ClassVar[dict[str, Param]] = {"drift_mm_s": Param("mm/s, world frame", "scaled", (10.0, 10.0), low=-1e4,
                                                                       high=1e4, shape=(2,))}
+    PROBE: ClassVar[dict[str, Any]] = {"drift_mm_s": np.array([20.0, 0.0])}
+    EXAMPLE: ClassVar[dict[str, Any]] = {"drift_mm_s": np.array([5.0, 1.0])}
 
     @classmethod
     def start(cls, batch: Batch) -> "FloorDrift":
@@ -94,6 +96,8 @@ class VelocityFade(EffectModel):
     name: ClassVar[str] = "velocity_fade"
     SIGNATURE: ClassVar[str] = "motion (sigma) vs elapsed time"
     PARAMS: ClassVar[dict[str, Param]] = {"fade_per_min": Param("1/min", "scaled", 0.01, low=-1.0, high=1.0, shape=())}
+    PROBE: ClassVar[dict[str, Any]] = {"fade_per_min": 0.03}
+    EXAMPLE: ClassVar[dict[str, Any]] = {"fade_per_min": 0.02}
 
     def disp_scale(self, batch: Batch) -> np.ndarray:
         return np.maximum(0.0, 1.0 - self.fade_per_min * batch.frame_time / 60.0)
@@ -128,6 +132,7 @@ class ActuationLag(EffectModel):
     PARAMS: ClassVar[dict[str, Param]] = {"lag_s": Param("s", "scaled", 0.1, trainable=False, low=0.0, high=60.0,
                                                                  shape=())}
     GRID: ClassVar[dict[str, tuple[float, ...]]] = {"lag_s": (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)}
+    EXAMPLE: ClassVar[dict[str, Any]] = {"lag_s": 0.2}  # no PROBE: the grid's profile shows a flat likelihood
 
     def commands(self, commands: np.ndarray, batch: Batch) -> np.ndarray:
         n = math.ceil(self.lag_s / batch.dt - 1e-9)
@@ -152,6 +157,12 @@ class AngleBias(EffectModel):
 
     name: ClassVar[str] = "angle_bias"
     PARAMS: ClassVar[dict[str, Param]] = {"bias_rad": Param("rad", "scaled", 0.01, low=-math.pi, high=math.pi, shape=())}
+    PROBE: ClassVar[dict[str, Any]] = {"bias_rad": 0.1}
+    REMEDY: ClassVar[str] = (
+        "a constant bearing offset b is explained exactly by a heading offset of b and every velocity rotated by b; "
+        "a known start heading (an --init model with a tight initial heading) or known velocities would make it "
+        "identifiable")
+    EXAMPLE: ClassVar[dict[str, Any]] = {"bias_rad": 0.03}
 
     def lower(self, lo: Lowered, batch: Batch) -> None:
         lo.bearing_offset = lo.bearing_offset + self.bias_rad
@@ -195,6 +206,8 @@ class OffCenterShrink(EffectModel):
     name: ClassVar[str] = "off_center_shrink"
     SIGNATURE: ClassVar[str] = "size (sigma) vs position in the image"
     PARAMS: ClassVar[dict[str, Param]] = {"k": Param("1/rad^2", "scaled", 0.05, low=-10.0, high=10.0, shape=())}
+    PROBE: ClassVar[dict[str, Any]] = {"k": 0.3}
+    EXAMPLE: ClassVar[dict[str, Any]] = {"k": 0.2}
     NEEDS: ClassVar[tuple[str, ...]] = ("head_pan",)
 
     def factor(self, batch: Batch) -> np.ndarray:
@@ -225,6 +238,8 @@ class DistanceDependentNoise(EffectModel):
     name: ClassVar[str] = "distance_dependent_noise"
     SIGNATURE: ClassVar[str] = "|size| (sigma) vs distance"
     PARAMS: ClassVar[dict[str, Param]] = {"exponent": Param("", "scaled", 0.1, low=0.0, high=10.0, shape=())}
+    PROBE: ClassVar[dict[str, Any]] = {"exponent": 1.0}
+    EXAMPLE: ClassVar[dict[str, Any]] = {"exponent": 0.5}
 
     def factor(self, lo: Lowered, batch: Batch) -> np.ndarray:
         """(S,) variance factor (d / 2500 mm)^(2 exponent), d the distance whose predicted size is measured."""

@@ -1,7 +1,7 @@
 """Effects: model components for real-world effects the base model lacks (the learner's twins of
 the simulator's ``aibo_gym.effects``, registered under the same names).
 
-An effect is a ``Component`` that
+An effect is a ``Component`` (walk-through: ``docs/adding-an-effect.md``) that
 - ``lower(lo, batch)``: writes itself into the lowered arrays (``learners.inference.lowered``),
   e.g. a per-sighting size scale, by replacing them (the neutral ones are shared, read-only); no
   kernel changes;
@@ -11,6 +11,8 @@ An effect is a ``Component`` that
 - ``predictive()`` and ``predictive_logdens(base, lo, batch, idx)``: a mixture's density of a sighting
   (default: the Gaussian), used by the E-step's likelihood and the held-out score.
 
+It also carries what the discrepancy search and the tests need: ``SIGNATURE`` (the residual signature
+that shows it missing), ``PROBE`` and ``REMEDY`` (identifiability) and ``EXAMPLE`` (a parameter set).
 Register one with ``@register_effect``; ``EFFECT_MODELS`` maps names to classes.
 """
 
@@ -41,6 +43,16 @@ class EffectModel(Component):
     GRID: ClassVar[dict[str, tuple[float, ...]]] = {}
     #: What the effect needs from the logs besides commands and sightings (``"head_pan"``, ``"field"``).
     NEEDS: ClassVar[tuple[str, ...]] = ()
+    #: A plausible strength (in the parameters' units) for the identifiability probe of
+    #: ``learners.discrepancy.search``: a candidate that is not significant is refitted with its estimate
+    #: moved by this step and frozen; {} (no probe) for an effect without a meaningful step.
+    PROBE: ClassVar[dict[str, Any]] = {}
+    #: What would make the effect identifiable when the data cannot tell it from the base model ("":
+    #: the report says its profile likelihood is flat).
+    REMEDY: ClassVar[str] = ""
+    #: A realistic parameter set (every key of ``PARAMS``; array parameters of a 4-beacon field), valid
+    #: for ``cls.start(batch).with_values(**EXAMPLE)`` and for the simulator twin: the tests use it.
+    EXAMPLE: ClassVar[dict[str, Any]] = {}
 
     def negligible(self, n_sightings: int) -> str:
         """Why the fitted effect is too small to name ("" when it is not), on data of ``n_sightings``
@@ -65,7 +77,8 @@ class EffectModel(Component):
         return commands
 
     def disp_scale(self, batch: Batch) -> np.ndarray | None:
-        """(N,) factor on each frame's mean displacement (e.g. a fading battery), or None."""
+        """Factor on each frame's mean displacement, or None: (N,) one per frame for all three components
+        (e.g. a fading battery), or (N, 3) per component (forward, lateral, turn; e.g. a turn scale)."""
         return None
 
     def lower(self, lo: Lowered, batch: Batch) -> None:
@@ -164,6 +177,7 @@ class BeaconHeightScale(EffectModel):
     SIGNATURE: ClassVar[str] = "size (sigma) vs landmark"
     CONSTRAINTS: ClassVar[int] = 1  # normalized to geometric mean 1
     PARAMS: ClassVar[dict[str, Param]] = {"scale": Param("factor per landmark", "log", high=1e3, shape=(-1,))}
+    EXAMPLE: ClassVar[dict[str, Any]] = {"scale": np.array([1.02, 0.98, 1.01, 0.99])}
 
     @classmethod
     def start(cls, batch: Batch) -> "BeaconHeightScale":

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 from scipy.optimize import minimize_scalar
@@ -132,6 +132,7 @@ class LandmarkBias(EffectModel):
         "sigma_rel": Param("fraction of the size", "log", low=0.0, high=0.5, shape=()),  # as the simulator's bounds
         "tau_s": Param("s", "log", low=1e-3, high=1e6, shape=()),
     }
+    EXAMPLE: ClassVar[dict[str, Any]] = {"sigma_rel": 0.03, "tau_s": 10.0}
 
     @classmethod
     def start(cls, batch: Batch) -> "LandmarkBias":

@@ -13,7 +13,7 @@ import numpy as np
 
 from learners.inference.batch import Batch
 from learners.inference.lowered import Lowered
-from learners.model.action import ActionModel
+from learners.model.action import ActionModel, per_component
 from learners.model.effects import EffectModel
 from learners.model.initial import DEFAULT_INITIAL, InitialState
 from learners.model.parameters import Component
@@ -58,7 +58,7 @@ class Model:
         commands, scale = self.effective_commands(batch)
         disp = self.action.displacements(commands)
         lo = Lowered.plain(
-            disp if scale is None else disp * scale[:, None], self.action.cov, self.sensor.basis_id, self.sensor.coef,
+            disp if scale is None else disp * scale, self.action.cov, self.sensor.basis_id, self.sensor.coef,
             self.sensor.sigma_size, self.sensor.sigma_bearing, np.stack([s.mean for s in self.init]),
             np.stack([s.cov for s in self.init]), batch.n_sightings,
         )
@@ -67,14 +67,16 @@ class Model:
         return lo
 
     def effective_commands(self, batch: Batch) -> tuple[np.ndarray, np.ndarray | None]:
-        """(commands in force per frame, (N,) factor on their displacements or None), after the effects
-        that act on commands (a lag) or scale the motion (a fading battery)."""
+        """(commands in force per frame, (N, 3) factor on each component of their displacements or None),
+        after the effects that act on commands (a lag) or scale the motion (a fading battery: the same
+        factor on the three components; a turn scale: its own per component)."""
         commands = batch.actions if batch.actions is not None else batch.controls
         scale = None
         for e in self.effects:
             commands = e.commands(commands, batch)
             s = e.disp_scale(batch)
             if s is not None:
+                s = per_component(s)
                 scale = s if scale is None else scale * s
         return commands, scale
 

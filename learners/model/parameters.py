@@ -79,6 +79,17 @@ def as_numbers(value: Any) -> np.ndarray:
     return arr
 
 
+#: Largest |log| a ``"log"`` parameter (or a log-Cholesky diagonal) unpacks from: an extrapolated step
+#: (SQUAREM) beyond it is clipped, so the value stays within [1 / MAX_ABS, MAX_ABS] and ``exp`` never
+#: overflows (it did, as a RuntimeWarning "overflow encountered in exp" reaching the user).
+LOG_MAX = math.log(MAX_ABS)
+
+
+def safe_exp(x: np.ndarray) -> np.ndarray:
+    """exp(x) with x clipped to [-LOG_MAX, LOG_MAX] (NaN stays NaN): finite, positive, no warning."""
+    return np.exp(np.clip(x, -LOG_MAX, LOG_MAX))
+
+
 def chol_vec(cov: np.ndarray) -> np.ndarray:
     """Log-Cholesky vector of a 3x3 SPD matrix: log of the diagonal, then the lower triangle."""
     L = np.linalg.cholesky(cov)
@@ -87,7 +98,7 @@ def chol_vec(cov: np.ndarray) -> np.ndarray:
 
 def chol_mat(v: np.ndarray) -> np.ndarray:
     """Inverse of ``chol_vec``."""
-    L = np.diag(np.exp(v[:3]))
+    L = np.diag(safe_exp(v[:3]))
     L[1, 0], L[2, 0], L[2, 1] = v[3], v[4], v[5]
     return L @ L.T
 
@@ -132,7 +143,7 @@ class Component:
         if own is not None:
             value = own(chunk, old)
         elif p.transform == "log":
-            value = np.exp(chunk).reshape(old.shape)
+            value = safe_exp(chunk).reshape(old.shape)
         elif p.transform == "logchol":
             value = chol_mat(chunk)
         else:

@@ -1,0 +1,88 @@
+"""Everything an effect needs lives on its two classes (``docs/adding-an-effect.md``): these checks run
+over the registries, so a new effect is checked as soon as both twins are registered."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from aibo_gym.collect import collect
+from aibo_gym.effects import EFFECTS
+from aibo_gym.envs import AiboBeaconsEnv
+from learners.inference.batch import make_batch
+from learners.model.effects import EFFECT_MODELS, effect_from_json
+from learners.model.model import start_model
+
+NAMES = sorted(EFFECT_MODELS)
+
+
+@pytest.fixture(scope="module")
+def batch():
+    return make_batch([collect(None, 600, seed=5)])
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_the_example_is_a_valid_parameter_set_of_both_twins(name):
+    cls = EFFECT_MODELS[name]
+    assert set(cls.EXAMPLE) == set(cls.PARAMS), f"{name}: EXAMPLE must give every parameter"
+    for key, value in cls.EXAMPLE.items():
+        assert cls.PARAMS[key].domain_error(np.asarray(value, dtype=float)) == "", (name, key)
+    sim = {k: np.asarray(v).tolist() for k, v in cls.EXAMPLE.items()}
+    env = AiboBeaconsEnv({"effects": {name: sim}})  # the simulator twin accepts it (one-line error otherwise)
+    assert env.config["effects"][name] == sim
+    assert name in EFFECTS and sorted(EFFECTS[name].defaults) == sorted(cls.PARAMS)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_the_example_lowers_into_a_model(name, batch):
+    cls = EFFECT_MODELS[name]
+    effect = cls.start(batch).with_values(**cls.EXAMPLE)
+    for key, value in cls.EXAMPLE.items():
+        np.testing.assert_allclose(effect.values()[key], value)
+    lo = start_model(batch, 1 / 30, "height_px", 40).with_effect(effect).lower(batch)
+    arrays = [v for v in vars(lo).values() if isinstance(v, np.ndarray) and v.dtype.kind == "f"]
+    assert arrays and all(np.all(np.isfinite(a)) for a in arrays)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_the_example_round_trips_through_the_model_file_entry(name, batch):
+    cls = EFFECT_MODELS[name]
+    effect = cls.start(batch).with_values(**cls.EXAMPLE)
+    doc = json.loads(json.dumps(effect.to_json()))
+    back = effect_from_json(doc, "model.json")
+    assert type(back) is cls
+    for key, value in cls.EXAMPLE.items():
+        np.testing.assert_allclose(back.values()[key], value)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_probe_and_remedy_name_the_effects_own_parameters(name):
+    cls = EFFECT_MODELS[name]
+    assert set(cls.PROBE) <= set(cls.PARAMS), name
+    assert not (cls.PROBE and cls.GRID), f"{name}: a grid parameter is probed by its own profile"
+    for key, step in cls.PROBE.items():
+        assert np.shape(step) == np.shape(cls.EXAMPLE[key]) and np.any(np.asarray(step) != 0), (name, key)
+    assert isinstance(cls.REMEDY, str)
+
+
+def test_the_search_reads_probe_and_remedy_from_the_classes():
+    """No per-name tables left in the search: its probe and remedy come from ``EFFECT_MODELS``."""
+    from learners.discrepancy import search
+
+    assert not hasattr(search, "PROBE") and not hasattr(search, "REMEDY")
+    assert "heading" in EFFECT_MODELS["angle_bias"].REMEDY and EFFECT_MODELS["angle_bias"].PROBE
+
+
+def test_every_signature_names_a_statistic_the_check_computes(batch):
+    """``SIGNATURE`` is matched (as a substring) against the calibrated check's statistic names: one that
+    matches none would never report the effect as unexplained."""
+    from learners.discrepancy.signatures import signatures
+    from learners.discrepancy.statistics import signature_key
+
+    tr = collect(None, 600, seed=5)
+    names = [signature_key(s.residual, s.variable) for s in signatures(start_model(batch, 1 / 30, "height_px", 40), [tr])]
+    for name, cls in EFFECT_MODELS.items():
+        if cls.SIGNATURE:
+            assert any(cls.SIGNATURE in n for n in names), (name, cls.SIGNATURE, names)
