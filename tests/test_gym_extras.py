@@ -38,14 +38,16 @@ def test_extras_keep_sb3_out_of_the_test_extra():
     assert any(d.startswith("stable-baselines3") for d in extras["agents"])
 
 
-def test_quick_start_does_not_name_torch_and_ci_installs_both_extras():
+def test_quick_start_does_not_name_torch_and_ci_installs_every_extra():
     readme = (ROOT / "README.md").read_text()
     assert "torch" not in _section(readme, "Quick start").lower()
     env_section = _section(readme, "Environments")
     assert "pip install torch --index-url https://download.pytorch.org/whl/cpu" in env_section
     assert 'pip install -e ".[agents]"' in env_section and "torch==2.13.0" in env_section
     ci = (ROOT / ".ci" / "run").read_text()
-    assert ci.index("torch==2.13.0") < ci.index('-e ".[test,agents]"') < ci.index("python -m pytest")
+    extras = re.search(r'-e "\.\[([a-z,]+)\]"', ci)
+    assert extras and {"test", "agents", "ray", "minari"} <= set(extras.group(1).split(",")), extras
+    assert ci.index("torch==2.13.0") < extras.start() < ci.index("python -m pytest")
 
 
 def test_every_test_module_imports_without_torch_and_sb3():
