@@ -61,7 +61,7 @@ def test_bad_arguments():
     with pytest.raises(ValueError, match="ekf"):
         RandomBalancedPolicy(None, seed=0, localizer="gps")
     with pytest.raises(ValueError, match="random-balanced"):
-        collect(None, 10, seed=0, policy="greedy")
+        collect(None, 10, seed=0, policy="clever")
 
 
 def test_ekf_tracks_the_true_pose_without_privileged_information():
