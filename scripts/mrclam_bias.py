@@ -77,42 +77,47 @@ def lag1(pairs: np.ndarray) -> float:
     return float(np.corrcoef(pairs[:, 0], pairs[:, 1])[0, 1]) if len(pairs) >= 3 else float("nan")
 
 
-def model_row(model, tr, pair_s: float, with_gap: bool = True) -> dict:
+def model_row(model, tr, pair_s: float) -> dict:
     """Vicon scores, held-out gap and innovation autocorrelation of one model on the whole log ``tr``."""
     row = {k: v for k, v in velocity_scores(model, [tr]).items() if k in ("vx_rms", "vtheta_rms", "windows")}
     row["pose_rms"] = pose_scores(model, [tr])["pose_rms"]
-    if with_gap:
-        row["gap"] = float(heldout_score(model, [tr]).gap)
-        pairs = consecutive_pairs(tr, normalized_range_innovations(model, tr), pair_s)
-        row["ac1"], row["pairs"] = lag1(pairs), int(len(pairs))
+    row["gap"] = float(heldout_score(model, [tr]).gap)
+    pairs = consecutive_pairs(tr, normalized_range_innovations(model, tr), pair_s)
+    row["ac1"], row["pairs"] = lag1(pairs), int(len(pairs))
     return row
 
 
-def fit_robot(data: Path, robot: int, dt: float, pair_s: float) -> dict:
-    """The record of one robot (module docstring)."""
-    t0 = time.perf_counter()
-    tr = import_robot(data, robot, dt=dt)
-    train = training_log(tr)
-    rec: dict = {"robot": robot, "dt": dt, "frames": int(tr.n_frames), "sightings": int(len(tr.sighting_frame)),
-                 "import_s": time.perf_counter() - t0}
+def fit_pair(train) -> tuple[object, object, dict]:
+    """(base result, result with ``landmark_bias``, record of wall times s, iterations, warnings) on ``train``."""
+    rec: dict = {}
     opts = learn_options()
     t0 = time.perf_counter()
     res0 = EMLearner(opts).fit([train], action_model="unicycle")
     rec["base_s"], rec["base_iterations"] = time.perf_counter() - t0, int(res0.iterations)
     rec["base_warnings"] = list(res0.info.get("warnings", []))
-    base = res0.params
     t0 = time.perf_counter()
     batch = make_batch([train])
-    m = base.with_effect(LandmarkBias.start(batch))
+    m = res0.params.with_effect(LandmarkBias.start(batch))
     m = m.with_effect(m.effect("landmark_bias").warm_start(m, batch))
     res1 = EMLearner(replace(opts, alias_search=False, starts=1)).fit([train], init=m, action_model="unicycle")
     rec["bias_s"], rec["bias_iterations"] = time.perf_counter() - t0, int(res1.iterations)
     rec["bias_warnings"] = list(res1.info.get("warnings", []))
     eff = res1.params.effect("landmark_bias")
     rec["sigma_rel"], rec["tau_s"] = float(eff.sigma_rel), float(eff.tau_s)
+    return res0, res1, rec
+
+
+def fit_robot(data: Path, robot: int, dt: float, pair_s: float) -> dict:
+    """The record of one robot (module docstring)."""
     t0 = time.perf_counter()
-    rec["face"] = model_row(face_value_model(base), tr, pair_s)
-    rec["base"] = model_row(base, tr, pair_s)
+    tr = import_robot(data, robot, dt=dt)
+    rec: dict = {"robot": robot, "dt": dt, "frames": int(tr.n_frames), "sightings": int(len(tr.sighting_frame)),
+                 "import_s": time.perf_counter() - t0}
+    res0, res1, times = fit_pair(training_log(tr))
+    rec.update(times)
+    t0 = time.perf_counter()
+    rec["face"] = model_row(face_value_model(res0.params), tr, pair_s)
+    rec["base"] = model_row(res0.params, tr, pair_s)
     rec["bias"] = model_row(res1.params, tr, pair_s)
     rec["score_s"] = time.perf_counter() - t0
     return rec
