@@ -60,6 +60,12 @@ class EffectModel(Component):
         set aside, not an effect. Default: never negligible."""
         return ""
 
+    def implausible(self) -> str:
+        """Why the fitted values are not physically credible for this effect ("" when they are): a
+        significant gain at such values means the effect stands in for something else (a wrong world,
+        outliers), so it is not named. Default: always credible."""
+        return ""
+
     def dof(self) -> int:
         """Free numbers the effect adds (for the likelihood-ratio test): grid parameters count one each."""
         return sum(1 if name in self.GRID else np.size(v) for name, v in self.values().items()) - self.CONSTRAINTS

@@ -45,6 +45,10 @@ if TYPE_CHECKING:
 K_MAX = 8  # bias states carried at once (least recently seen landmark evicted beyond this)
 SIGMA_FLOOR = 1e-4  # sigma_rel is kept above this: at 0 the states would be degenerate (a singular smoother)
 TAU_BOUNDS_S = (1e-2, 1e4)  # the M-step's search range for tau_s (s)
+#: The largest credible sigma_rel. Measured: 0.037-0.108 on the MRCLAM robots (docs/results.md, "Bias states on the
+#: real robots"), 0.24 on robot 3 in a wrong world, and 0.47 on a simulated log with 10% spurious sightings and no
+#: bias, whose base fit was in a wrong world (97.5% of its poses off the field): there it was named before them.
+MAX_PLAUSIBLE_SIGMA = 0.2
 WARM_GRID = ((0.01, 0.02, 0.04, 0.08), (1.0, 3.0, 10.0, 30.0))  # warm_start's sigma_rel and tau_s (s)
 
 
@@ -150,6 +154,14 @@ class LandmarkBias(EffectModel):
             return innovations_compiled(model.with_effect(e).lower(batch), batch)[0]
 
         return max((LandmarkBias(s, t) for s in WARM_GRID[0] for t in WARM_GRID[1]), key=loglik)
+
+    def implausible(self) -> str:
+        """A 'bias' above ``MAX_PLAUSIBLE_SIGMA`` is not one: the base model's sizes are off by more than a
+        landmark's apparent size drifts, and the states stand in for a wrong world or outliers."""
+        if self.sigma_rel <= MAX_PLAUSIBLE_SIGMA:
+            return ""
+        return (f"sigma_rel {self.sigma_rel:.2f} is no bias (above {MAX_PLAUSIBLE_SIGMA}): the bias states stand in for "
+                "something larger (a wrong world of the base model, or outliers: see the other candidates)")
 
     def transitions(self, dt: float) -> tuple[float, float]:
         """(phi, q) of one frame of ``dt`` s: b' = phi b + N(0, q)."""

@@ -50,6 +50,10 @@ class Model:
             return replace(self, effects=tuple(effect if e.name == effect.name else e for e in self.effects))
         return replace(self, effects=self.effects + (effect,))
 
+    def without_effect(self, name: str) -> "Model":
+        """The model with the effect ``name`` removed (the same model when it has none)."""
+        return replace(self, effects=tuple(e for e in self.effects if e.name != name))
+
     # ------------------------------------------------------------------ inference arrays
     def lower(self, batch: Batch) -> Lowered:
         """The per-frame and per-sighting arrays of this model on ``batch`` (base model, then effects)."""

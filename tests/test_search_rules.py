@@ -1,0 +1,96 @@
+"""The decision rules of the discrepancy search that do not need a fit: the backward check (``prune``), the
+plausibility of a fitted bias, and the warning of a fit in a world that does not fit the field."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import pytest
+
+from learners.discrepancy import search as search_module
+from learners.discrepancy.search import Candidate, prune
+from learners.em.learner import MAX_OFF_FIELD, field_warnings
+from learners.model.landmark_bias import MAX_PLAUSIBLE_SIGMA, LandmarkBias
+
+
+@dataclass(frozen=True)
+class _Effect:
+    name: str
+    k: int = 1
+
+    def dof(self) -> int:
+        return self.k
+
+
+@dataclass(frozen=True)
+class _Model:
+    """A stand-in model: its effects, and the training and held-out log-likelihoods the test assigns it."""
+
+    effects: tuple[_Effect, ...]
+
+    def effect(self, name):
+        return next((e for e in self.effects if e.name == name), None)
+
+    def without_effect(self, name):
+        return _Model(tuple(e for e in self.effects if e.name != name))
+
+
+@dataclass
+class _Score:
+    heldout_loglik: float
+
+
+def _run(monkeypatch, names, train_ll, heldout_ll):
+    """prune() on stand-ins: ``train_ll`` / ``heldout_ll`` map a frozenset of effect names to log-likelihoods."""
+    monkeypatch.setattr(search_module, "_drop_job",
+                        lambda args: (args[1].without_effect(args[0]),
+                                      train_ll[frozenset(e.name for e in args[1].without_effect(args[0]).effects)]))
+    monkeypatch.setattr(search_module, "score",
+                        lambda model, logs: _Score(heldout_ll[frozenset(e.name for e in model.effects)]))
+    named = [Candidate(n, {}, 0.0, 0.0, 1, 0.0) for n in names]
+    full = _Model(tuple(_Effect(n) for n in names))
+    model, ll = prune(named, full, train_ll[frozenset(names)], [], [], None, None, lambda s: None)
+    return [c.name for c in named], model, ll
+
+
+def test_the_backward_check_drops_a_stand_in_and_keeps_what_earns_its_place(monkeypatch):
+    """'bias' was named first but, given 'outliers', gains 0.5 nats (p 0.3): dropped; 'outliers' given 'bias'
+    gains 40 nats train and 30 held-out: kept, and the returned model is the reduced refit."""
+    s = frozenset
+    train = {s({"bias", "outliers"}): -1000.0, s({"outliers"}): -1000.5, s({"bias"}): -1040.0}
+    held = {s({"bias", "outliers"}): -900.0, s({"outliers"}): -899.0, s({"bias"}): -930.0}
+    kept, model, ll = _run(monkeypatch, ["bias", "outliers"], train, held)
+    assert kept == ["outliers"]
+    assert [e.name for e in model.effects] == ["outliers"] and ll == -1000.5
+
+
+def test_the_backward_check_keeps_two_effects_that_both_matter(monkeypatch):
+    s = frozenset
+    train = {s({"a", "b"}): -1000.0, s({"b"}): -1030.0, s({"a"}): -1025.0}
+    held = {s({"a", "b"}): -900.0, s({"b"}): -920.0, s({"a"}): -915.0}
+    kept, model, ll = _run(monkeypatch, ["a", "b"], train, held)
+    assert kept == ["a", "b"] and ll == -1000.0
+
+
+def test_the_backward_check_drops_an_effect_that_loses_on_the_held_out_half(monkeypatch):
+    """Significant on the training half (+20 nats) but worse held out (-2 nats): an over-fit, dropped."""
+    s = frozenset
+    train = {s({"a", "b"}): -1000.0, s({"b"}): -1030.0, s({"a"}): -1020.0}
+    held = {s({"a", "b"}): -900.0, s({"b"}): -920.0, s({"a"}): -898.0}
+    kept, _, _ = _run(monkeypatch, ["a", "b"], train, held)
+    assert kept == ["a"]
+
+
+def test_a_bias_of_more_than_a_fifth_of_the_size_is_not_credible():
+    assert LandmarkBias(0.05, 8.0).implausible() == ""
+    assert LandmarkBias(MAX_PLAUSIBLE_SIGMA, 8.0).implausible() == ""
+    note = LandmarkBias(0.47, 21.6).implausible()
+    assert "0.47" in note and "wrong world" in note
+
+
+@pytest.mark.parametrize("frac, warned", [(0.0, False), (MAX_OFF_FIELD, False), (0.975, True)])
+def test_a_fit_off_the_field_is_warned(frac, warned):
+    w = field_warnings(frac)
+    assert bool(w) == warned
+    if warned:
+        assert "98% of smoothed poses" in w[0]
