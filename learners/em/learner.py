@@ -33,6 +33,14 @@ class EMDivergedError(RuntimeError):
     """EM converged to a world that does not fit the field (usually a bad starting sensor model)."""
 
 
+def field_warnings(frac: float) -> list[str]:
+    """The warning of a fit that ``check_field=False`` let through in a world that does not fit the field."""
+    if frac <= MAX_OFF_FIELD:
+        return []
+    return [f"a wrong world? {frac:.0%} of smoothed poses lie more than {OFF_FIELD_MARGIN_MM:.0f} mm outside the "
+            "field: the sensor curve implies wrong beacon distances"]
+
+
 def off_field_fraction(mu: np.ndarray, field: np.ndarray, margin: float = OFF_FIELD_MARGIN_MM) -> float:
     """Share of poses (x, y in mm) further than ``margin`` outside the field rectangle."""
     half = np.asarray(field, float) / 2 + margin
@@ -208,7 +216,8 @@ class EMLearner:
         se = info.get("standard_errors", {}).get("action_model.velocities")
         close = close_call(alias, None if se is None else np.asarray(se, float)) if alias else ""
         info["warnings"] = curve_warnings(state.best) + face_value_warnings(state.best, batch.controls) + (
-            [split] if split else []) + ([close] if close else []) + weak_command_warnings(state.best, se) + (
+            [split] if split else []) + ([close] if close else []) + field_warnings(info["off_field_fraction"]) + \
+            weak_command_warnings(state.best, se) + (
             [f"{len(undetermined)} parameter(s) not determined by the data (e.g. {undetermined[0]}): kept at their "
              "start values"] if undetermined else [])
         converged = state.converged and (scoring is None or scoring.record["converged"])
