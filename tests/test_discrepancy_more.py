@@ -71,9 +71,12 @@ def test_diagnose_names_false_sightings(tmp_path):
     assert report["effect"] == "false_sightings", report["effects"]
     assert abs(named["false_sightings"]["rate"] - 0.1) < RATE_TOL, named
     assert report["gap_after"] < report["gap_before"]
+    # On this log the base fit from the paper's start is in a wrong world (97-99% of the smoothed poses off the
+    # field) and the search repairs it with whatever fits; the report must say so, not stay silent
+    assert any(w.startswith("a wrong world?") for w in report["warnings"]), report["warnings"]
 
 
-RATE_TOL = 0.05  # measured 0.065 for 0.1, seed 11 (0.169 with the cubic basis)
+RATE_TOL = 0.05  # measured 0.093 for 0.1, seed 11 (the diagnosed model's; 0.28 in the candidate fit of round 1)
 
 
 @pytest.mark.slow

@@ -214,4 +214,5 @@ def test_diagnose_names_landmark_bias_and_not_where_there_is_none(tmp_path):
     (tmp_path / "none").mkdir()
     report = diagnose(tmp_path / "none", collect({"noise": "aibo"}, steps=9000, seed=11), "landmark_bias")
     assert report["effect"] == "none" and report["effects"] == []
-    assert report["warnings"] == []  # the diagnosed model's warnings (a possibly wrong world) are reported
+    # the diagnosed model's warnings are reported; a 5-minute log may leave some commands weakly determined, no more
+    assert not [w for w in report["warnings"] if not w.startswith("weakly determined")], report["warnings"]
