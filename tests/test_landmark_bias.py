@@ -15,6 +15,7 @@ from learners.inference.action_stats import action_statistics
 from learners.inference.augmented import displacement_statistics, rts_pass, smooth_augmented
 from learners.inference.batch import Batch
 from learners.inference.kernels import innovations_compiled, smooth_compiled
+from learners.inference.kernels.augmented_stats import displacement_statistics_compiled
 from learners.inference.posterior import ExtraMoments, Posterior
 from learners.inference.reference import forward_pass, two_filter_smooth
 from learners.model.landmark_bias import LandmarkBias, slot_schedule
@@ -46,6 +47,14 @@ def test_compiled_equals_reference_with_bias_states(name):
     ll, innov = innovations_compiled(lo, batch)
     assert ll == pytest.approx(smooth_augmented(lo, batch).loglik, rel=1e-12)
     assert np.isfinite(innov[batch.used]).all()
+    for need_cov in (True, False):  # the action statistics of the M-step: the compiled twin, to 1e-9
+        mu, C = displacement_statistics(lo, batch, ref, need_cov)
+        mu_c, C_c = displacement_statistics_compiled(lo, batch, ref, need_cov)
+        np.testing.assert_allclose(mu_c, mu, rtol=1e-9, atol=1e-9 * (1 + np.abs(mu).max()))
+        if need_cov:
+            np.testing.assert_allclose(C_c, C, rtol=1e-9, atol=1e-9 * np.abs(C).max())
+        else:
+            assert C is None and C_c is None
 
 
 def test_rts_equals_two_filter_smoother_on_a_linear_gaussian_system():

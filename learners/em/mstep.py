@@ -52,7 +52,11 @@ def maximize(model: Model, batch: Batch, post: Posterior, rng: np.random.Generat
     lo = model.lower(batch) if lo is None else lo
     commands, scale = model.effective_commands(batch)
     if post.extra is not None:  # an augmented E-step (extra states): its smoothed joint gives the statistics
-        mu_star, C_sum = displacement_statistics(lo, batch, post, opts.learn_motion_noise)
+        if opts.estep == "compiled":
+            from learners.inference.kernels.augmented_stats import displacement_statistics_compiled as displacement
+        else:
+            displacement = displacement_statistics
+        mu_star, C_sum = displacement(lo, batch, post, opts.learn_motion_noise)
     else:
         mu_star, C_sum = action_stats(lo, batch, post, opts.learn_motion_noise)
     fused = opts.estep == "compiled" and model.action.discrete and scale is None  # the table's fused twin
