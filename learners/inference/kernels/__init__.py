@@ -17,7 +17,11 @@ Layout (one concept per module; import the public functions from this package):
 - ``estep``: the E-step kernel (forward EKF, backward information filter, combination) and
   its wrapper ``smooth_compiled``;
 - ``action``: the fused action statistics ``action_statistics_compiled`` and ``residual_cov_compiled``;
-- ``sensor``: the fused sensor curve fit ``sensor_update_compiled``.
+- ``sensor``: the fused sensor curve fit ``sensor_update_compiled``;
+- ``augmented``: the E-step with extra states (pose plus K scalar states, ``Lowered.extra``: forward EKF and
+  Rauch-Tung-Striebel), dispatched to by ``smooth_compiled`` and ``innovations_compiled``;
+- ``augmented_stats``: its action statistics ``displacement_statistics_compiled``;
+- ``arguments``: the flat kernel arguments of a lowered model and a batch (``_inputs``).
 """
 
 from __future__ import annotations
