@@ -32,7 +32,9 @@ def compile_cmd() -> dict:
                     np.tile([20.0, 0.5], (n, 1)), actions=np.zeros(n, np.int64), attempted=attempted_velocities())
     batch = make_batch([tr])
     t0 = time.perf_counter()
-    from learners.em.fit import EMOptions, e_step, m_step
+    from learners.em.estep import e_step
+    from learners.em.fit import m_step
+    from learners.em.options import EMOptions
 
     params = start_model(batch, tr.dt)
     for method in ("cubature", "sample"):
@@ -48,7 +50,9 @@ def scale_cmd(path: str, n: int) -> dict:
     import tracemalloc
 
     from aibo_core import trajectory
-    from learners.em.fit import EMOptions, e_step, m_step
+    from learners.em.estep import e_step
+    from learners.em.fit import m_step
+    from learners.em.options import EMOptions
     from learners.inference.batch import make_batch
     from learners.model.model import start_model
 

@@ -43,8 +43,8 @@ from experiments.calibrated_wheeled import image_frames, wheeled_config
 from learners.discrepancy.search import drop_outliers
 from learners.discrepancy.split import training_log
 from learners.discrepancy.statistics import check_statistics
-from learners.em.fit import EMOptions
 from learners.em.learner import EMLearner
+from learners.em.options import EMOptions
 from learners.model.model import Model
 
 #: Camera and body settings taken from a log made by this simulator (``meta["config"]``).

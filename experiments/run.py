@@ -72,7 +72,7 @@ def spec_from_json(d: dict[str, Any]) -> RunSpec:
 
 
 def em_options(spec: RunSpec):
-    from learners.em.fit import EMOptions
+    from learners.em.options import EMOptions
 
     return EMOptions(**{"seed": spec.seed, **spec.learner})
 

@@ -175,7 +175,7 @@ def sensor_scores(model: Model, logs: list[Trajectory]) -> dict[str, float]:
 
 def pose_scores(model: Model, logs: list[Trajectory]) -> dict[str, float]:
     """RMS position (mm) and heading (rad) error of the smoothed poses against ``pose``."""
-    from learners.em.fit import e_step
+    from learners.em.estep import e_step
     from learners.inference.batch import make_batch
 
     batch = make_batch(logs)

@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 from experiments.loop import fit_em, score, simulate
-from learners.em.fit import EMOptions
+from learners.em.options import EMOptions
 from learners.oracle import OracleLearner
 
 VARIANTS = {

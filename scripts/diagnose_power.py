@@ -21,7 +21,7 @@ from aibo_core.atomic import atomic_write
 from aibo_core.trajectory import blind
 from aibo_gym.collect import collect
 from learners.discrepancy.search import search
-from learners.em.fit import EMOptions
+from learners.em.options import EMOptions
 from learners.model.effects import EFFECT_MODELS
 
 STRENGTHS = {

@@ -26,8 +26,8 @@ from dataclasses import replace
 import numpy as np
 
 from aibo_gym.collect import collect
-from learners.em.fit import EMOptions
 from learners.em.learner import EMLearner
+from learners.em.options import EMOptions
 from learners.metrics import model_errors, velocity_bound
 from learners.oracle import OracleLearner
 

@@ -27,8 +27,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from aibo_core import trajectory  # noqa: E402
 from aibo_core.mrclam import import_robot  # noqa: E402
-from learners.em.fit import EMOptions  # noqa: E402
 from learners.em.learner import EMLearner  # noqa: E402
+from learners.em.options import EMOptions  # noqa: E402
 from learners.em.support import face_value_departure  # noqa: E402
 from learners.scoring import (  # noqa: E402
     face_value_model,

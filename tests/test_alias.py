@@ -10,8 +10,8 @@ from aibo.cli import main
 from aibo_core import trajectory
 from aibo_gym.robot import move
 from learners.em.alias import CLOSE_NATS, alias_steps, aliased, close_call, fixed_line, holds
-from learners.em.fit import EMOptions
 from learners.em.learner import EMLearner
+from learners.em.options import EMOptions
 from learners.metrics import model_errors
 from learners.model.io import load_model
 from tests._logs import sim_log

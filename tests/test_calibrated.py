@@ -15,8 +15,8 @@ from aibo_gym.collect import collect
 from aibo_gym.config import make_config
 from aibo_gym.envs.aibo_beacons import AiboBeaconsEnv
 from experiments.calibrated import Check, predictive_check, replay_log, simulator_config
-from learners.em.fit import EMOptions
 from learners.em.learner import EMLearner
+from learners.em.options import EMOptions
 from learners.model.catalogue import FloorDrift
 from learners.model.io import save_result
 from tests._logs import sim_log

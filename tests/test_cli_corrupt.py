@@ -166,8 +166,8 @@ def test_wrong_kind_of_file_is_one_line(case, log, tmp_path, capsys):
 
 
 def test_real_checkpoint_as_log_is_one_line(log, tmp_path, capsys):
-    from learners.em.fit import EMOptions
     from learners.em.learner import EMLearner
+    from learners.em.options import EMOptions
 
     ckpt = tmp_path / "c.npz"
     learner = EMLearner(EMOptions(max_iter=40), checkpoint_path=ckpt, checkpoint_every=1)

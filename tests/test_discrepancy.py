@@ -14,8 +14,9 @@ from aibo_gym.collect import collect
 from learners.discrepancy.score import predictive_logdens
 from learners.discrepancy.signatures import signatures
 from learners.discrepancy.split import heldout_mask, training_log
-from learners.em.fit import EMOptions, e_step
+from learners.em.estep import e_step
 from learners.em.learner import EMLearner
+from learners.em.options import EMOptions
 from learners.inference.batch import make_batch
 from tests._logs import diagnose, sim_log
 

@@ -9,8 +9,9 @@ import pytest
 
 from aibo_gym.collect import collect
 from learners.discrepancy.search import ZERO_DOF_NATS
-from learners.em.fit import EMOptions, e_step
+from learners.em.estep import e_step
 from learners.em.learner import EMLearner
+from learners.em.options import EMOptions
 from learners.inference.batch import make_batch
 from learners.inference.predictive import predictive_logdens, sightings_logdens
 from learners.model.catalogue_more import FalseSightings, WallContact

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from aibo_core.trajectory import blind
-from learners.em.fit import EMOptions
 from learners.em.learner import EMDivergedError, EMLearner
+from learners.em.options import EMOptions
 from learners.metrics import model_errors
 from learners.model.model import paper_start
 from learners.model.sensor import SensorModel

@@ -9,8 +9,8 @@ import pytest
 
 from learners.em.accel import Packer
 from learners.em.finish import _bfgs, fisher_scoring, loglik_at
-from learners.em.fit import EMOptions
 from learners.em.learner import EMLearner
+from learners.em.options import EMOptions
 from learners.em.uncertainty import packed, parameter_uncertainty, unpacked
 from learners.inference.batch import make_batch
 from learners.inference.lowered import BASIS_INVERSE

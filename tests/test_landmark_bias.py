@@ -10,7 +10,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from learners.em.fit import EMOptions, e_step
+from learners.em.estep import e_step
+from learners.em.options import EMOptions
 from learners.inference.action_stats import action_statistics
 from learners.inference.augmented import displacement_statistics, rts_pass, smooth_augmented
 from learners.inference.batch import Batch

@@ -108,3 +108,52 @@ def test_relative_imports_resolve_to_their_package():
     assert names == ["learners.em", "learners.model"]
     names = [n for _, n in imported_modules("from .kernels import c\n", "learners.inference", True)]
     assert names == ["learners.inference.kernels"]
+
+
+def import_cycles(root: Path, package: str) -> list[list[str]]:
+    """The import cycles among the modules of ``package`` (every import statement, lazy ones included): each
+    as the list of modules around it. A lazy import that only breaks a cycle at import time still ties the two
+    modules; the options of a fit, its E-step and its loop must read one way."""
+    graph: dict[str, set[str]] = {}
+    for path in sorted((root / package).rglob("*.py")):
+        module = module_name(path, root)
+        names = {n for _, n in imported_modules(path.read_text(encoding="utf-8"), module, path.name == "__init__.py")}
+        graph[module] = names
+    modules = set(graph)
+    # an import of a name inside a module (``from learners.em.fit import e_step``) resolves to that module
+    edges = {m: {n for n in names if n in modules and n != m and not m.startswith(n + ".")} for m, names in graph.items()}
+    cycles, state = [], {}
+
+    def visit(m: str, stack: list[str]) -> None:
+        state[m] = "open"
+        for n in sorted(edges[m]):
+            if state.get(n) == "open":
+                cycles.append(stack[stack.index(n):] + [n])
+            elif n not in state:
+                visit(n, stack + [n])
+        state[m] = "done"
+
+    for m in sorted(edges):
+        if m not in state:
+            visit(m, [m])
+    return cycles
+
+
+def test_the_fit_modules_import_one_way():
+    """``learners.em.options`` (EMOptions and its defaults) and ``learners.em.estep`` are leaves the loop, the
+    acceleration, the M-step and the search read; no module of the EM package imports one that imports it back."""
+    cycles = [c for c in import_cycles(ROOT, "learners") if any(m.startswith("learners.em.") for m in c)]
+    assert cycles == []
+    options = {n for _, n in imported_modules((ROOT / "learners/em/options.py").read_text(), "learners.em.options", False)}
+    assert not [n for n in options if n.startswith("learners")]
+
+
+def test_the_cycle_check_finds_a_lazy_cycle(tmp_path):
+    pkg = tmp_path / "learners" / "em"
+    pkg.mkdir(parents=True)
+    (tmp_path / "learners" / "__init__.py").write_text("")
+    (pkg / "__init__.py").write_text("")
+    (pkg / "a.py").write_text("from learners.em.b import x\n")
+    (pkg / "b.py").write_text("def f():\n    from learners.em.a import y\n")
+    (pkg / "c.py").write_text("from learners.em import a\n")
+    assert import_cycles(tmp_path, "learners") == [["learners.em.a", "learners.em.b", "learners.em.a"]]

@@ -9,8 +9,8 @@ import pytest
 
 from aibo.cli import main
 from aibo_core import trajectory
-from learners.em.fit import EMOptions
 from learners.em.learner import EMLearner
+from learners.em.options import EMOptions
 from learners.em.starts import DISAGREE_NATS, DISTANCE_SCALES, disagreement, distance_scales, stretched
 from learners.metrics import model_errors
 from learners.model.model import paper_start

@@ -80,8 +80,8 @@ def test_standard_errors_match_the_spread_over_simulated_logs():
     (the Monte Carlo study in docs/results.md does the same with 15-minute logs from the paper's start).
     vtheta's Fisher SE is ~15% optimistic on logs this short (each command held ~2-3 times)."""
     from aibo_gym.collect import collect
-    from learners.em.fit import EMOptions
     from learners.em.learner import EMLearner
+    from learners.em.options import EMOptions
     from learners.model.model import paper_start
 
     est, se = [], []

@@ -68,7 +68,9 @@ def estep_speed(tr) -> dict:
 
 def mstep_speed(tr) -> dict:
     """Compiled vs NumPy reference M-step (default options) on the same E-step output."""
-    from learners.em.fit import EMOptions, e_step, m_step
+    from learners.em.estep import e_step
+    from learners.em.fit import m_step
+    from learners.em.options import EMOptions
     from learners.inference.batch import make_batch
     from learners.model.model import start_model
 
@@ -154,7 +156,7 @@ def run(args) -> int:
     print(f"  first-call compile time {report['compile_s']:.1f} s")
 
     print(f"fits ({paper_frames:,d} frames, paper start, to convergence) ...", flush=True)
-    from learners.em.fit import EMOptions
+    from learners.em.options import EMOptions
 
     variants = {"default": EMOptions()} if args.quick else {
         "default": EMOptions(),

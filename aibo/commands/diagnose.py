@@ -19,8 +19,8 @@ from aibo_core.compat import check_compatible
 from learners.discrepancy.score import GAP_METRIC, score
 from learners.discrepancy.search import search
 from learners.discrepancy.signatures import signatures
-from learners.em.fit import EMOptions
 from learners.em.learner import EMLearner, feature_map_for
+from learners.em.options import EMOptions
 from learners.model.effects import EFFECT_MODELS
 from learners.model.io import save_result
 

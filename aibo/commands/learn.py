@@ -15,8 +15,8 @@ from aibo_core import trajectory
 from aibo_core.compat import check_compatible
 from learners.base import LearnResult, get_learner
 from learners.em.alias import fixed_line
-from learners.em.fit import EMOptions
 from learners.em.learner import check_model_fits
+from learners.em.options import EMOptions
 from learners.metrics import model_errors, observed_distance_range, true_height, truth_problem, velocity_errors
 from learners.model import io as model_io
 

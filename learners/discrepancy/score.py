@@ -9,7 +9,8 @@ import numpy as np
 from scipy import stats
 
 from aibo_core.trajectory import Trajectory
-from learners.em.fit import DEFAULT_GATE, e_step
+from learners.em.estep import e_step
+from learners.em.options import DEFAULT_GATE
 from learners.inference.batch import make_batch
 from learners.inference.predictive import predictive_logdens, sightings_logdens
 from learners.model.model import Model

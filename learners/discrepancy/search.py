@@ -33,8 +33,9 @@ from scipy import stats
 
 from aibo_core.trajectory import Trajectory
 from aibo_core.workers import process_pool
-from learners.em.fit import EMOptions
+from learners.em.estep import e_step
 from learners.em.learner import EMLearner
+from learners.em.options import DEFAULT_GATE, EMOptions
 from learners.inference.batch import make_batch
 from learners.model.effects import EFFECT_MODELS, EffectModel
 from learners.model.model import Model
@@ -148,8 +149,6 @@ def _job(args: tuple) -> Candidate:
 def drop_outliers(model: Model, logs: list[Trajectory]) -> tuple[list[Trajectory], int]:
     """The logs without the sightings ``model`` gates out as outliers (Mahalanobis^2 > the fit's gate),
     so that every candidate is fitted and scored on the same sightings (likelihoods comparable)."""
-    from learners.em.fit import DEFAULT_GATE, e_step
-
     post = e_step(model, make_batch(logs), "compiled", DEFAULT_GATE)
     bad = post.mahal2 > DEFAULT_GATE
     out, at = [], 0
@@ -196,8 +195,6 @@ def prune(named: list[Candidate], current: Model, current_ll: float, train: list
 
 
 def _train_loglik(model: Model, train: list[Trajectory]) -> float:
-    from learners.em.fit import e_step
-
     return float(e_step(model, make_batch(train), "compiled").loglik)
 
 

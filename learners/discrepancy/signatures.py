@@ -15,7 +15,8 @@ from scipy import stats
 
 from aibo_core.geometry import rel_disp, wrap
 from aibo_core.trajectory import Trajectory
-from learners.em.fit import DEFAULT_GATE, e_step
+from learners.em.estep import e_step
+from learners.em.options import DEFAULT_GATE
 from learners.inference.augmented import size_factor_moments
 from learners.inference.batch import Batch, make_batch
 from learners.inference.posterior import Posterior

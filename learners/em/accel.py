@@ -13,14 +13,10 @@ EM step).
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
+from learners.em.options import EMOptions
 from learners.model.model import Model
-
-if TYPE_CHECKING:
-    from learners.em.fit import EMOptions
 
 A_MAX = 64.0  # steps were pinned at 8 in measurements; 64 cut iterations ~15%
 

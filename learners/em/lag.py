@@ -20,7 +20,8 @@ from dataclasses import dataclass, replace
 
 from scipy import stats
 
-from learners.em.fit import EMOptions, EMState, initial_state, run
+from learners.em.fit import EMState, initial_state, run
+from learners.em.options import EMOptions
 from learners.inference.batch import Batch
 from learners.model.catalogue import ActuationLag
 from learners.model.model import Model

@@ -14,8 +14,10 @@ from learners.em import checkpoint
 from learners.em import lag as lag_search
 from learners.em.accel import Packer
 from learners.em.alias import alias_steps, close_call, search
+from learners.em.estep import e_step
 from learners.em.finish import fisher_scoring
-from learners.em.fit import EMOptions, EMState, e_step, initial_state, options_json, run
+from learners.em.fit import EMState, initial_state, options_json, run
+from learners.em.options import EMOptions
 from learners.em.start import initial_state_for
 from learners.em.starts import disagreement, screen
 from learners.em.support import StartModelError, check_support, curve_warnings, face_value_warnings, weak_command_warnings

@@ -13,19 +13,16 @@
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import TYPE_CHECKING
 
 import numpy as np
 
+from learners.em.options import EMOptions
 from learners.inference.augmented import displacement_statistics, sensor_update_augmented
 from learners.inference.batch import Batch
 from learners.inference.lowered import Lowered
 from learners.inference.posterior import Posterior
 from learners.model.initial import InitialState
 from learners.model.model import Model
-
-if TYPE_CHECKING:
-    from learners.em.fit import EMOptions
 
 
 def _sym(A: np.ndarray) -> np.ndarray:

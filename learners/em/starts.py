@@ -26,7 +26,9 @@ from typing import Any
 
 import numpy as np
 
-from learners.em.fit import EMOptions, EMState, e_step, initial_state, run
+from learners.em.estep import e_step
+from learners.em.fit import EMState, initial_state, run
+from learners.em.options import EMOptions
 from learners.inference.batch import Batch
 from learners.model.model import Model
 from learners.model.sensor import SensorModel
