@@ -38,3 +38,7 @@ def _register() -> None:
 
 
 _register()
+
+# The simulator twins of the effect catalogue register themselves in ``effects.EFFECTS`` on import: here, in the
+# package's own init, so the registry is full whoever imports what.
+from . import catalogue  # noqa: E402,F401

@@ -220,5 +220,3 @@ class EffectChain:
             )
         return sightings
 
-
-from . import catalogue  # noqa: E402,F401  (registers the simulator twins of the effect catalogue)

@@ -86,3 +86,18 @@ def test_every_signature_names_a_statistic_the_check_computes(batch):
     for name, cls in EFFECT_MODELS.items():
         if cls.SIGNATURE:
             assert any(cls.SIGNATURE in n for n in names), (name, cls.SIGNATURE, names)
+
+
+@pytest.mark.parametrize("module, registry", [("learners.model.effects", "EFFECT_MODELS"),
+                                              ("learners.model.model", None), ("aibo_gym.effects", "EFFECTS")])
+def test_the_registries_are_full_whichever_module_a_process_imports_first(module, registry):
+    """The catalogues register from their packages' inits: a fresh process that imports one module sees every
+    effect (a registry filled by an import at the bottom of some module is empty until that module is imported)."""
+    import subprocess
+    import sys
+
+    want = sorted(EFFECT_MODELS) if registry != "EFFECTS" else sorted(EFFECTS)
+    code = (f"import {module}\nfrom learners.model.effects import EFFECT_MODELS\nprint(sorted(EFFECT_MODELS))"
+            if registry != "EFFECTS" else f"from {module} import {registry}\nprint(sorted({registry}))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == str(want)

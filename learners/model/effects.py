@@ -212,7 +212,3 @@ class BeaconHeightScale(EffectModel):
         sensor = model.sensor.with_values(coef=np.asarray(model.sensor.coef) * g)
         return model.with_effect(BeaconHeightScale(scale / g)).with_(sensor=sensor)
 
-
-from learners.model import catalogue as _catalogue  # noqa: E402,F401  (registers the catalogue's twins)
-from learners.model import catalogue_more as _catalogue_more  # noqa: E402,F401  (false_sightings, wall_contact)
-from learners.model import landmark_bias as _landmark_bias  # noqa: E402,F401  (the first effect with states)
