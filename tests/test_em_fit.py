@@ -164,3 +164,20 @@ def test_commands_never_executed_are_named_undetermined():
     missing = sorted(set(range(40)) - set(np.unique(tr.actions).tolist()))
     assert missing and res.info["undetermined"] == [f"action_model.velocities[{i}]" for i in missing]
     assert any("not determined" in w for w in res.info["warnings"])
+
+
+def test_a_start_with_every_velocity_negated_is_not_a_silent_wrong_answer():
+    """The true sensor curve and every command's velocity negated (a mirrored start): EM either finds the right
+    world or says it did not; it never returns the mirrored velocities in silence (issue 21, defect 2)."""
+    tr = sim_log(9000, seed=3, noise="aibo")
+    truth = OracleLearner().fit([tr]).params
+    w = np.asarray(truth.action.weights)
+    mirrored = truth.with_(action=truth.action.with_values(weights=-w))
+    try:
+        res = EMLearner(EMOptions(uncertainty=False)).fit([tr], init=mirrored)
+    except EMDivergedError as err:
+        assert "does not fit the field" in str(err)
+        return
+    span = w.max(axis=0) - w.min(axis=0)
+    wrong = np.abs(np.asarray(res.params.action.weights) - w).max() / span.max() > 0.1
+    assert not wrong or res.info["warnings"], res.info["warnings"]
