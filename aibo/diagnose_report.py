@@ -110,6 +110,26 @@ def short(params: dict[str, Any]) -> str:
     return ", ".join(f"{k} {num(v)}" for k, v in params.items())
 
 
+def interval_text(intervals: dict[str, Any]) -> str:
+    """``95%: sigma_rel [0.041, 0.049], tau_s [6.9, 11.2]`` (scalars), ``SE scale [0.003, ...]`` (arrays); the
+    parameters without a determined standard error are left out; "" when none has one."""
+    def num(v: Any) -> str:
+        return "[" + ", ".join(num(x) for x in v) + "]" if isinstance(v, (list, tuple)) else f"{v:.3g}"
+    parts = [f"{k} [{num(iv['interval_95'][0])}, {num(iv['interval_95'][1])}]" if np.ndim(iv["value"]) == 0
+             else f"{k} SE {num(iv['se'])}" for k, iv in intervals.items() if iv["se"] is not None]
+    return "95%: " + ", ".join(parts) if parts else ""
+
+
+def shift_text(shift: dict[str, Any]) -> str:
+    """How far the named effects moved the base model, one phrase."""
+    v, top = shift["velocities_rms"], shift["velocities_max_abs"]
+    what = "velocities" if shift["velocities_key"].endswith("velocities") else "command weights"
+    return (f"adding them moved the {what} by {v[0]:.3g}, {v[1]:.3g}, {v[2]:.3g} RMS (x, y, turn; at most {top[0]:.3g}, "
+            f"{top[1]:.3g}, {top[2]:.3g}) and the sensor "
+            f"curve by at most {shift['sensor_curve_max_abs']:.3g} {shift['sensor_unit']} over "
+            f"{shift['sensor_distances_mm'][0]:.0f}-{shift['sensor_distances_mm'][1]:.0f} mm")
+
+
 def _img(path: Path) -> str:
     data = base64.b64encode(path.read_bytes()).decode()
     return f'<img src="data:image/png;base64,{data}" style="max-width:100%">'
@@ -135,12 +155,23 @@ def _calibrated(cal: dict[str, Any] | None, unexplained: list[dict[str, Any]]) -
                 for u in unexplained))
 
 
+def _verdict(report: dict[str, Any]) -> str:
+    """The page's first line: the named effects with their values and intervals, and how far they moved the base."""
+    if not report["effects"]:
+        return ("Verdict: <b>no missing effect found</b>: no candidate improved the fit significantly on both halves "
+                "of the log")
+    named = []
+    for e in report["effects"]:
+        interval = interval_text(e.get("intervals", {}))
+        named.append(f"<b>{html.escape(e['name'])}</b> ({html.escape(short(e['parameters']) + grid_note(e['name']))}"
+                     f"{html.escape('; ' + interval) if interval else ''})")
+    shift = f"; {html.escape(shift_text(report['base_change']))}" if report.get("base_change") else ""
+    return "Verdict: the base model misses " + ", ".join(named) + shift
+
+
 def html_page(path: Path, report: dict[str, Any], text: str, figures: list[Path]) -> None:
     """One self-contained page: the verdict first, then the figures, the candidates and the full text."""
-    verdict = ("Verdict: the base model misses " + ", ".join(
-        f"<b>{html.escape(e['name'])}</b> ({html.escape(short(e['parameters']) + grid_note(e['name']))})"
-        for e in report["effects"])) if report["effects"] else \
-        "Verdict: <b>no missing effect found</b>: no candidate improved the fit significantly on both halves of the log"
+    verdict = _verdict(report)
     gain = report["gap_before"] - report["gap_after"]
     change = f"better by {gain:.4f}" if gain >= 0 else f"worse by {-gain:.4f}"
     rows = "".join(

@@ -44,4 +44,7 @@ def diagnose(tmp_path, tr, candidates: str, jobs: int = 2, replicas: int = 0) ->
     for name in ("model.json", "report.html", "signatures.png", "gap.png") + (("calibrated.png",) if replicas else ()):
         assert (out / name).stat().st_size > 0
     assert "data:image/png;base64," in (out / "report.html").read_text()
+    for e in report["effects"]:  # each named effect: its values, with an interval (or None) for every parameter
+        assert set(e["intervals"]) == set(e["parameters"]) and set(e["parameters_when_named"]) == set(e["parameters"])
+    assert (report["base_change"] is None) == (not report["effects"])
     return report

@@ -220,6 +220,8 @@ def test_diagnose_names_landmark_bias_and_not_where_there_is_none(tmp_path):
     report = diagnose(tmp_path / "bias", collect(cfg, steps=9000, seed=11), "landmark_bias,distance_dependent_noise")
     assert [e["name"] for e in report["effects"]] == ["landmark_bias"], report["effects"]
     assert report["parameters"]["sigma_rel"] == pytest.approx(0.05, rel=0.35)
+    lo, hi = report["effects"][0]["intervals"]["sigma_rel"]["interval_95"]
+    assert lo < 0.05 < hi and hi - lo < 0.05  # the 95% interval holds the truth and says something
     assert report["gap_after"] < report["gap_before"]
     (tmp_path / "none").mkdir()
     report = diagnose(tmp_path / "none", collect({"noise": "aibo"}, steps=9000, seed=11), "landmark_bias")

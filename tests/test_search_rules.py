@@ -94,3 +94,40 @@ def test_a_fit_off_the_field_is_warned(frac, warned):
     assert bool(w) == warned
     if warned:
         assert "98% of smoothed poses" in w[0]
+
+
+def test_effect_intervals_are_wald_intervals_clipped_to_the_domain():
+    from learners.discrepancy.effect_sizes import Z95, effect_intervals
+    from learners.model.model import Model
+
+    model = Model(action=None, sensor=None, init=(), effects=(LandmarkBias(0.05, 8.0),))
+    se = {"effects.landmark_bias.sigma_rel": 0.01, "effects.landmark_bias.tau_s": None}
+    iv = effect_intervals(model, "landmark_bias", se)
+    assert iv["sigma_rel"]["interval_95"] == pytest.approx([0.05 - Z95 * 0.01, 0.05 + Z95 * 0.01])
+    assert iv["tau_s"] == {"value": 8.0, "se": None, "interval_95": None}  # undetermined: no interval
+    wide = effect_intervals(model, "landmark_bias", {"effects.landmark_bias.sigma_rel": 0.04})
+    assert wide["sigma_rel"]["interval_95"][0] == 0.0  # clipped at the domain's lower bound
+
+
+def test_base_shift_reports_the_largest_velocity_and_curve_changes_in_file_units():
+    from dataclasses import replace
+
+    import numpy as np
+
+    from learners.discrepancy.effect_sizes import base_shift
+    from learners.oracle import OracleLearner
+    from tests._logs import sim_log
+
+    before = OracleLearner().fit([sim_log(3000)]).params
+    w = np.array(before.action.weights, dtype=float)
+    dt = before.action.dt
+    w[5] += np.array([3.0, -2.0, 0.1]) * dt  # mm/s, mm/s, rad/s on command 5
+    w[7] += np.array([-1.0, 4.0, 0.0]) * dt
+    coef = np.array(before.sensor.coef, dtype=float)
+    coef[0] += 2.0  # the curve 2 px higher at every distance (either basis)
+    after = before.with_(action=before.action.with_values(weights=w), sensor=replace(before.sensor, coef=coef))
+    shift = base_shift(before, after)
+    assert shift["velocities_max_abs"] == pytest.approx([3.0, 4.0, 0.1])
+    n = len(w)
+    assert shift["velocities_rms"] == pytest.approx(np.sqrt(np.array([9.0 + 1.0, 4.0 + 16.0, 0.01]) / n))
+    assert shift["sensor_curve_max_abs"] == pytest.approx(2.0) and shift["sensor_unit"] == "px"

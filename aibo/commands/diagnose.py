@@ -16,6 +16,7 @@ from aibo.paths import check_files, check_replaceable, declared_inputs
 from aibo_core import trajectory
 from aibo_core.atomic import atomic_folder, write_json
 from aibo_core.compat import check_compatible
+from learners.discrepancy.effect_sizes import base_shift, effect_intervals
 from learners.discrepancy.score import GAP_METRIC, score
 from learners.discrepancy.search import search
 from learners.discrepancy.signatures import signatures
@@ -75,11 +76,14 @@ def run(args) -> int:
     # warm-started: one start (the screening of stretched sensor curves is the paper's-start rescue; from the
     # searched model it once kept a curve with distances x0.25 and a world 99% off the field)
     final = EMLearner(replace(opts, starts=1), check_field=False).fit(logs, init=found["model"])
-    report = _report(found, final.params, before, after, sig_before)
+    report = _report(found, final.params, final.info, before, after, sig_before)
     say("")
     say(f"named effects, in order: {', '.join(e['name'] for e in report['effects']) or 'none'}")
     for e in report["effects"]:
-        say(f"  {e['name']}: {fig.short(e['parameters'])}{fig.grid_note(e['name'])}")
+        interval = fig.interval_text(e["intervals"])
+        say(f"  {e['name']}: {fig.short(e['parameters'])}{fig.grid_note(e['name'])}{'; ' + interval if interval else ''}")
+    if report["base_change"]:
+        say(f"  {fig.shift_text(report['base_change'])}")
     for name, note in {c["name"]: c["note"] for c in report["candidates"] if not c["identifiable"]}.items():
         say(f"  {name}: present or not, {note}")
     for name, why in report["not_tried"].items():
@@ -178,10 +182,15 @@ def unexplained(report: dict) -> list[dict]:
     return out
 
 
-def _report(found: dict, final, before, after, sig_before) -> dict:
+def _report(found: dict, final, final_info: dict, before, after, sig_before) -> dict:
     """report.json's body. The named effects' parameters are those of the diagnosed model (``final``, model.json:
-    every kept effect, refitted on the whole logs); ``parameters_when_named``: the candidate's fit in its round."""
+    every kept effect, refitted on the whole logs), with standard errors and 95% intervals from its fit's
+    information (``intervals``, ``learners.discrepancy.effect_sizes``); ``parameters_when_named``: the candidate's
+    fit in its round; ``base_change``: how far the named effects moved the base model (both fits on the training
+    half)."""
+    se = final_info.get("standard_errors", {})
     effects = [{"name": c.name, "parameters": _values(final.effect(c.name)),
+                "intervals": effect_intervals(final, c.name, se),
                 "parameters_when_named": c.as_dict()["parameters"]} for c in found["named"]]
     tried = [dict(c.as_dict(), round=k + 1) for k, rnd in enumerate(found["rounds"]) for c in rnd]
     return {
@@ -196,4 +205,5 @@ def _report(found: dict, final, before, after, sig_before) -> dict:
         "consistency_after": after.as_dict(),
         "signatures": [s.as_dict() for s in sig_before[:12]],
         "not_tried": found["skipped"],
+        "base_change": base_shift(found["base"], found["model"]) if effects else None,
     }

@@ -1,0 +1,54 @@
+"""What a named effect is worth, beside its name: its parameters with standard errors and 95% intervals, and how
+far adding it moved the base model (velocities and sensor curve), in the model file's units.
+
+Intervals are Wald intervals, value +- 1.96 SE, from the Fisher information of the diagnosed model's fit
+(``learners.em.uncertainty``: finite differences of the EKF innovations); where that information does not
+determine a parameter its standard error is None and so is the interval. A Wald interval assumes a quadratic
+log-likelihood: for a parameter near a bound (a rate near 0, a correlation time near its cap) it is only a guide,
+and it is clipped to the parameter's domain.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from learners.em.uncertainty import file_values
+from learners.model.model import Model
+
+Z95 = 1.959963984540054  # two-sided 95% quantile of the standard normal
+
+
+def effect_intervals(model: Model, name: str, standard_errors: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """Per parameter of effect ``name`` in ``model``: {"value", "se", "interval_95"} (lists for array
+    parameters; se and interval None where the fit's information does not determine it)."""
+    effect = model.effect(name)
+    out = {}
+    for pname, value in effect.values().items():
+        v = np.asarray(value, dtype=float)
+        se = standard_errors.get(f"effects.{name}.{pname}")
+        if se is None or np.any(np.asarray(se, dtype=object) == None):  # noqa: E711 (None entries: undetermined)
+            out[pname] = {"value": v.tolist(), "se": None, "interval_95": None}
+            continue
+        se = np.asarray(se, dtype=float)
+        param = effect.PARAMS[pname]
+        lo, hi = np.clip(v - Z95 * se, param.low, param.high), np.clip(v + Z95 * se, param.low, param.high)
+        out[pname] = {"value": v.tolist(), "se": se.tolist(), "interval_95": [lo.tolist(), hi.tolist()]}
+    return out
+
+
+def base_shift(before: Model, after: Model) -> dict[str, Any]:
+    """How the base model moved between ``before`` (no effects) and ``after`` (with the named effects): the
+    largest change of each velocity component over the commands (file units: mm/s, mm/s, rad/s; for a feature
+    map, its weights) and of the sensor curve's mean over its distance range (px or mm)."""
+    a, b = file_values(before), file_values(after)
+    key = "action_model.velocities" if "action_model.velocities" in a else "action_model.weights"
+    diff = (b[key] - a[key]).reshape(-1, 3)
+    lo, hi = after.sensor.distance_range_mm
+    d = np.linspace(lo, hi, 64)
+    dc = np.abs(np.asarray(after.sensor.mean(d)) - np.asarray(before.sensor.mean(d)))
+    return {"velocities_max_abs": np.abs(diff).max(axis=0).tolist(),
+            "velocities_rms": np.sqrt(np.mean(diff ** 2, axis=0)).tolist(), "velocities_key": key,
+            "sensor_curve_max_abs": float(dc.max()), "sensor_unit": after.sensor.unit,
+            "sensor_distances_mm": [float(lo), float(hi)]}
