@@ -163,6 +163,10 @@ def test_bench_quick_writes_every_figure(tmp_path):
     fit = rep["fits"]["default"]
     assert fit["iterations"] >= 1 and fit["wall_s"] > 0 and fit["per_iteration_ms"] > 0
     assert [row["frames"] for row in rep["scaling"]] == [2700, 9000]
+    b = rep["bias_states"]
+    assert b["states"] == 4 and b["action_stats_speedup"] == pytest.approx(b["action_stats_numpy_s"] / b["action_stats_compiled_s"])
+    w = rep["workflows"]
+    assert w["learn"]["wall_s"] > 0 and w["diagnose"]["wall_s"] > 0 and w["diagnose"]["named"] == ["actuation_lag"]
     assert all(row["peak_mb"] >= 0 and row["estep_s"] > 0 for row in rep["scaling"])
 
 

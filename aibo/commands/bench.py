@@ -8,11 +8,18 @@ Figures (all also in ``--json``):
 - a paper-scale fit (27,000 frames, paper start, to convergence): iterations, time per iteration,
   wall time (compile excluded), final log-likelihood;
 - scaling at 2,700 / 27,000 / 270,000 / 1,000,000 frames: E-step + M-step time and peak memory,
-  each size in its own process so peak memory is that size's alone.
+  each size in its own process so peak memory is that size's alone;
+- bias states (``landmark_bias``, 4 states): the augmented E-step and its action statistics, compiled vs the
+  NumPy reference on the same log in the same run;
+- workflows, wall time as a user meets them: ``aibo learn`` with its defaults (starts, alias search, standard
+  errors) on a 15-minute log (``--quick``: 5), and ``aibo diagnose`` with every candidate and 8 replays on a
+  10-minute log with a hidden 0.2 s actuation lag (``--quick``: 2 candidates, no replays).
 """
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import os
 import platform
@@ -127,6 +134,67 @@ def scaling(log_path: Path, sizes) -> list[dict]:
     return rows
 
 
+def bias_states_speed(frames: int) -> dict:
+    """The augmented E-step (pose + 4 bias states) and its action statistics on a simulated log with a landmark
+    bias, compiled vs the NumPy reference, in the same run (the E-step's reference once: it is slow)."""
+    from experiments.loop import simulate
+    from learners.em.estep import e_step
+    from learners.inference.augmented import displacement_statistics, smooth_augmented
+    from learners.inference.batch import make_batch
+    from learners.inference.kernels.augmented_stats import displacement_statistics_compiled
+    from learners.model.landmark_bias import LandmarkBias
+    from learners.model.model import start_model
+
+    tr = simulate({"noise": "aibo", "effects": {"landmark_bias": {"sigma_rel": 0.05, "tau_s": 8.0}}}, frames, 3)
+    batch = make_batch([tr])
+    model = start_model(batch, tr.dt).with_effect(LandmarkBias(0.05, 8.0))
+    lo = model.lower(batch)
+    post = e_step(model, batch, "compiled", lo=lo)  # warm-up (compile or cache load)
+    displacement_statistics_compiled(lo, batch, post, True)
+    t_e = _median_time(lambda: e_step(model, batch, "compiled", lo=lo), 7)
+    t_e_np = _median_time(lambda: smooth_augmented(lo, batch), 1)
+    t_d = _median_time(lambda: displacement_statistics_compiled(lo, batch, post, True), 7)
+    t_d_np = _median_time(lambda: displacement_statistics(lo, batch, post, True), 3)
+    return {"frames": batch.n_frames, "states": lo.extra.k, "estep_compiled_s": t_e, "estep_numpy_s": t_e_np,
+            "estep_speedup": t_e_np / t_e, "action_stats_compiled_s": t_d, "action_stats_numpy_s": t_d_np,
+            "action_stats_speedup": t_d_np / t_d}
+
+
+@contextlib.contextmanager
+def _silenced():
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        yield
+
+
+def workflows(quick: bool) -> dict:
+    """Wall time of ``aibo learn`` and ``aibo diagnose`` run as a user runs them (in this process, compiled
+    kernels warm), with what they found."""
+    from aibo.cli import main
+    from aibo_core.trajectory import blind
+    from experiments.loop import simulate
+
+    out: dict = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        log, lag_log = Path(tmp) / "learn.npz", Path(tmp) / "diagnose.npz"
+        minutes = 5 if quick else 15
+        trajectory.save(simulate({"noise": "paper-sim"}, minutes * 1800, 1), log)
+        t0 = time.perf_counter()
+        with _silenced():  # their own reports and progress: the bench prints its figures
+            main(["learn", str(log), "--out", str(Path(tmp) / "m.json")])
+        out["learn"] = {"minutes": minutes, "wall_s": time.perf_counter() - t0}
+        minutes = 10  # as the tests of the search (tests/test_discrepancy.py): a 0.2 s lag, seed 11
+        cfg = {"noise": "aibo", "effects": {"actuation_lag": {"lag_s": 0.2}}}
+        trajectory.save(blind(simulate(cfg, minutes * 1800, 11)), lag_log)
+        extra = ["--candidates", "actuation_lag,floor_drift", "--replicas", "0"] if quick else ["--replicas", "8"]
+        t0 = time.perf_counter()
+        with _silenced():
+            main(["diagnose", str(lag_log), "--out", str(Path(tmp) / "d"), *extra])
+        report = json.loads((Path(tmp) / "d" / "report.json").read_text())
+        out["diagnose"] = {"minutes": minutes, "hidden": "actuation_lag 0.2 s", "wall_s": time.perf_counter() - t0,
+                           "named": [e["name"] for e in report["effects"]], "quick": quick}
+    return out
+
+
 def run(args) -> int:
     from aibo.paths import check_files, declared_inputs
     from experiments.loop import simulate
@@ -171,6 +239,17 @@ def run(args) -> int:
         print(f"  {name:14s} {fit['iterations']:5d} iterations, {fit['per_iteration_ms']:.1f} ms/iteration, "
               f"{fit['wall_s']:.2f} s, loglik {fit['final_loglik']:.1f}, vx/vy {fit['errors']['vx_rel']:.2%}/"
               f"{fit['errors']['vy_rel']:.2%}", flush=True)
+
+    print("bias states (landmark_bias, 4 states), compiled vs NumPy reference ...", flush=True)
+    report["bias_states"] = b = bias_states_speed(paper_frames)
+    print(f"  E-step {1000 * b['estep_compiled_s']:.1f} ms vs {1000 * b['estep_numpy_s']:.0f} ms "
+          f"({b['estep_speedup']:.0f}x); action statistics {1000 * b['action_stats_compiled_s']:.1f} ms vs "
+          f"{1000 * b['action_stats_numpy_s']:.0f} ms ({b['action_stats_speedup']:.1f}x)", flush=True)
+    print("workflows (as a user runs them) ...", flush=True)
+    report["workflows"] = w = workflows(args.quick)
+    print(f"  aibo learn, {w['learn']['minutes']}-minute log, defaults: {w['learn']['wall_s']:.1f} s; aibo diagnose, "
+          f"{w['diagnose']['minutes']}-minute log: {w['diagnose']['wall_s']:.1f} s (named: "
+          f"{', '.join(w['diagnose']['named']) or 'none'})", flush=True)
 
     print("scaling (each size in its own process) ...", flush=True)
     with tempfile.TemporaryDirectory() as tmp:
