@@ -66,11 +66,12 @@ def test_readme_runs_the_fast_suite_and_ci_runs_it_and_the_slow_studies():
 def test_every_test_module_imports_without_torch_and_sb3():
     """Collect the whole suite (and run the SB3 tests: they must skip) with both packages blocked."""
     env = {**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"}
-    args = ["-q", "-p", "no:cacheprovider", "-rs", "tests/test_gym_sb3.py", "tests/test_env.py::test_sb3_env_checker"]
+    args = ["-q", "-p", "no:cacheprovider", "-rs", "tests/test_gym_sb3.py", "tests/test_env.py::test_sb3_env_checker",
+            "tests/test_wheeled_env.py"]
     collect = subprocess.run([sys.executable, "-c", BLOCKED_RUN, "--collect-only", "-q", "-p", "no:cacheprovider",
                               "tests"], cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
     assert collect.returncode == 0, collect.stdout[-3000:]
     run = subprocess.run([sys.executable, "-c", BLOCKED_RUN, *args], cwd=ROOT, env=env,
                          capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stdout[-3000:]
-    assert run.stdout.count("SKIPPED [") == 2 and "'agents' extra" in run.stdout  # SB3 tests skip, clearly
+    assert run.stdout.count("SKIPPED [") == 3 and "'agents' extra" in run.stdout  # SB3 tests skip, clearly (3 files)
