@@ -58,6 +58,10 @@ def test_readme_runs_the_fast_suite_and_ci_runs_it_and_the_slow_studies():
     assert block[-1] == "python -m pytest", block
     addopts = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["pytest"]["ini_options"]["addopts"]
     assert '-m "not slow"' in addopts
+    # on every core: pytest-xdist is in the extra the quick start installs, so `-n auto` is understood there
+    assert "-n auto" in addopts
+    test_extra = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"]["test"]
+    assert any(d.startswith("pytest-xdist") for d in test_extra)
     ci = [line.strip() for line in (ROOT / ".ci" / "run").read_text().splitlines()]
     assert ci.index("python -m pytest") < ci.index("python -m pytest -m slow")
     assert "-m slow" in _section(readme, "Tests") and "-m \"slow or not slow\"" in _section(readme, "Tests")
@@ -66,10 +70,10 @@ def test_readme_runs_the_fast_suite_and_ci_runs_it_and_the_slow_studies():
 def test_every_test_module_imports_without_torch_and_sb3():
     """Collect the whole suite (and run the SB3 tests: they must skip) with both packages blocked."""
     env = {**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"}
-    args = ["-q", "-p", "no:cacheprovider", "-rs", "tests/test_gym_sb3.py", "tests/test_env.py::test_sb3_env_checker",
-            "tests/test_wheeled_env.py"]
+    args = ["-q", "-p", "no:cacheprovider", "-n", "0", "-rs", "tests/test_gym_sb3.py",
+            "tests/test_env.py::test_sb3_env_checker", "tests/test_wheeled_env.py"]
     collect = subprocess.run([sys.executable, "-c", BLOCKED_RUN, "--collect-only", "-q", "-p", "no:cacheprovider",
-                              "tests"], cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+                              "-n", "0", "tests"], cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
     assert collect.returncode == 0, collect.stdout[-3000:]
     run = subprocess.run([sys.executable, "-c", BLOCKED_RUN, *args], cwd=ROOT, env=env,
                          capture_output=True, text=True, timeout=300)
