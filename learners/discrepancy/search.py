@@ -170,7 +170,15 @@ def _drop_job(args: tuple) -> tuple[Model, float]:
 def prune(named: list[Candidate], current: Model, current_ll: float, train: list[Trajectory],
           logs: list[Trajectory], opts: EMOptions, pool: Any, progress: Callable[[str], None]) -> tuple[Model, float]:
     """The backward check (module docstring): drops from ``named`` (in place) each effect the others make
-    unnecessary, weakest first; returns the model with the effects kept and its training log-likelihood."""
+    unnecessary, weakest first; returns the model with the effects kept and its training log-likelihood. First,
+    an effect whose values the later ones made implausible (``EffectModel.implausible``, e.g. a landmark "bias" of
+    30%) is dropped: it was credible when named and now stands in for something else."""
+    while bad := [c for c in named if current.effect(c.name).implausible()]:
+        c = bad[0]
+        progress(f"dropped: {c.name} (given the others, {current.effect(c.name).implausible()})")
+        named.remove(c)
+        current = _fit(train, current.without_effect(c.name), opts)
+        current_ll = _train_loglik(current, train)
     while len(named) > 1:
         args = [(c.name, current, train, opts) for c in named]
         refits = list(pool.map(_drop_job, args)) if pool is not None else [_drop_job(a) for a in args]
