@@ -29,7 +29,8 @@ def test_pack_unpack_round_trip_with_an_effect():
     rng = np.random.default_rng(1)
     model = model.with_(action=model.action.with_values(weights=rng.normal(size=(40, 3))))
     x = model.pack()
-    assert len(x) == 40 * 3 + 4 + 2 + 4 + 6  # weights, curve at 4 nodes, 2 log sigmas, 4 log scales, log-chol
+    # weights, curve at 4 nodes, 2 log sigmas, 3 contrasts of the 4 log scales (geometric mean 1), log-chol
+    assert len(x) == 40 * 3 + 4 + 2 + 3 + 6
     back = model.unpack(x)
     assert max(model.max_abs_difference(back).values()) < 1e-9
     assert len(model.pack(frozenset({"action.cov"}))) == len(x) - 6

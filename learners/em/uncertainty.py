@@ -88,6 +88,8 @@ def _coordinate_names(model: Model, fixed: frozenset[str]) -> list[str]:
             names.append("sensor_model.sigma_angle")
         elif key == "action.cov":
             names += [f"action_model.motion_cov.logchol[{i}]" for i in range(n)]
+        elif dict(model.components())[cname].PARAMS[pname].transform == "logcontrast":
+            names += [f"{key}.log_contrast[{i}]" for i in range(n)]  # Helmert contrasts of the logs
         else:
             names += [f"{key}[{i}]" for i in range(n)]
     for k in range(_n_init(model, fixed)):

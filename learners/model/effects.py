@@ -67,11 +67,11 @@ class EffectModel(Component):
         return ""
 
     def dof(self) -> int:
-        """Free numbers the effect adds (for the likelihood-ratio test): grid parameters count one each."""
-        return sum(1 if name in self.GRID else np.size(v) for name, v in self.values().items()) - self.CONSTRAINTS
-
-    #: Constraints among the parameters (e.g. a normalization), subtracted from ``dof``.
-    CONSTRAINTS: ClassVar[int] = 0
+        """Free numbers the effect adds (for the likelihood-ratio test): grid parameters count one each.
+        A normalization declared by a parameter's transform (``Param.constraints``: a ``"logcontrast"``
+        group) is subtracted, as it is from the packed vector."""
+        return sum(1 if name in self.GRID else np.size(v) - self.PARAMS[name].constraints
+                   for name, v in self.values().items())
 
     def warm_start(self, model: "Model", batch: Batch) -> "EffectModel":
         """A start for EM given the rest of the model (``model`` holds this effect); default: itself.
@@ -173,16 +173,17 @@ class BeaconHeightScale(EffectModel):
     """Beacons differ in physical height: the size of landmark b is ``scale[b] * f(d)``.
 
     ``scale`` (one factor per landmark) is normalized to geometric mean 1: a common factor is
-    absorbed by the sensor curve. Residual signature without it: size residuals depend on the
-    landmark's identity.
+    absorbed by the sensor curve. It is packed (SQUAREM, standard errors) as the B - 1 contrasts of its
+    logs (transform ``"logcontrast"``), so the common factor is the curve's alone. Residual signature
+    without it: size residuals depend on the landmark's identity.
     """
 
     scale: np.ndarray  # (B,) dimensionless
 
     name: ClassVar[str] = "beacon_height_scale"
     SIGNATURE: ClassVar[str] = "size (sigma) vs landmark"
-    CONSTRAINTS: ClassVar[int] = 1  # normalized to geometric mean 1
-    PARAMS: ClassVar[dict[str, Param]] = {"scale": Param("factor per landmark", "log", high=1e3, shape=(-1,))}
+    PARAMS: ClassVar[dict[str, Param]] = {  # normalized to geometric mean 1: B - 1 free numbers
+        "scale": Param("factor per landmark", "logcontrast", high=1e3, shape=(-1,))}
     EXAMPLE: ClassVar[dict[str, Any]] = {"scale": np.array([1.02, 0.98, 1.01, 0.99])}
 
     @classmethod

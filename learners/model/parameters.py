@@ -7,7 +7,9 @@ comparison are generic loops over components:
 - ``unit``: printed and documented unit (e.g. ``"mm/s"``);
 - ``transform``: how the parameter is mapped to the unconstrained, scaled vector SQUAREM
   extrapolates: ``"scaled"`` (value / scale), ``"log"`` (positive), ``"logchol"`` (symmetric
-  positive definite: log-Cholesky), or a component's own (``pack_<name>`` / ``unpack_<name>``);
+  positive definite: log-Cholesky), ``"logcontrast"`` (a normalized group: K positive factors at
+  geometric mean 1, packed as the K - 1 orthonormal contrasts of their logs, ``helmert``), or a
+  component's own (``pack_<name>`` / ``unpack_<name>``);
 - ``scale``: the typical size of one unit of the parameter (a "noise width");
 - ``trainable``: estimated by EM (False: kept fixed);
 - ``order``: noise covariances (order 1) are packed after the curves (order 0);
@@ -38,6 +40,19 @@ class Param:
     high: float = math.inf
     shape: tuple[int, ...] | None = None
 
+    @property
+    def constraints(self) -> int:
+        """Constraints among the entries that the transform removes (a normalized group: 1, its geometric
+        mean): the packed vector has that many fewer entries, and a likelihood-ratio test that many fewer
+        degrees of freedom."""
+        return 1 if self.transform == "logcontrast" else 0
+
+    def packed_size(self, value: np.ndarray) -> int:
+        """Number of entries ``value`` takes in the packed vector."""
+        if self.transform == "logchol":
+            return 6
+        return max(np.size(value) - self.constraints, 0)
+
     def domain_error(self, value: np.ndarray) -> str:
         """What is wrong with ``value`` (finite floats) for this parameter's shape and domain; "" if nothing."""
         if self.shape is not None and (value.ndim != len(self.shape) or any(
@@ -45,7 +60,7 @@ class Param:
             want = "a number" if self.shape == () else "a list of numbers" if self.shape == (-1,) else \
                 f"a list of {self.shape[0]} numbers"
             return f"expected {want}, got shape {value.shape}"
-        if self.transform == "log" and np.any(value <= 0):
+        if self.transform in ("log", "logcontrast") and np.any(value <= 0):
             return f"must be > 0, got {value.min():g}"
         if np.any(value < self.low) or np.any(value > self.high):
             bad = value[(value < self.low) | (value > self.high)].ravel()[0]
@@ -103,6 +118,33 @@ def chol_mat(v: np.ndarray) -> np.ndarray:
     return L @ L.T
 
 
+def helmert(k: int) -> np.ndarray:
+    """(k, k - 1) orthonormal basis of the contrasts of k numbers (columns orthogonal to the ones vector):
+    the Helmert basis, column j = (1, ..., 1, -j, 0, ..., 0) / sqrt(j (j + 1)) with j ones. H^T H = I and
+    H H^T = I - 11^T / k: the projection that removes the mean."""
+    H = np.zeros((k, max(k - 1, 0)))
+    for j in range(1, k):
+        H[:j, j - 1] = 1.0
+        H[j, j - 1] = -float(j)
+        H[:, j - 1] /= math.sqrt(j * (j + 1))
+    return H
+
+
+def pack_logcontrast(value: np.ndarray) -> np.ndarray:
+    """K positive factors as the K - 1 orthonormal contrasts of their logs, H^T log(value): their
+    geometric mean (the direction a normalization removes) is not in the vector."""
+    logs = np.log(np.ravel(value))
+    return helmert(len(logs)).T @ logs
+
+
+def unpack_logcontrast(x: np.ndarray, old: np.ndarray) -> np.ndarray:
+    """Inverse of ``pack_logcontrast``: the factors exp(H x) times the geometric mean of ``old`` (1 for a
+    normalized group, kept exactly: a model whose group is not normalized keeps its common factor)."""
+    logs = np.log(np.ravel(old))
+    mean = float(np.mean(logs)) if len(logs) else 0.0
+    return safe_exp(mean + helmert(len(logs)) @ x).reshape(np.shape(old))
+
+
 class Component:
     """Base of every model component: generic access to the declared parameters."""
 
@@ -129,6 +171,8 @@ class Component:
             return np.ravel(own(value))
         if p.transform == "log":
             return np.log(np.ravel(value))
+        if p.transform == "logcontrast":
+            return pack_logcontrast(value)
         if p.transform == "logchol":
             return chol_vec(value)
         return np.ravel(value / np.asarray(p.scale, dtype=float))
@@ -137,13 +181,15 @@ class Component:
         """(value of parameter ``name`` read from the start of ``x``, number of entries used)."""
         p = self.PARAMS[name]
         old = np.asarray(getattr(self, name), dtype=float)
-        n = 6 if p.transform == "logchol" else old.size
+        n = p.packed_size(old)
         chunk = x[:n]
         own = getattr(self, f"unpack_{p.transform}", None)
         if own is not None:
             value = own(chunk, old)
         elif p.transform == "log":
             value = safe_exp(chunk).reshape(old.shape)
+        elif p.transform == "logcontrast":
+            value = unpack_logcontrast(chunk, old)
         elif p.transform == "logchol":
             value = chol_mat(chunk)
         else:
