@@ -105,3 +105,17 @@ def test_the_scale_standard_errors_match_the_spread_over_simulated_logs():
     ratio = np.sqrt(np.mean(se**2, axis=0)) / est.std(axis=0, ddof=1)
     assert np.all((ratio > 1 / 1.5) & (ratio < 1.5)), ratio
     assert np.all(np.abs(est.mean(axis=0) - NORMALIZED) < 3 * se.mean(axis=0) / np.sqrt(len(est))), est.mean(axis=0)
+
+
+def test_an_extrapolated_step_outside_a_domain_is_projected_back_onto_it():
+    """SQUAREM's extrapolation once took distance_dependent_noise's exponent (domain [0, 10]) to -0.56, named in a
+    model file that could not be loaded: unpacking clips every scaled or log parameter to its domain."""
+    from learners.model.catalogue import DistanceDependentNoise
+    from learners.model.catalogue_more import FalseSightings
+
+    noise = DistanceDependentNoise(exponent=0.5)
+    assert noise.unpack_param("exponent", np.array([-5.6]))[0] == 0.0
+    assert noise.unpack_param("exponent", np.array([3.0]))[0] == pytest.approx(0.3)
+    fs = FalseSightings(0.1)  # a log parameter with a domain: (0, 0.5]
+    assert fs.unpack_param("rate", np.array([math.log(0.9)]))[0] == 0.5
+    assert fs.unpack_param("rate", np.array([math.log(0.2)]))[0] == pytest.approx(0.2)

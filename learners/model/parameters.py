@@ -194,6 +194,10 @@ class Component:
             value = chol_mat(chunk)
         else:
             value = chunk.reshape(old.shape) * np.asarray(p.scale, dtype=float)
+        if p.transform in ("scaled", "log"):
+            # an extrapolated step (SQUAREM) may leave the domain (a distance_dependent_noise exponent of -0.56
+            # came out of one and was named, in a model file that could not be loaded): projected back onto it
+            value = np.clip(value, p.low, p.high)
         return (float(value) if old.shape == () else value), n
 
     def describe(self) -> list[str]:
