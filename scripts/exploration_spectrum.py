@@ -16,8 +16,10 @@ per command a and component c (vx mm/s, vy mm/s, vtheta rad/s):
 Per policy and length it prints the mean over runs of (RMS over commands, relative to each
 component's range, averaged over the three components): the actual error, EM's bound (``se``),
 the floor, the floor at equal time per command (``equal``), and two ratios: ``pose`` = bound /
-floor (information lost to pose uncertainty: where sightings matter) and ``alloc`` = floor /
-equal (lost to unequal time per command). The figure plots ``se`` / range against N_a per
+floor (information lost to pose uncertainty: where sightings matter; also per component) and ``alloc`` = floor /
+equal (lost to unequal time per command), and ``range info``: the range information of the
+log's sightings per frame, sum of (closest range / true distance)^4 over frames (a height's
+distance error grows as d^2: 1 = a beacon at the closest range every frame). The figure plots ``se`` / range against N_a per
 parameter (policies as colours) with the floor line.
 """
 
@@ -41,17 +43,22 @@ def run_spectrum(sweep: Path, record: dict, suffix: str = "") -> dict:
     cfg = make_config(record["spec"]["env"])
     model = json.loads((sweep / record["model"]).read_text())
     se = np.array(model["info"]["standard_errors"]["action_model.velocities"], dtype=float)
-    actions = trajectory.load(sweep / record["log"]).actions
-    frames = np.bincount(actions, minlength=len(se)).astype(float)
+    log = trajectory.load(sweep / record["log"])
+    frames = np.bincount(log.actions, minlength=len(se)).astype(float)
     true = true_velocities(cfg)
     span = true.max(axis=0) - true.min(axis=0)
     slip = np.asarray(cfg["slip_std"], float) / cfg["dt"]  # per-frame slip as a velocity, mm/s, mm/s, rad/s
     used = frames > 0
+    pose = log.pose[log.sighting_frame + 1]  # the true pose at each sighting (a simulated log)
+    beacon = np.asarray(log.landmarks, float)[log.sighting_landmark]
+    d = np.hypot(beacon[:, 0] - pose[:, 0], beacon[:, 1] - pose[:, 1])
+    range_info = float(((cfg["range_mm"][0] / d) ** 4).sum() / log.n_frames)
     floor = slip[None, :] / np.sqrt(np.where(used, frames, np.nan))[:, None]
     equal = slip / np.sqrt(frames.sum() / len(frames))
     rms = lambda x: np.sqrt(np.nanmean(x[used] ** 2, axis=0)) / span  # noqa: E731
     return {"policy": record["policy"] + suffix, "minutes": record["minutes"], "seed": record["seed"],
             "error": record["vel_rel_mean"], "bound": float(rms(se).mean()), "floor": float(rms(floor).mean()),
+            "pose_c": rms(se) / rms(floor), "range_info": range_info,
             "equal": float((equal / span).mean()), "frames": frames, "se_rel": se / span, "floor_rel": floor / span}
 
 
@@ -74,8 +81,10 @@ def summarize(runs: list[dict]) -> list[dict]:
         rows.setdefault((r["policy"], r["minutes"]), []).append(r)
     out = []
     for (pol, m), rs in sorted(rows.items(), key=lambda kv: (kv[0][1], kv[0][0])):
-        mean = {k: float(np.mean([r[k] for r in rs])) for k in ("error", "bound", "floor", "equal")}
+        mean = {k: float(np.mean([r[k] for r in rs])) for k in ("error", "bound", "floor", "equal", "range_info")}
+        pose_c = np.mean([r["pose_c"] for r in rs], axis=0)
         out.append({"policy": pol, "minutes": m, "n": len(rs), **mean, "pose": mean["bound"] / mean["floor"],
+                    "pose_vx": float(pose_c[0]), "pose_vy": float(pose_c[1]), "pose_vtheta": float(pose_c[2]),
                     "alloc": mean["floor"] / mean["equal"]})
     return out
 
@@ -122,11 +131,13 @@ def main() -> None:
     args = ap.parse_args()
     runs = load(args.sweeps)
     rows = summarize(runs)
-    print("| policy | min | runs | error | EM bound | floor | equal-time floor | pose (bound/floor) | alloc (floor/equal) |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("| policy | min | runs | error | EM bound | floor | equal-time floor | pose (bound/floor) | vx, vy, vtheta | "
+          "alloc (floor/equal) | range info |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         print(f"| {r['policy']} | {r['minutes']:g} | {r['n']} | {100 * r['error']:.2f}% | {100 * r['bound']:.2f}% | "
-              f"{100 * r['floor']:.2f}% | {100 * r['equal']:.2f}% | {r['pose']:.2f} | {r['alloc']:.2f} |")
+              f"{100 * r['floor']:.2f}% | {100 * r['equal']:.2f}% | {r['pose']:.2f} | "
+              f"{r['pose_vx']:.2f}, {r['pose_vy']:.2f}, {r['pose_vtheta']:.2f} | {r['alloc']:.2f} | {r['range_info']:.3f} |")
     if args.png:
         plot(runs, args.png)
     if args.json:

@@ -83,5 +83,8 @@ def test_greedy_a_criterion_prefers_the_least_known_command():
     pol.velocity_info[3] *= 1e4
     dv = np.diag([1e-3, 1e-3, 10.0])
     assert pol.velocity_gain(0, dv) > 10 * pol.velocity_gain(3, dv)
+    xy = GreedyPolicy(None, seed=0, criterion="dxy")  # only (vx, vy) count: a heading-only increment gains nothing
+    assert xy.velocity_gain(0, np.diag([0.0, 0.0, 10.0])) == pytest.approx(0.0, abs=1e-9)
+    assert xy.velocity_gain(0, dv) > 0.0
     with pytest.raises(ValueError, match="criterion"):
         validate_policy({"greedy": {"criterion": "e"}})
