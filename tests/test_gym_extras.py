@@ -50,14 +50,28 @@ def test_quick_start_does_not_name_torch_and_ci_installs_every_extra():
     assert ci.index("torch==2.13.0") < extras.start() < ci.index("python -m pytest")
 
 
+def test_readme_runs_the_fast_suite_and_ci_runs_it_and_the_slow_studies():
+    """The README's test command is the fast suite (pyproject deselects `slow`); CI runs that very command and then
+    the slow studies, so nothing marked slow goes untested."""
+    readme = (ROOT / "README.md").read_text()
+    block = re.search(r"```bash\n(.*?)```", _section(readme, "Quick start"), re.S).group(1).strip().splitlines()
+    assert block[-1] == "python -m pytest", block
+    addopts = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["pytest"]["ini_options"]["addopts"]
+    assert '-m "not slow"' in addopts
+    ci = [line.strip() for line in (ROOT / ".ci" / "run").read_text().splitlines()]
+    assert ci.index("python -m pytest") < ci.index("python -m pytest -m slow")
+    assert "-m slow" in _section(readme, "Tests") and "-m \"slow or not slow\"" in _section(readme, "Tests")
+
+
 def test_every_test_module_imports_without_torch_and_sb3():
     """Collect the whole suite (and run the SB3 tests: they must skip) with both packages blocked."""
     env = {**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"}
-    args = ["-q", "-p", "no:cacheprovider", "-rs", "tests/test_gym_sb3.py", "tests/test_env.py::test_sb3_env_checker"]
+    args = ["-q", "-p", "no:cacheprovider", "-rs", "tests/test_gym_sb3.py", "tests/test_env.py::test_sb3_env_checker",
+            "tests/test_wheeled_env.py"]
     collect = subprocess.run([sys.executable, "-c", BLOCKED_RUN, "--collect-only", "-q", "-p", "no:cacheprovider",
                               "tests"], cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
     assert collect.returncode == 0, collect.stdout[-3000:]
     run = subprocess.run([sys.executable, "-c", BLOCKED_RUN, *args], cwd=ROOT, env=env,
                          capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stdout[-3000:]
-    assert run.stdout.count("SKIPPED [") == 2 and "'agents' extra" in run.stdout  # SB3 tests skip, clearly
+    assert run.stdout.count("SKIPPED [") == 3 and "'agents' extra" in run.stdout  # SB3 tests skip, clearly (3 files)

@@ -96,3 +96,32 @@ def test_standard_errors_match_the_spread_over_simulated_logs():
     est, se = np.array(est), np.array(se)
     ratio = np.sqrt(np.mean(se**2, axis=(0, 1))) / np.sqrt(np.mean(est.std(axis=0, ddof=1) ** 2, axis=0))
     assert np.all(np.abs(ratio[:2] - 1) < 0.15) and 0.7 < ratio[2] < 1.15, ratio
+
+
+def test_a_log_too_long_for_the_memory_takes_the_coordinates_in_blocks_with_the_same_information(monkeypatch):
+    """Blocks of 7 coordinates (float32 storage, each later block's passes run again per earlier block, the
+    next block kept) give the information of the whole float64 derivative array, and only the blocked run
+    holds float32 blocks."""
+    import learners.em.uncertainty as unc_mod
+
+    model, batch, _ = known_poses_case(BASIS_POWER, frames=1500)
+    model = model.with_(action=model.action.with_values(cov=np.diag([4.0, 4.0, 1e-4])))
+    whole = parameter_uncertainty(model, batch)
+    calls, cross = [], []
+    real_call, real_cross = unc_mod._Differences.__call__, unc_mod._cross
+    monkeypatch.setattr(unc_mod._Differences, "__call__", lambda self, k: (calls.append(k), real_call(self, k))[1])
+    monkeypatch.setattr(unc_mod, "_cross", lambda a, b, chunk=997: (cross.append(a.dtype), real_cross(a, b, chunk))[1])
+    n = int(batch.used.sum())
+    blocked = parameter_uncertainty(model, batch, memory_bytes=2 * 7 * n * 5 * 4)
+    p = len(whole.free)
+    blocks = -(-p // 7)
+    # block j > 1 is run j times (once per earlier block, the pass after block j - 1 kept): p + sum of (j - 1) x size
+    assert len(calls) == p + sum(min(7, p - 7 * j) * (j - 1) for j in range(2, blocks))
+    assert blocks >= 4  # several later blocks, so a block run again is counted
+    assert cross and set(cross) == {np.dtype(np.float32)}
+    np.testing.assert_array_equal(blocked.free, whole.free)
+    np.testing.assert_allclose(blocked.information, whole.information, rtol=1e-5, atol=1e-6 * np.abs(whole.information).max())
+    np.testing.assert_allclose(blocked.score, whole.score, rtol=1e-12)
+    for key, se in whole.standard_errors.items():
+        np.testing.assert_allclose(np.array(blocked.standard_errors[key], dtype=float), np.array(se, dtype=float),
+                                   rtol=1e-4, equal_nan=True)

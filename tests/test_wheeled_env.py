@@ -26,12 +26,14 @@ def run(env: WheeledRobotEnv, commands, seed: int = 0, options=None):
     return out
 
 
-@pytest.mark.parametrize("config", [{}, {"effects": {"false_sightings": {"rate": 0.3}, "actuation_lag": {"lag_s": 0.2}}},
-                                    {"feature_map": "linear", "control_names": ["a", "b", "c"], "control_low": [-1] * 3,
-                                     "control_high": [1] * 3, "weights": np.eye(4, 3).tolist()}])
-def test_gymnasium_and_sb3_checkers_pass(config):
+CONFIGS = [{}, {"effects": {"false_sightings": {"rate": 0.3}, "actuation_lag": {"lag_s": 0.2}}},
+           {"feature_map": "linear", "control_names": ["a", "b", "c"], "control_low": [-1] * 3,
+            "control_high": [1] * 3, "weights": np.eye(4, 3).tolist()}]
+
+
+@pytest.mark.parametrize("config", CONFIGS)
+def test_gymnasium_checker_passes(config):
     from gymnasium.utils.env_checker import check_env
-    from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
     env = gym.make("WheeledRobot-v0", config=config)
     assert env.spec.max_episode_steps == 6000
@@ -39,7 +41,16 @@ def test_gymnasium_and_sb3_checkers_pass(config):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # advice only: "use a normalized [-1, 1] action space", "float32 actions"
         check_env(env.unwrapped, skip_render_check=True)
-        sb3_check_env(env.unwrapped, warn=False)
+
+
+@pytest.mark.parametrize("config", CONFIGS)
+def test_sb3_checker_passes(config):
+    pytest.importorskip("stable_baselines3", reason="SB3's check_env needs the 'agents' extra")
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # advice only: "use a normalized [-1, 1] action space", "float32 actions"
+        sb3_check_env(gym.make("WheeledRobot-v0", config=config).unwrapped, warn=False)
 
 
 def test_observation_and_info_have_fixed_shapes_and_no_nan():
