@@ -15,12 +15,13 @@ per command a and component c (vx mm/s, vy mm/s, vtheta rad/s):
 
 Per policy and length it prints the mean over runs of (RMS over commands, relative to each
 component's range, averaged over the three components): the actual error, EM's bound (``se``),
-the floor, the floor at equal time per command (``equal``), and two ratios: ``pose`` = bound /
-floor (information lost to pose uncertainty: where sightings matter; also per component) and ``alloc`` = floor /
-equal (lost to unequal time per command), and ``range info``: the range information of the
-log's sightings per frame, sum of (closest range / true distance)^4 over frames (a height's
-distance error grows as d^2: 1 = a beacon at the closest range every frame). The figure plots ``se`` / range against N_a per
-parameter (policies as colours) with the floor line.
+the floor, the floor at equal time per command (``equal``); two ratios: ``pose`` = bound / floor
+(information lost to pose uncertainty, where sightings matter; also per component) and
+``alloc`` = floor / equal (lost to unequal time per command); and ``range info``, the range
+information of the log's sightings per frame: the sum of (closest range / true distance)^4 over
+the frames (a height's distance error grows as d^2; 1 = a beacon at the closest range every
+frame). The figure shows, per component and policy, the distribution of ``se`` / ``floor`` over
+every parameter of every run.
 """
 
 from __future__ import annotations
@@ -90,34 +91,41 @@ def summarize(runs: list[dict]) -> list[dict]:
 
 
 def plot(runs: list[dict], path: Path) -> None:
+    """Per component, the ratio EM standard error / odometry floor of every parameter (commands x
+    runs) as boxes per policy, 5-minute and 15-minute logs side by side; 1 = the floor."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     policies = sorted({r["policy"] for r in runs})
-    colors = dict(zip(policies, plt.rcParams["axes.prop_cycle"].by_key()["color"]))
+    minutes = sorted({r["minutes"] for r in runs})
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     fig, axes = plt.subplots(1, 3, figsize=(14, 4.4), sharey=True)
+    width = 0.8 / len(minutes)
     for c, ax in enumerate(axes):
-        for r in runs:
-            marker = "o" if r["minutes"] <= 5 else "^"
-            ax.scatter(r["frames"], 100 * r["se_rel"][:, c], s=6, alpha=0.35, color=colors[r["policy"]], marker=marker)
-        lo = max(1.0, min(r["frames"][r["frames"] > 0].min() for r in runs))
-        n = np.geomspace(lo, max(r["frames"].max() for r in runs), 50)
-        ref = runs[0]
-        k = np.nanmedian(ref["floor_rel"][:, c] * np.sqrt(ref["frames"]))  # floor = k / sqrt(N)
-        ax.plot(n, 100 * k / np.sqrt(n), "k--", lw=1.2, label="odometry floor (poses known)")
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.set_xlabel("frames the command was held")
-        ax.set_title(f"{COMPONENTS[c]}: EM standard error / range (%)")
-        ax.grid(alpha=0.3, which="both")
-    for pol in policies:
-        axes[0].scatter([], [], color=colors[pol], label=pol)
-    axes[0].scatter([], [], color="gray", marker="o", label="5 min")
-    axes[0].scatter([], [], color="gray", marker="^", label="15 min")
-    axes[0].legend(fontsize=7, loc="lower left")
-    fig.suptitle("Where the information goes: per velocity parameter, EM's standard error vs time held")
+        for j, m in enumerate(minutes):
+            data = []
+            for pol in policies:
+                ratios = [r["se_rel"][:, c] / r["floor_rel"][:, c] for r in runs if r["policy"] == pol and r["minutes"] == m]
+                v = np.concatenate(ratios) if ratios else np.array([np.nan])
+                data.append(v[np.isfinite(v)])
+            pos = np.arange(len(policies)) + (j - (len(minutes) - 1) / 2) * width
+            box = ax.boxplot(data, positions=pos, widths=0.9 * width, patch_artist=True, showfliers=False,
+                             medianprops={"color": "k"})
+            for patch in box["boxes"]:
+                patch.set_facecolor(colors[j % len(colors)])
+                patch.set_alpha(0.6)
+        ax.axhline(1.0, color="k", ls="--", lw=1)
+        ax.set_xticks(np.arange(len(policies)), policies, rotation=20, fontsize=8)
+        ax.set_title(f"{COMPONENTS[c]}: EM standard error / odometry floor")
+        ax.grid(alpha=0.3, axis="y")
+    for j, m in enumerate(minutes):
+        axes[0].bar([0], [0], color=colors[j % len(colors)], alpha=0.6, label=f"{m:g}-minute logs")
+    axes[0].plot([], [], "k--", lw=1, label="floor: poses known, slip only")
+    axes[0].legend(fontsize=8, loc="upper right")
+    axes[0].set_ylim(0, None)
+    fig.suptitle("Where the information goes: per velocity parameter, how far above the odometry floor of its time held")
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
