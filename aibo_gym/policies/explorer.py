@@ -16,6 +16,11 @@ Parameters: ``path`` (default ``""``: the agent shipped in ``aibo_gym/agents/exp
 ``deterministic`` (the most probable command; default false: drawn from the agent's distribution
 with the policy's seeded RNG), ``shield``, ``hold_s``, ``margin_mm``, ``sensor_weight``,
 ``path_points`` (as ``greedy``'s). Needs Stable-Baselines3 (the ``agents`` extra).
+
+Measured (``aibo experiment policies``, robots 201-220, never trained on; paired over 20 seeds,
+mean velocity error against random-balanced / informed): 5 min -15.0 ± 2.8% / +4.6 ± 2.5%,
+15 min -10.1 ± 2.5% / +4.6 ± 2.5%: as good as ``greedy``, not better, and short of issue 20's
+target (-30% / -10%); see docs/results.md, "The learned explorer on held-out robots".
 """
 
 from __future__ import annotations
