@@ -46,7 +46,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "continuous-command models), else aibo")
     c.add_argument("--seed", type=integer(0), default=0)
     c.add_argument("--policy", default=None, metavar="NAME|sb3:PATH",
-                   help="random-balanced (default), uniform, informed, greedy, or sb3:AGENT.zip (see aibo_gym.policies); "
+                   help="random-balanced (default), uniform, informed, greedy, explorer, or sb3:AGENT.zip (see aibo_gym.policies); "
                    "--env wheeled: waypoints (the only one, its parameters in aibo_gym.policies.waypoints)")
     c.add_argument("--policy-params", type=json_object, default={}, metavar="JSON", help="the policy's parameters")
     c.add_argument("--localizer", default=None, choices=["truth", "ekf"],
@@ -181,15 +181,22 @@ def _add_experiment_commands(sub, commands) -> None:
     ep.set_defaults(run=commands.run_experiment)
 
     te = sub.add_parser("train-explorer", help="train an SB3 agent choosing each held command (needs the 'agents' extra)")
-    te.add_argument("--algo", choices=["ppo", "dqn"], default="ppo")
-    te.add_argument("--steps", type=integer(1), default=20000, help="agent steps (command holds) to train (default 20000)")
+    te.add_argument("--policy", choices=["explorer", "sb3"], default="explorer",
+                    help="explorer (default): the 'explorer' policy's agent (information observation, greedy warm start, "
+                         "log-det reward, a new robot every episode; PPO, one env); sb3: an agent for 'sb3:AGENT.zip'")
+    te.add_argument("--algo", choices=["ppo", "dqn"], default=None, help="sb3 only (default ppo); explorer: always ppo")
+    te.add_argument("--steps", type=integer(1), default=None,
+                    help="agent steps (command holds) to train (default 60000 for explorer, 20000 for sb3)")
     te.add_argument("--seed", type=integer(0), default=0)
     te.add_argument("--out", required=True, help="agent file to write (.zip; AGENT.json beside it)")
     te.add_argument("--config", type=json_object, default={},
-                    help='JSON object of env config overrides (default reward "explore"; episode = max_steps frames)')
+                    help='JSON object of env config overrides (sb3: default reward "explore"; episode = max_steps frames)')
     te.add_argument("--hold-s", type=finite(0.001), default=5.0, help="seconds per command hold = one agent step (default 5)")
-    te.add_argument("--n-envs", type=integer(1), default=2, help="vectorized envs (default 2)")
-    te.add_argument("--vec", choices=["subproc", "dummy"], default="subproc", help="subprocess (default) or in-process envs")
+    te.add_argument("--warm-holds", type=integer(0), default=None,
+                    help="explorer: holds of greedy imitated before PPO (default 1800)")
+    te.add_argument("--episode-minutes", type=finite(0.001), default=15.0, help="explorer: minutes per episode (default 15)")
+    te.add_argument("--n-envs", type=integer(1), default=2, help="sb3: vectorized envs (default 2)")
+    te.add_argument("--vec", choices=["subproc", "dummy"], default="subproc", help="sb3: subprocess (default) or in-process envs")
     te.add_argument("--tensorboard", default=None, help="TensorBoard log folder (used when tensorboard is installed)")
     te.set_defaults(run=commands.run_train_explorer)
 

@@ -104,3 +104,68 @@ def make_explorer_vec_env(config: dict[str, Any], n_envs: int, seed: int, hold_s
         wrapper_class=HoldWrapper, wrapper_kwargs={"hold_s": hold_s, "shield": shield},
         vec_env_cls=SubprocVecEnv if subprocess and n_envs > 1 else DummyVecEnv,
     )
+
+
+#: Robot seeds the information explorer trains on: never robot 0 (where policies were tuned) nor the
+#: 100 + s of ``aibo experiment policies`` (its evaluation robots).
+TRAIN_ROBOT_SEEDS = (10_000, 1_000_000)
+
+
+class InfoExplorerEnv(gym.Env):
+    """The ``explorer`` policy's training env: one agent step = one command held ``hold_s`` s.
+
+    Its observation is :meth:`~aibo_gym.policies.explorer.ExplorerPolicy.observation` (the running
+    onboard information and ``greedy``'s predicted gains), its reward ``reward_scale`` x the increase
+    over the hold of :meth:`~aibo_gym.policies.greedy.GreedyPolicy.logdet` (nats: the onboard
+    information about the velocity table and the sensor curve). Each reset draws a new robot
+    (``robot_seed`` uniform in ``robot_seeds``, from the env's seeded RNG) and a new env seed; an
+    episode lasts ``episode_minutes``. The chosen command goes through the same shield as at
+    collection (``info["command"]`` is the one executed)."""
+
+    metadata: dict[str, Any] = {"render_modes": []}
+
+    def __init__(self, config: dict[str, Any] | None = None, hold_s: float = 5.0, episode_minutes: float = 15.0,
+                 reward_scale: float = 0.1, robot_seeds: tuple[int, int] = TRAIN_ROBOT_SEEDS) -> None:
+        from .config import make_config
+        from .policies.explorer import N_INFO_FEATURES, DrivenExplorer
+
+        if not episode_minutes > 0:
+            raise ValueError(f"episode_minutes must be positive, got {episode_minutes!r}")
+        self.config = dict(config or {}, reward="none")
+        base = make_config(self.config)
+        self.frames = max(1, int(round(episode_minutes * 60.0 / base["dt"])))
+        self.policy = DrivenExplorer(base, seed=0, hold_s=hold_s)
+        self.reward_scale, self.robot_seeds = float(reward_scale), tuple(int(s) for s in robot_seeds)
+        self.action_space = spaces.Discrete(N_ACTIONS)
+        self.observation_space = spaces.Box(-5.0, 5.0, shape=(N_INFO_FEATURES,), dtype=np.float32)
+        self.env = None
+        self._last: tuple[np.ndarray, dict[str, Any]] | None = None
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        from .envs.aibo_beacons import AiboBeaconsEnv
+
+        super().reset(seed=seed)
+        robot = int(self.np_random.integers(*self.robot_seeds))
+        self.env = AiboBeaconsEnv({**self.config, "robot_seed": robot, "max_steps": self.frames})
+        obs, info = self.env.reset(seed=int(self.np_random.integers(2**31)))
+        self.policy.rng = np.random.default_rng(int(self.np_random.integers(2**31)))
+        self.policy.reset(info)
+        return self.policy.observation(), {"robot_seed": robot}
+
+    def step(self, action):
+        a = int(action)
+        if not 0 <= a < N_ACTIONS:
+            raise ValueError(f"action {action!r}: not a command 0..{N_ACTIONS - 1}")
+        pol = self.policy
+        before = pol.logdet()
+        pol.pending = a
+        executed = pol.begin_hold()
+        terminated = truncated = False
+        for _ in range(pol.hold_frames):
+            obs, _, terminated, truncated, info = self.env.step(executed)
+            pol.observe(obs, info)
+            if terminated or truncated:
+                break
+        pol._close_hold()
+        gain = pol.logdet() - before
+        return pol.observation(), self.reward_scale * gain, terminated, truncated, {"command": executed, "logdet_gain": gain}

@@ -67,15 +67,22 @@ def test_readme_runs_the_fast_suite_and_ci_runs_it_and_the_slow_studies():
     assert "-m slow" in _section(readme, "Tests") and "-m \"slow or not slow\"" in _section(readme, "Tests")
 
 
-def test_every_test_module_imports_without_torch_and_sb3():
+def test_every_test_module_imports_without_torch_and_sb3(tmp_path):
     """Collect the whole suite (and run the SB3 tests: they must skip) with both packages blocked."""
     env = {**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"}
-    args = ["-q", "-p", "no:cacheprovider", "-n", "0", "-rs", "tests/test_gym_sb3.py",
-            "tests/test_env.py::test_sb3_env_checker", "tests/test_wheeled_env.py"]
+    args = ["-q", "-p", "no:cacheprovider", "-n", "0", "-rs", "tests/test_gym_sb3.py", "tests/test_env.py::test_sb3_env_checker",
+            "tests/test_wheeled_env.py", "tests/test_explorer_policy.py",
+            "tests/test_policies_spec.py::test_onboard_policies_need_no_true_pose_and_keep_on_field[explorer]"]
     collect = subprocess.run([sys.executable, "-c", BLOCKED_RUN, "--collect-only", "-q", "-p", "no:cacheprovider",
                               "-n", "0", "tests"], cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
     assert collect.returncode == 0, collect.stdout[-3000:]
     run = subprocess.run([sys.executable, "-c", BLOCKED_RUN, *args], cwd=ROOT, env=env,
                          capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stdout[-3000:]
-    assert run.stdout.count("SKIPPED [") == 3 and "'agents' extra" in run.stdout  # SB3 tests skip, clearly (3 files)
+    assert run.stdout.count("SKIPPED [") == 4 and "'agents' extra" in run.stdout  # SB3 tests skip, clearly (4 files)
+    # the shipped explorer's policy spec refuses in one line naming the extra
+    cli = BLOCKED_RUN.replace("import pytest\nsys.exit(pytest.main(", "from aibo.cli import main\nsys.exit(main(")
+    out = subprocess.run([sys.executable, "-c", cli, "collect", "--steps", "30", "--policy", "explorer", "--out",
+                          str(tmp_path / "log.npz")], cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    err = out.stderr.strip().splitlines()
+    assert out.returncode == 2 and len(err) == 1 and ".[agents]" in err[0], out.stderr[-3000:]

@@ -35,9 +35,12 @@ def test_bad_specs_are_one_line(spec, words):
     assert "\n" not in msg and all(w in msg for w in words), msg
 
 
-@pytest.mark.parametrize("policy", ["uniform", "informed", "greedy"])
+@pytest.mark.parametrize("policy", ["uniform", "informed", "greedy", "explorer"])
 def test_onboard_policies_need_no_true_pose_and_keep_on_field(policy):
     from aibo_gym.envs import AiboBeaconsEnv
+
+    if policy == "explorer":
+        pytest.importorskip("stable_baselines3", reason="the explorer's agent needs the 'agents' extra")
 
     env = AiboBeaconsEnv({"robot_seed": 5})
     pol = make_policy(policy, env.config, 1)

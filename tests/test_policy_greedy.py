@@ -9,7 +9,7 @@ from aibo.cli import main
 from aibo_core import trajectory
 from aibo_gym.collect import collect
 from aibo_gym.policies import validate_policy
-from aibo_gym.policies.greedy import hold_information, logdet_gain
+from aibo_gym.policies.greedy import GreedyPolicy, hold_information, logdet_gain
 
 SIGMAS = (2.0, 0.05)  # px, rad
 KNOWN_START = np.diag([1e-6, 1e-6, 1e-10])  # the hold's start pose known exactly
@@ -49,7 +49,8 @@ def test_logdet_gain_is_the_difference_of_log_determinants():
 
 
 def test_greedy_is_a_policy_spec_and_deterministic_for_a_seed(tmp_path):
-    assert validate_policy("greedy")["params"] == {"hold_s": 5.0, "margin_mm": 300.0, "sensor_weight": 1.0, "path_points": 30.0}
+    assert validate_policy("greedy")["params"] == {"hold_s": 5.0, "margin_mm": 300.0, "sensor_weight": 1.0, "path_points": 30.0,
+                                                   "criterion": "d"}
     paths = [tmp_path / f"{i}.npz" for i in range(3)]
     for path, seed in zip(paths, (3, 3, 4)):
         assert main(["collect", "--steps", "1500", "--seed", str(seed), "--policy", "greedy", "--out", str(path)]) == 0
@@ -75,3 +76,15 @@ def test_greedy_spreads_the_information_over_the_commands_where_uniform_does_not
     assert np.count_nonzero(g_holds) == 40 > np.count_nonzero(u_holds)
     assert g_seen.min() > u_seen.min()
     assert g_seen.std() / g_seen.mean() < u_seen.std() / u_seen.mean()
+
+
+def test_greedy_a_criterion_prefers_the_least_known_command():
+    pol = GreedyPolicy(None, seed=0, criterion="a")
+    pol.velocity_info[3] *= 1e4
+    dv = np.diag([1e-3, 1e-3, 10.0])
+    assert pol.velocity_gain(0, dv) > 10 * pol.velocity_gain(3, dv)
+    xy = GreedyPolicy(None, seed=0, criterion="dxy")  # only (vx, vy) count: a heading-only increment gains nothing
+    assert xy.velocity_gain(0, np.diag([0.0, 0.0, 10.0])) == pytest.approx(0.0, abs=1e-9)
+    assert xy.velocity_gain(0, dv) > 0.0
+    with pytest.raises(ValueError, match="criterion"):
+        validate_policy({"greedy": {"criterion": "e"}})

@@ -10,11 +10,14 @@ informed           greedy in the expected information (sightings per command, co
 sb3                a trained SB3 agent: ``"sb3:AGENT.zip"`` (``aibo train-explorer``)
 greedy             one-step D-optimal: the largest predicted log-det gain of the onboard
                    information about the velocity table and the sensor curve
+explorer           the shipped learned explorer (``aibo train-explorer``): an SB3 agent
+                   seeing ``greedy``'s information state and predicted gains
 =================  =========================================================================
 """
 
 from ..config import REWARD_TERMS
 from .base import POLICIES, HoldPolicy, make_policy, policy_label, register_policy, validate_policy
+from .explorer import ExplorerPolicy
 from .greedy import GreedyPolicy
 from .informed import InformedPolicy
 from .localizer import EKFLocalizer
@@ -24,8 +27,8 @@ from .sb3 import SB3Policy
 from .uniform import UniformPolicy
 
 register_policy(RandomBalancedPolicy)
-POLICIES.update({k: POLICIES.pop(k) for k in ["random-balanced", "uniform", "informed", "sb3", "greedy"]})  # table order
+POLICIES.update({k: POLICIES.pop(k) for k in ["random-balanced", "uniform", "informed", "sb3", "greedy", "explorer"]})  # table order
 
-__all__ = ["EKFLocalizer", "GreedyPolicy", "HoldPolicy", "InformedPolicy", "OnboardTracker", "POLICIES", "REWARD_TERMS",
-           "RandomBalancedPolicy", "SB3Policy", "UniformPolicy", "make_policy", "policy_label", "register_policy",
-           "validate_policy"]
+__all__ = ["EKFLocalizer", "ExplorerPolicy", "GreedyPolicy", "HoldPolicy", "InformedPolicy", "OnboardTracker", "POLICIES",
+           "REWARD_TERMS", "RandomBalancedPolicy", "SB3Policy", "UniformPolicy", "make_policy", "policy_label",
+           "register_policy", "validate_policy"]

@@ -144,13 +144,22 @@ class HoldPolicy:
         self.tracker.reset()
         self._action, self._left = None, 0
 
-    def act(self, obs: np.ndarray, info: dict[str, Any] | None = None) -> int:
+    def observe(self, obs: np.ndarray, info: dict[str, Any] | None = None) -> None:
+        """Account for the frame the last command produced (its sightings); nothing before the first."""
         if self._action is not None:
             self.tracker.step(self._action, sightings_of(obs, info, self.n_beacons))
+
+    def act(self, obs: np.ndarray, info: dict[str, Any] | None = None) -> int:
+        self.observe(obs, info)
         if self._left <= 0:
-            self._action = int(self.choose())
-            self._left = self.hold_frames
+            self.begin_hold()
         self._left -= 1
+        return self._action
+
+    def begin_hold(self) -> int:
+        """Choose the next command and start holding it for ``hold_s`` (what :meth:`act` does every hold)."""
+        self._action = int(self.choose())
+        self._left = self.hold_frames
         return self._action
 
     @property

@@ -32,12 +32,13 @@ def sidecar_path(path: str) -> str:
     return root + ".json"
 
 
-def load_agent(path: str):
-    """(SB3 model, its metadata dict) of an agent file; ValueError naming the file otherwise."""
+def load_agent(path: str, features: str = FEATURES_VERSION, n_features: int = N_FEATURES, policy: str = "sb3"):
+    """(SB3 model, its metadata dict) of an agent file for the observation ``features`` (its version,
+    ``n_features`` long) of ``policy``; ValueError naming the file otherwise."""
     if not os.path.isfile(path) and os.path.isfile(path + ".zip"):
         path = path + ".zip"
     if not os.path.isfile(path):
-        raise ValueError(f"sb3 agent {path!r}: no such file (train one with 'aibo train-explorer')")
+        raise ValueError(f"{policy} agent {path!r}: no such file (train one with 'aibo train-explorer')")
     meta: dict[str, Any] = {}
     side = sidecar_path(path)
     if os.path.isfile(side):
@@ -45,14 +46,14 @@ def load_agent(path: str):
             with open(side) as f:
                 meta = json.load(f)
         except (OSError, ValueError) as exc:
-            raise ValueError(f"sb3 agent {side!r}: unreadable metadata ({exc})") from None
-    if meta.get("features", FEATURES_VERSION) != FEATURES_VERSION:
-        raise ValueError(f"sb3 agent {path!r}: trained on observation '{meta.get('features')}', this version builds "
-                         f"'{FEATURES_VERSION}' (retrain it)")
+            raise ValueError(f"{policy} agent {side!r}: unreadable metadata ({exc})") from None
+    if meta.get("features", features) != features:
+        raise ValueError(f"{policy} agent {path!r}: trained on observation '{meta.get('features')}', this policy builds "
+                         f"'{features}' (retrain it, or use the policy it was trained for)")
     try:
         import stable_baselines3 as sb3
     except ImportError:
-        raise ValueError("policy 'sb3' needs Stable-Baselines3 (pip install -e '.[agents]')") from None
+        raise ValueError(f"policy '{policy}' needs Stable-Baselines3 (pip install -e '.[agents]')") from None
     algos = [meta["algo"]] if meta.get("algo") in ALGOS else list(ALGOS)
     model, errors = None, []
     for algo in algos:
@@ -62,12 +63,12 @@ def load_agent(path: str):
         except Exception as exc:  # noqa: BLE001 - any failure to read it is reported in one line
             errors.append(f"{algo}: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
     if model is None:
-        raise ValueError(f"sb3 agent {path!r}: not a readable SB3 agent ({'; '.join(errors)})")
+        raise ValueError(f"{policy} agent {path!r}: not a readable SB3 agent ({'; '.join(errors)})")
     obs_shape = tuple(getattr(model.observation_space, "shape", ()) or ())
     n_act = getattr(model.action_space, "n", None)
-    if obs_shape != (N_FEATURES,) or n_act != N_ACTIONS:
-        raise ValueError(f"sb3 agent {path!r}: observation {obs_shape} and {n_act} actions do not match this explorer's "
-                         f"({N_FEATURES},) onboard features and {N_ACTIONS} commands (an agent for another env?)")
+    if obs_shape != (n_features,) or n_act != N_ACTIONS:
+        raise ValueError(f"{policy} agent {path!r}: observation {obs_shape} and {n_act} actions do not match this policy's "
+                         f"({n_features},) onboard features and {N_ACTIONS} commands (an agent for another env?)")
     return model, meta
 
 
