@@ -11,6 +11,10 @@ from sighting to sighting) EM reaches a world whose forward speed depends on the
 pose and from the commands' face value alike. No truth is needed to see it: the learned velocities
 depart from the commands' face value by 71% of the commanded speed range (7-24% on robots 1, 2, 3
 and 5). ``face_value_warnings`` says so when the controls are velocities with known units.
+With the range curve held at range = distance (``EMOptions.range_curve``) robot 4 comes nearer (-155 mm/s per
+rad/s, a 35% departure, under the 40% bar) and is still wrong; its forward speed depends on the turn direction, which
+a wheeled robot's hardly does: ``mirror_warnings`` says so (``mirror_asymmetry``: 0.28 of the commanded speed range
+on robot 4, 0.036-0.087 on the others, 0.001-0.010 for fits to Vicon).
 
 A fit can also sit at the likelihood's maximum and still be far off, because the log hardly determines some
 command: on 5-minute logs (each command held once or twice) two commands held once can trade displacement
