@@ -87,6 +87,12 @@ def build_parser() -> argparse.ArgumentParser:
                     "EMOptions.starts; paper: 1)")
     lr.add_argument("--sensor-basis", choices=["power", "inverse"], help="sensor curve: power (the paper's cubic "
                     "in d) or inverse (c0 + c1/d + c2/d^2); default: --init's, else EMOptions' default")
+    lr.add_argument("--range-curve", choices=["held", "free"], help="range sensors (mm): held keeps the curve at "
+                    "range = distance (or --init's) and screens no stretched starts (default); free fits the cubic "
+                    "(paper)")
+    lr.add_argument("--face-value-gate", action=argparse.BooleanOptionalAction, default=None,
+                    help="velocity commands with a range sensor: judge the first-iteration outlier gate under the "
+                         "commands' face value, once for every start (default on; paper: off)")
     lr.add_argument("--alias-search", action=argparse.BooleanOptionalAction, default=None,
                     help="after the fit, search heading aliases of commands held once or a few times (default on; "
                          "paper: off)")

@@ -43,6 +43,11 @@ FEATURE_MAPS: dict[str, tuple[Callable[[np.ndarray], np.ndarray], Callable[[int]
 
 #: name -> output columns (0 x, 1 y, 2 theta) whose weights are held at exactly 0
 ZERO_OUTPUTS: dict[str, tuple[int, ...]] = {"unicycle": (1,)}
+#: name -> {output column: feature rows held at exactly 0 in it}. ``unicycle``: the forward speed has no omega and no
+#: |omega| term (a differential drive turning in place does not move forward whichever way it turns; with them EM
+#: traded heading for speed on MRCLAM robot 4: -155 mm/s per rad/s where Vicon says +2.9; docs/results.md, "Why
+#: robots 3 and 4 ended in wrong worlds"). Its forward speed is gain v + loss on arcs v |omega| + offset.
+ZERO_CELLS: dict[str, dict[int, tuple[int, ...]]] = {"unicycle": {0: (1, 3)}}
 
 
 def n_features(name: str, k: int) -> int:

@@ -136,7 +136,8 @@ def test_real_robot1_learned_beats_face_value(tmp_path, capsys):
     """Robot 1, first 5 minutes: import, learn (diff_drive and unicycle, range sensor), score against Vicon.
 
     Measured (dt 0.1 s; forward-velocity RMS over 1 s windows): face value 14.2, diff_drive
-    9.5, unicycle 9.8 mm/s before the lag search; the bar for both is 20% better than the face value. With
+    9.5, unicycle 9.8 mm/s before the lag search; 11.4 and 12.3 with the range curve held and the gate judged under
+    the face value (see the bar below). With
     the lag the default search keeps (0.2 s), the turn rate, worse than the face value without it, beats it. Lateral
     velocity: diff_drive wiggles sideways (29.3 mm/s RMS) where the unicycle, like the face value, has
     none (1.95 vs 1.99 mm/s): it must stay within 0.5 mm/s of the face value. The turn rate, range
@@ -157,7 +158,10 @@ def test_real_robot1_learned_beats_face_value(tmp_path, capsys):
         assert "may be wrong" not in captured.err
         m = load_model(model)
         scores[action_model] = s = score(m, [tr])
-        assert s["learned"]["vx_rms"] < 0.8 * s["face value"]["vx_rms"], s
+        # 0.9x: this excerpt holds one biased pass (5 sightings at 93-95 s, ranges 360-490 mm short) that the paper's
+        # gate, judged at the zero-velocity start, pruned by chance (then 7.5 and 7.7 mm/s); judged under the face value
+        # (the default) it stays and the models reach 11.4 and 12.3 vs 14.2 (whole log: 5.9 vs 11.9; docs/results.md)
+        assert s["learned"]["vx_rms"] < 0.9 * s["face value"]["vx_rms"], s
         # the lag search (default for velocity commands) keeps a lag, and the turn rate then beats the face value
         # (without it the learned turn gain was attenuated and the model turned worse than the commands)
         assert m.effect("actuation_lag") is not None and m.effect("actuation_lag").lag_s > 0
@@ -170,3 +174,59 @@ def test_real_robot1_learned_beats_face_value(tmp_path, capsys):
     uni = scores["unicycle"]
     assert np.all(load_model(tmp_path / "r1_unicycle.json").action.weights[:, 1] == 0.0)
     assert uni["learned"]["vy_rms"] < uni["face value"]["vy_rms"] + 0.5, uni
+
+
+def test_forward_speed_that_depends_on_the_turn_direction_says_it_may_be_wrong():
+    """``mirror_warnings``: silent for a wheeled robot's forward speed (a small wheel mismatch, 3 mm/s per rad/s),
+    a warning for MRCLAM robot 4's learned world (-155 mm/s per rad/s of omega in the forward row, within 40% of
+    the face value so ``face_value_warnings`` is silent)."""
+    from learners.em.support import mirror_asymmetry, mirror_warnings
+    from learners.model.action import ActionModel
+    from learners.model.model import Model
+    from learners.model.sensor import SensorModel
+
+    rng = np.random.default_rng(0)
+    controls = np.column_stack([rng.uniform(0, 90, 2000), rng.uniform(-0.6, 0.6, 2000)])
+    a = ActionModel.zeros(5, 0.1, "unicycle", ("v_mm_s", "omega_rad_s"))
+    w = np.zeros((5, 3))
+    w[0, 0], w[1, 2], w[1, 0], w[3, 0] = 0.1, 0.1 * 0.93, 0.1 * 3.0, -0.1 * 8.0
+    sensor = SensorModel.start("range_mm")
+    assert mirror_warnings(Model(a.with_values(weights=w), sensor, (DEFAULT_INITIAL,)), controls) == []
+    w[1, 0], w[3, 0] = -0.1 * 155.0, 0.1 * 120.0  # robot 4's learned omega and |omega| gains with the range curve held
+    bad = Model(a.with_values(weights=w), sensor, (DEFAULT_INITIAL,))
+    assert mirror_asymmetry(bad, controls) > 0.3 and "turn direction" in mirror_warnings(bad, controls)[0]
+
+
+@pytest.mark.realdata
+@needs_data
+def test_real_robot3_the_gate_judged_at_the_face_value_keeps_the_right_world():
+    """Robot 3, training half of the whole log (the held-out split of docs/results.md; ~10 s): the paper's
+    first-iteration gate, judged at the zero-velocity start model, pruned 1585 of 2204 sightings (on the whole log 9:
+    the gate's verdict hangs on which sightings come first) and EM ended in a wrong world (forward speed 34 mm/s RMS
+    vs 14.6 at face value, turn rate 0.079 vs 0.061 rad/s, smoothed pose 3.6 m). Judged under the commands' face
+    value it prunes 87, and with the range curve held at range = distance the model beats the commands on forward
+    speed and turn rate."""
+    from dataclasses import replace
+
+    from learners.discrepancy.split import training_log
+    from learners.em.learner import EMLearner, face_value_gate
+    from learners.em.options import EMOptions
+    from learners.inference.batch import make_batch
+    from learners.scoring import face_value_model, velocity_scores
+
+    tr = import_robot(DATA, 3, dt=0.1)
+    train = training_log(tr)
+    learner = EMLearner(EMOptions(uncertainty=False))
+    batch = make_batch([train])
+    start = learner.start_params([train], None, batch, "unicycle")
+    assert face_value_gate(batch, start, 50.0).mean() < 0.1
+    res = learner.fit([train], action_model="unicycle")
+    np.testing.assert_array_equal(res.params.sensor.coef, start.sensor.coef)  # held: range = distance
+    assert res.info["face_value_gate_pruned"] < 0.1 * train.n_sightings and not res.info["warnings"]
+    got, face = velocity_scores(res.params, [tr]), velocity_scores(face_value_model(res.params), [tr])
+    assert got["vx_rms"] < 0.8 * face["vx_rms"] and got["vtheta_rms"] < face["vtheta_rms"], (got, face)
+    # the paper's gate and a free curve: the wrong world (kept to show the test can fail)
+    old = EMLearner(replace(EMOptions(uncertainty=False), range_curve="free", face_value_gate=False), check_field=False)
+    was = old.fit([train], action_model="unicycle")
+    assert was.pruned_observations > 0.5 * train.n_sightings
+    assert velocity_scores(was.params, [tr])["vx_rms"] > face["vx_rms"]

@@ -34,6 +34,8 @@ class Packer:
 
     def __init__(self, opts: "EMOptions"):
         fixed = set() if opts.learn_motion_noise else {"action.cov"}
+        if opts.hold_curve:
+            fixed.add("sensor.coef")
         self.fixed = frozenset(fixed | {f"effects.{name}.{p}" for name in opts.frozen for p in _params_of(name)})
 
     def pack(self, p: Model) -> np.ndarray:

@@ -74,10 +74,19 @@ def maximize(model: Model, batch: Batch, post: Posterior, rng: np.random.Generat
         action = action.with_values(cov=_sym(C_sum * inv_n + R * inv_n))
     if post.extra is not None:  # the expectations over each sighting's joint belief of (pose, its size state)
         coef, sigma_size, sigma_bearing, drange = sensor_update_augmented(lo, batch, post, len(model.sensor.coef) - 1)
+    elif opts.hold_curve:  # a range sensor's curve held at its start (EMOptions.range_curve): NumPy statistics,
+        # sigma_size about the held curve (the conditional maximum); a few thousand sightings cost ~1 ms
+        from learners.inference.sensor_stats import update_sensor_curve
+
+        coef, sigma_size, sigma_bearing, drange = update_sensor_curve(
+            lo, batch, post, rng, method=opts.sensor_method, n_samples=opts.n_samples,
+            degree=len(model.sensor.coef) - 1, held=model.sensor.coef)
     else:
         coef, sigma_size, sigma_bearing, drange = sensor_update(
             lo, batch, post, rng, method=opts.sensor_method, n_samples=opts.n_samples,
             degree=len(model.sensor.coef) - 1)
+    if opts.hold_curve:  # with bias states too: the curve stays at its start
+        coef = model.sensor.coef
     sensor = replace(model.sensor, coef=coef, sigma_size=sigma_size, sigma_bearing=sigma_bearing,
                      distance_range_mm=(float(drange[0]), float(drange[1])))
     first = batch.pose_start[:-1]

@@ -14,6 +14,9 @@ iterations on, so a few starts need not all be run to convergence:
 3. the best model of each is evaluated on the sightings no start pruned (so their likelihoods
    compare the same data), and the most likely start (ties: the lowest k) continues to convergence.
 
+A range sensor (``range_mm``) screens no starts by default: its curve is held at range = distance
+(``EMOptions.range_curve``), and the starts differ only in the curve.
+
 The report (one row per start: scale, likelihood after screening, nats behind the winner) goes
 into the model file's ``info["starts"]``; ``disagreement`` is one line (a warning) when the given start
 failed or ended far below the winner: alone, it would have given a less likely optimum.

@@ -11,6 +11,10 @@ from sighting to sighting) EM reaches a world whose forward speed depends on the
 pose and from the commands' face value alike. No truth is needed to see it: the learned velocities
 depart from the commands' face value by 71% of the commanded speed range (7-24% on robots 1, 2, 3
 and 5). ``face_value_warnings`` says so when the controls are velocities with known units.
+With the range curve held at range = distance (``EMOptions.range_curve``) robot 4 comes nearer (-155 mm/s per
+rad/s, a 35% departure, under the 40% bar) and is still wrong; its forward speed depends on the turn direction, which
+a wheeled robot's hardly does: ``mirror_warnings`` says so (``mirror_asymmetry``: 0.28 of the commanded speed range
+on robot 4, 0.036-0.087 on the others, 0.001-0.010 for fits to Vicon).
 
 A fit can also sit at the likelihood's maximum and still be far off, because the log hardly determines some
 command: on 5-minute logs (each command held once or twice) two commands held once can trade displacement
@@ -40,6 +44,12 @@ MIN_DISTANCE_SPAN_MM = 500.0
 #: fraction of the commanded range (1st-99th percentile), before the fit is called doubtful. Measured
 #: on MRCLAM: 0.07-0.24 (turn 0.02-0.06) on four robots whose fit beats the commands, 0.71 on robot 4.
 MAX_FACE_VALUE_DEPARTURE = 0.4
+#: Largest RMS half-difference of the learned forward speed between a command (v, omega) and its mirror (v, -omega),
+#: as a fraction of the commanded speed range, before the fit is called doubtful. A wheeled robot's forward speed
+#: hardly depends on the turn direction (a wheel-radius mismatch of 2% on a 0.25 m axle: ~3 mm/s per rad/s).
+#: Measured on the five MRCLAM robots (docs/results.md, "Why robots 3 and 4 ended in wrong worlds"): Vicon fits
+#: 0.001-0.010, learned 0.036-0.087 on robots 1, 2, 3, 5 and 0.28 on robot 4 (0.54 before the range curve was held).
+MAX_MIRROR_ASYMMETRY = 0.2
 
 
 class InsufficientDataError(ValueError):
@@ -129,6 +139,31 @@ def face_value_warnings(model: Model, controls: np.ndarray | None) -> list[str]:
             f"(turn) of the commanded range (RMS over the log; above {MAX_FACE_VALUE_DEPARTURE:.0%}): this fit may "
             "be wrong (a local optimum, or sensor errors the model takes as motion); check it against ground "
             "truth or a longer log before using it"]
+
+
+def mirror_asymmetry(model: Model, controls: np.ndarray | None) -> float | None:
+    """RMS over the log's commands of (vx(v, omega) - vx(v, -omega)) / 2, as a fraction of the commanded speed
+    range (1st-99th percentile); None unless the controls are velocities (``VELOCITY_CONTROLS``)."""
+    a = model.action
+    if a.discrete or tuple(a.control_names) != VELOCITY_CONTROLS or controls is None or not len(controls):
+        return None
+    c = np.asarray(controls, dtype=float)
+    span = float(np.diff(np.percentile(c[:, 0], [1, 99]))[0])
+    if span <= 0:
+        return None
+    half = 0.5 * (a.velocity(c)[:, 0] - a.velocity(c * np.array([1.0, -1.0]))[:, 0])
+    return float(np.sqrt(np.mean(half**2)) / span)
+
+
+def mirror_warnings(model: Model, controls: np.ndarray | None) -> list[str]:
+    """A warning when the learned forward speed depends on the turn direction by more than MAX_MIRROR_ASYMMETRY of
+    the commanded speed range (``mirror_asymmetry``): a wheeled robot's does not; the fit may be in a wrong world."""
+    asym = mirror_asymmetry(model, controls)
+    if asym is None or asym <= MAX_MIRROR_ASYMMETRY:
+        return []
+    return [f"the learned forward speed depends on the turn direction by {asym:.0%} of the commanded speed range (RMS "
+            f"half-difference between omega and -omega; above {MAX_MIRROR_ASYMMETRY:.0%}; a wheeled robot's hardly "
+            "does): this fit may be in a wrong world; check it against ground truth or a longer log before using it"]
 
 
 def weak_command_warnings(model: Model, se_velocities: np.ndarray | None) -> list[str]:

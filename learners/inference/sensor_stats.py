@@ -105,7 +105,7 @@ def fit_polynomial(x, h, w, degree: int = 3, scale=None) -> np.ndarray:
 
 
 def update_sensor_curve(lo: Lowered, batch: Batch, post: Posterior, rng: np.random.Generator,
-                        method: str = "sample", n_samples: int = 1, degree: int = 3):
+                        method: str = "sample", n_samples: int = 1, degree: int = 3, held: np.ndarray | None = None):
     """New sensor curve from the used sightings: (coef (degree+1,) in ``lo.basis``, sigma_size,
     sigma_bearing, (dmin, dmax) mm at the smoothed means).
 
@@ -113,6 +113,8 @@ def update_sensor_curve(lo: Lowered, batch: Batch, post: Posterior, rng: np.rand
     point weight / size_var_factor; sigma_size^2 = weighted mean of
     (size_scale f(x) + size_offset - size)^2 / size_var_factor; sigma_bearing^2 = weighted mean of
     wrap(bearing + bearing_offset - observed bearing)^2 / bearing_var_factor.
+    ``held``: the curve is not fitted but kept at these coefficients (``EMOptions.range_curve``), and sigma_size is
+    the spread about it (the conditional maximum).
     """
     dist, bearing, sight, w = sensor_points(lo, batch, post, rng, method, n_samples)
     x = basis_variable(lo.basis, dist)
@@ -120,7 +122,7 @@ def update_sensor_curve(lo: Lowered, batch: Batch, post: Posterior, rng: np.rand
     sc = lo.size_scale[sight]
     off = lo.size_offset[sight]
     vf = lo.size_var_factor[sight]
-    coef = fit_polynomial(x, size - off, w / vf, degree, scale=sc)
+    coef = fit_polynomial(x, size - off, w / vf, degree, scale=sc) if held is None else np.asarray(held, float)
     wsum = w.sum()
     res_s = sc * np.polynomial.polynomial.polyval(x, coef) + off - size
     res_b = geometry.wrap(bearing - batch.sight_value[sight, 1])

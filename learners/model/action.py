@@ -14,8 +14,11 @@ name           command                features (F)
                                       and a constant offset
 ``unicycle``   (v mm/s, omega rad/s)  the ``diff_drive`` features with the lateral (dy) column of
                                       the weights held at exactly 0: a wheeled robot cannot move
-                                      sideways. Sigma_A keeps its dy variance (slip, and the path
-                                      curving within one frame)
+                                      sideways; and the forward (dx) column's omega and |omega| rows
+                                      held at 0 (``ZERO_CELLS``: no forward motion from turning in
+                                      place, which EM used to trade heading for speed). Sigma_A
+                                      keeps its dy variance (slip, and the path curving within
+                                      one frame)
 ``linear``     any k numbers          [c_1, ..., c_k, 1]
 =============  =====================  ========================================================
 
@@ -31,7 +34,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from aibo_core.features import FEATURE_MAPS, ZERO_OUTPUTS  # noqa: F401  (re-exported: their historical home)
+from aibo_core.features import FEATURE_MAPS, ZERO_CELLS, ZERO_OUTPUTS  # noqa: F401  (re-exported: their historical home)
 from learners.model.parameters import Component, Param
 
 #: The paper's fixed per-frame motion noise: 10 mm, 10 mm, 0.1 rad standard deviations (footnote 2).
@@ -133,11 +136,28 @@ class ActionModel(Component):
         phi = self.features(commands)
         if s3 is not None and not np.all(s3 == s3[:, :1]):  # a factor per component: a design matrix each
             cols = [phi * s3[:, k, None] for k in range(3)]
-            return self.constrain(np.stack([np.linalg.lstsq(c.T @ c, c.T @ mu_star[:, k], rcond=None)[0]
-                                            for k, c in enumerate(cols)], axis=1))
+            w = np.stack([np.linalg.lstsq(c.T @ c, c.T @ mu_star[:, k], rcond=None)[0]
+                          for k, c in enumerate(cols)], axis=1)
+            return self.held_cells(cols, mu_star, self.constrain(w))
         if s3 is not None:
             phi = phi * s3[:, :1]
-        return self.constrain(np.linalg.lstsq(phi.T @ phi, phi.T @ mu_star, rcond=None)[0])  # normal equations: F x F
+        w = np.linalg.lstsq(phi.T @ phi, phi.T @ mu_star, rcond=None)[0]  # normal equations: F x F
+        return self.held_cells([phi] * 3, mu_star, self.constrain(w))
+
+    def held_cells(self, designs: list[np.ndarray], targets: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """``weights`` with each output column that holds some features at 0 (``ZERO_CELLS``) refitted by least
+        squares on its other features (``designs[k]``: that column's (N, F) design, ``targets`` (N, 3)): the
+        constrained least-squares solution of that column."""
+        cells = ZERO_CELLS.get(self.feature_map, {})
+        if not cells:
+            return weights
+        out = np.array(weights, dtype=float)
+        for k, rows in cells.items():
+            keep = [f for f in range(out.shape[0]) if f not in rows]
+            d = designs[k][:, keep]
+            out[:, k] = 0.0
+            out[keep, k] = np.linalg.lstsq(d.T @ d, d.T @ targets[:, k], rcond=None)[0]
+        return out
 
     def constrain(self, weights: np.ndarray) -> np.ndarray:
         """``weights`` (F, 3) with the columns the feature map holds at 0 (``ZERO_OUTPUTS``) set to 0. The
