@@ -42,7 +42,8 @@ class LearnResult:
     loglik: list[float] = field(default_factory=list)
     pruned_observations: int = 0
     history: list[IterationRecord] = field(default_factory=list)
-    info: dict[str, Any] = field(default_factory=dict)
+    #: run information: a dict, or a typed record read the same way by key (``learners.em.info.FitInfo``)
+    info: Any = field(default_factory=dict)
 
 
 ProgressFn = Callable[[IterationRecord], None]

@@ -7,8 +7,12 @@ import json
 import numpy as np
 import pytest
 
+from aibo_core.trajectory import blind
 from learners import load_model
 from learners.base import LearnResult
+from learners.em.info import FitInfo, FitTimings
+from learners.em.learner import EMLearner
+from learners.em.options import EMOptions
 from learners.model.io import ModelFileError, save_result
 from learners.model.model import paper_start
 from tests._logs import sim_log
@@ -93,14 +97,32 @@ def test_not_json_and_missing(tmp_path):
 
 
 def test_same_model_same_bytes_without_wall_clock_timings(tmp_path):
-    """Model files keep no timings: the same result writes the same bytes."""
+    """Model files keep no timings: the same result with other timings writes the same bytes, and a key
+    holding "seconds" that is not a timing is kept (no substring rule)."""
     res = _result()
-    res.info.update(seconds_per_iteration=0.01, first_iteration_seconds=3.0, best_iteration=5)
+    res.info = FitInfo(5, 0, {"max_seconds_note": 1}, alias_search={"iterations": 2},
+                       timings=FitTimings(3.0, 0.01, alias_search=1.5, uncertainty=2.0, uncertainty_cpu=2.5))
     save_result(res, tmp_path / "a.json")
-    res.info.update(seconds_per_iteration=0.02, first_iteration_seconds=9.0)
+    res.info.timings = FitTimings(9.0, 0.02, alias_search=4.0)
     save_result(res, tmp_path / "b.json")
     assert (tmp_path / "a.json").read_bytes() == (tmp_path / "b.json").read_bytes()
-    assert json.loads((tmp_path / "a.json").read_text())["info"] == {"best_iteration": 5}
+    assert json.loads((tmp_path / "a.json").read_text())["info"] == {
+        "best_iteration": 5, "resumed_from": 0, "options": {"max_seconds_note": 1}, "off_field_fraction": 0.0,
+        "undetermined": [], "iterations_all_starts": 0, "alias_search": {"iterations": 2}, "warnings": []}
+
+
+def test_fit_info_flat_dict_keeps_the_former_keys_in_order():
+    """``FitInfo.to_dict()`` is the flat dict results.jsonl and report.json have always held."""
+    info = FitInfo(3, 2, {}, starts=[{"iterations": 4}], lag_search={"iterations": 1}, scoring={"converged": True},
+                   standard_errors={"a": [1.0]}, information={"condition_number": 2.0}, warnings=["w"],
+                   timings=FitTimings(1.0, 0.5, lag_search=0.25, scoring=0.125, uncertainty=0.0, uncertainty_cpu=0.0))
+    assert list(info.to_dict()) == [
+        "best_iteration", "resumed_from", "first_iteration_seconds", "seconds_per_iteration", "options",
+        "off_field_fraction", "undetermined", "starts", "iterations_all_starts", "lag_search_seconds",
+        "lag_search", "scoring_seconds", "scoring", "standard_errors", "information", "uncertainty_seconds",
+        "uncertainty_cpu_seconds", "warnings"]
+    assert info["seconds_per_iteration"] == 0.5 and info.get("alias_search") is None and "scoring" in info
+
 
 
 @pytest.mark.parametrize("initial, field", [(5, "initial_state"), ([{"mean": [0, 0, 0], "cov": 5}], "initial_state.0.cov")])
@@ -115,3 +137,15 @@ def test_deeply_nested_json_is_one_line(tmp_path):
     path.write_text("[" * 100000 + "]" * 100000)
     with pytest.raises(ModelFileError, match="not valid JSON|top level"):
         load_model(path)
+
+
+def test_em_fit_twice_writes_the_same_model_bytes(tmp_path):
+    """Two EM fits of the same log and seed write byte-identical model files, though their timings differ."""
+    log = blind(sim_log(300))
+    paths = [tmp_path / "a.json", tmp_path / "b.json"]
+    for path in paths:
+        res = EMLearner(EMOptions(seed=0, max_iter=4)).fit([log])
+        assert res.info.timings.first_iteration > 0.0
+        save_result(res, path)
+    assert paths[0].read_bytes() == paths[1].read_bytes()
+    assert "seconds" not in paths[0].read_text()

@@ -17,6 +17,7 @@ from learners.em.alias import alias_steps, close_call, search
 from learners.em.estep import e_step
 from learners.em.finish import fisher_scoring
 from learners.em.fit import EMState, initial_state, options_json, run
+from learners.em.info import FitInfo, FitTimings
 from learners.em.options import EMOptions
 from learners.em.start import initial_state_for
 from learners.em.starts import disagreement, screen
@@ -216,7 +217,7 @@ class EMLearner:
             self.options = given
         if face_pruned is not None:
             result.pruned_observations += face_pruned
-            result.info["face_value_gate_pruned"] = face_pruned
+            result.info.face_value_gate_pruned = face_pruned
         return result
 
     def _fit(self, logs: list[Trajectory], batch: Batch, start: Model, progress: ProgressFn | None) -> LearnResult:
@@ -246,38 +247,35 @@ class EMLearner:
         alias = self._alias_search(used, state)
         lag = self._lag_search(used, state)
         scoring = self._finish(used, state)
-        info = {"best_iteration": state.best_iteration + 1, "resumed_from": resumed_from,
-                # the first iteration carries the one-time numba compile or cache load: reported apart
-                "first_iteration_seconds": float(state.seconds[0]) if state.seconds else 0.0,
-                "seconds_per_iteration": float(np.median(state.seconds[1:])) if len(state.seconds) > 1 else 0.0,
-                "options": self.options.__dict__.copy()}
-        info["off_field_fraction"] = self._check(used, state.best, logs)
-        info["undetermined"] = undetermined  # parameters the data did not determine (kept at their start)
-        if state.starts:
-            info["starts"] = state.starts
-        # E-steps of the whole fit: the winner's, and the other starts' screening
-        info["iterations_all_starts"] = state.iteration + sum(r["iterations"] for r in state.starts if not r.get("chosen"))
-        if alias is not None:
-            info["alias_search_seconds"] = alias.pop("seconds")  # top level: the model file leaves timings out
-            info["alias_search"] = alias
-            info["iterations_all_starts"] += alias["iterations"]
-        if lag is not None:
-            info["lag_search_seconds"] = lag.pop("seconds")  # top level: the model file leaves timings out
-            info["lag_search"] = lag
-            info["iterations_all_starts"] += lag["iterations"]
+        times = FitTimings(
+            # the first iteration carries the one-time numba compile or cache load: reported apart
+            first_iteration=float(state.seconds[0]) if state.seconds else 0.0,
+            per_iteration=float(np.median(state.seconds[1:])) if len(state.seconds) > 1 else 0.0)
+        info = FitInfo(state.best_iteration + 1, resumed_from, self.options.__dict__.copy(),
+                       off_field_fraction=self._check(used, state.best, logs),
+                       undetermined=undetermined,  # parameters the data did not determine (kept at their start)
+                       starts=state.starts or None, timings=times,
+                       # E-steps of the whole fit: the winner's, and the other starts' screening
+                       iterations_all_starts=state.iteration + sum(
+                           r["iterations"] for r in state.starts if not r.get("chosen")))
+        for name, record in (("alias_search", alias), ("lag_search", lag)):
+            if record is not None:
+                setattr(times, name, record.pop("seconds"))
+                setattr(info, name, record)
+                info.iterations_all_starts += record["iterations"]
         if scoring is not None:
-            info["scoring_seconds"] = scoring.seconds  # top level: the model file leaves timings out
-            info["scoring"] = {**scoring.record, "forward_passes": scoring.passes}
+            times.scoring = scoring.seconds
+            info.scoring = {**scoring.record, "forward_passes": scoring.passes}
         if self.options.uncertainty and scoring is not None and scoring.uncertainty is not None:
-            info.update(self._uncertainty_info(scoring.uncertainty, 0.0, 0.0))  # taken at the returned model
+            self._set_uncertainty(info, scoring.uncertainty, 0.0, 0.0)  # taken at the returned model
         elif self.options.uncertainty:
-            info.update(self._uncertainty(state.best, used))
+            self._uncertainty(info, state.best, used)
         split = disagreement(state.starts)
-        se = info.get("standard_errors", {}).get("action_model.velocities")
+        se = (info.standard_errors or {}).get("action_model.velocities")
         close = close_call(alias, None if se is None else np.asarray(se, float)) if alias else ""
-        info["warnings"] = curve_warnings(state.best) + face_value_warnings(state.best, batch.controls) + \
+        info.warnings = curve_warnings(state.best) + face_value_warnings(state.best, batch.controls) + \
             mirror_warnings(state.best, batch.controls) + (
-            [split] if split else []) + ([close] if close else []) + field_warnings(info["off_field_fraction"]) + \
+            [split] if split else []) + ([close] if close else []) + field_warnings(info.off_field_fraction) + \
             weak_command_warnings(state.best, se) + (
             [f"{len(undetermined)} parameter(s) not determined by the data (e.g. {undetermined[0]}): kept at their "
              "start values"] if undetermined else [])
@@ -328,21 +326,24 @@ class EMLearner:
         state.best, state.best_loglik = done.model, done.loglik
         return done
 
-    def _uncertainty(self, best: Model, batch: Batch) -> dict:
-        """``standard_errors`` and ``information`` for the model file's info (module uncertainty)."""
+    def _uncertainty(self, info: FitInfo, best: Model, batch: Batch) -> None:
+        """Fill ``info``'s ``standard_errors`` and ``information`` (module uncertainty) at ``best``; on a
+        failure, ``information`` holds the error."""
         from learners.em.uncertainty import parameter_uncertainty
 
         t0, c0 = time.perf_counter(), time.process_time()
         try:
             unc = parameter_uncertainty(best, batch, Packer(self.options).fixed)
         except (FloatingPointError, np.linalg.LinAlgError, ValueError) as exc:
-            return {"information": {"error": f"standard errors not computed: {str(exc)[:200]}"}}
-        return self._uncertainty_info(unc, time.perf_counter() - t0, time.process_time() - c0)
+            info.information = {"error": f"standard errors not computed: {str(exc)[:200]}"}
+            return
+        self._set_uncertainty(info, unc, time.perf_counter() - t0, time.process_time() - c0)
 
     @staticmethod
-    def _uncertainty_info(unc, seconds: float, cpu_seconds: float) -> dict:
-        return {"standard_errors": unc.standard_errors, "information": unc.summary(),
-                "uncertainty_seconds": seconds, "uncertainty_cpu_seconds": cpu_seconds}
+    def _set_uncertainty(info: FitInfo, unc, seconds: float, cpu_seconds: float) -> None:
+        """Put ``unc``'s standard errors and information summary into ``info``; its cost (s) into the timings."""
+        info.standard_errors, info.information = unc.standard_errors, unc.summary()
+        info.timings.uncertainty, info.timings.uncertainty_cpu = seconds, cpu_seconds
 
     def discard_checkpoint(self) -> None:
         """Delete the checkpoint (call after the model is on disk)."""

@@ -228,9 +228,10 @@ def save_model(path: str | os.PathLike, model: Model, run: dict[str, Any]) -> No
 
 
 def run_record(result) -> dict[str, Any]:
-    """A LearnResult's run information for the model file. Wall-clock timings are left out, so the
-    same inputs and seed give the same model bytes."""
-    info = {k: v for k, v in result.info.items() if "seconds" not in k}
+    """A LearnResult's run information for the model file. Wall-clock timings are left out (a learner
+    keeps them apart, as ``learners.em.info.FitInfo.timings``), so the same inputs and seed give the same
+    model bytes."""
+    info = result.info.to_dict(timings=False) if hasattr(result.info, "to_dict") else dict(result.info)
     return {"learner": result.learner, "iterations": int(result.iterations), "converged": bool(result.converged),
             "loglik": [float(v) for v in result.loglik], "pruned_observations": int(result.pruned_observations),
             "info": info}

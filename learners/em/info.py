@@ -1,0 +1,84 @@
+"""``FitInfo``: what ``EMLearner.fit`` reports besides the model, as a typed record.
+
+Wall-clock timings live apart in ``FitTimings``, so the model file (``learners.model.io.run_record``) leaves
+them out by construction: the same inputs and seed write the same bytes. ``FitInfo.to_dict()`` gives the
+flat dict the JSON outputs have always held (results.jsonl, report.json, the model file's ``info``): its keys,
+order and values are a contract.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+
+@dataclass
+class FitTimings:
+    """Wall-clock (and CPU) seconds of a fit's parts; None: the part did not run."""
+
+    first_iteration: float = 0.0  #: s, the first EM iteration (carries the one-time numba compile or cache load)
+    per_iteration: float = 0.0  #: s, median of the later EM iterations
+    alias_search: float | None = None  #: s, the heading-alias search (``learners.em.alias``)
+    lag_search: float | None = None  #: s, the actuation-lag search (``learners.em.lag``)
+    scoring: float | None = None  #: s, the scoring finish (``learners.em.finish``)
+    uncertainty: float | None = None  #: s, the standard errors (wall clock)
+    uncertainty_cpu: float | None = None  #: s, the standard errors (CPU time of this process)
+
+
+@dataclass
+class FitInfo:
+    """``EMLearner.fit``'s run information. Optional parts are None when they did not run."""
+
+    best_iteration: int  #: 1-based iteration of the returned model
+    resumed_from: int  #: iteration the checkpoint resumed from; 0: a fresh start
+    options: dict[str, Any]  #: the ``EMOptions`` used, as a dict
+    off_field_fraction: float = 0.0  #: share of smoothed poses far outside the field
+    undetermined: list[str] = field(default_factory=list)  #: parameters the data did not determine
+    iterations_all_starts: int = 0  #: E-steps of the whole fit (winner, screening, searches)
+    starts: list[dict] | None = None  #: the screening's record per start (``learners.em.starts``)
+    alias_search: dict | None = None
+    lag_search: dict | None = None
+    scoring: dict | None = None
+    standard_errors: dict | None = None
+    information: dict | None = None
+    warnings: list[str] = field(default_factory=list)
+    #: sightings the first gate, judged under the commands at face value, set aside (``learners.em.support``)
+    face_value_gate_pruned: int | None = None
+    timings: FitTimings = field(default_factory=FitTimings)
+
+    def to_dict(self, timings: bool = True) -> dict[str, Any]:
+        """The flat dict of the JSON outputs (keys ``*_seconds`` for the timings; ``timings=False``: none)."""
+        t = self.timings if timings else None
+        out: dict[str, Any] = {"best_iteration": self.best_iteration, "resumed_from": self.resumed_from}
+        if t:
+            out |= {"first_iteration_seconds": t.first_iteration, "seconds_per_iteration": t.per_iteration}
+        out |= {"options": self.options, "off_field_fraction": self.off_field_fraction,
+                "undetermined": self.undetermined}
+        if self.starts:
+            out["starts"] = self.starts
+        out["iterations_all_starts"] = self.iterations_all_starts
+        for name in ("alias_search", "lag_search", "scoring"):
+            if getattr(self, name) is not None:
+                if t:
+                    out[f"{name}_seconds"] = getattr(t, name)
+                out[name] = getattr(self, name)
+        if self.standard_errors is not None:
+            out["standard_errors"] = self.standard_errors
+        if self.information is not None:
+            out["information"] = self.information
+        if t and t.uncertainty is not None:
+            out |= {"uncertainty_seconds": t.uncertainty, "uncertainty_cpu_seconds": t.uncertainty_cpu}
+        out["warnings"] = self.warnings
+        if self.face_value_gate_pruned is not None:
+            out["face_value_gate_pruned"] = self.face_value_gate_pruned
+        return out
+
+    # Read access by key, as for the other learners' plain ``info`` dicts (``result.info["best_iteration"]``).
+    def __getitem__(self, key: str) -> Any:
+        return self.to_dict()[key]
+
+    def __contains__(self, key: object) -> bool:
+        return key in self.to_dict()
+
+    def get(self, key: str, default: Any = None) -> Any:
+        return self.to_dict().get(key, default)
