@@ -111,8 +111,8 @@ def fit_action_to_truth(model: Model, logs: list[Trajectory], window_s: float = 
         phi.append((cum[win[:, 1]] - cum[win[:, 0]]) / (win[:, 1] - win[:, 0])[:, None])
         vel.append(v)
     phi_all, vel_all = np.concatenate(phi), np.concatenate(vel)
-    w = model.action.constrain(np.linalg.lstsq(phi_all, vel_all, rcond=None)[0])
-    w = model.action.held_cells([phi_all] * 3, vel_all, w) * model.action.dt
+    w = model.action.constrained([phi_all] * 3, vel_all, np.linalg.lstsq(phi_all, vel_all, rcond=None)[0])
+    w = w * model.action.dt
     return model.with_(action=model.action.with_values(weights=w), effects=())  # of the raw commands: no lag
 
 

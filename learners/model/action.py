@@ -138,36 +138,27 @@ class ActionModel(Component):
             cols = [phi * s3[:, k, None] for k in range(3)]
             w = np.stack([np.linalg.lstsq(c.T @ c, c.T @ mu_star[:, k], rcond=None)[0]
                           for k, c in enumerate(cols)], axis=1)
-            return self.held_cells(cols, mu_star, self.constrain(w))
+            return self.constrained(cols, mu_star, w)
         if s3 is not None:
             phi = phi * s3[:, :1]
         w = np.linalg.lstsq(phi.T @ phi, phi.T @ mu_star, rcond=None)[0]  # normal equations: F x F
-        return self.held_cells([phi] * 3, mu_star, self.constrain(w))
+        return self.constrained([phi] * 3, mu_star, w)
 
-    def held_cells(self, designs: list[np.ndarray], targets: np.ndarray, weights: np.ndarray) -> np.ndarray:
-        """``weights`` with each output column that holds some features at 0 (``ZERO_CELLS``) refitted by least
-        squares on its other features (``designs[k]``: that column's (N, F) design, ``targets`` (N, 3)): the
-        constrained least-squares solution of that column."""
-        cells = ZERO_CELLS.get(self.feature_map, {})
-        if not cells:
+    def constrained(self, designs: list[np.ndarray], targets: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """The constrained least-squares solution from the unconstrained one, ``weights`` (F, 3): the output
+        columns the feature map holds at 0 (``ZERO_OUTPUTS``) set to 0, and each column that holds some features
+        at 0 (``ZERO_CELLS``) refitted on its other features (``designs[k]``: column k's (N, F) design, ``targets``
+        (N, 3)). Every column has its own least squares, so the others do not depend on these."""
+        zero, cells = ZERO_OUTPUTS.get(self.feature_map, ()), ZERO_CELLS.get(self.feature_map, {})
+        if not zero and not cells:
             return weights
         out = np.array(weights, dtype=float)
+        out[:, list(zero)] = 0.0
         for k, rows in cells.items():
             keep = [f for f in range(out.shape[0]) if f not in rows]
             d = designs[k][:, keep]
             out[:, k] = 0.0
             out[keep, k] = np.linalg.lstsq(d.T @ d, d.T @ targets[:, k], rcond=None)[0]
-        return out
-
-    def constrain(self, weights: np.ndarray) -> np.ndarray:
-        """``weights`` (F, 3) with the columns the feature map holds at 0 (``ZERO_OUTPUTS``) set to 0. The
-        three outputs share one design matrix, so zeroing a column of the least-squares solution is the
-        constrained least-squares solution (the other columns do not depend on it)."""
-        zero = ZERO_OUTPUTS.get(self.feature_map, ())
-        if not zero:
-            return weights
-        out = np.array(weights, dtype=float)
-        out[:, list(zero)] = 0.0
         return out
 
     def determined(self, commands: np.ndarray) -> np.ndarray:
