@@ -256,6 +256,36 @@ def test_smooth_matches_spec_and_reference(name, gate):
     np.testing.assert_array_equal(np.isnan(got.mahal2), ~batch.used)
 
 
+def test_kernel_inputs_are_named_with_their_shapes():
+    """The kernels read their inputs by name (FrameInputs, SightingInputs): each field has the shape its
+    comment documents, so a field wired to the wrong array of the lowered model fails here."""
+    from learners.inference.kernels.arguments import kernel_inputs
+    from learners.inference.kernels.estep import innovations_compiled
+
+    lo, batch, _ = case("multi")
+    n, n_s, n_logs = batch.n_frames, batch.n_sightings, batch.n_logs
+    assert n_logs > 1
+    fr, si = kernel_inputs(lo, batch, GATE)
+    shapes = {"frame_start": (n_logs + 1,), "disp": (n, 3), "offset": (n, 3), "cov_scale": (n,), "sig_a": (3, 3),
+              "init_mean": (n_logs, 3), "init_cov": (n_logs, 3, 3), "sight_start": (n + 1,), "xy": (n_s, 2),
+              "value": (n_s, 2), "used": (n_s,), "size_scale": (n_s,), "size_offset": (n_s,),
+              "size_var_factor": (n_s,), "bearing_offset": (n_s,), "bearing_var_factor": (n_s,)}
+    for group in (fr, si):
+        for name, value in group._asdict().items():
+            if name in shapes:
+                assert value.shape == shapes[name], name
+                assert value.flags.c_contiguous, name
+    assert set(shapes) <= set(fr._fields) | set(si._fields)
+    np.testing.assert_array_equal(fr.disp, lo.disp)
+    np.testing.assert_array_equal(si.value, batch.sight_value)
+    assert si.use_gate and si.gate == GATE
+    assert si.var_s == lo.sigma_size**2 and si.var_b == lo.sigma_bearing**2
+    _, none = kernel_inputs(lo, batch, None)
+    assert not none.use_gate and none.gate == np.inf
+    # the forward pass alone (innovations) gives the smoother's log-likelihood
+    assert innovations_compiled(lo, batch)[0] == pytest.approx(smooth_compiled(lo, batch).loglik, rel=1e-12)
+
+
 def test_gating_and_effects_change_the_answer():
     lo, batch, _ = case("effects")
     post = smooth_compiled(lo, batch, None)

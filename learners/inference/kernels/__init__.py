@@ -21,7 +21,7 @@ Layout (one concept per module; import the public functions from this package):
 - ``augmented``: the E-step with extra states (pose plus K scalar states, ``Lowered.extra``: forward EKF and
   Rauch-Tung-Striebel), dispatched to by ``smooth_compiled`` and ``innovations_compiled``;
 - ``augmented_stats``: its action statistics ``displacement_statistics_compiled``;
-- ``arguments``: the flat kernel arguments of a lowered model and a batch (``_inputs``).
+- ``arguments``: the kernels' inputs by name, ``FrameInputs`` and ``SightingInputs`` (``kernel_inputs``).
 """
 
 from __future__ import annotations

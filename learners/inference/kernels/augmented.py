@@ -12,6 +12,7 @@ Cholesky (O(n^3) per frame). Equal to the reference to rounding (tests: 1e-9).
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -31,7 +32,7 @@ from learners.inference.kernels.algebra import (
     _sym,
     _wrap,
 )
-from learners.inference.kernels.arguments import _inputs
+from learners.inference.kernels.arguments import kernel_inputs
 from learners.inference.kernels.structured import _rot_sym, _scale_sym
 from learners.inference.lowered import Lowered
 from learners.inference.posterior import ExtraMoments, Posterior
@@ -190,21 +191,113 @@ def _apply(mu, P, sl, var_h, vb, ph0, ph1, X, xh0, xh1, k0, k1, o):
     _symmetrize(P)
 
 
+class ExtraInputs(NamedTuple):
+    """The K extra scalar states (``Lowered.extra``): N frames, S sightings, L logs."""
+
+    slot: np.ndarray  # (S,) int64: the extra state a sighting's size is multiplied by (1 + b), -1 for none
+    phi: np.ndarray  # (N, K): each frame's transition factor b' = phi b + noise
+    q: np.ndarray  # (N, K): its noise variance
+    init_var: np.ndarray  # (L, K): each log's initial variance (mean 0)
+
+
+class AugmentedOutputs(NamedTuple):
+    """The augmented kernel's output and work arrays; n = 3 + K, P poses, N frames, S sightings."""
+
+    mf: np.ndarray  # (P, n): forward filtered means (mm, mm, rad, then the extra states)
+    Pf: np.ndarray  # (P, n, n): their covariances
+    g_pred: np.ndarray  # (N, n): each frame's predicted mean (kept for the backward pass)
+    P_pred: np.ndarray  # (N, n, n): its covariance
+    fab: np.ndarray  # (N, 2): each frame's F[0,2], F[1,2]
+    sm: np.ndarray  # (P, n): smoothed means (unset with forward_only)
+    sc: np.ndarray  # (P, n, n): their covariances
+    x_cross: np.ndarray  # (N, K): the extra states' lag-one covariances
+    mahal2: np.ndarray  # (S,): squared Mahalanobis distance of each used sighting's innovation (NaN otherwise)
+    innov: np.ndarray  # (S, 5) per applied sighting (NaN otherwise), or (0, 5): not stored
+
+
 @njit(cache=True, error_model="numpy")
-def _augmented_kernel(
-    frame_start, sight_start, disp, offset, cov_scale, sig_a, basis, coef, var_s, var_b,
-    sight_xy, sight_value, used, size_scale, size_offset, size_var_factor, bearing_offset, bearing_var_factor,
-    init_mean, init_cov, use_gate, gate, slot, phi, q, init_var,
-    mf, Pf, g_pred, P_pred, fab, sm, sc, x_cross, mahal2, innov, forward_only,
-):  # fmt: skip
-    """Forward EKF + RTS on x = (pose, K extra states) for every log. mf (P, n), Pf (P, n, n): filtered
-    beliefs; g_pred (N, n), P_pred (N, n, n), fab (N, 2): each frame's prediction and F[0,2], F[1,2]
-    (kept for the backward pass). Outputs: the smoothed beliefs sm (P, n), sc (P, n, n), the extra states'
-    lag-one covariances x_cross (N, K), mahal2 (S,) and innov (S, 5) when it has S rows.
-    Returns (status, log, frame, loglik)."""
+def _augmented_forward_log(k, f0, ps, nfr, fr, si, ex, sig, out, loglik):
+    """Forward EKF on x = (pose, K extra states) of log k (frames f0 .. f0+nfr-1, poses ps .. ps+nfr).
+    Returns (status, frame index within the log, loglik + this log's log-likelihood)."""
+    disp, offset, cov_scale, phi, q = fr.disp, fr.offset, fr.cov_scale, ex.phi, ex.q
+    mf, Pf, g_pred, P_pred, fab, mahal2, innov = out.mf, out.Pf, out.g_pred, out.P_pred, out.fab, out.mahal2, out.innov
     n = mf.shape[1]
     K = n - 3
     store = innov.shape[0] == mahal2.shape[0]
+    P = np.empty((n, n))
+    W = np.empty((n, n))
+    X = np.empty((n, n))
+    mu = np.empty(n)
+    ph0, ph1, xh0, xh1, k0, k1 = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    o = np.empty(10)
+    qpose = np.empty((3, 3))
+    for r in range(n):
+        mu[r] = fr.init_mean[k, r] if r < 3 else 0.0
+        for c in range(n):
+            P[r, c] = fr.init_cov[k, r, c] if (r < 3 and c < 3) else 0.0
+    for e in range(K):
+        P[3 + e, 3 + e] = ex.init_var[k, e]
+    mf[ps, :] = mu
+    Pf[ps, :, :] = P
+    if not _finite(mu, P):
+        return _BAD_FORWARD, 0, loglik
+    for j in range(nfr):
+        i = f0 + j
+        c = math.cos(mu[2])
+        s = math.sin(mu[2])
+        ux, uy = disp[i, 0], disp[i, 1]
+        fa = -s * ux - c * uy
+        fb = c * ux - s * uy
+        fab[i, 0], fab[i, 1] = fa, fb
+        mu[0], mu[1], mu[2] = (mu[0] + (c * ux - s * uy) + offset[i, 0], mu[1] + (s * ux + c * uy) + offset[i, 1],
+                               mu[2] + disp[i, 2] + offset[i, 2])  # fmt: skip
+        for e in range(K):
+            mu[3 + e] = phi[i, e] * mu[3 + e]
+        Q = _rot_sym(c, s, _scale_sym(cov_scale[i], sig))  # pose block: cov_scale R Sigma_A R^T (as estep)
+        for r in range(3):
+            for cc in range(3):
+                qpose[r, cc] = Q[3 * r + cc]
+        _predict_cov(P, fa, fb, phi[i], q[i], qpose, W)
+        g_pred[i, :] = mu
+        P_pred[i, :, :] = P
+        for qq in range(si.sight_start[i], si.sight_start[i + 1]):
+            mahal2[qq] = np.nan
+            if store:
+                innov[qq, :] = np.nan
+            if not si.used[qq]:
+                continue
+            var_h = si.var_s * si.size_var_factor[qq]
+            vb = si.var_b * si.bearing_var_factor[qq]
+            sl = ex.slot[qq]
+            _update(mu, P, qq, si.xy, si.value, si.basis, si.coef, si.size_scale[qq], si.size_offset[qq],
+                    si.bearing_offset[qq], sl, var_h, vb, ph0, ph1, o)  # fmt: skip
+            v0, v1, S00, S01, S11 = o[0], o[1], o[2], o[3], o[4]
+            det_s = S00 * S11 - S01 * S01
+            m2v = (v0 * (S11 * v0 - S01 * v1) + v1 * (S00 * v1 - S01 * v0)) / det_s
+            mahal2[qq] = m2v
+            if not (math.isfinite(m2v) and det_s > 0.0 and S00 > 0.0):
+                return _BAD_FORWARD, j, loglik
+            if si.use_gate and m2v > si.gate:
+                continue
+            loglik += -0.5 * (m2v + math.log(det_s) + 2.0 * _LOG_2PI)
+            if store:
+                innov[qq, 0], innov[qq, 1], innov[qq, 2], innov[qq, 3], innov[qq, 4] = v0, v1, S00, S01, S11
+            _apply(mu, P, sl, var_h, vb, ph0, ph1, X, xh0, xh1, k0, k1, o)
+        mf[ps + j + 1, :] = mu
+        Pf[ps + j + 1, :, :] = P
+        if not _finite(mu, P):
+            return _BAD_FORWARD, j, loglik
+    return _OK, -1, loglik
+
+
+@njit(cache=True, error_model="numpy")
+def _rts_log(f0, ps, nfr, ex, out):
+    """Rauch-Tung-Striebel backward pass of one log from its forward beliefs: the smoothed beliefs and the
+    extra states' lag-one covariances. Returns (status, frame index within the log)."""
+    mf, Pf, g_pred, P_pred, fab, sm, sc, x_cross = out.mf, out.Pf, out.g_pred, out.P_pred, out.fab, out.sm, out.sc, out.x_cross
+    phi = ex.phi
+    n = mf.shape[1]
+    K = n - 3
     P = np.empty((n, n))
     W = np.empty((n, n))
     X = np.empty((n, n))
@@ -212,115 +305,68 @@ def _augmented_kernel(
     Pn = np.empty((n, n))
     mu = np.empty(n)
     mn = np.empty(n)
-    ph0, ph1, xh0, xh1, k0, k1 = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
-    o = np.empty(10)
-    qpose = np.empty((3, 3))
-    sig = _sym(_ld33(sig_a.reshape(1, 3, 3), 0))
-    loglik = 0.0
-    for k in range(frame_start.shape[0] - 1):
-        f0 = frame_start[k]
-        nfr = frame_start[k + 1] - f0
-        ps = f0 + k
-        for r in range(n):
-            mu[r] = init_mean[k, r] if r < 3 else 0.0
+    last = ps + nfr
+    mn[:] = mf[last]
+    Pn[:, :] = Pf[last]
+    sm[last, :] = mn
+    sc[last, :, :] = Pn
+    for j in range(nfr - 1, -1, -1):
+        i = f0 + j
+        p = ps + j
+        _f_rows(Pf[p], fab[i, 0], fab[i, 1], phi[i], X)  # X = F P_p, then P-^-1 F P_p = G^T
+        if not _cholesky(P_pred[i], L):
+            return _BAD_BACKWARD, j
+        _chol_solve(L, X)
+        for r in range(n):  # m_p = mu_p + G (m_{p+1} - g_p)
+            a = 0.0
             for c in range(n):
-                P[r, c] = init_cov[k, r, c] if (r < 3 and c < 3) else 0.0
-        for e in range(K):
-            P[3 + e, 3 + e] = init_var[k, e]
-        mf[ps, :] = mu
-        Pf[ps, :, :] = P
-        if not _finite(mu, P):
-            return _BAD_FORWARD, k, 0, loglik
-        for j in range(nfr):
-            i = f0 + j
-            c = math.cos(mu[2])
-            s = math.sin(mu[2])
-            ux, uy = disp[i, 0], disp[i, 1]
-            fa = -s * ux - c * uy
-            fb = c * ux - s * uy
-            fab[i, 0], fab[i, 1] = fa, fb
-            mu[0], mu[1], mu[2] = (mu[0] + (c * ux - s * uy) + offset[i, 0], mu[1] + (s * ux + c * uy) + offset[i, 1],
-                                   mu[2] + disp[i, 2] + offset[i, 2])  # fmt: skip
-            for e in range(K):
-                mu[3 + e] = phi[i, e] * mu[3 + e]
-            Q = _rot_sym(c, s, _scale_sym(cov_scale[i], sig))  # pose block: cov_scale R Sigma_A R^T (as estep)
-            for r in range(3):
-                for cc in range(3):
-                    qpose[r, cc] = Q[3 * r + cc]
-            _predict_cov(P, fa, fb, phi[i], q[i], qpose, W)
-            g_pred[i, :] = mu
-            P_pred[i, :, :] = P
-            for qq in range(sight_start[i], sight_start[i + 1]):
-                mahal2[qq] = np.nan
-                if store:
-                    innov[qq, :] = np.nan
-                if not used[qq]:
-                    continue
-                var_h = var_s * size_var_factor[qq]
-                vb = var_b * bearing_var_factor[qq]
-                sl = slot[qq]
-                _update(mu, P, qq, sight_xy, sight_value, basis, coef, size_scale[qq], size_offset[qq],
-                        bearing_offset[qq], sl, var_h, vb, ph0, ph1, o)  # fmt: skip
-                v0, v1, S00, S01, S11 = o[0], o[1], o[2], o[3], o[4]
-                det_s = S00 * S11 - S01 * S01
-                m2v = (v0 * (S11 * v0 - S01 * v1) + v1 * (S00 * v1 - S01 * v0)) / det_s
-                mahal2[qq] = m2v
-                if not (math.isfinite(m2v) and det_s > 0.0 and S00 > 0.0):
-                    return _BAD_FORWARD, k, j, loglik
-                if use_gate and m2v > gate:
-                    continue
-                loglik += -0.5 * (m2v + math.log(det_s) + 2.0 * _LOG_2PI)
-                if store:
-                    innov[qq, 0], innov[qq, 1], innov[qq, 2], innov[qq, 3], innov[qq, 4] = v0, v1, S00, S01, S11
-                _apply(mu, P, sl, var_h, vb, ph0, ph1, X, xh0, xh1, k0, k1, o)
-            mf[ps + j + 1, :] = mu
-            Pf[ps + j + 1, :, :] = P
-            if not _finite(mu, P):
-                return _BAD_FORWARD, k, j, loglik
-        if forward_only:
-            continue
-        # ---------------- Rauch-Tung-Striebel backward pass ----------------
-        last = ps + nfr
-        mn[:] = mf[last]
-        Pn[:, :] = Pf[last]
-        sm[last, :] = mn
-        sc[last, :, :] = Pn
-        for j in range(nfr - 1, -1, -1):
-            i = f0 + j
-            p = ps + j
-            _f_rows(Pf[p], fab[i, 0], fab[i, 1], phi[i], X)  # X = F P_p, then P-^-1 F P_p = G^T
-            if not _cholesky(P_pred[i], L):
-                return _BAD_BACKWARD, k, j, loglik
-            _chol_solve(L, X)
-            for r in range(n):  # m_p = mu_p + G (m_{p+1} - g_p)
-                a = 0.0
-                for c in range(n):
-                    a += X[c, r] * (mn[c] - g_pred[i, c])
-                mu[r] = mf[p, r] + a
-            for r in range(n):  # W = (C_{p+1} - P-) X
-                for c in range(n):
-                    a = 0.0
-                    for m in range(n):
-                        a += (Pn[r, m] - P_pred[i, r, m]) * X[m, c]
-                    W[r, c] = a
-            for e in range(K):  # the extra states' lag-one covariances: diagonal of G C_{p+1}
+                a += X[c, r] * (mn[c] - g_pred[i, c])
+            mu[r] = mf[p, r] + a
+        for r in range(n):  # W = (C_{p+1} - P-) X
+            for c in range(n):
                 a = 0.0
                 for m in range(n):
-                    a += X[m, 3 + e] * Pn[m, 3 + e]
-                x_cross[i, e] = a
-            for r in range(n):  # C_p = P_p + G W
-                for c in range(n):
-                    a = 0.0
-                    for m in range(n):
-                        a += X[m, r] * W[m, c]
-                    P[r, c] = Pf[p, r, c] + a
-            _symmetrize(P)
-            if not _finite(mu, P):
-                return _BAD_BACKWARD, k, j, loglik
-            mn[:] = mu
-            Pn[:, :] = P
-            sm[p, :] = mn
-            sc[p, :, :] = Pn
+                    a += (Pn[r, m] - P_pred[i, r, m]) * X[m, c]
+                W[r, c] = a
+        for e in range(K):  # the extra states' lag-one covariances: diagonal of G C_{p+1}
+            a = 0.0
+            for m in range(n):
+                a += X[m, 3 + e] * Pn[m, 3 + e]
+            x_cross[i, e] = a
+        for r in range(n):  # C_p = P_p + G W
+            for c in range(n):
+                a = 0.0
+                for m in range(n):
+                    a += X[m, r] * W[m, c]
+                P[r, c] = Pf[p, r, c] + a
+        _symmetrize(P)
+        if not _finite(mu, P):
+            return _BAD_BACKWARD, j
+        mn[:] = mu
+        Pn[:, :] = P
+        sm[p, :] = mn
+        sc[p, :, :] = Pn
+    return _OK, -1
+
+
+@njit(cache=True, error_model="numpy")
+def _augmented_kernel(fr, si, ex, out, forward_only):
+    """Forward EKF + RTS on x = (pose, K extra states) for every log (fr: FrameInputs, si: SightingInputs,
+    ex: ExtraInputs, out: AugmentedOutputs). Returns (status, log, frame, loglik)."""
+    sig = _sym(_ld33(fr.sig_a.reshape(1, 3, 3), 0))
+    loglik = 0.0
+    for k in range(fr.frame_start.shape[0] - 1):
+        f0 = fr.frame_start[k]
+        nfr = fr.frame_start[k + 1] - f0
+        ps = f0 + k
+        status, j, loglik = _augmented_forward_log(k, f0, ps, nfr, fr, si, ex, sig, out, loglik)
+        if status != _OK:
+            return status, k, j, loglik
+        if forward_only:
+            continue
+        status, j = _rts_log(f0, ps, nfr, ex, out)
+        if status != _OK:
+            return status, k, j, loglik
     return _OK, -1, -1, loglik
 
 
@@ -336,20 +382,21 @@ def _run(lo: Lowered, batch: Batch, gate: float | None, innov: np.ndarray, forwa
     slot = np.ascontiguousarray(ex.slot, dtype=np.int64)
     if slot.shape != (n_s,) or np.any(slot >= K):
         raise ValueError(f"extra states: slot must have one entry per sighting, each < {K}")
+    extra = ExtraInputs(slot=slot, phi=_f64(ex.phi, (n, K)), q=_f64(ex.q, (n, K)), init_var=_f64(ex.init_var, (L, K)))
     if forward_only:  # the beliefs are not returned: reused work arrays
         mf, Pf = _scratch("aug_mf", (n_poses, dim)), _scratch("aug_Pf", (n_poses, dim, dim))
         g_pred, P_pred = _scratch("aug_g", (n, dim)), _scratch("aug_Pp", (n, dim, dim))
     else:
         mf, Pf, g_pred, P_pred = np.empty((n_poses, dim)), np.empty((n_poses, dim, dim)), np.empty((n, dim)), np.empty((n, dim, dim))
-    sm, sc, x_cross = np.empty((n_poses, dim)), np.empty((n_poses, dim, dim)), np.empty((n, K))
-    mahal2 = np.empty(n_s)
-    status, k, j, loglik = _augmented_kernel(
-        *_inputs(lo, batch, gate), slot, _f64(ex.phi, (n, K)), _f64(ex.q, (n, K)), _f64(ex.init_var, (L, K)),
-        mf, Pf, g_pred, P_pred, _scratch("aug_fab", (n, 2)), sm, sc, x_cross, mahal2, innov, forward_only)
+    out = AugmentedOutputs(mf=mf, Pf=Pf, g_pred=g_pred, P_pred=P_pred, fab=_scratch("aug_fab", (n, 2)),
+                           sm=np.empty((n_poses, dim)), sc=np.empty((n_poses, dim, dim)), x_cross=np.empty((n, K)),
+                           mahal2=np.empty(n_s), innov=innov)
+    status, k, j, loglik = _augmented_kernel(*kernel_inputs(lo, batch, gate), extra, out, forward_only)
     _raise(status, k, j, batch)
     if not math.isfinite(loglik):
         raise FloatingPointError("non-finite log-likelihood in the augmented E-step")
-    return float(loglik), mahal2, None if forward_only else ExtraMoments(mf, Pf, g_pred, P_pred, sm, sc, x_cross)
+    moments = None if forward_only else ExtraMoments(mf, Pf, g_pred, P_pred, out.sm, out.sc, out.x_cross)
+    return float(loglik), out.mahal2, moments
 
 
 def smooth_augmented_compiled(lo: Lowered, batch: Batch, gate: float | None = None) -> Posterior:
