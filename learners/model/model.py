@@ -11,6 +11,7 @@ from typing import Iterator
 
 import numpy as np
 
+from aibo_core.trajectory import VELOCITY_CONTROLS
 from learners.inference.batch import Batch
 from learners.inference.lowered import Lowered
 from learners.model.action import ActionModel, per_component
@@ -137,6 +138,19 @@ class Model:
         return out
 
 
+def default_feature_map(n_controls: int, control_names: tuple[str, ...]) -> str:
+    """The action model's feature map for continuous commands when none is asked for: ``unicycle`` for a
+    velocity-commanded wheeled robot (controls ``VELOCITY_CONTROLS``, (v mm/s, omega rad/s)): it cannot
+    move sideways, and its forward speed does not depend on which way it turns; ``diff_drive`` for two
+    other controls; ``linear`` otherwise. (Measured on the five MRCLAM robots against Vicon: ``unicycle``
+    beats the commands at face value on forward speed and turn rate on all five; ``diff_drive`` ended in a
+    wrong world on robot 4, 25.2 mm/s forward error: docs/results.md. The wheeled simulator's default
+    robot is a unicycle too: its weights have no lateral column and no omega terms in the forward row.)"""
+    if tuple(control_names) == VELOCITY_CONTROLS:
+        return "unicycle"
+    return "diff_drive" if n_controls == 2 else "linear"
+
+
 def start_model(batch: Batch, dt: float, sensor_kind: str = "height_px", n_commands: int | None = None,
                 control_names: tuple[str, ...] = (), feature_map: str | None = None, basis: str = "power",
                 degree: int = 3) -> Model:
@@ -146,7 +160,7 @@ def start_model(batch: Batch, dt: float, sensor_kind: str = "height_px", n_comma
         fmap = feature_map or "table"
         n = n_commands if n_commands is not None else int(batch.actions.max()) + 1
     else:
-        fmap = feature_map or ("diff_drive" if batch.controls.shape[1] == 2 else "linear")
+        fmap = feature_map or default_feature_map(batch.controls.shape[1], control_names)
         from learners.model.action import FEATURE_MAPS
 
         n = FEATURE_MAPS[fmap][1](batch.controls.shape[1])
