@@ -72,8 +72,9 @@ def build_parser() -> argparse.ArgumentParser:
     lr.add_argument("--init", help="start from this model file instead of the paper's start")
     lr.add_argument("--action-model", choices=["table", "features", "unicycle"], default=None,
                     help="table: one velocity per discrete command (default for discrete logs); features: "
-                         "velocity = features(command) x weights (diff_drive for (v, omega) commands); unicycle: "
-                         "the diff_drive features with no lateral velocity (dy weights held at 0; a wheeled robot)")
+                         "velocity = features(command) x weights (diff_drive for two controls, else linear); unicycle (default "
+                         "for (v_mm_s, omega_rad_s) commands): the diff_drive features with no lateral velocity and no "
+                         "turn-rate term in the forward speed (a wheeled robot)")
     lr.add_argument("--plots", help="write learning-curve and sensor-model PNGs to this folder")
     lr.add_argument("--paper-recipe", action="store_true",
                     help="the paper's recipe as written: fixed motion noise, one sample per sighting, plain EM")
@@ -124,8 +125,8 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument("--jobs", type=integer(1), default=2, help="worker processes for the candidates (default 2)")
     dg.add_argument("--seed", type=integer(0), default=0)
     dg.add_argument("--action-model", choices=["table", "features", "unicycle"], default=None,
-                    help="the base fit's action model, as in 'aibo learn' (unicycle for a wheeled robot's (v, omega) "
-                         "commands; default: table for discrete logs, features otherwise)")
+                    help="the base fit's action model, as in 'aibo learn' (default: table for discrete logs, unicycle "
+                         "for (v_mm_s, omega_rad_s) commands, features otherwise)")
     dg.add_argument("--replicas", type=replica_count, default=8,
                     help="replays of the measured commands in the calibrated simulator, before and after (default 8; "
                          "0: none; else at least 3)")

@@ -93,6 +93,19 @@ def test_new_component_per_beacon_height_scale_is_recovered():
     assert max(res.loglik) > max(plain.loglik) + 50
 
 
+@pytest.mark.parametrize("action_model, names, expected", [
+    (None, ("v_mm_s", "omega_rad_s"), "unicycle"),  # a velocity-commanded wheeled robot: the default
+    ("features", ("v_mm_s", "omega_rad_s"), "diff_drive"),
+    ("unicycle", ("v_mm_s", "omega_rad_s"), "unicycle"),
+    (None, ("left_mm_s", "right_mm_s"), "diff_drive"),  # two other controls
+])
+def test_default_action_model_of_a_continuous_log(action_model, names, expected):
+    tr = diff_drive_log(5.0, seed=0)
+    tr = type(tr)(**{**tr.__dict__, "control_names": names}) if names != tr.control_names else tr
+    start = EMLearner(EMOptions()).start_params([tr], None, make_batch([tr]), action_model)
+    assert start.action.feature_map == expected
+
+
 @pytest.mark.slow
 def test_continuous_commands_and_range_sensor_from_another_generator():
     """A differential-drive log (tests/_diffdrive.py: continuous (v, omega), range/bearing, up to 4
