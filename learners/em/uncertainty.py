@@ -16,14 +16,21 @@ delta method (the Jacobian of the file's numbers with respect to the packed para
 
 Parameters: every trainable parameter in ``Model.pack`` (velocities, the sensor curve as its
 values at fixed distances, log sigmas, the log-Cholesky factor of Sigma_A unless fixed, effects)
-and each log's initial pose mean (``init.mean``; the initial covariance is held fixed). A parameter that no
-sighting depends on (a command never executed) is undetermined: left out, its error ``None``.
+and each log's initial pose mean (``init.mean``; the initial covariance is held fixed). Two kinds of
+coordinates are left out of the information, and told apart in the report:
+
+- *fixed*: held at their value by the model's construction (``Component.held``: a unicycle's lateral
+  weights and its forward speed's omega and |omega| terms, at exactly 0). They are not parameters: not
+  differenced, listed as ``fixed``, and a file entry only they move has standard error exactly 0.0 (its
+  value is known, not estimated; a consumer dividing by it must expect 0).
+- *undetermined*: no sighting depends on them (a command never executed): listed as ``undetermined``,
+  their error ``None``; the others' errors are those with these held at their values.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -59,8 +66,11 @@ class Uncertainty:
     weakest: list[str]  # coordinates carrying most of the weakest direction
     undetermined: list[str]  # coordinates no sighting depends on
     newton_decrement: float  # sqrt(g^T I^-1 g): distance to the likelihood's optimum in standard errors
-    free: np.ndarray  # (all coordinates,) bool: which coordinates ``names`` are (the others undetermined)
+    free: np.ndarray  # (all coordinates,) bool: which coordinates ``names`` are (the others fixed or undetermined)
     score: np.ndarray  # (p,) d loglik / d x over ``names`` (packed units)
+    fixed: list[str] = field(default_factory=list)  # coordinates the model holds at their value (``Component.held``)
+    held: np.ndarray | None = None  # (all coordinates,) bool: which coordinates ``fixed`` are
+    passes: int = 0  # forward passes of the filter spent on the derivatives (one per coordinate, two if central)
 
     def summary(self) -> dict[str, Any]:
         """The JSON-ready part for a model file's ``info``."""
@@ -68,7 +78,7 @@ class Uncertainty:
                 "parameters": len(self.names), "min_eigenvalue": self.min_eigenvalue,
                 "condition_number": self.condition_number if math.isfinite(self.condition_number) else None,
                 "weakest_direction": self.weakest,
-                "undetermined": self.undetermined, "newton_decrement": self.newton_decrement}
+                "undetermined": self.undetermined, "fixed": self.fixed, "newton_decrement": self.newton_decrement}
 
 
 # ---------------------------------------------------------------------------------------------- coordinates
@@ -95,6 +105,12 @@ def _coordinate_names(model: Model, fixed: frozenset[str]) -> list[str]:
     for k in range(_n_init(model, fixed)):
         names += [f"initial_state.{k}.mean[{i}]" for i in range(3)]
     return names
+
+
+def held_coordinates(model: Model, fixed: frozenset[str]) -> np.ndarray:
+    """(all coordinates of ``packed``,) bool: those the model holds at their value by construction
+    (``Model.packed_held``; never an initial pose)."""
+    return np.concatenate([model.packed_held(fixed), np.zeros(3 * _n_init(model, fixed), dtype=bool)])
 
 
 def _n_init(model: Model, fixed: frozenset[str]) -> int:
@@ -218,8 +234,9 @@ class _Differences:
         return _columns(d[:, :2], d[:, 2:], self.c), (llp - llm) / span
 
 
-def _information(diff: _Differences, p: int, memory_bytes: int) -> tuple[np.ndarray, np.ndarray]:
-    """(I (p, p) = the Gram sum of the whitened derivatives G (p, n, 5), score (p,)).
+def _information(diff: _Differences, coords: np.ndarray, memory_bytes: int) -> tuple[np.ndarray, np.ndarray]:
+    """(I (p, p) = the Gram sum of the whitened derivatives G (p, n, 5), score (p,)) over the coordinates
+    ``coords`` (p of them: indices into the packed vector).
 
     G is held whole (float64) when it fits in ``memory_bytes``: p forward passes. A longer log takes the
     coordinates in blocks, two blocks in memory at a time (float32; products summed in float64), each
@@ -227,24 +244,24 @@ def _information(diff: _Differences, p: int, memory_bytes: int) -> tuple[np.ndar
     run again (block j, from 0, is run max(j, 1) times), memory bounded
     whatever the log's length (1,000,000 frames: ~3.5 GB whole; the differences themselves carry ~1e-5
     relative error, far above float32's rounding)."""
-    n = len(diff.rows)
+    n, p = len(diff.rows), len(coords)
     score = np.empty(p)
     if p * n * 5 * 8 <= memory_bytes:
         G = np.empty((p, n, 5))
         for k in range(p):
-            G[k], score[k] = diff(k)
+            G[k], score[k] = diff(int(coords[k]))
         return _gram(G), score
     size = max(1, memory_bytes // (2 * n * 5 * 4))
     blocks = [np.arange(a, min(a + size, p)) for a in range(0, p, size)]
     info = np.empty((p, p))
     Gi, Gj = np.empty((size, n, 5), np.float32), np.empty((size, n, 5), np.float32)
     for r, k in enumerate(blocks[0]):
-        Gi[r], score[k] = diff(k)
+        Gi[r], score[k] = diff(int(coords[k]))
     for i, bi in enumerate(blocks):
         info[np.ix_(bi, bi)] = _cross(Gi[: len(bi)], Gi[: len(bi)])
         for bj in reversed(blocks[i + 1 :]):  # block i + 1 last: it is the next Gi
             for r, k in enumerate(bj):
-                Gj[r], score[k] = diff(k)
+                Gj[r], score[k] = diff(int(coords[k]))
             info[np.ix_(bi, bj)] = _cross(Gi[: len(bi)], Gj[: len(bj)])
             info[np.ix_(bj, bi)] = info[np.ix_(bi, bj)].T
         Gi, Gj = Gj, Gi
@@ -281,17 +298,20 @@ def _file_jacobian(model: Model, x0: np.ndarray, fixed: frozenset[str], step: fl
     return {key: np.stack(c, axis=1) for key, c in cols.items()}
 
 
-def _errors(jac: dict[str, np.ndarray], shapes: dict[str, tuple], free: np.ndarray, cov: np.ndarray) -> dict[str, Any]:
+def _errors(jac: dict[str, np.ndarray], shapes: dict[str, tuple], free: np.ndarray, held: np.ndarray,
+            cov: np.ndarray) -> dict[str, Any]:
     """SE per file key (nested lists like the file; None for entries depending on an undetermined
-    coordinate); keys no coordinate moves (fixed parameters) are left out."""
+    coordinate, neither ``free`` nor ``held``; 0.0 for entries only ``held`` coordinates move: fixed by the
+    model); keys no coordinate moves (fixed parameters) are left out."""
     out = {}
+    undetermined = ~free & ~held
     for key, J in jac.items():
         moved = np.abs(J) > 1e-12 * max(1.0, float(np.abs(J).max(initial=0.0)))
         if not moved.any():
             continue
         var = np.einsum("ik,kl,il->i", J[:, free], cov, J[:, free])
         se = np.sqrt(np.maximum(var, 0.0))
-        se_list = [None if moved[i, ~free].any() else float(se[i]) for i in range(len(se))]
+        se_list = [None if moved[i, undetermined].any() else float(se[i]) for i in range(len(se))]
         out[key] = np.array(se_list, dtype=object).reshape(shapes[key]).tolist() if shapes[key] else se_list[0]
     return out
 
@@ -314,13 +334,20 @@ def parameter_uncertainty(model: Model, batch: Batch, fixed: frozenset[str] = fr
     (module docstring). ``step``: the difference step in packed units, one number or one per coordinate
     of ``packed`` (negative: central differences). ``fixed``: dotted parameter names held fixed (e.g. ``action.cov`` when the motion
     noise is not learned; ``init.mean``: the initial poses). ``memory_bytes``: the most the derivatives may
-    hold (``_information``)."""
+    hold (``_information``). The coordinates the model itself holds (``held_coordinates``) are not
+    differenced: reported as ``fixed`` (module docstring)."""
     x0 = packed(model, fixed)
     names = _coordinate_names(model, fixed)
     rows = np.flatnonzero(batch.used)
-    info_all, score = _information(_Differences(model, batch, x0, fixed, rows, step), len(x0), memory_bytes)
+    held = held_coordinates(model, fixed)
+    coords = np.flatnonzero(~held)
+    steps = np.broadcast_to(np.asarray(step, dtype=float), x0.shape)
+    info_c, score_c = _information(_Differences(model, batch, x0, fixed, rows, step), coords, memory_bytes)
+    info_all, score = np.zeros((len(x0), len(x0))), np.zeros(len(x0))
+    info_all[np.ix_(coords, coords)], score[coords] = info_c, score_c
+    passes = int(np.sum(np.where(steps[coords] < 0, 2, 1)))
     diag = np.diag(info_all)
-    free = diag > 1e-12 * diag.max()
+    free = ~held & (diag > 1e-12 * diag.max())
     info = info_all[np.ix_(free, free)]
     free_names = [n for n, f in zip(names, free) if f]
     lo, cond, weakest = _spectrum(info, free_names)
@@ -329,6 +356,7 @@ def parameter_uncertainty(model: Model, batch: Batch, fixed: frozenset[str] = fr
     g = score[free]
     newton = float(np.sqrt(max(g @ cov @ g, 0.0)))
     shapes = {k: v.shape for k, v in file_values(model).items()}
-    errors = _errors(_file_jacobian(model, x0, fixed), shapes, free, cov)
-    return Uncertainty(errors, free_names, info, cov, lo, cond, weakest, [n for n, f in zip(names, free) if not f],
-                       newton, free, g)
+    errors = _errors(_file_jacobian(model, x0, fixed), shapes, free, held, cov)
+    return Uncertainty(errors, free_names, info, cov, lo, cond, weakest,
+                       [n for n, f, h in zip(names, free, held) if not f and not h], newton, free, g,
+                       fixed=[n for n, h in zip(names, held) if h], held=held, passes=passes)
