@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from aibo_gym.collect import collect
+from learners.em.finish import fisher_scoring
 from learners.em.learner import EMLearner
 from learners.em.options import EMOptions
 from learners.em.uncertainty import parameter_uncertainty
@@ -194,6 +195,10 @@ def test_a_landmark_never_sighted_leaves_its_height_scale_undetermined_and_the_o
         got = np.array(four.standard_errors[key], dtype=float)
         got = got[:3] if key == "effects.beacon_height_scale.scale" else got
         np.testing.assert_allclose(got, np.array(want, dtype=float), rtol=1e-6, err_msg=key)  # measured: 4e-12
+
+    # the scoring finish steps along the directions the data determine: the unseen scale stays at 1
+    done = fisher_scoring(model, batch, max_steps=1)
+    assert done.record["steps"] and done.model.effect("beacon_height_scale").scale[3] == pytest.approx(1.0, abs=1e-9)
 
     # the curve held: the normalization determines the unseen scale (1 / the others' product)
     held = parameter_uncertainty(model, batch, frozenset({"sensor.coef"}))

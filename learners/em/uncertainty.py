@@ -408,7 +408,7 @@ def _null_directions(groups: list[tuple[int, int, str, list[int]]], free: np.nda
         D, T = Q[:, :r], Q[:, r:]
         IT = info @ T
         own = D.T @ info @ D
-        schur = own - (D.T @ IT) @ np.linalg.solve(T.T @ IT, IT.T @ D)
+        schur = own - (D.T @ IT) @ np.linalg.pinv(T.T @ IT, hermitian=True) @ (IT.T @ D)
         s = 1.0 / np.sqrt(np.diag(own))
         if np.linalg.eigvalsh(schur * np.outer(s, s))[-1] < NULL_RATIO:
             cols.append(D)
@@ -449,7 +449,7 @@ def parameter_uncertainty(model: Model, batch: Batch, fixed: frozenset[str] = fr
         T = np.linalg.svd(null, full_matrices=True)[0][:, null.shape[1] :]
         reduced = T.T @ info @ T
         lo, cond, weakest = _spectrum(reduced, free_names, T, np.diag(info))
-        cov = T @ np.linalg.inv(reduced) @ T.T
+        cov = T @ (np.linalg.pinv(reduced, hermitian=True) if cond > 1e14 else np.linalg.inv(reduced)) @ T.T
     else:
         lo, cond, weakest = _spectrum(info, free_names)
         cov = np.linalg.pinv(info, hermitian=True) if cond > 1e14 else np.linalg.inv(info)
