@@ -174,6 +174,8 @@ def test_a_landmark_never_sighted_leaves_its_height_scale_undetermined_and_the_o
     res = EMLearner(EMOptions(starts=1, patience=20)).fit([tr], init=start.with_effect(BeaconHeightScale(np.ones(4))))
     info, se = res.info["information"], res.info["standard_errors"]
     assert info["undetermined"] == ["effects.beacon_height_scale.scale[3]"], info
+    assert res.info["undetermined"] == ["effects.beacon_height_scale.scale[3]"]  # the fit's own list and warning
+    assert any("effects.beacon_height_scale.scale[3]): kept at their start" in w for w in res.info["warnings"])
     assert info["condition_number"] < 1e5 and info["newton_decrement"] < 20, info
     scale = res.params.effect("beacon_height_scale").scale
     assert scale[3] == pytest.approx(1.0, abs=1e-9) and np.exp(np.mean(np.log(scale[:3]))) == pytest.approx(1.0, abs=1e-12)

@@ -73,6 +73,12 @@ class EffectModel(Component):
         return sum(1 if name in self.GRID else np.size(v) - self.PARAMS[name].constraints
                    for name, v in self.values().items())
 
+    def undetermined(self, batch: Batch) -> list[str]:
+        """The entries (``"scale[3]"``) no applied sighting of ``batch`` can depend on, so that EM keeps them at
+        their start (``learners.em.support.check_support`` lists them, like a command never executed); default:
+        none."""
+        return []
+
     def warm_start(self, model: "Model", batch: Batch) -> "EffectModel":
         """A start for EM given the rest of the model (``model`` holds this effect); default: itself.
         An effect whose parameters EM moves slowly from ``start`` picks a better one here."""
@@ -192,6 +198,11 @@ class BeaconHeightScale(EffectModel):
 
     def lower(self, lo: Lowered, batch: Batch) -> None:
         lo.size_scale = lo.size_scale * self.scale[batch.sight_landmark]
+
+    def undetermined(self, batch: Batch) -> list[str]:
+        """The factors of the landmarks never sighted (among the applied sightings)."""
+        seen = np.bincount(batch.sight_landmark[batch.used], minlength=len(self.scale)) > 0
+        return [f"scale[{b}]" for b in np.flatnonzero(~seen)]
 
     def maximize(self, model: "Model", batch: Batch, post: Posterior, mu_star: np.ndarray) -> "Model":
         """Closed form given the curve: scale[b] = sum f z / sum f^2 over landmark b's sightings
