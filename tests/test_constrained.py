@@ -6,11 +6,13 @@ normalization removed (docs/em-math.md, "Standard errors")."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from aibo_gym.collect import collect
+from learners.em.finish import fisher_scoring
 from learners.em.learner import EMLearner
 from learners.em.options import EMOptions
 from learners.em.uncertainty import parameter_uncertainty
@@ -119,3 +121,87 @@ def test_an_extrapolated_step_outside_a_domain_is_projected_back_onto_it():
     fs = FalseSightings(0.1)  # a log parameter with a domain: (0, 0.5]
     assert fs.unpack_param("rate", np.array([math.log(0.9)]))[0] == 0.5
     assert fs.unpack_param("rate", np.array([math.log(0.2)]))[0] == pytest.approx(0.2)
+
+
+UNICYCLE_HELD = ["action_model.weights[0][1]", "action_model.weights[1][0]", "action_model.weights[1][1]",
+                 "action_model.weights[2][1]", "action_model.weights[3][0]", "action_model.weights[3][1]",
+                 "action_model.weights[4][1]"]
+
+
+def test_weights_the_unicycle_holds_at_zero_are_reported_as_fixed_not_estimated():
+    """``unicycle`` holds its lateral weights and its forward speed's omega and |omega| terms at exactly 0
+    (``ZERO_OUTPUTS``, ``ZERO_CELLS``). They are no parameters: before, the information took them as free (26
+    parameters, the weakest direction made of lateral weights, a standard error for each, the forward weights'
+    errors inflated by them) and the scoring finish moved them off 0. Now: listed as ``fixed`` (not
+    ``undetermined``), standard error exactly 0.0, kept at 0 by the finish, and printed as fixed."""
+    from aibo.commands.learn import uncertainty_report
+    from tests._diffdrive import diff_drive_log
+
+    tr = diff_drive_log(120.0, seed=0)
+    res = EMLearner(EMOptions(finish="scoring")).fit([tr], action_model="unicycle")
+    w, info = res.params.action.weights, res.info["information"]
+    held = np.zeros((5, 3), dtype=bool)
+    held[:, 1], held[[1, 3], 0] = True, True  # ZERO_OUTPUTS: dy; ZERO_CELLS: omega, |omega| in dx
+    np.testing.assert_array_equal(res.params.action.zero_cells(), held)
+    assert np.all(w[held] == 0.0), w  # the finish did not move them
+    assert info["fixed"] == UNICYCLE_HELD
+    assert info["parameters"] == 15 - 7 + 11  # 8 free weights, 3 curve nodes + 2 sigmas + 6 log-Cholesky
+    assert not set(UNICYCLE_HELD) & set(info["undetermined"] + info["weakest_direction"]), info
+    se = np.array(res.info["standard_errors"]["action_model.weights"], dtype=float)
+    assert np.all(se[held] == 0.0) and np.all(np.isfinite(se)) and np.all(se[~held] > 0), se
+    lines = uncertainty_report(res)
+    assert any(line.startswith("  fixed by the model") and "action_model.weights[0][1]" in line for line in lines)
+    assert not any("undetermined" in line for line in lines), lines
+
+
+def test_a_landmark_never_sighted_leaves_its_height_scale_undetermined_and_the_others_as_without_it():
+    """Landmark 3's sightings dropped from the log: no sighting depends on its height scale, and through the
+    normalization (geometric mean 1) and the sensor curve (which absorbs the common factor) the information is
+    singular along its contrast direction (before: condition number ~5e12, the scales' standard errors ~1000, the
+    curve's ~1e5, nothing named undetermined, the Newton decrement ~480). Its scale is now undetermined, like a
+    command never executed: kept at its start (1) by EM, error None, listed; every other error is the one given
+    it held, which is that of the same model on the same sightings without landmark 3 at all. With the curve held
+    the normalization alone determines it: then it is reported like any parameter."""
+
+    steps = 6000
+    tr = collect({"noise": "aibo", "robot_seed": 3, "max_steps": steps,
+                  "effects": {"beacon_height_scale": {"scale": TRUE_SCALE.tolist()}}}, steps=steps, seed=703)
+    keep = tr.sighting_landmark != 3
+    tr = replace(tr, sighting_frame=tr.sighting_frame[keep], sighting_landmark=tr.sighting_landmark[keep],
+                 sighting_value=tr.sighting_value[keep])
+    start = paper_start([tr])
+    start = start.with_(action=start.action.with_values(weights=np.array(tr.truth["velocities"]) * tr.dt))
+    res = EMLearner(EMOptions(starts=1, patience=20)).fit([tr], init=start.with_effect(BeaconHeightScale(np.ones(4))))
+    info, se = res.info["information"], res.info["standard_errors"]
+    assert info["undetermined"] == ["effects.beacon_height_scale.scale[3]"], info
+    assert res.info["undetermined"] == ["effects.beacon_height_scale.scale[3]"]  # the fit's own list and warning
+    assert any("effects.beacon_height_scale.scale[3]): kept at their start" in w for w in res.info["warnings"])
+    assert info["condition_number"] < 1e5 and info["newton_decrement"] < 20, info
+    scale = res.params.effect("beacon_height_scale").scale
+    assert scale[3] == pytest.approx(1.0, abs=1e-9) and np.exp(np.mean(np.log(scale[:3]))) == pytest.approx(1.0, abs=1e-12)
+    scale_se = se["effects.beacon_height_scale.scale"]
+    assert scale_se[3] is None and all(0.001 < s < 0.02 for s in scale_se[:3]), scale_se
+    assert np.all(np.abs(scale[:3] - TRUE_SCALE[:3] / np.exp(np.mean(np.log(TRUE_SCALE[:3])))) < 4 * np.array(scale_se[:3]))
+
+    # the same model and sightings with landmark 3 removed: the same standard errors (central differences)
+    model, batch = res.params, make_batch([tr])
+    three = replace(tr, landmarks=tr.landmarks[:3])
+    model3 = model.with_effect(BeaconHeightScale(scale[:3]))
+    four = parameter_uncertainty(model, batch, step=-1e-5)
+    ref = parameter_uncertainty(model3, make_batch([three]), step=-1e-5)
+    assert four.undetermined == ["effects.beacon_height_scale.scale[3]"] and not ref.undetermined
+    assert four.summary()["parameters"] == len(ref.names)
+    assert four.condition_number == pytest.approx(ref.condition_number, rel=1e-3)
+    assert four.newton_decrement == pytest.approx(ref.newton_decrement, rel=1e-3, abs=1e-3)
+    for key, want in ref.standard_errors.items():
+        got = np.array(four.standard_errors[key], dtype=float)
+        got = got[:3] if key == "effects.beacon_height_scale.scale" else got
+        np.testing.assert_allclose(got, np.array(want, dtype=float), rtol=1e-6, err_msg=key)  # measured: 4e-12
+
+    # the scoring finish steps along the directions the data determine: the unseen scale stays at 1
+    done = fisher_scoring(model, batch, max_steps=1)
+    assert done.record["steps"] and done.model.effect("beacon_height_scale").scale[3] == pytest.approx(1.0, abs=1e-9)
+
+    # the curve held: the normalization determines the unseen scale (1 / the others' product)
+    held = parameter_uncertainty(model, batch, frozenset({"sensor.coef"}))
+    assert not held.undetermined and all(s > 0 for s in held.standard_errors["effects.beacon_height_scale.scale"])

@@ -101,6 +101,9 @@ def uncertainty_report(result: LearnResult) -> list[str]:
     if inf["undetermined"]:
         lines.append(f"  undetermined (no sighting depends on them): {', '.join(inf['undetermined'][:6])}"
                      + (" ..." if len(inf["undetermined"]) > 6 else ""))
+    if inf.get("fixed"):
+        lines.append(f"  fixed by the model, not estimated (standard error 0): {', '.join(inf['fixed'][:6])}"
+                     + (" ..." if len(inf["fixed"]) > 6 else ""))
     return lines
 
 

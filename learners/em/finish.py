@@ -148,7 +148,7 @@ def fisher_scoring(model: Model, batch: Batch, fixed: frozenset[str] = frozenset
             out.record["error"] = f"scoring stopped: {str(exc)[:160]}"
             out.uncertainty = None
             break
-        out.passes += len(unc.free) * (2 if out.uncertainty is None else 1)
+        out.passes += unc.passes
         out.uncertainty = unc
         out.record["decrement"] = unc.newton_decrement
         steps = out.record["steps"]

@@ -79,7 +79,8 @@ class StartModelError(ValueError):
 
 def check_support(batch: Batch, start: Model) -> list[str]:
     """Raise InsufficientDataError when the logs cannot support a fit; return the names of the
-    parameters they leave undetermined (e.g. ``action_model.velocities[7]``: a command never executed)."""
+    parameters they leave undetermined (e.g. ``action_model.velocities[7]``: a command never executed;
+    ``effects.beacon_height_scale.scale[3]``: a landmark never sighted, ``EffectModel.undetermined``)."""
     n_params = len(start.sensor.coef) + 2
     need = MIN_SIGHTINGS_PER_PARAMETER * n_params
     commands_field = "actions" if batch.actions is not None else "controls"
@@ -96,7 +97,8 @@ def check_support(batch: Batch, start: Model) -> list[str]:
         raise InsufficientDataError("the commands in the logs determine none of the action model's weights",
                                     commands_field)
     label = "velocities" if start.action.discrete else "weights"
-    return [f"action_model.{label}[{i}]" for i in np.flatnonzero(~determined)]
+    return [f"action_model.{label}[{i}]" for i in np.flatnonzero(~determined)] + [
+        f"effects.{e.name}.{entry}" for e in start.effects for entry in e.undetermined(batch)]
 
 
 def curve_warnings(model: Model) -> list[str]:

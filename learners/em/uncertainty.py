@@ -16,14 +16,36 @@ delta method (the Jacobian of the file's numbers with respect to the packed para
 
 Parameters: every trainable parameter in ``Model.pack`` (velocities, the sensor curve as its
 values at fixed distances, log sigmas, the log-Cholesky factor of Sigma_A unless fixed, effects)
-and each log's initial pose mean (``init.mean``; the initial covariance is held fixed). A parameter that no
-sighting depends on (a command never executed) is undetermined: left out, its error ``None``.
+and each log's initial pose mean (``init.mean``; the initial covariance is held fixed). Two kinds of
+coordinates are left out of the information, and told apart in the report:
+
+- *fixed*: held at their value by the model's construction (``Component.held``: a unicycle's lateral
+  weights and its forward speed's omega and |omega| terms, at exactly 0). They are not parameters: not
+  differenced, listed as ``fixed``, and a file entry only they move has standard error exactly 0.0 (its
+  value is known, not estimated; a consumer dividing by it must expect 0).
+- *undetermined*: no sighting depends on them (a command never executed): listed as ``undetermined``,
+  their error ``None``; the others' errors are those with these held at their values.
+
+A member of a normalized group (``"logcontrast"``: factors at geometric mean 1, packed as contrasts)
+that no sighting depends on (``beacon_height_scale`` of a landmark never sighted) is undetermined
+along a direction that is not a coordinate: moving its log-factor moves the others' (the normalization),
+and their common factor trades with the sensor curve's, so the information is singular (condition
+number ~1e12 before this was handled) along that member's contrast direction combined with the curve.
+What the data determine is the seen members' ratios and each one's product with the curve; their
+common level, and the curve's, only once the unseen member's factor is held. So, like a command never
+executed, that member is held at its value (EM keeps it at its start, 1: ``BeaconHeightScale.maximize``):
+it is listed as ``undetermined`` (``effects.beacon_height_scale.scale[3]``), its error is ``None``, and
+every other error is the one given it held: the seen factors' and the curve's are then those of the
+same model without the unseen landmark (``tests/test_constrained.py``). It is held only when the data
+leave it undetermined (the information along its direction, given all the others, is below
+``NULL_RATIO`` of its own): with the curve held (``sensor.coef`` fixed) the normalization alone
+determines it, and it is reported like any parameter.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -32,6 +54,7 @@ from learners.inference.batch import Batch
 from learners.inference.kernels import innovations_compiled
 from learners.model.io import model_to_json
 from learners.model.model import Model
+from learners.model.parameters import helmert
 from learners.model.sensor import curve_nodes
 
 #: Forward-difference step in the packed units (one unit ~ one noise width: 10 mm/frame, 1 px, ...);
@@ -44,6 +67,10 @@ NOT_PARAMETERS = {"dt", "distance_range_mm"}
 #: The most the whitened derivatives may hold (bytes): 135 coordinates of a 15-minute log take ~70 MB
 #: (held whole, float64); a 1,000,000-frame log takes them in blocks (``_information``).
 MEMORY_BYTES = 384 * 2**20
+#: A never-sighted member of a normalized group is held (undetermined) when the information along its direction,
+#: given every other direction, is below this fraction of the information along it alone: measured 4e-16 for an
+#: unseen landmark's height scale (tests/test_constrained.py's log), 0.46 for the same with the sensor curve held.
+NULL_RATIO = 1e-8
 
 
 @dataclass
@@ -59,16 +86,21 @@ class Uncertainty:
     weakest: list[str]  # coordinates carrying most of the weakest direction
     undetermined: list[str]  # coordinates no sighting depends on
     newton_decrement: float  # sqrt(g^T I^-1 g): distance to the likelihood's optimum in standard errors
-    free: np.ndarray  # (all coordinates,) bool: which coordinates ``names`` are (the others undetermined)
+    free: np.ndarray  # (all coordinates,) bool: which coordinates ``names`` are (the others fixed or undetermined)
     score: np.ndarray  # (p,) d loglik / d x over ``names`` (packed units)
+    fixed: list[str] = field(default_factory=list)  # coordinates the model holds at their value (``Component.held``)
+    held: np.ndarray | None = None  # (all coordinates,) bool: which coordinates ``fixed`` are
+    passes: int = 0  # forward passes of the filter spent on the derivatives (one per coordinate, two if central)
+    null: np.ndarray | None = None  # (p, r) orthonormal directions over ``names`` held at their values (unseen group members)
 
     def summary(self) -> dict[str, Any]:
         """The JSON-ready part for a model file's ``info``."""
         return {"method": "Fisher information of the EKF innovations (finite differences)",
-                "parameters": len(self.names), "min_eigenvalue": self.min_eigenvalue,
+                "parameters": len(self.names) - (0 if self.null is None else self.null.shape[1]),
+                "min_eigenvalue": self.min_eigenvalue,
                 "condition_number": self.condition_number if math.isfinite(self.condition_number) else None,
                 "weakest_direction": self.weakest,
-                "undetermined": self.undetermined, "newton_decrement": self.newton_decrement}
+                "undetermined": self.undetermined, "fixed": self.fixed, "newton_decrement": self.newton_decrement}
 
 
 # ---------------------------------------------------------------------------------------------- coordinates
@@ -95,6 +127,12 @@ def _coordinate_names(model: Model, fixed: frozenset[str]) -> list[str]:
     for k in range(_n_init(model, fixed)):
         names += [f"initial_state.{k}.mean[{i}]" for i in range(3)]
     return names
+
+
+def held_coordinates(model: Model, fixed: frozenset[str]) -> np.ndarray:
+    """(all coordinates of ``packed``,) bool: those the model holds at their value by construction
+    (``Model.packed_held``; never an initial pose)."""
+    return np.concatenate([model.packed_held(fixed), np.zeros(3 * _n_init(model, fixed), dtype=bool)])
 
 
 def _n_init(model: Model, fixed: frozenset[str]) -> int:
@@ -218,8 +256,9 @@ class _Differences:
         return _columns(d[:, :2], d[:, 2:], self.c), (llp - llm) / span
 
 
-def _information(diff: _Differences, p: int, memory_bytes: int) -> tuple[np.ndarray, np.ndarray]:
-    """(I (p, p) = the Gram sum of the whitened derivatives G (p, n, 5), score (p,)).
+def _information(diff: _Differences, coords: np.ndarray, memory_bytes: int) -> tuple[np.ndarray, np.ndarray]:
+    """(I (p, p) = the Gram sum of the whitened derivatives G (p, n, 5), score (p,)) over the coordinates
+    ``coords`` (p of them: indices into the packed vector).
 
     G is held whole (float64) when it fits in ``memory_bytes``: p forward passes. A longer log takes the
     coordinates in blocks, two blocks in memory at a time (float32; products summed in float64), each
@@ -227,24 +266,24 @@ def _information(diff: _Differences, p: int, memory_bytes: int) -> tuple[np.ndar
     run again (block j, from 0, is run max(j, 1) times), memory bounded
     whatever the log's length (1,000,000 frames: ~3.5 GB whole; the differences themselves carry ~1e-5
     relative error, far above float32's rounding)."""
-    n = len(diff.rows)
+    n, p = len(diff.rows), len(coords)
     score = np.empty(p)
     if p * n * 5 * 8 <= memory_bytes:
         G = np.empty((p, n, 5))
         for k in range(p):
-            G[k], score[k] = diff(k)
+            G[k], score[k] = diff(int(coords[k]))
         return _gram(G), score
     size = max(1, memory_bytes // (2 * n * 5 * 4))
     blocks = [np.arange(a, min(a + size, p)) for a in range(0, p, size)]
     info = np.empty((p, p))
     Gi, Gj = np.empty((size, n, 5), np.float32), np.empty((size, n, 5), np.float32)
     for r, k in enumerate(blocks[0]):
-        Gi[r], score[k] = diff(k)
+        Gi[r], score[k] = diff(int(coords[k]))
     for i, bi in enumerate(blocks):
         info[np.ix_(bi, bi)] = _cross(Gi[: len(bi)], Gi[: len(bi)])
         for bj in reversed(blocks[i + 1 :]):  # block i + 1 last: it is the next Gi
             for r, k in enumerate(bj):
-                Gj[r], score[k] = diff(k)
+                Gj[r], score[k] = diff(int(coords[k]))
             info[np.ix_(bi, bj)] = _cross(Gi[: len(bi)], Gj[: len(bj)])
             info[np.ix_(bj, bi)] = info[np.ix_(bi, bj)].T
         Gi, Gj = Gj, Gi
@@ -281,30 +320,102 @@ def _file_jacobian(model: Model, x0: np.ndarray, fixed: frozenset[str], step: fl
     return {key: np.stack(c, axis=1) for key, c in cols.items()}
 
 
-def _errors(jac: dict[str, np.ndarray], shapes: dict[str, tuple], free: np.ndarray, cov: np.ndarray) -> dict[str, Any]:
+def _errors(jac: dict[str, np.ndarray], shapes: dict[str, tuple], free: np.ndarray, held: np.ndarray,
+            cov: np.ndarray, null: np.ndarray) -> dict[str, Any]:
     """SE per file key (nested lists like the file; None for entries depending on an undetermined
-    coordinate); keys no coordinate moves (fixed parameters) are left out."""
+    coordinate, neither ``free`` nor ``held``, and for entries moved along the held directions ``null``
+    (over the free coordinates) and along no other: an unseen group member's own factor; 0.0 for entries
+    only ``held`` coordinates move: fixed by the model); keys no coordinate moves (fixed parameters) are
+    left out."""
     out = {}
+    undetermined = ~free & ~held
     for key, J in jac.items():
         moved = np.abs(J) > 1e-12 * max(1.0, float(np.abs(J).max(initial=0.0)))
         if not moved.any():
             continue
-        var = np.einsum("ik,kl,il->i", J[:, free], cov, J[:, free])
+        Jf = J[:, free]
+        var = np.einsum("ik,kl,il->i", Jf, cov, Jf)
         se = np.sqrt(np.maximum(var, 0.0))
-        se_list = [None if moved[i, ~free].any() else float(se[i]) for i in range(len(se))]
+        silent = np.zeros(len(J), dtype=bool)
+        if null.shape[1]:
+            along = Jf @ null
+            silent = np.linalg.norm(Jf - along @ null.T, axis=1) <= 1e-6 * np.linalg.norm(along, axis=1)
+        se_list = [None if moved[i, undetermined].any() or silent[i] else float(se[i]) for i in range(len(se))]
         out[key] = np.array(se_list, dtype=object).reshape(shapes[key]).tolist() if shapes[key] else se_list[0]
     return out
 
 
-def _spectrum(info: np.ndarray, names: list[str]) -> tuple[float, float, list[str]]:
+def _spectrum(info: np.ndarray, names: list[str], basis: np.ndarray | None = None,
+              diag: np.ndarray | None = None) -> tuple[float, float, list[str]]:
     """(smallest eigenvalue, condition number) of the correlation form D^-1/2 I D^-1/2, and the
-    names carrying most (>= 10% of the squared weight) of its weakest direction."""
+    names carrying most (>= 10% of the squared weight) of its weakest direction. ``basis``: when ``info``
+    is over its columns (directions over ``names``), not over the names' coordinates (``diag``: the
+    information of each of these, for their correlation scale)."""
     d = 1.0 / np.sqrt(np.diag(info))
     w, V = np.linalg.eigh(info * np.outer(d, d))
     lo = max(float(w[0]), 0.0)
-    v = V[:, 0] ** 2
+    if basis is None:
+        v = V[:, 0] ** 2
+    else:
+        v = (basis @ (V[:, 0] * d)) ** 2 * diag
+        v = v / v.sum()
     weakest = [names[i] for i in np.argsort(-v)[:5] if v[i] >= 0.1]
     return lo, float(w[-1] / lo) if lo > 0 else math.inf, weakest
+
+
+def _silent_members(diff: _Differences, model: Model) -> list[tuple[int, int, str, list[int]]]:
+    """Per normalized group (a ``"logcontrast"`` block a:b of the packed coordinates): (a, b, its dotted
+    name, the members no applied sighting depends on), found exactly, as a command never executed is: a
+    member's factor doubled alone (the group not renormalized) leaves every innovation as it was (a landmark
+    never sighted). One forward pass per member."""
+    out = []
+    comps = dict(model.components())
+    for cname, pname, a, b in diff.perturb.blocks:
+        if cname == "init" or comps[cname].PARAMS[pname].transform != "logcontrast":
+            continue
+        comp = comps[cname]
+        value = np.asarray(getattr(comp, pname), dtype=float)
+        silent = []
+        for u in range(value.size):
+            moved = value.copy()
+            moved.flat[u] *= 2.0
+            new = comp.with_values(**{pname: moved})
+            m = model.with_effect(new) if cname.startswith("effects.") else replace(model, **{cname: new})
+            innovations_compiled(m.lower(diff.batch), diff.batch, out=diff.plus)
+            if np.array_equal(diff.plus[diff.rows], diff.base):
+                silent.append(u)
+        out.append((a, b, f"{cname}.{pname}", silent))
+    return out
+
+
+def _null_directions(groups: list[tuple[int, int, str, list[int]]], free: np.ndarray,
+                     info: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    """((p, r) orthonormal directions over the free coordinates to hold, the names of the members held): per
+    group of ``_silent_members`` with unseen members (and every coordinate free), the contrast directions that
+    move their log-factors (their rows of the Helmert basis), held when the data leave them undetermined: the
+    information along them given every other direction (a Schur complement) below ``NULL_RATIO`` of their own."""
+    index = np.cumsum(free) - 1  # coordinate -> position among the free ones
+    p = int(free.sum())
+    cols, names = [], []
+    for a, b, key, silent in groups:
+        if not silent or not free[a:b].all():
+            continue
+        _, sv, vt = np.linalg.svd(helmert(b - a + 1)[silent])
+        r = int(np.sum(sv > 1e-9 * sv.max()))
+        dirs = np.zeros((p, r))
+        dirs[index[a:b], :] = vt[:r].T
+        Q = np.linalg.svd(dirs, full_matrices=True)[0]
+        D, T = Q[:, :r], Q[:, r:]
+        IT = info @ T
+        own = D.T @ info @ D
+        schur = own - (D.T @ IT) @ np.linalg.pinv(T.T @ IT, hermitian=True) @ (IT.T @ D)
+        s = 1.0 / np.sqrt(np.diag(own))
+        if np.linalg.eigvalsh(schur * np.outer(s, s))[-1] < NULL_RATIO:
+            cols.append(D)
+            names += [f"{key}[{u}]" for u in silent]
+    if not cols:
+        return np.zeros((p, 0)), []
+    return np.linalg.svd(np.concatenate(cols, axis=1), full_matrices=False)[0], names
 
 
 def parameter_uncertainty(model: Model, batch: Batch, fixed: frozenset[str] = frozenset(),
@@ -314,21 +425,39 @@ def parameter_uncertainty(model: Model, batch: Batch, fixed: frozenset[str] = fr
     (module docstring). ``step``: the difference step in packed units, one number or one per coordinate
     of ``packed`` (negative: central differences). ``fixed``: dotted parameter names held fixed (e.g. ``action.cov`` when the motion
     noise is not learned; ``init.mean``: the initial poses). ``memory_bytes``: the most the derivatives may
-    hold (``_information``)."""
+    hold (``_information``). The coordinates the model itself holds (``held_coordinates``) are not
+    differenced: reported as ``fixed`` (module docstring)."""
     x0 = packed(model, fixed)
     names = _coordinate_names(model, fixed)
     rows = np.flatnonzero(batch.used)
-    info_all, score = _information(_Differences(model, batch, x0, fixed, rows, step), len(x0), memory_bytes)
+    held = held_coordinates(model, fixed)
+    coords = np.flatnonzero(~held)
+    steps = np.broadcast_to(np.asarray(step, dtype=float), x0.shape)
+    diff = _Differences(model, batch, x0, fixed, rows, step)
+    info_c, score_c = _information(diff, coords, memory_bytes)
+    info_all, score = np.zeros((len(x0), len(x0))), np.zeros(len(x0))
+    info_all[np.ix_(coords, coords)], score[coords] = info_c, score_c
+    passes = int(np.sum(np.where(steps[coords] < 0, 2, 1)))
     diag = np.diag(info_all)
-    free = diag > 1e-12 * diag.max()
+    free = ~held & (diag > 1e-12 * diag.max())
     info = info_all[np.ix_(free, free)]
     free_names = [n for n, f in zip(names, free) if f]
-    lo, cond, weakest = _spectrum(info, free_names)
-    cov = np.linalg.pinv(info, hermitian=True) if cond > 1e14 else np.linalg.inv(info)
+    groups = _silent_members(diff, model)
+    passes += sum(b - a + 1 for a, b, _, _ in groups)
+    null, unseen = _null_directions(groups, free, info)
+    if null.shape[1]:  # held along ``null``: the information over the other directions T (orthonormal)
+        T = np.linalg.svd(null, full_matrices=True)[0][:, null.shape[1] :]
+        reduced = T.T @ info @ T
+        lo, cond, weakest = _spectrum(reduced, free_names, T, np.diag(info))
+        cov = T @ (np.linalg.pinv(reduced, hermitian=True) if cond > 1e14 else np.linalg.inv(reduced)) @ T.T
+    else:
+        lo, cond, weakest = _spectrum(info, free_names)
+        cov = np.linalg.pinv(info, hermitian=True) if cond > 1e14 else np.linalg.inv(info)
     cov = 0.5 * (cov + cov.T)
     g = score[free]
     newton = float(np.sqrt(max(g @ cov @ g, 0.0)))
     shapes = {k: v.shape for k, v in file_values(model).items()}
-    errors = _errors(_file_jacobian(model, x0, fixed), shapes, free, cov)
-    return Uncertainty(errors, free_names, info, cov, lo, cond, weakest, [n for n, f in zip(names, free) if not f],
-                       newton, free, g)
+    errors = _errors(_file_jacobian(model, x0, fixed), shapes, free, held, cov, null)
+    return Uncertainty(errors, free_names, info, cov, lo, cond, weakest,
+                       [n for n, f, h in zip(names, free, held) if not f and not h] + unseen, newton, free, g,
+                       fixed=[n for n, h in zip(names, held) if h], held=held, passes=passes, null=null)

@@ -161,6 +161,19 @@ class ActionModel(Component):
             out[keep, k] = np.linalg.lstsq(d.T @ d, d.T @ targets[:, k], rcond=None)[0]
         return out
 
+    def zero_cells(self) -> np.ndarray:
+        """(F, 3) bool: the weights the feature map holds at exactly 0 (the ``ZERO_OUTPUTS`` columns and the
+        ``ZERO_CELLS``; none for ``table``, ``diff_drive``, ``linear``)."""
+        mask = np.zeros(np.shape(self.weights), dtype=bool)
+        mask[:, list(ZERO_OUTPUTS.get(self.feature_map, ()))] = True
+        for k, rows in ZERO_CELLS.get(self.feature_map, {}).items():
+            mask[list(rows), k] = True
+        return mask
+
+    def held(self, name: str) -> np.ndarray:
+        """``Component.held``: the weights the feature map holds at 0 (``zero_cells``; packed row by row)."""
+        return self.zero_cells().ravel() if name == "weights" else super().held(name)
+
     def determined(self, commands: np.ndarray) -> np.ndarray:
         """(F,) bool: which weights the commands of a log determine (table: the commands executed;
         features: all, when the feature matrix has full column rank)."""

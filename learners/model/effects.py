@@ -73,6 +73,12 @@ class EffectModel(Component):
         return sum(1 if name in self.GRID else np.size(v) - self.PARAMS[name].constraints
                    for name, v in self.values().items())
 
+    def undetermined(self, batch: Batch) -> list[str]:
+        """The entries (``"scale[3]"``) no applied sighting of ``batch`` can depend on, so that EM keeps them at
+        their start (``learners.em.support.check_support`` lists them, like a command never executed); default:
+        none."""
+        return []
+
     def warm_start(self, model: "Model", batch: Batch) -> "EffectModel":
         """A start for EM given the rest of the model (``model`` holds this effect); default: itself.
         An effect whose parameters EM moves slowly from ``start`` picks a better one here."""
@@ -193,10 +199,18 @@ class BeaconHeightScale(EffectModel):
     def lower(self, lo: Lowered, batch: Batch) -> None:
         lo.size_scale = lo.size_scale * self.scale[batch.sight_landmark]
 
+    def undetermined(self, batch: Batch) -> list[str]:
+        """The factors of the landmarks never sighted (among the applied sightings)."""
+        seen = np.bincount(batch.sight_landmark[batch.used], minlength=len(self.scale)) > 0
+        return [f"scale[{b}]" for b in np.flatnonzero(~seen)]
+
     def maximize(self, model: "Model", batch: Batch, post: Posterior, mu_star: np.ndarray) -> "Model":
         """Closed form given the curve: scale[b] = sum f z / sum f^2 over landmark b's sightings
         (cubature points, weights 1 / size_var_factor); then normalized, the common factor moved
-        into the curve's coefficients (f(d) g scale/g is the same prediction)."""
+        into the curve's coefficients (f(d) g scale/g is the same prediction). A landmark never sighted
+        keeps its factor (its start, 1: the data say nothing of it) and the sighted ones keep the product
+        they had, so the group stays at geometric mean 1 without that factor drifting with the curve's
+        (``learners.em.uncertainty`` reports it as undetermined)."""
         lo = model.lower(batch)
         idx, d = cubature_distances(batch, post)
         f = model.sensor.mean(d) * (lo.size_scale[idx] / self.scale[batch.sight_landmark[idx]])[:, None]
@@ -206,10 +220,16 @@ class BeaconHeightScale(EffectModel):
         lm = batch.sight_landmark[idx]
         num = np.bincount(lm, weights=(w * f * z).sum(axis=1), minlength=B)
         den = np.bincount(lm, weights=(w * f * f).sum(axis=1), minlength=B)
-        scale = np.where(den > 0, num / np.where(den > 0, den, 1.0), self.scale)
-        if np.any(scale <= 0):
+        seen = den > 0
+        scale = np.where(seen, num / np.where(seen, den, 1.0), self.scale)
+        if np.any(scale <= 0) or not seen.any():
             return model
-        g = float(np.exp(np.mean(np.log(scale))))
+        if seen.all():
+            g = float(np.exp(np.mean(np.log(scale))))
+            scale = scale / g
+        else:
+            g = float(np.exp(np.mean(np.log(scale[seen])) - np.mean(np.log(self.scale[seen]))))
+            scale = np.where(seen, scale / g, self.scale)
         sensor = model.sensor.with_values(coef=np.asarray(model.sensor.coef) * g)
-        return model.with_effect(BeaconHeightScale(scale / g)).with_(sensor=sensor)
+        return model.with_effect(BeaconHeightScale(scale)).with_(sensor=sensor)
 

@@ -102,6 +102,11 @@ class Model:
         """(component, parameter, number of entries) of each block of ``pack(fixed)``, in order."""
         return [(cname, pname, len(comp.pack_param(pname))) for _, cname, pname, comp in self._slots(fixed)]
 
+    def packed_held(self, fixed: frozenset[str] = frozenset()) -> np.ndarray:
+        """(entries of ``pack(fixed)``,) bool: those the components hold at their value by construction
+        (``Component.held``: a unicycle's lateral weights)."""
+        return np.concatenate([comp.held(pname) for _, _, pname, comp in self._slots(fixed)])
+
     def unpack(self, x: np.ndarray, fixed: frozenset[str] = frozenset()) -> "Model":
         """Inverse of ``pack``: this model with the packed parameters read from ``x``."""
         new: dict[str, dict] = {}

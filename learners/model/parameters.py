@@ -200,6 +200,13 @@ class Component:
             value = np.clip(value, p.low, p.high)
         return (float(value) if old.shape == () else value), n
 
+    def held(self, name: str) -> np.ndarray:
+        """(entries of ``pack_param(name)``,) bool: the packed entries of parameter ``name`` the component holds at
+        their value by construction (a unicycle's lateral weights, at exactly 0): packed like the others, but no
+        parameters: the M-step never moves them, and the standard errors (``learners.em.uncertainty``) report them
+        as ``fixed``, error 0. None by default."""
+        return np.zeros(len(self.pack_param(name)), dtype=bool)
+
     def describe(self) -> list[str]:
         """Lines ``name = value unit`` for printing."""
         lines = []
