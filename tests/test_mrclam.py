@@ -230,3 +230,28 @@ def test_real_robot3_the_gate_judged_at_the_face_value_keeps_the_right_world():
     was = old.fit([train], action_model="unicycle")
     assert was.pruned_observations > 0.5 * train.n_sightings
     assert velocity_scores(was.params, [tr])["vx_rms"] > face["vx_rms"]
+
+
+def test_the_pose_score_runs_the_smoother_with_the_fits_gate():
+    """A burst of gross range outliers (3x the distance, as a misread landmark) takes the ungated smoother off its
+    track; scored as the fit runs the smoother (sightings beyond the gate not applied) the pose error is the clean
+    log's."""
+    from dataclasses import replace
+
+    from learners.em.learner import EMLearner
+    from learners.em.options import EMOptions
+    from learners.inference.batch import make_batch
+    from learners.scoring import face_value_model, pose_scores
+    from tests._diffdrive import diff_drive_log
+
+    clean = diff_drive_log(120.0, seed=3)
+    start = EMLearner(EMOptions()).start_params([clean], None, make_batch([clean]))
+    model = face_value_model(start.with_(sensor=replace(start.sensor, sigma_size=40.0, sigma_bearing=0.02)))
+    values = clean.sighting_value.copy()
+    burst = slice(len(values) // 2, len(values) // 2 + 8)
+    values[burst, 0] *= 3.0
+    bad = replace(clean, sighting_value=values)
+    ok = pose_scores(model, [clean])["pose_rms"]
+    gated, ungated = pose_scores(model, [bad])["pose_rms"], pose_scores(model, [bad], gate=None)["pose_rms"]
+    assert gated == pytest.approx(ok, rel=0.1), (ok, gated)
+    assert ungated > 2.0 * gated, (gated, ungated)
