@@ -102,6 +102,17 @@ def _with(effect: EffectModel, values: dict[str, Any]) -> EffectModel:
     return effect.with_values(**{k: (float(v) if np.ndim(v) == 0 else np.asarray(v, float)) for k, v in values.items()})
 
 
+def walk_profile(grid: tuple[float, ...], loglik: Callable[[float], float]) -> list[float]:
+    """``loglik`` at the grid's values in order, until one is ``PAST_PEAK_NATS`` below the best so far (the
+    profile has passed its peak); the log-likelihoods evaluated, in grid order."""
+    lls: list[float] = []
+    for g in grid:
+        lls.append(loglik(g))
+        if lls[-1] < max(lls) - PAST_PEAK_NATS:
+            break
+    return lls
+
+
 def try_candidate(name: str, base: Model, base_ll: float, base_heldout: float, train: list[Trajectory],
                   logs: list[Trajectory], opts: EMOptions, n_candidates: int) -> Candidate:
     """Fit the base model extended with effect ``name``; score, test, probe identifiability."""
@@ -113,12 +124,13 @@ def try_candidate(name: str, base: Model, base_ll: float, base_heldout: float, t
     if cls.GRID:  # profile likelihood over the grid, the effect frozen at each value
         (pname, grid), = cls.GRID.items()
         frozen = replace(opts, frozen=opts.frozen + (name,), max_iter=min(opts.max_iter, 150))
-        fits, lls = [], []
-        for g in grid:  # in order, until the profile has passed its peak
+        fits = []
+
+        def profile(g: float) -> float:
             fits.append(_fit(train, start.with_effect(_with(start.effect(name), {pname: g})), frozen))
-            lls.append(_train_loglik(fits[-1], train))
-            if lls[-1] < max(lls) - PAST_PEAK_NATS:
-                break
+            return _train_loglik(fits[-1], train)
+
+        lls = walk_profile(grid, profile)
         k = int(np.argmax(lls))
         model, ll = fits[k], lls[k]
         flat = max(lls) - min(lls) < FLAT_NATS
