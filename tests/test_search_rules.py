@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import pytest
 
 from learners.discrepancy import search as search_module
-from learners.discrepancy.search import Candidate, prune
+from learners.discrepancy.search import PAST_PEAK_NATS, Candidate, prune, walk_profile
 from learners.em.learner import MAX_OFF_FIELD, field_warnings
 from learners.model.landmark_bias import MAX_PLAUSIBLE_SIGMA, LandmarkBias
 
@@ -150,3 +150,14 @@ def test_base_shift_reports_the_largest_velocity_and_curve_changes_in_file_units
     n = len(w)
     assert shift["velocities_rms"] == pytest.approx(np.sqrt(np.array([9.0 + 1.0, 4.0 + 16.0, 0.01]) / n))
     assert shift["sensor_curve_max_abs"] == pytest.approx(2.0) and shift["sensor_unit"] == "px"
+
+
+def test_a_grid_profile_stops_past_its_peak_and_walks_a_flat_one_whole():
+    grid = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)
+    peaked = dict(zip(grid, (0.0, 246.0, 457.0, 371.0, 181.0, 15.0)))  # actuation_lag on MRCLAM robot 1
+    seen = []
+    lls = walk_profile(grid, lambda g: seen.append(g) or peaked[g])
+    assert seen == [0.0, 0.1, 0.2, 0.3] and lls == [0.0, 246.0, 457.0, 371.0]
+    # within PAST_PEAK_NATS of the best it goes on: a flat or noisy profile is walked whole
+    flat = [0.0, 0.5, -0.3, 0.2, PAST_PEAK_NATS / 2, 0.0]
+    assert walk_profile(grid, lambda g: flat[grid.index(g)]) == flat
