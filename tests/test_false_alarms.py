@@ -71,8 +71,7 @@ def test_velocity_fade_is_not_named_for_a_robot_pressing_the_walls():
 @pytest.mark.slow
 def test_velocity_fade_is_still_named_when_the_speed_fades():
     """Power kept: a fade of 0.01/min on a 10-minute log (seed 2000) is named, given the walls' nuisance too."""
-    tr = blind(collect({"noise": "aibo", "effects": {"velocity_fade": {"fade_per_min": 0.01}}}, 2 * FIVE_MINUTES,
-                       seed=2000))
+    tr = blind(collect({"noise": "aibo", "effects": {"velocity_fade": {"fade_per_min": 0.01}}}, 2 * FIVE_MINUTES, seed=2000))
     found = search([tr], ["velocity_fade"], EMOptions(), jobs=2, progress=lambda s: None)
     assert [c.name for c in found["named"]] == ["velocity_fade"], found["rounds"][0][0]
     assert abs(found["named"][0].parameters["fade_per_min"] - 0.01) < 0.005
