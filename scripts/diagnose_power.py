@@ -87,9 +87,12 @@ def main() -> None:
     key = {(r["effect"], json.dumps(r["params"]), r["seed"], r.get("preset", "aibo"), r.get("walls", False))
            for r in done}
     jobs = []
-    for preset in args.presets.split(","):
-        jobs += [(None, None, 1000 + s, preset, False) for s in range(args.seeds)]
-        jobs += [(None, None, 3000 + s, preset, True) for s in range(args.wall_seeds)]
+    # interleaved (seed by seed: each preset without, then with walls), so that a run stopped early covers every
+    # group of the false-alarm table
+    for s in range(max(args.seeds, args.wall_seeds)):
+        for preset in args.presets.split(","):
+            jobs += [(None, None, 1000 + s, preset, False)] if s < args.seeds else []
+            jobs += [(None, None, 3000 + s, preset, True)] if s < args.wall_seeds else []
     for e in filter(None, args.effects.split(",")):
         jobs += [(e, p, 2000 + s, "aibo", False) for p in STRENGTHS[e] for s in range(args.power_seeds)]
     for effect, params, seed, preset, walls in jobs:
