@@ -207,6 +207,21 @@ def write_json(path: str | os.PathLike, value: Any, indent: int | None = 1) -> N
     atomic_write(path, lambda f: f.write(text.encode()))
 
 
+def write_jsonl(path: str | os.PathLike, records: list[Any], sort_keys: bool = False) -> None:
+    """Write ``records`` to ``path``, one strict JSON object per line (``json_text``), atomically: a resumable run
+    rewrites the whole file after each finished record, so an interruption never leaves half a line."""
+    text = "".join(json_text(r, indent=None, sort_keys=sort_keys) + "\n" for r in records)
+    atomic_write(path, lambda f: f.write(text.encode()))
+
+
+def read_jsonl(path: str | os.PathLike) -> list[Any]:
+    """The records of a JSON-lines file (blank lines skipped); [] when it does not exist."""
+    path = Path(path)
+    if not path.exists():
+        return []
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
 def write_npz(f, arrays: dict[str, np.ndarray]) -> None:
     """Like ``np.savez_compressed`` but with fixed zip timestamps: same content, same bytes."""
     with zipfile.ZipFile(f, mode="w", compression=zipfile.ZIP_DEFLATED) as zf:

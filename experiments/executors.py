@@ -18,12 +18,11 @@ with more threads differs in the last bits of the information matrix's eigenvalu
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
-from aibo_core.atomic import atomic_write, json_text
+from aibo_core.atomic import read_jsonl, write_jsonl
 from experiments.run import RunSpec, load_record, run_json
 
 BACKENDS = ("serial", "pool", "ray")
@@ -36,15 +35,11 @@ def worker_env() -> dict[str, str]:
 
 
 def write_results(out_dir: Path, records: list[dict[str, Any]]) -> None:
-    text = "".join(json_text(r, indent=None, sort_keys=True) + "\n" for r in records)
-    atomic_write(out_dir / "results.jsonl", lambda f: f.write(text.encode()))
+    write_jsonl(out_dir / "results.jsonl", records, sort_keys=True)
 
 
 def read_results(out_dir: str | Path) -> list[dict[str, Any]]:
-    path = Path(out_dir) / "results.jsonl"
-    if not path.exists():
-        return []
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    return read_jsonl(Path(out_dir) / "results.jsonl")
 
 
 def _pool_map(todo: list[dict], out: str, jobs: int) -> Iterable[dict]:

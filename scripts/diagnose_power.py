@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aibo_core.atomic import atomic_write
+from aibo_core.atomic import atomic_write, read_jsonl, write_jsonl
 from aibo_core.trajectory import blind
 from aibo_gym.collect import collect
 from learners.discrepancy.search import search
@@ -83,7 +83,7 @@ def main() -> None:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     done_path = out / "runs.jsonl"
-    done = [json.loads(line) for line in done_path.read_text().splitlines()] if done_path.exists() else []
+    done = read_jsonl(done_path)
     key = {(r["effect"], json.dumps(r["params"]), r["seed"], r.get("preset", "aibo"), r.get("walls", False))
            for r in done}
     jobs = []
@@ -100,8 +100,7 @@ def main() -> None:
             continue
         r = one(effect, params, seed, args.minutes, preset, walls)
         done.append(r)
-        text = "".join(json.dumps(x) + "\n" for x in done)
-        atomic_write(done_path, lambda f: f.write(text.encode()))
+        write_jsonl(done_path, done)
         print(f"{r['effect']:26s} {json.dumps(r['params'])!s:45s} {preset}{' walls' if walls else ''} seed {seed}: "
               f"named {r['named']} ({r['seconds']:.0f} s)", flush=True)
     summarize(done, out)

@@ -26,7 +26,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from aibo_core.atomic import atomic_write  # noqa: E402
+from aibo_core.atomic import atomic_write, read_jsonl, write_jsonl  # noqa: E402
 from aibo_core.trajectory import blind  # noqa: E402
 from aibo_gym.collect import collect  # noqa: E402
 from aibo_gym.context import Frame, Motion  # noqa: E402
@@ -73,14 +73,13 @@ def main() -> None:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     path = out / "runs.jsonl"
-    done = [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
+    done = read_jsonl(path)
     for seed in range(4000, 4000 + args.seeds):
         if any(r["seed"] == seed and r["grade"] == args.grade for r in done):
             continue
         done.append(one(seed, args.minutes, args.grade))
         print(json.dumps(done[-1]), flush=True)
-        text = "".join(json.dumps(r) + "\n" for r in done)
-        atomic_write(path, lambda f: f.write(text.encode()))
+        write_jsonl(path, done)
     rows = [r for r in done if r["grade"] == args.grade]
     right = [r for r in rows if not r["named"] and r["heading_shown"]]
     lines = [f"Sloped floor (grade {args.grade}, not in the catalogue), {len(rows)} blind {args.minutes:g}-minute logs: "
