@@ -124,6 +124,17 @@ def _with(effect: EffectModel, values: dict[str, Any]) -> EffectModel:
     return effect.with_values(**{k: (float(v) if np.ndim(v) == 0 else np.asarray(v, float)) for k, v in values.items()})
 
 
+def lr_test(gain: float, held: float, dof: int, n_tests: int) -> tuple[float, bool]:
+    """(p, significant) of an effect that gains ``gain`` nats on the training half and ``held`` on the held-out half
+    with ``dof`` parameters, one of ``n_tests`` tests (module docstring): p of the likelihood-ratio test, significant
+    below ALPHA / n_tests with a held-out gain; with no parameter (dof 0), both gains above ``ZERO_DOF_NATS`` (p is
+    then for reference only)."""
+    p = float(stats.chi2.sf(2.0 * gain, max(dof, 1)))
+    if dof == 0:
+        return p, gain > ZERO_DOF_NATS and held > ZERO_DOF_NATS
+    return p, p < ALPHA / max(n_tests, 1) and held > 0
+
+
 def walk_profile(grid: tuple[float, ...], loglik: Callable[[float], float]) -> list[float]:
     """``loglik`` at the grid's values in order, until one is ``PAST_PEAK_NATS`` below the best so far (the
     profile has passed its peak); the log-likelihoods evaluated, in grid order."""
@@ -168,13 +179,9 @@ def try_candidate(name: str, base: Model, base_ll: float, base_heldout: float, t
         flat = False
     dof = model.effect(name).dof()
     gain = max(ll - base_ll, 0.0)
-    p = float(stats.chi2.sf(2.0 * gain, max(dof, 1)))
     heldout = score(model, logs).heldout_loglik - base_heldout
-    c = Candidate(name, model.effect(name).values(), gain, heldout, dof, p, model=model)
-    if dof == 0:
-        c.significant = gain > ZERO_DOF_NATS and heldout > ZERO_DOF_NATS
-    else:
-        c.significant = p < ALPHA / max(n_candidates, 1) and heldout > 0
+    p, significant = lr_test(gain, heldout, dof, n_candidates)
+    c = Candidate(name, model.effect(name).values(), gain, heldout, dof, p, significant, model=model)
     if c.significant and name in GIVEN_WALLS:
         _given_walls(c, start, base, batch, train, logs, opts, n_candidates)
     effect = model.effect(name)
@@ -206,8 +213,7 @@ def _given_walls(c: Candidate, start: Model, base: Model, batch: Any, train: lis
     alt = _fit(train, start.with_effect(nuisance), opts)
     gain = max(_train_loglik(alt, train) - _train_loglik(null, train), 0.0)
     held = score(alt, logs).heldout_loglik - score(null, logs).heldout_loglik
-    p = float(stats.chi2.sf(2.0 * gain, max(c.dof, 1)))
-    ok = p < ALPHA / max(n_candidates, 1) and held > 0
+    p, ok = lr_test(gain, held, c.dof, n_candidates)
     c.note = (f"given a free speed factor on the {nuisance.n_near()} frames near a wall "
               f"(x{null.effect(WallSlowdown.name).factor:.2f}): train +{gain:.1f} nats, held-out {held:+.1f} nats, "
               f"p = {p:.2g}" + ("" if ok else ": not significant"))
@@ -264,8 +270,7 @@ def prune(named: list[Candidate], current: Model, current_ll: float, train: list
             gain = max(current_ll - ll, 0.0)
             dof = current.effect(c.name).dof()
             held = heldout - score(reduced, logs).heldout_loglik
-            p = float(stats.chi2.sf(2.0 * gain, max(dof, 1)))
-            keep = (gain > ZERO_DOF_NATS and held > ZERO_DOF_NATS) if dof == 0 else (p < ALPHA / len(named) and held > 0)
+            p, keep = lr_test(gain, held, dof, len(named))
             progress(f"  given the others, {c.name:15s} train +{gain:8.1f} nats, held-out {held:+8.1f} nats, "
                      f"p = {p:.2g}{'' if keep else '  NOT NEEDED'}")
             tests.append((keep, p, c, reduced, ll))
