@@ -365,25 +365,16 @@ def _spectrum(info: np.ndarray, names: list[str], basis: np.ndarray | None = Non
 
 def _silent_members(diff: _Differences, model: Model) -> list[tuple[int, int, str, list[int]]]:
     """Per normalized group (a ``"logcontrast"`` block a:b of the packed coordinates): (a, b, its dotted
-    name, the members no applied sighting depends on), found exactly, as a command never executed is: a
-    member's factor doubled alone (the group not renormalized) leaves every innovation as it was (a landmark
-    never sighted). One forward pass per member."""
+    name, the members no applied sighting depends on), as the component reports them for this batch
+    (``EffectModel.undetermined``, which ``learners.em.support.check_support`` lists too: a landmark never
+    sighted), so that this report and the fit's warning say the same."""
     out = []
     comps = dict(model.components())
     for cname, pname, a, b in diff.perturb.blocks:
         if cname == "init" or comps[cname].PARAMS[pname].transform != "logcontrast":
             continue
-        comp = comps[cname]
-        value = np.asarray(getattr(comp, pname), dtype=float)
-        silent = []
-        for u in range(value.size):
-            moved = value.copy()
-            moved.flat[u] *= 2.0
-            new = comp.with_values(**{pname: moved})
-            m = model.with_effect(new) if cname.startswith("effects.") else replace(model, **{cname: new})
-            innovations_compiled(m.lower(diff.batch), diff.batch, out=diff.plus)
-            if np.array_equal(diff.plus[diff.rows], diff.base):
-                silent.append(u)
+        entries = getattr(comps[cname], "undetermined", lambda batch: [])(diff.batch)
+        silent = [int(e[len(pname) + 1 : -1]) for e in entries if e.startswith(pname + "[")]
         out.append((a, b, f"{cname}.{pname}", silent))
     return out
 
@@ -443,7 +434,6 @@ def parameter_uncertainty(model: Model, batch: Batch, fixed: frozenset[str] = fr
     info = info_all[np.ix_(free, free)]
     free_names = [n for n, f in zip(names, free) if f]
     groups = _silent_members(diff, model)
-    passes += sum(b - a + 1 for a, b, _, _ in groups)
     null, unseen = _null_directions(groups, free, info)
     if null.shape[1]:  # held along ``null``: the information over the other directions T (orthonormal)
         T = np.linalg.svd(null, full_matrices=True)[0][:, null.shape[1] :]
