@@ -254,3 +254,30 @@ def test_the_pose_score_with_the_fits_gate_leaves_gross_outliers_out():
     gated, ungated = pose_scores(model, [bad], gate=DEFAULT_GATE)["pose_rms"], pose_scores(model, [bad])["pose_rms"]
     assert gated == pytest.approx(ok, rel=0.1), (ok, gated)
     assert ungated > 2.0 * gated, (gated, ungated)
+
+
+@pytest.mark.realdata
+@needs_data
+def test_real_robot3_diagnose_starts_from_the_whole_logs_first_sightings():
+    """``search.base_fit``: robot 3's first sightings (2.1-3.8 s) all fall in the first held-out block, so its
+    training half's first window is later (13.8-16.7 s), turning, of three landmarks 0.35 m apart, and puts the
+    start metres off; EM kept a start 6.5 m off and the diagnosed model's pose error was 1042 mm. From the whole
+    log's first sightings the base fit starts within a metre of Vicon's first pose and its smoothed track is
+    within 400 mm RMS (measured 378 mm, the commands' face value 362; the diagnosed model's is in docs/results.md)."""
+    from dataclasses import replace
+
+    from learners.discrepancy.search import _fit, base_fit
+    from learners.discrepancy.split import training_log
+    from learners.em.options import EMOptions
+    from learners.scoring import pose_scores
+
+    tr = import_robot(DATA, 3, dt=0.1)
+    opts = replace(EMOptions(seed=0, lag_search=False), uncertainty=False)
+    assert np.hypot(*(initial_from_sightings(training_log(tr)).mean[:2] - tr.pose[0, :2])) > 3000.0
+    model = base_fit([tr], opts)
+    assert np.hypot(*(model.init[0].mean[:2] - tr.pose[0, :2])) < 1000.0, model.init[0].mean
+    assert pose_scores(model, [tr])["pose_rms"] < 400.0
+    # the training half's own start (before): the wrong side of the landmarks, kept to show the test can fail
+    was = _fit([training_log(tr)], None, opts)
+    assert np.hypot(*(was.init[0].mean[:2] - tr.pose[0, :2])) > 3000.0, was.init[0].mean
+    assert pose_scores(was, [tr])["pose_rms"] > 2.0 * pose_scores(model, [tr])["pose_rms"]

@@ -31,7 +31,7 @@ from learners.em.support import (
 )
 from learners.inference.batch import Batch, make_batch
 from learners.inference.predictive import has_mixture
-from learners.model.initial import DEFAULT_INITIAL
+from learners.model.initial import DEFAULT_INITIAL, InitialState
 from learners.model.model import Model, start_model
 
 #: A fit whose smoothed path spends more than this share of poses far outside the field is refused.
@@ -170,11 +170,11 @@ class EMLearner:
         self.check_field = check_field
 
     def start_params(self, logs: list[Trajectory], init: Model | None, batch: Batch,
-                     action_model: str | None = None) -> Model:
+                     action_model: str | None = None, initial: tuple[InitialState, ...] | None = None) -> Model:
         """``init`` fitted to these logs (dt, number of logs, sensor degree), or the paper's start
         (``start_model``: zero velocities, a very poor sensor line suited to the sensor kind) with
-        each log's start-pose belief from ``initial_state_for`` (the simulator's start when the log
-        says it; for a real log, an estimate from its first sightings)."""
+        each log's start-pose belief ``initial`` (one per log), by default from ``initial_state_for`` (the
+        simulator's start when the log says it; for a real log, an estimate from its first sightings)."""
         tr = logs[0]
         names = tuple(tr.control_names or ())
         n_commands = len(tr.attempted) if tr.discrete else None
@@ -184,7 +184,7 @@ class EMLearner:
         if init is not None:
             check_model_fits(init, logs, batch)
         start = init or start_model(batch, tr.dt, tr.sensor_kind, n_commands, names, fmap, basis,
-                                    degree).with_(init=tuple(initial_state_for(t) for t in logs))
+                                    degree).with_(init=initial or tuple(initial_state_for(t) for t in logs))
         if tr.discrete and start.action.discrete and len(start.action.weights) != len(tr.attempted):
             raise StartModelError(f"the start model has {len(start.action.weights)} commands, the log "
                                   f"{len(tr.attempted)}", "action_model.velocities", "attempted")
@@ -204,11 +204,12 @@ class EMLearner:
         return start
 
     def fit(self, logs: list[Trajectory], init: Model | None = None, progress: ProgressFn | None = None,
-            action_model: str | None = None) -> LearnResult:
+            action_model: str | None = None, initial: tuple[InitialState, ...] | None = None) -> LearnResult:
         """Fit by EM. The checkpoint (if any) is left in place: the caller deletes it once the model
-        is safely written (``discard_checkpoint``), so a failed final write loses nothing."""
+        is safely written (``discard_checkpoint``), so a failed final write loses nothing. ``initial``: the
+        logs' start-pose beliefs for the paper's start (``start_params``; ignored with ``init``)."""
         batch = make_batch(logs)
-        start = self.start_params(logs, init, batch, action_model)
+        start = self.start_params(logs, init, batch, action_model, initial)
         given = self.options
         try:
             self.options, batch, face_pruned = fit_options(given, batch, start)
