@@ -232,13 +232,14 @@ def test_real_robot3_the_gate_judged_at_the_face_value_keeps_the_right_world():
     assert velocity_scores(was.params, [tr])["vx_rms"] > face["vx_rms"]
 
 
-def test_the_pose_score_with_the_fits_gate_leaves_gross_outliers_out():
-    """A burst of gross range outliers (3x the distance, as a misread landmark) takes the smoother off its track;
-    with the fit's gate (sightings beyond it not applied) the pose error is the clean log's."""
+def test_the_pose_score_leaves_gross_outliers_out_by_default():
+    """A burst of gross range outliers (3x the distance, as a misread landmark) takes the smoother off its track
+    (``gate=None``); with the fit's gate, the default (sightings beyond it not applied), the pose error is the clean
+    log's."""
     from dataclasses import replace
 
     from learners.em.learner import EMLearner
-    from learners.em.options import DEFAULT_GATE, EMOptions
+    from learners.em.options import EMOptions
     from learners.inference.batch import make_batch
     from learners.scoring import face_value_model, pose_scores
     from tests._diffdrive import diff_drive_log
@@ -250,8 +251,8 @@ def test_the_pose_score_with_the_fits_gate_leaves_gross_outliers_out():
     burst = slice(len(values) // 2, len(values) // 2 + 8)
     values[burst, 0] *= 3.0
     bad = replace(clean, sighting_value=values)
-    ok = pose_scores(model, [clean])["pose_rms"]
-    gated, ungated = pose_scores(model, [bad], gate=DEFAULT_GATE)["pose_rms"], pose_scores(model, [bad])["pose_rms"]
+    ok = pose_scores(model, [clean], gate=None)["pose_rms"]
+    gated, ungated = pose_scores(model, [bad])["pose_rms"], pose_scores(model, [bad], gate=None)["pose_rms"]
     assert gated == pytest.approx(ok, rel=0.1), (ok, gated)
     assert ungated > 2.0 * gated, (gated, ungated)
 
