@@ -40,6 +40,7 @@ from aibo_core.mrclam import import_robot  # noqa: E402
 from learners.discrepancy.score import score as heldout_score  # noqa: E402
 from learners.discrepancy.split import training_log  # noqa: E402
 from learners.em.learner import EMLearner  # noqa: E402
+from learners.em.start import initial_state_for  # noqa: E402
 from learners.inference.batch import make_batch  # noqa: E402
 from learners.inference.kernels import innovations_compiled  # noqa: E402
 from learners.model.landmark_bias import LandmarkBias  # noqa: E402
@@ -87,12 +88,14 @@ def model_row(model, tr, pair_s: float) -> dict:
     return row
 
 
-def fit_pair(train) -> tuple[object, object, dict]:
-    """(base result, result with ``landmark_bias``, record of wall times s, iterations, warnings) on ``train``."""
+def fit_pair(train, initial) -> tuple[object, object, dict]:
+    """(base result, result with ``landmark_bias``, record of wall times s, iterations, warnings) on ``train``;
+    ``initial``: the start-pose belief from the WHOLE log's first sightings, as ``aibo diagnose`` takes it
+    (``learners.discrepancy.search.base_fit``: robot 3's training half alone starts 5.9 m off)."""
     rec: dict = {}
     opts = learn_options()
     t0 = time.perf_counter()
-    res0 = EMLearner(opts).fit([train], action_model="unicycle")
+    res0 = EMLearner(opts).fit([train], action_model="unicycle", initial=initial)
     rec["base_s"], rec["base_iterations"] = time.perf_counter() - t0, int(res0.iterations)
     rec["base_warnings"] = list(res0.info.get("warnings", []))
     t0 = time.perf_counter()
@@ -113,7 +116,7 @@ def fit_robot(data: Path, robot: int, dt: float, pair_s: float) -> dict:
     tr = import_robot(data, robot, dt=dt)
     rec: dict = {"robot": robot, "dt": dt, "frames": int(tr.n_frames), "sightings": int(len(tr.sighting_frame)),
                  "import_s": time.perf_counter() - t0}
-    res0, res1, times = fit_pair(training_log(tr))
+    res0, res1, times = fit_pair(training_log(tr), (initial_state_for(tr),))
     rec.update(times)
     t0 = time.perf_counter()
     rec["face"] = model_row(face_value_model(res0.params), tr, pair_s)
