@@ -114,8 +114,9 @@ def _fit(logs: list[Trajectory], init: Model, opts: EMOptions, action_model: str
     ``_train_loglik`` on the same sightings, not by the fit's own (gated) likelihood. The alias search
     (``learners.em.alias``) runs in the base fit from the paper's start only: a warm-started refit that
     switched a command to its alias would credit the jump in likelihood to the effect tried."""
-    # no lag search: the search profiles actuation_lag itself, as a candidate (named, tested like the others)
-    opts = replace(opts, lag_search=False)
+    # no lag search: the search profiles actuation_lag itself, as a candidate (named, tested like the others); no
+    # standard errors: only the parameters are kept (the report's intervals are the final fit's, on the whole logs)
+    opts = replace(opts, lag_search=False, uncertainty=False)
     # a warm start is one start: screening stretched copies of a converged model's curve (the paper's-start
     # rescue, ``learners.em.starts``) only spends 60 iterations per fit before start 0 wins as it would alone
     learner = EMLearner(opts if init is None else replace(opts, alias_search=False, starts=1), check_field=False)
