@@ -32,6 +32,7 @@ future; never the held-out ones).
 
 from __future__ import annotations
 
+import hashlib
 import math
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, ClassVar
@@ -55,15 +56,19 @@ START_RATE = 0.05  # false_sightings: EM cannot leave rate 0 (every w is 1 there
 INNER = 10  # false_sightings: mixture EM iterations (w, rate, sigmas) per M-step at the fixed smoothed path
 
 
+def _digest(a: np.ndarray) -> str:
+    """A digest of an array's bytes that is the same in every process and run (``hash`` of bytes is salted per
+    interpreter: a key made in one process would not match in a spawned worker or a later run)."""
+    return hashlib.blake2b(np.ascontiguousarray(a).tobytes(), digest_size=16).hexdigest()
+
+
 def _sighting_key(batch: Batch) -> tuple:
-    return (batch.n_sightings, hash(np.ascontiguousarray(batch.sight_value).tobytes()),
-            hash(np.ascontiguousarray(batch.sight_landmark).tobytes()))
+    return (batch.n_sightings, _digest(batch.sight_value), _digest(batch.sight_landmark))
 
 
 def _frame_key(batch: Batch) -> tuple:
     cmds = batch.actions if batch.actions is not None else batch.controls
-    return (batch.n_frames, hash(np.ascontiguousarray(batch.frame_start).tobytes()),
-            hash(np.ascontiguousarray(cmds).tobytes()))
+    return (batch.n_frames, _digest(batch.frame_start), _digest(cmds))
 
 
 def spurious_log_density(batch: Batch) -> float:
