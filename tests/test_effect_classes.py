@@ -12,7 +12,7 @@ from aibo_gym.collect import collect
 from aibo_gym.effects import EFFECTS
 from aibo_gym.envs import AiboBeaconsEnv
 from learners.inference.batch import make_batch
-from learners.model.effects import EFFECT_MODELS, effect_from_json
+from learners.model.effects import EFFECT_MODELS, EffectModel, effect_from_json
 from learners.model.model import start_model
 
 NAMES = sorted(EFFECT_MODELS)
@@ -101,3 +101,40 @@ def test_the_registries_are_full_whichever_module_a_process_imports_first(module
             if registry != "EFFECTS" else f"from {module} import {registry}\nprint(sorted({registry}))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == str(want)
+
+
+#: the effects whose class declares a reparameterization of the base model (``EffectModel.equivalent``)
+REPARAMETERIZED = [n for n in NAMES if EFFECT_MODELS[n].equivalent is not EffectModel.equivalent]
+
+
+@pytest.mark.parametrize("name", REPARAMETERIZED)
+def test_an_equivalent_model_predicts_every_sighting_as_the_effect_does(name, batch):
+    """``EffectModel.equivalent`` (a structural non-identifiability the search checks): where a class gives one,
+    the model without the effect has the same filter log-likelihood as the model with its example values."""
+    from learners.em.estep import e_step
+
+    cls = EFFECT_MODELS[name]
+    base = start_model(batch, 1 / 30, "height_px", 40)
+    weights = np.random.default_rng(0).normal(0.0, [8.0, 3.0, 0.02], size=base.action.weights.shape)
+    model = base.with_(action=base.action.with_values(weights=weights))
+    model = model.with_effect(cls.start(batch).with_values(**cls.EXAMPLE))
+    eq = model.effect(name).equivalent(model)
+    assert eq is not None and eq.effect(name) is None
+    with_it, without = e_step(model, batch, "compiled").loglik, e_step(eq, batch, "compiled").loglik
+    plain = e_step(base.with_(action=model.action), batch, "compiled").loglik  # the effect dropped, nothing else
+    assert abs(with_it - without) < 1e-9 * abs(with_it)
+    assert abs(with_it - without) < 1e-6 * abs(with_it - plain)  # equal, where the effect alone moves it
+
+
+def test_a_bearing_offset_is_identifiable_for_a_robot_that_cannot_move_sideways():
+    from learners.model.action import ActionModel
+    from learners.model.catalogue import AngleBias
+    from learners.model.initial import DEFAULT_INITIAL
+    from learners.model.model import Model
+
+    action = ActionModel(np.array([[1.0, 0, 0], [0, 0, 0.01], [0, 0, 0], [0, 0, 0], [0, 0, 0]]) * 10, np.eye(3),
+                         1 / 30, "unicycle", ("v", "omega"))
+    model = Model(action, None, (DEFAULT_INITIAL,), (AngleBias(0.05),))
+    assert AngleBias(0.05).equivalent(model) is None  # the turned weights would need a lateral column
+    table = model.with_(action=ActionModel.zeros(40, 1 / 30))
+    assert AngleBias(0.05).equivalent(table) is not None

@@ -160,12 +160,29 @@ class AngleBias(EffectModel):
     PROBE: ClassVar[dict[str, Any]] = {"bias_rad": 0.1}
     REMEDY: ClassVar[str] = (
         "a constant bearing offset b is explained exactly by a heading offset of b and every velocity rotated by b; "
-        "a known start heading (an --init model with a tight initial heading) or known velocities would make it "
-        "identifiable")
+        "a start heading or velocities known and held fixed would make it identifiable (EM re-estimates every log's "
+        "start pose and the velocities)")
     EXAMPLE: ClassVar[dict[str, Any]] = {"bias_rad": 0.03}
 
     def lower(self, lo: Lowered, batch: Batch) -> None:
         lo.bearing_offset = lo.bearing_offset + self.bias_rad
+
+    def equivalent(self, model: "Model") -> "Model | None":
+        """The same predictions without the offset: z = bearing(world) - theta + b is bearing(world) - theta'
+        with theta' = theta - b, and R(theta) d = R(theta') R(b) d, so every log's start heading moves by -b and
+        every robot-frame displacement weight (and Sigma_A's x-y block) turns by R(b). None when the action model
+        holds the rotated weights at 0 (a unicycle has no lateral motion: there the offset is identifiable)."""
+        b = float(self.bias_rad)
+        c, s = math.cos(b), math.sin(b)
+        rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        action = model.action
+        weights = np.asarray(action.weights, float) @ rot.T
+        if np.any(np.abs(weights[action.zero_cells()]) > 1e-12 * max(1.0, float(np.abs(weights).max()))):
+            return None
+        cov = rot @ np.asarray(action.cov, float) @ rot.T
+        init = tuple(replace(i, mean=np.asarray(i.mean, float) - np.array([0.0, 0.0, b])) for i in model.init)
+        return model.without_effect(self.name).with_(action=action.with_values(weights=weights, cov=0.5 * (cov + cov.T)),
+                                                     init=init)
 
     def maximize(self, model: "Model", batch: Batch, post: Posterior, mu_star: np.ndarray) -> "Model":
         lo = model.lower(batch)

@@ -73,6 +73,13 @@ class EffectModel(Component):
         return sum(1 if name in self.GRID else np.size(v) - self.PARAMS[name].constraints
                    for name, v in self.values().items())
 
+    def equivalent(self, model: "Model") -> "Model | None":
+        """A model WITHOUT this effect that predicts every sighting exactly as ``model`` (which holds it)
+        does, when the effect is a reparameterization of the base model (a structural non-identifiability);
+        None when there is none (default). The discrepancy search scores it: a significant gain that the
+        equivalent model matches is EM's slow convergence along that direction, not the effect."""
+        return None
+
     def undetermined(self, batch: Batch) -> list[str]:
         """The entries (``"scale[3]"``) no applied sighting of ``batch`` can depend on, so that EM keeps them at
         their start (``learners.em.support.check_support`` lists them, like a command never executed); default:
