@@ -1,17 +1,20 @@
-"""False-alarm rate and detection power of the discrepancy workflow (``aibo diagnose``'s search).
+"""Error rates of the discrepancy workflow (``aibo diagnose``'s search): false alarms, a confusion matrix, pairs.
 
     python scripts/diagnose_power.py [--seeds 20] [--presets aibo,paper-sim] [--wall-seeds 0] [--power-seeds 5]
-                                     [--minutes 10] [--effects a,b] [--out runs/power]
+                                     [--minutes 10] [--effects a,b] [--pair-seeds 0] [--out runs/power]
 
 Blind simulated logs, every effect of the catalogue a candidate:
 - effect-free logs, ``--seeds`` per noise preset, and ``--wall-seeds`` per preset whose random walk leaves the
   field by 800 mm (the robot meets the walls: ``wall_contact`` is there and is the one right name). A false alarm
   is a log with any other named effect (family-wise; target: at most 5%), with its exact (Clopper-Pearson) 95%
   upper bound; ``angle_bias`` named anywhere is counted apart (it is not identifiable);
-- each effect at three strengths over ``--power-seeds`` seeds (``aibo`` preset; detection = the effect named
-  first).
-Writes ``power.json``, ``power.md`` (tables) and ``power.png``; resumable (finished runs are kept in
-``runs.jsonl``).
+- each effect at three strengths over ``--power-seeds`` seeds (``aibo`` preset): the confusion matrix of the
+  effect named first (or none) against the hidden one, and the detection rate (the hidden effect named first).
+  ``angle_bias`` is in it with "none" as the right answer (not identifiable: ``AngleBias.equivalent``);
+- pairs of effects at once (``--pair-seeds`` seeds each, ``PAIRS``): both named, and each estimate within the
+  single-effect tolerance (``TOLERANCE``, as ``tests/test_discrepancy.py``).
+Writes ``power.json``, ``power.md`` (tables), ``power.png`` (detection rates) and ``confusion.png``; resumable
+(finished runs are kept in ``runs.jsonl``).
 """
 
 from __future__ import annotations
@@ -37,6 +40,33 @@ STRENGTHS = {
     "off_center_shrink": [{"k": k} for k in (0.05, 0.1, 0.2)],
     "distance_dependent_noise": [{"exponent": e} for e in (0.25, 0.5, 1.0)],
     "beacon_height_scale": [{"scale": [1 + s, 1 - s, 1 + s / 2, 1 - s / 2]} for s in (0.01, 0.02, 0.04)],
+    "landmark_bias": [{"sigma_rel": s, "tau_s": 8.0} for s in (0.02, 0.05, 0.1)],
+    "false_sightings": [{"rate": r} for r in (0.02, 0.05, 0.1)],
+    "angle_bias": [{"bias_rad": b} for b in (0.02, 0.05, 0.1)],  # not identifiable: "none" is the right answer
+}
+#: Effects whose right answer is "none" at any strength (the search reports them not identifiable).
+NOT_IDENTIFIABLE = ("angle_bias",)
+#: Pairs of effects at once: (name, {effect: parameters}, walls met). "drift + wall": a drift that pushes into the walls.
+PAIRS = [
+    ("drift + wall", {"floor_drift": {"drift_mm_s": [15.0, -10.0]}}, True),
+    ("lag + fade", {"actuation_lag": {"lag_s": 0.2}, "velocity_fade": {"fade_per_min": 0.03}}, False),
+    ("heights + distance noise", {"beacon_height_scale": {"scale": [1.08, 0.94, 1.04, 0.95]},
+                                  "distance_dependent_noise": {"exponent": 1.0}}, False),
+]
+
+
+def _normalized(scale: list[float]) -> np.ndarray:
+    s = np.asarray(scale, float)
+    return s / np.exp(np.mean(np.log(s)))
+
+
+#: The single-effect tolerances of ``tests/test_discrepancy.py`` (``HIDDEN``): estimate, truth -> within tolerance.
+TOLERANCE = {
+    "floor_drift": lambda e, t: np.allclose(e["drift_mm_s"], t["drift_mm_s"], atol=5.0),
+    "velocity_fade": lambda e, t: abs(e["fade_per_min"] - t["fade_per_min"]) < 0.005,
+    "actuation_lag": lambda e, t: abs(e["lag_s"] - t["lag_s"]) < 0.11,
+    "distance_dependent_noise": lambda e, t: abs(e["exponent"] - t["exponent"]) < 0.25,
+    "beacon_height_scale": lambda e, t: np.allclose(e["scale"], _normalized(t["scale"]), atol=0.015),
 }
 
 
@@ -44,17 +74,29 @@ WALL_MARGIN_MM = -800.0  # the random walk's margin to the walls: negative, it l
 
 
 def one(effect: str | None, params: dict | None, seed: int, minutes: float, preset: str = "aibo",
-        walls: bool = False) -> dict:
-    """One blind log, diagnosed with every candidate: what was named and how long it took (s)."""
-    config = {"noise": preset, "effects": {effect: params} if effect else {}}
+        walls: bool = False, effects: dict | None = None) -> dict:
+    """One blind log, diagnosed with every candidate: what was named, with what values, and how long it took (s).
+    ``effects``: several hidden effects at once ({name: parameters}; ``effect`` is then the pair's label)."""
+    hidden = effects if effects is not None else ({effect: params} if effect else {})
+    config = {"noise": preset, "effects": hidden}
     policy = {"margin_mm": WALL_MARGIN_MM} if walls else None
     tr = blind(collect(config, int(minutes * 60 * 30), seed=seed, policy_params=policy))
     t0 = time.perf_counter()
     found = search([tr], sorted(EFFECT_MODELS), EMOptions(), jobs=2, progress=lambda s: None)
     named = [c.name for c in found["named"]]
-    return {"effect": effect or "none", "params": params, "seed": seed, "preset": preset, "walls": walls,
-            "named": named, "detected": bool(named) and named[0] == (effect or ""),
-            "seconds": time.perf_counter() - t0}
+    values = {n: {k: np.asarray(v).tolist() for k, v in found["model"].effect(n).values().items()} for n in named}
+    right = "" if effect in NOT_IDENTIFIABLE else (effect or "")
+    return {"effect": effect or "none", "params": params if effects is None else effects, "seed": seed,
+            "preset": preset, "walls": walls, "named": named, "values": values,
+            "detected": (named[0] if named else "") == right, "seconds": time.perf_counter() - t0}
+
+
+def pair_ok(r: dict) -> tuple[bool, bool]:
+    """(both named, every estimate within its single-effect tolerance) of a pair run."""
+    hidden = r["params"]
+    named = all(n in r["named"] for n in hidden)
+    close = named and all(TOLERANCE[n](r["values"][n], p) for n, p in hidden.items() if n in TOLERANCE)
+    return named, close
 
 
 def false_alarm(r: dict) -> bool:
@@ -78,6 +120,7 @@ def main() -> None:
     ap.add_argument("--power-seeds", type=int, default=5)
     ap.add_argument("--minutes", type=float, default=10.0)
     ap.add_argument("--effects", default=",".join(STRENGTHS))
+    ap.add_argument("--pair-seeds", type=int, default=0, help="logs per pair of effects (PAIRS)")
     ap.add_argument("--out", default="runs/power")
     args = ap.parse_args()
     out = Path(args.out)
@@ -93,12 +136,17 @@ def main() -> None:
         for preset in args.presets.split(","):
             jobs += [(None, None, 1000 + s, preset, False)] if s < args.seeds else []
             jobs += [(None, None, 3000 + s, preset, True)] if s < args.wall_seeds else []
-    for e in filter(None, args.effects.split(",")):
-        jobs += [(e, p, 2000 + s, "aibo", False) for p in STRENGTHS[e] for s in range(args.power_seeds)]
+    # strength by strength, seed by seed: a run stopped early has every cell of the confusion matrix
+    for s in range(args.power_seeds):
+        for k in range(3):
+            jobs += [(e, STRENGTHS[e][k], 2000 + s, "aibo", False) for e in filter(None, args.effects.split(","))]
+    jobs += [(label, hidden, 5000 + s, "aibo", walls) for s in range(args.pair_seeds) for label, hidden, walls in PAIRS]
     for effect, params, seed, preset, walls in jobs:
         if (effect or "none", json.dumps(params), seed, preset, walls) in key:
             continue
-        r = one(effect, params, seed, args.minutes, preset, walls)
+        pair = effect is not None and effect not in STRENGTHS
+        r = (one(effect, None, seed, args.minutes, preset, walls, effects=params) if pair
+             else one(effect, params, seed, args.minutes, preset, walls))
         done.append(r)
         write_jsonl(done_path, done)
         print(f"{r['effect']:26s} {json.dumps(r['params'])!s:45s} {preset}{' walls' if walls else ''} seed {seed}: "
@@ -106,46 +154,114 @@ def main() -> None:
     summarize(done, out)
 
 
-def summarize(done: list[dict], out: Path) -> None:
-    none = [r for r in done if r["effect"] == "none"]
+def false_alarm_lines(none: list[dict]) -> list[str]:
+    """The false-alarm table: per noise preset and walls met, the logs with a wrong name."""
     alarms = sum(false_alarm(r) for r in none)
-    fa = alarms / len(none) if none else float("nan")
-    lines = [f"False alarms: {alarms} of {len(none)} effect-free logs ({fa:.1%}; 95% upper bound "
-             f"{upper95(alarms, len(none)):.1%}); angle_bias named in {sum('angle_bias' in r['named'] for r in none)}.",
+    lines = [f"False alarms: {alarms} of {len(none)} effect-free logs ({alarms / max(len(none), 1):.1%}; 95% upper "
+             f"bound {upper95(alarms, len(none)):.1%}); angle_bias named in {sum('angle_bias' in r['named'] for r in none)}.",
              "", "| noise preset | walls met | logs | false alarms | 95% upper bound | named (count) |",
              "|---|---|---|---|---|---|"]
-    groups = sorted({(r.get("preset", "aibo"), bool(r.get("walls"))) for r in none})
-    for preset, walls in groups:
+    for preset, walls in sorted({(r.get("preset", "aibo"), bool(r.get("walls"))) for r in none}):
         rs = [r for r in none if (r.get("preset", "aibo"), bool(r.get("walls"))) == (preset, walls)]
         k = sum(false_alarm(r) for r in rs)
-        counts = {}
+        counts: dict[str, int] = {}
         for r in rs:
             for n in r["named"]:
                 counts[n] = counts.get(n, 0) + 1
         lines.append(f"| {preset} | {'yes' if walls else 'no'} | {len(rs)} | {k} ({k / len(rs):.0%}) | "
                      f"{upper95(k, len(rs)):.0%} | {', '.join(f'{n} {c}' for n, c in sorted(counts.items())) or '-'} |")
-    lines += ["", "| effect | strength | detected | runs |", "|---|---|---|---|"]
-    power = {}
-    for e in STRENGTHS:
-        for p in STRENGTHS[e]:
+    return lines
+
+
+def confusion(done: list[dict]) -> tuple[list[str], list[str], np.ndarray, np.ndarray]:
+    """(row labels "effect strength", column names (named first, "none" last), counts (rows, cols), runs per row)."""
+    rows, counts, runs = [], [], []
+    cols = sorted(STRENGTHS) + ["none"]
+    for e in sorted(STRENGTHS):
+        for k, p in enumerate(STRENGTHS[e]):
             rs = [r for r in done if r["effect"] == e and r["params"] == p]
-            if rs:
-                rate = float(np.mean([r["detected"] for r in rs]))
-                power.setdefault(e, []).append((p, rate, len(rs)))
-                lines.append(f"| {e} | {json.dumps(p)} | {rate:.0%} | {len(rs)} |")
+            if not rs:
+                continue
+            rows.append(f"{e} {['weak', 'medium', 'strong'][k]}")
+            c = np.zeros(len(cols), int)
+            for r in rs:
+                first = r["named"][0] if r["named"] else "none"
+                c[cols.index(first) if first in cols else -1] += 1
+            counts.append(c)
+            runs.append(len(rs))
+    return rows, cols, np.array(counts).reshape(len(rows), len(cols)), np.array(runs)
+
+
+def confusion_lines(done: list[dict]) -> list[str]:
+    rows, cols, counts, runs = confusion(done)
+    if not rows:
+        return []
+    short = [c.replace("_", " ") for c in cols]
+    lines = ["", "Confusion matrix (`aibo` preset): the effect named first against the hidden one, runs per cell; "
+             "detected = the hidden effect named first (for `angle_bias`, none: it is not identifiable).", "",
+             "| hidden effect, strength | " + " | ".join(short) + " | detected | runs |",
+             "|---|" + "---|" * (len(cols) + 2)]
+    for label, c, n in zip(rows, counts, runs):
+        e = label.rsplit(" ", 1)[0]
+        right = cols.index("none" if e in NOT_IDENTIFIABLE else e)
+        cells = [f"**{v}**" if j == right else (str(v) if v else ".") for j, v in enumerate(c)]
+        lines.append(f"| {label} | " + " | ".join(cells) + f" | {c[right] / n:.0%} | {n} |")
+    return lines
+
+
+def pair_lines(done: list[dict]) -> list[str]:
+    labels = [label for label, _, _ in PAIRS]
+    pairs = [r for r in done if r["effect"] in labels]
+    if not pairs:
+        return []
+    lines = ["", "| pair | logs | both named | both within the single-effect tolerance | also named |",
+             "|---|---|---|---|---|"]
+    for label, hidden, walls in PAIRS:
+        rs = [r for r in pairs if r["effect"] == label]
+        ok = [pair_ok(r) for r in rs]
+        extra: dict[str, int] = {}
+        for r in rs:
+            for n in set(r["named"]) - set(hidden) - ({"wall_contact"} if walls else set()):
+                extra[n] = extra.get(n, 0) + 1
+        lines.append(f"| {label} | {len(rs)} | {sum(a for a, _ in ok)} | {sum(b for _, b in ok)} | "
+                     f"{', '.join(f'{n} {c}' for n, c in sorted(extra.items())) or '-'} |")
+    return lines
+
+
+def summarize(done: list[dict], out: Path) -> None:
+    none = [r for r in done if r["effect"] == "none"]
+    alarms = sum(false_alarm(r) for r in none)
+    fa = alarms / len(none) if none else float("nan")
+    lines = false_alarm_lines(none) if none else []
+    lines += confusion_lines(done) + pair_lines(done)
+    power = {}
+    rows, cols, counts, runs = confusion(done)
+    for label, c, n in zip(rows, counts, runs):
+        e = label.rsplit(" ", 1)[0]
+        power.setdefault(e, []).append(float(c[cols.index("none" if e in NOT_IDENTIFIABLE else e)] / n))
     text = "\n".join(lines) + "\n"
     atomic_write(out / "power.md", lambda f: f.write(text.encode()))
     summary = json.dumps({"false_alarm_rate": fa, "false_alarm_upper95": upper95(alarms, len(none)) if none else None,
-                          "n_none": len(none), "power": power}, indent=1)
+                          "n_none": len(none), "power": power,
+                          "confusion": {"rows": rows, "columns": cols, "counts": counts.tolist(), "runs": runs.tolist()},
+                          "pairs": {label: [pair_ok(r) for r in done if r["effect"] == label] for label, _, _ in PAIRS}},
+                         indent=1)
     atomic_write(out / "power.json", lambda f: f.write(summary.encode()))
+    figures(power, fa, rows, cols, counts, runs, out)
+    print(text)
+
+
+def figures(power: dict, fa: float, rows: list[str], cols: list[str], counts: np.ndarray, runs: np.ndarray,
+            out: Path) -> None:
+    """power.png (detection rate against strength) and confusion.png (the confusion matrix as fractions)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6.5, 4))
-    for e, rows in power.items():
-        ax.plot([1, 2, 3][: len(rows)], [r for _, r, _ in rows], marker="o", label=e)
+    for e, rates in power.items():
+        ax.plot([1, 2, 3][: len(rates)], rates, marker="o", label=e + (" (right: none)" if e in NOT_IDENTIFIABLE else ""))
     ax.axhline(fa, color="k", ls=":", label=f"false alarms ({fa:.0%})")
     ax.set_xticks([1, 2, 3], ["weak", "medium", "strong"])
     ax.set_ylabel("detection rate")
@@ -154,7 +270,21 @@ def summarize(done: list[dict], out: Path) -> None:
     ax.set_title("aibo diagnose: detection power against strength")
     fig.tight_layout()
     fig.savefig(out / "power.png", dpi=110)
-    print(text)
+    plt.close(fig)
+    if not rows:
+        return
+    frac = counts / runs[:, None]
+    fig, ax = plt.subplots(figsize=(1.2 + 0.55 * len(cols), 1.0 + 0.3 * len(rows)))
+    ax.imshow(frac, cmap="Blues", vmin=0, vmax=1, aspect="auto")
+    for i, j in zip(*np.nonzero(counts)):
+        ax.text(j, i, str(counts[i, j]), ha="center", va="center", fontsize=7, color="w" if frac[i, j] > 0.6 else "k")
+    ax.set_xticks(range(len(cols)), [c.replace("_", " ") for c in cols], rotation=40, ha="right", fontsize=7)
+    ax.set_yticks(range(len(rows)), [f"{r} ({n})" for r, n in zip(rows, runs)], fontsize=7)
+    ax.set_xlabel("named first")
+    ax.set_title("aibo diagnose: hidden effect (runs) against the effect named first", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(out / "confusion.png", dpi=110)
+    plt.close(fig)
 
 
 if __name__ == "__main__":
