@@ -286,6 +286,21 @@ def test_kernel_inputs_are_named_with_their_shapes():
     assert innovations_compiled(lo, batch)[0] == pytest.approx(smooth_compiled(lo, batch).loglik, rel=1e-12)
 
 
+def test_the_forward_pass_alone_keeps_nothing_per_frame():
+    """``innovations_compiled`` stores no per-pose beliefs, cos/sin or per-frame information (was 208 bytes per
+    frame of scratch, 208 MB at 1,000,000 frames): only the per-sighting mahal2 (8 bytes each); its log-likelihood
+    is the smoother's bit for bit, over several logs."""
+    from learners.inference.kernels import release_scratch
+    from learners.inference.kernels.estep import innovations_compiled
+
+    lo, batch, _ = case("multi")
+    release_scratch()
+    ll, innov = innovations_compiled(lo, batch)
+    assert release_scratch() <= 8 * batch.n_sightings + 1024
+    assert ll == smooth_compiled(lo, batch).loglik
+    assert innov.shape == (batch.n_sightings, 5) and np.isfinite(innov[batch.used]).all()
+
+
 def test_gating_and_effects_change_the_answer():
     lo, batch, _ = case("effects")
     post = smooth_compiled(lo, batch, None)

@@ -99,9 +99,9 @@ def test_standard_errors_match_the_spread_over_simulated_logs():
 
 
 def test_a_log_too_long_for_the_memory_takes_the_coordinates_in_blocks_with_the_same_information(monkeypatch):
-    """Blocks of 7 coordinates (float32 storage, each later block's passes run again per earlier block, the
-    next block kept) give the information of the whole float64 derivative array, and only the blocked run
-    holds float32 blocks."""
+    """A resident block of 7 coordinates with every later coordinate streamed past it (float32 storage, each
+    later coordinate's pass run again per earlier block) gives the information of the whole float64 derivative
+    array, and only the blocked run holds float32 blocks."""
     import learners.em.uncertainty as unc_mod
 
     model, batch, _ = known_poses_case(BASIS_POWER, frames=1500)
@@ -109,15 +109,18 @@ def test_a_log_too_long_for_the_memory_takes_the_coordinates_in_blocks_with_the_
     whole = parameter_uncertainty(model, batch)
     calls, cross = [], []
     real_call, real_cross = unc_mod._Differences.__call__, unc_mod._cross
-    monkeypatch.setattr(unc_mod._Differences, "__call__", lambda self, k: (calls.append(k), real_call(self, k))[1])
+    monkeypatch.setattr(unc_mod._Differences, "__call__",
+                        lambda self, k, out=None: (calls.append(k), real_call(self, k, out))[1])
     monkeypatch.setattr(unc_mod, "_cross", lambda a, b, chunk=997: (cross.append(a.dtype), real_cross(a, b, chunk))[1])
     n = int(batch.used.sum())
-    blocked = parameter_uncertainty(model, batch, memory_bytes=2 * 7 * n * 5 * 4)
+    pass_bytes = unc_mod.PASS_BYTES_PER_SIGHTING * batch.n_sightings + unc_mod.PASS_BYTES_PER_FRAME * batch.n_frames
+    per = n * 5 * 4 + unc_mod.CROSS_CHUNK * 5 * 8
+    blocked = parameter_uncertainty(model, batch, memory_bytes=pass_bytes + (7 + unc_mod.STREAM) * per)
     p = len(whole.free)
     blocks = -(-p // 7)
-    # block j > 1 is run j times (once per earlier block, the pass after block j - 1 kept): p + sum of (j - 1) x size
-    assert len(calls) == p + sum(min(7, p - 7 * j) * (j - 1) for j in range(2, blocks))
-    assert blocks >= 4  # several later blocks, so a block run again is counted
+    # each block's own passes once, every later coordinate once per earlier block: p + sum of (p - block end)
+    assert len(calls) == p + sum(p - min(7 * (j + 1), p) for j in range(blocks))
+    assert blocks >= 4  # several later blocks, so a coordinate run again is counted
     assert cross and set(cross) == {np.dtype(np.float32)}
     np.testing.assert_array_equal(blocked.free, whole.free)
     np.testing.assert_allclose(blocked.information, whole.information, rtol=1e-5, atol=1e-6 * np.abs(whole.information).max())

@@ -9,8 +9,15 @@ log N(v_j; 0, S_j), v_j the innovation (size, bearing) and S_j its predictive co
 with the derivatives taken through the whole forward filter. They are taken here by forward
 differences of the compiled forward pass (``innovations_compiled``), one pass per parameter:
 about p passes of ~4 ms on 27,000 frames (p ~ 135 for the paper's model), the derivatives held whole
-up to ``MEMORY_BYTES`` and in blocks beyond (``_information``: 1,000,000 frames, 3 EM iterations: peak
-RSS 3.53 -> 1.32 GB, wall 33 -> 81 s, measured). The
+while they and the passes' own arrays fit in ``MEMORY_BYTES`` and in blocks beyond (``_information``).
+Memory, ``aibo learn`` on 1,000,000 frames (509,246 sightings), 3 EM iterations, p = 134, measured
+2026-11-25 with ``python scripts/memory_profile.py`` (2 cores, another job running: times +-30%): the
+standard errors peak at 899 MiB RSS (was 1,350), below EM's own 924 MiB, ru_maxrss 0.969e9 bytes
+(969 B/frame; was 1.415e9), 333 forward passes in 49-51 s (were 426 in 85-94 s). What changed: the
+forward pass alone no longer keeps per-pose beliefs and per-frame information (208 MB of scratch),
+EM's work arrays are released before (``release_scratch``, 171 MiB), ``_cross`` copies 8,192 sightings at
+a time (95 -> 12 MiB), the second pass's output exists only for central differences (19 MiB), and the
+budget counts the passes' own arrays. The
 covariance of the estimate is I^-1 (Cramer-Rao); it is mapped to the model file's units by the
 delta method (the Jacobian of the file's numbers with respect to the packed parameters).
 
@@ -64,9 +71,27 @@ STEP = 1e-5
 INIT_SCALE = np.array([100.0, 100.0, 0.1])
 #: Model-file numbers that are not parameters.
 NOT_PARAMETERS = {"dt", "distance_range_mm"}
-#: The most the whitened derivatives may hold (bytes): 135 coordinates of a 15-minute log take ~70 MB
-#: (held whole, float64); a 1,000,000-frame log takes them in blocks (``_information``).
-MEMORY_BYTES = 384 * 2**20
+#: The most the standard errors' log-sized arrays may hold (bytes): the whitened derivatives and the passes' own
+#: arrays (``_pass_bytes``). 135 coordinates of a 15-minute log take ~70 MB (held whole, float64); a 1,000,000-frame
+#: log (509,246 sightings) takes them in blocks (``_information``): 128 MiB counted for the passes, the rest for
+#: 38 coordinates in float32 (34 resident, 4 streamed), 332 passes; its standard errors then peak at 899 MiB
+#: RSS, EM at 924 MiB (2026-11-25, ``scripts/memory_profile.py``). (Was 384 MiB for the derivatives alone,
+#: 1,350 MiB peak.)
+MEMORY_BYTES = 512 * 2**20
+#: Sightings per float64 chunk of ``_cross`` (its copies: (a + b) x CROSS_CHUNK x 40 bytes, 12 MiB for 38
+#: coordinates; 65,536 took 95 MiB).
+CROSS_CHUNK = 8192
+#: Coordinates streamed past the resident block at a time (``_information``).
+STREAM = 4
+#: What the passes hold beside the derivatives, counted against ``memory_bytes`` (``_pass_bytes``), bytes: per
+#: sighting, the base innovations, their Cholesky factors and the pass's output (104, held) and a pass's differences
+#: and ``_columns``' temporaries (112); per frame, a lowered model's displacements (24); central differences add the
+#: second pass's output and its copy (80 per sighting). Measured (tracemalloc) at 1,000,000 frames (509,246
+#: sightings), model without effects: 126 MiB, 132 MB = 216 x 509,246 + 24 x 1,000,000 to 1%. An effect's lowered
+#: arrays are not counted.
+PASS_BYTES_PER_SIGHTING = 216
+PASS_BYTES_PER_FRAME = 24
+CENTRAL_BYTES_PER_SIGHTING = 80
 #: A never-sighted member of a normalized group is held (undetermined) when the information along its direction,
 #: given every other direction, is below this fraction of the information along it alone: measured 4e-16 for an
 #: unseen landmark's height scale (tests/test_constrained.py's log), 0.46 for the same with the sensor curve held.
@@ -187,16 +212,16 @@ def _solve(c, a0: np.ndarray, a1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return w0, (a1 - c[1] * w0) / c[2]
 
 
-def _columns(dv: np.ndarray, dS: np.ndarray, c) -> np.ndarray:
+def _columns(dv: np.ndarray, dS: np.ndarray, c, out: np.ndarray | None = None) -> np.ndarray:
     """(n, 5) rows whose Gram sum is the information: C^-1 dv and 1/sqrt(2) C^-1 dS C^-T (symmetric,
-    off-diagonal counted twice)."""
+    off-diagonal counted twice); written into ``out`` ((n, 5), float64 or float32: rounded once) when given."""
     w0, w1 = _solve(c, dv[:, 0], dv[:, 1])
     n0, n1 = _solve(c, dS[:, 0], dS[:, 1])  # first column of C^-1 dS
     m0, m1 = _solve(c, dS[:, 1], dS[:, 2])  # second column
     a00, a01 = _solve(c, n0, m0)  # C^-1 (C^-1 dS)^T: rows of the whitened matrix
     _, a11 = _solve(c, n1, m1)
     h = math.sqrt(0.5)
-    return np.stack([w0, w1, h * a00, a01, h * a11], axis=1)
+    return np.stack([w0, w1, h * a00, a01, h * a11], axis=1, out=out)
 
 
 class _Perturber:
@@ -238,56 +263,72 @@ class _Differences:
         self.ll0, innov0 = innovations_compiled(model.lower(batch), batch)
         self.base = innov0[rows]
         self.c = _whiten(self.base[:, 2:])
-        self.plus = np.empty_like(innov0)
-        self.minus = np.empty_like(innov0)
-        self.perturb = _Perturber(model, x0, fixed)
+        self.plus = innov0  # the passes' output (S, 5), reused; a second one only for central differences
         self.steps = np.broadcast_to(np.asarray(step, dtype=float), x0.shape)
+        self.minus = np.empty_like(innov0) if np.any(self.steps < 0) else None
+        self.perturb = _Perturber(model, x0, fixed)
 
-    def __call__(self, k: int) -> tuple[np.ndarray, float]:
+    def __call__(self, k: int, out: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+        """(coordinate k's (n, 5) whitened derivative rows, written into ``out`` when given, score)."""
         h, rows, batch = abs(float(self.steps[k])), self.rows, self.batch
         llp, _ = innovations_compiled(self.perturb.moved(k, h).lower(batch), batch, out=self.plus)
+        d = self.plus[rows]
         if self.steps[k] < 0:
             llm, _ = innovations_compiled(self.perturb.moved(k, -h).lower(batch), batch, out=self.minus)
-            lo, span = self.minus[rows], 2 * h
+            d -= self.minus[rows]
+            span = 2 * h
         else:
-            llm, lo, span = self.ll0, self.base, h
-        d = (self.plus[rows] - lo) / span
-        d[:, 1] = np.angle(np.exp(1j * (self.plus[rows, 1] - lo[:, 1]))) / span  # bearings: wrapped difference
-        return _columns(d[:, :2], d[:, 2:], self.c), (llp - llm) / span
+            d -= self.base
+            llm, span = self.ll0, h
+        d[:, 1] = np.angle(np.exp(1j * d[:, 1]))  # bearings: wrapped difference
+        d /= span
+        return _columns(d[:, :2], d[:, 2:], self.c, out), (llp - llm) / span
 
 
 def _information(diff: _Differences, coords: np.ndarray, memory_bytes: int) -> tuple[np.ndarray, np.ndarray]:
     """(I (p, p) = the Gram sum of the whitened derivatives G (p, n, 5), score (p,)) over the coordinates
     ``coords`` (p of them: indices into the packed vector).
 
-    G is held whole (float64) when it fits in ``memory_bytes``: p forward passes. A longer log takes the
-    coordinates in blocks, two blocks in memory at a time (float32; products summed in float64), each
-    later block's passes run again per earlier block, the next block last so that it is kept rather than
-    run again (block j, from 0, is run max(j, 1) times), memory bounded
-    whatever the log's length (1,000,000 frames: ~3.5 GB whole; the differences themselves carry ~1e-5
-    relative error, far above float32's rounding)."""
+    ``memory_bytes`` bounds what the derivatives take beside the passes' own arrays (``_pass_bytes``). G is
+    held whole (float64) when it fits: p forward passes. A longer log holds one block of s coordinates
+    (float32) and streams every later coordinate past it STREAM at a time (float32; products summed in
+    float64 by ``_cross``): block i's own passes run once, each later coordinate's once per earlier block,
+    p + sum over blocks of (p - the block's end) passes in all. (Was: two blocks of s/2 in memory, block j
+    run max(j, 1) times: 425 passes for p = 134 with 38 coordinates in memory at 1,000,000 frames, 332 now;
+    the differences themselves carry ~1e-5 relative error, far above float32's rounding.)"""
     n, p = len(diff.rows), len(coords)
     score = np.empty(p)
-    if p * n * 5 * 8 <= memory_bytes:
+    budget = memory_bytes - _pass_bytes(diff)
+    if p * n * 5 * 8 <= budget:
         G = np.empty((p, n, 5))
         for k in range(p):
-            G[k], score[k] = diff(int(coords[k]))
+            _, score[k] = diff(int(coords[k]), out=G[k])
         return _gram(G), score
-    size = max(1, memory_bytes // (2 * n * 5 * 4))
-    blocks = [np.arange(a, min(a + size, p)) for a in range(0, p, size)]
+    per = n * 5 * 4 + CROSS_CHUNK * 5 * 8  # one coordinate's float32 rows and its float64 chunk in ``_cross``
+    q = min(STREAM, max(1, p - 1))
+    size = max(1, min(p, budget // per - q))
+    A, B = np.empty((size, n, 5), np.float32), np.empty((q if size < p else 0, n, 5), np.float32)
     info = np.empty((p, p))
-    Gi, Gj = np.empty((size, n, 5), np.float32), np.empty((size, n, 5), np.float32)
-    for r, k in enumerate(blocks[0]):
-        Gi[r], score[k] = diff(int(coords[k]))
-    for i, bi in enumerate(blocks):
-        info[np.ix_(bi, bi)] = _cross(Gi[: len(bi)], Gi[: len(bi)])
-        for bj in reversed(blocks[i + 1 :]):  # block i + 1 last: it is the next Gi
-            for r, k in enumerate(bj):
-                Gj[r], score[k] = diff(int(coords[k]))
-            info[np.ix_(bi, bj)] = _cross(Gi[: len(bi)], Gj[: len(bj)])
-            info[np.ix_(bj, bi)] = info[np.ix_(bi, bj)].T
-        Gi, Gj = Gj, Gi
+    for a in range(0, p, size):
+        block = np.arange(a, min(a + size, p))
+        for r, k in enumerate(block):
+            _, score[k] = diff(int(coords[k]), out=A[r])
+        Ab = A[: len(block)]
+        info[np.ix_(block, block)] = _cross(Ab, Ab)
+        for c in range(block[-1] + 1, p, q):
+            group = np.arange(c, min(c + q, p))
+            for r, k in enumerate(group):
+                _, score[k] = diff(int(coords[k]), out=B[r])
+            info[np.ix_(block, group)] = _cross(Ab, B[: len(group)])
+            info[np.ix_(group, block)] = info[np.ix_(block, group)].T
     return info, score
+
+
+def _pass_bytes(diff: _Differences) -> int:
+    """Bytes the forward passes take beside the derivatives, counted against ``memory_bytes``:
+    PASS_BYTES_PER_SIGHTING (+ CENTRAL_BYTES_PER_SIGHTING) per sighting of the batch, PASS_BYTES_PER_FRAME per frame."""
+    per_sighting = PASS_BYTES_PER_SIGHTING + (CENTRAL_BYTES_PER_SIGHTING if diff.minus is not None else 0)
+    return per_sighting * diff.batch.n_sightings + PASS_BYTES_PER_FRAME * diff.batch.n_frames
 
 
 def _gram(G: np.ndarray) -> np.ndarray:
@@ -296,9 +337,10 @@ def _gram(G: np.ndarray) -> np.ndarray:
     return flat @ flat.T
 
 
-def _cross(A: np.ndarray, B: np.ndarray, chunk: int = 65536) -> np.ndarray:
+def _cross(A: np.ndarray, B: np.ndarray, chunk: int | None = None) -> np.ndarray:
     """The sum over sightings and rows of A B^T for float32 (a, n, 5) and (b, n, 5), summed in float64
-    ``chunk`` sightings at a time: (a, b)."""
+    ``chunk`` (default CROSS_CHUNK) sightings at a time: (a, b)."""
+    chunk = chunk or CROSS_CHUNK
     out = np.zeros((len(A), len(B)))
     for s in range(0, A.shape[1], chunk):
         a = A[:, s : s + chunk].astype(np.float64).reshape(len(A), -1)
@@ -415,9 +457,9 @@ def parameter_uncertainty(model: Model, batch: Batch, fixed: frozenset[str] = fr
     (the fit's sightings, pruned ones excluded), from the Fisher information of the EKF innovations
     (module docstring). ``step``: the difference step in packed units, one number or one per coordinate
     of ``packed`` (negative: central differences). ``fixed``: dotted parameter names held fixed (e.g. ``action.cov`` when the motion
-    noise is not learned; ``init.mean``: the initial poses). ``memory_bytes``: the most the derivatives may
-    hold (``_information``). The coordinates the model itself holds (``held_coordinates``) are not
-    differenced: reported as ``fixed`` (module docstring)."""
+    noise is not learned; ``init.mean``: the initial poses). ``memory_bytes``: the most the derivatives and the
+    passes' own arrays may hold (bytes; ``_information``). The coordinates the model itself holds
+    (``held_coordinates``) are not differenced: reported as ``fixed`` (module docstring)."""
     x0 = packed(model, fixed)
     names = _coordinate_names(model, fixed)
     rows = np.flatnonzero(batch.used)

@@ -32,8 +32,9 @@ from learners.inference.kernels.action import (
     table_means_compiled,
     table_residual_cov_compiled,
 )
+from learners.inference.kernels.algebra import release_scratch
 from learners.inference.kernels.estep import innovations_compiled, smooth_compiled
 from learners.inference.kernels.sensor import sensor_update_compiled
 
 __all__ = ["smooth_compiled", "innovations_compiled", "action_statistics_compiled", "residual_cov_compiled",
-           "sensor_update_compiled", "table_means_compiled", "table_residual_cov_compiled"]
+           "sensor_update_compiled", "table_means_compiled", "table_residual_cov_compiled", "release_scratch"]

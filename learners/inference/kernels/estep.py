@@ -102,7 +102,10 @@ def _forward_log(k, f0, ps, n, fr, si, sig, out, loglik):
     """Forward EKF of log k (frames f0 .. f0+n-1, poses ps .. ps+n) from its initial belief: the filtered
     beliefs, each used sighting's mahal2 (and innovation when ``out.innov`` has S rows), and the backward
     observation information of each frame parked in ``out.info_delta`` / ``out.vec_delta``.
-    Returns (status, frame index within the log, loglik + this log's log-likelihood).
+    Returns (status, frame index within the log, loglik + this log's log-likelihood). With one-row
+    ``out.mu_alpha`` (``innovations_compiled``: the forward pass alone) nothing per pose or per frame is
+    stored (no filtered beliefs, cos/sin, backward observation information): the innovations and loglik
+    are the same numbers (bit for bit), without the 208 bytes per frame those arrays take.
     (Inlined into the kernel: as a called function it was 4-8% slower; inlined, 1-4% slower than the
     single kernel it was split from, measured at 27,000 frames.)"""
     disp, offset, cov_scale = fr.disp, fr.offset, fr.cov_scale
@@ -110,6 +113,7 @@ def _forward_log(k, f0, ps, n, fr, si, sig, out, loglik):
     mu_alpha, cov_alpha, cos_th, sin_th = out.mu_alpha, out.cov_alpha, out.cos_th, out.sin_th
     info_delta, vec_delta = out.info_delta, out.vec_delta
     store = innov.shape[0] == mahal2.shape[0]
+    keep = mu_alpha.shape[0] > 1  # per-pose beliefs and per-frame information wanted (not a forward pass alone)
     iva = 1.0 / si.var_b
     var_s, var_b, use_gate, gate = si.var_s, si.var_b, si.use_gate, si.gate
     sight_xy, sight_value, basis, coef = si.xy, si.value, si.basis, si.coef
@@ -117,8 +121,9 @@ def _forward_log(k, f0, ps, n, fr, si, sig, out, loglik):
     bearing_offset, bearing_var_factor = si.bearing_offset, si.bearing_var_factor
     mu = _ld3(fr.init_mean, k)
     P = _sym(_ld33(fr.init_cov, k))
-    _st3(mu_alpha, ps, mu)
-    _st33(cov_alpha, ps, P)
+    if keep:
+        _st3(mu_alpha, ps, mu)
+        _st33(cov_alpha, ps, P)
     if not (_fin3(mu) and _fin33(P)):
         return _BAD_FORWARD, 0, loglik
     for j in range(n):
@@ -126,8 +131,9 @@ def _forward_log(k, f0, ps, n, fr, si, sig, out, loglik):
         ux = disp[i, 0]
         uy = disp[i, 1]
         c, s = _cos_sin(mu[2])
-        cos_th[ps + j] = c  # for the backward pass
-        sin_th[ps + j] = s
+        if keep:
+            cos_th[ps + j] = c  # for the backward pass
+            sin_th[ps + j] = s
         fa = -s * ux - c * uy  # F[0,2]
         fb = c * ux - s * uy  # F[1,2]
         mu = (mu[0] + c * ux - s * uy + offset[i, 0], mu[1] + s * ux + c * uy + offset[i, 1],
@@ -186,10 +192,12 @@ def _forward_log(k, f0, ps, n, fr, si, sig, out, loglik):
             P = _symm(X[0] + g0[0] * k0[0] + g1[0] * k1[0], X[1] + g0[0] * k0[1] + g1[0] * k1[1],
                       X[2] + g0[0] * k0[2] + g1[0] * k1[2], X[4] + g0[1] * k0[1] + g1[1] * k1[1],
                       X[5] + g0[1] * k0[2] + g1[1] * k1[2], X[8] + g0[2] * k0[2] + g1[2] * k1[2])  # fmt: skip
-        _st3(mu_alpha, i + k + 1, mu)
-        _st33(cov_alpha, i + k + 1, P)
         if not (_fin3(mu) and _fin33(P)):
             return _BAD_FORWARD, j, loglik
+        if not keep:
+            continue
+        _st3(mu_alpha, i + k + 1, mu)
+        _st33(cov_alpha, i + k + 1, P)
         # backward observation information of the frame's applied sightings, h linearized at
         # mu_alpha[i + 1] = mu: sum of H^T R_obs^-1 H and H^T R_obs^-1 (v + H mu), parked in the
         # delta slots of frame i (written out here: as a function of (si, out), even inlined, it made
@@ -343,14 +351,13 @@ def innovations_compiled(lo: Lowered, batch: Batch, out: np.ndarray | None = Non
     if lo.extra is not None:
         return innovations_augmented_compiled(lo, batch, out)
     frames, sightings = kernel_inputs(lo, batch, None)
-    n, n_s = batch.n_frames, batch.n_sightings
-    n_poses = n + batch.n_logs
+    n_s = batch.n_sightings
     innov = out if out is not None and out.shape == (n_s, 5) else np.empty((n_s, 5))
-    mu_alpha = _scratch("innov_mu", (n_poses, 3))
-    cov_alpha = _scratch("innov_cov", (n_poses, 3, 3))
-    res = SmoothOutputs(mu_alpha, cov_alpha, mu_alpha, cov_alpha, _scratch("innov_info", (n, 3, 3)),
-                        _scratch("innov_vec", (n, 3)), _scratch("innov_m2", (n_s,)), innov,
-                        _scratch("estep_cos", (n_poses,)), _scratch("estep_sin", (n_poses,)))
+    # one-row placeholders: the kernel stores nothing per pose or frame (``_forward_log``); was 208 bytes per
+    # frame of scratch (1,000,000 frames: 208 MB) kept for the process's life
+    one3, one33 = _scratch("innov_one3", (1, 3)), _scratch("innov_one33", (1, 3, 3))
+    res = SmoothOutputs(one3, one33, one3, one33, one33, one3, _scratch("innov_m2", (n_s,)), innov,
+                        _scratch("innov_one", (1,)), _scratch("innov_one", (1,)))
     status, k, j, loglik = _smooth_kernel(frames, sightings, res, True)
     _raise(status, k, j, batch)
     if not math.isfinite(loglik):
