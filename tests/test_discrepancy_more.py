@@ -70,7 +70,11 @@ def test_diagnose_names_false_sightings(tmp_path):
     # Named first since distance_dependent_noise's exponent is held >= 0 (free, -0.44 explained the
     # spurious sightings first). The rate is of the sightings left after the grossest are set aside.
     assert report["effect"] == "false_sightings", report["effects"]
-    assert abs(named["false_sightings"]["rate"] - 0.1) < RATE_TOL, named
+    # 0.150 since the search repeats a round from a better base found by a candidate's fit (``base_escapes``: from
+    # false_sightings' fit, +24.5 nats, in round 1; from distance_dependent_noise's, +1325 nats, in round 3, after
+    # landmark_bias, named beside it in this wrong world): 0.187 when named (0.168 before), 0.150 at the final fit
+    assert abs(named["false_sightings"]["rate"] - 0.1) < RATE_TOL + 0.01, named
+    assert [e["from"] for e in report["base_escapes"]] == ["false_sightings", "distance_dependent_noise"]
     assert report["gap_after"] < report["gap_before"]
     # On this log the base fit from the paper's start is in a wrong world (97-99% of the smoothed poses off the
     # field) and the search repairs it with whatever fits; the report must say so, not stay silent
@@ -168,6 +172,25 @@ def test_a_bearing_offset_that_a_turned_model_explains_as_well_is_not_named():
 
     tr = blind(collect({"noise": "paper-sim", "effects": {}}, 9000, seed=3007, policy_params={"margin_mm": -800.0}))
     found = search([tr], ["angle_bias"], EMOptions(), jobs=1, progress=lambda s: None)
-    c = found["rounds"][0][0]
-    assert c.name == "angle_bias" and found["named"] == []
-    assert c.p_value < 1e-3 and not c.identifiable and "explains the sightings as well" in c.note, c
+    assert found["named"] == []
+    # the turned model, 9 nats above the null, is the better base: the round is repeated from it
+    (escape,) = found["escapes"]
+    (c,) = escape["candidates"]
+    assert escape["from"] == "angle_bias" and escape["nats"] > 5.0
+    assert c["p_value"] < 1e-3 and not c["identifiable"] and "explains the sightings as well" in c["note"], c
+    assert found["rounds"][0][0].gain_train < 1.0  # from the turned model, the offset gains nothing
+
+
+def test_a_gain_that_the_base_keeps_without_the_effect_is_not_the_effects():
+    """The effect-free log where ``actuation_lag`` was named (paper-sim noise, seed 1005, 5 min: 0.1 s, +28.7 nats,
+    p = 4e-14): EM from the paper's start stopped at a poor optimum of the base model, and the lag's fit left it.
+    Refitted without the lag, that fit keeps the whole gain: the lag is not named, and the better base becomes the
+    current model (``learners.discrepancy.search._given_its_own_base``)."""
+    from aibo_core.trajectory import blind
+    from learners.discrepancy.search import search
+
+    said = []
+    tr = blind(collect({"noise": "paper-sim", "effects": {}}, 9000, seed=1005))
+    found = search([tr], ["actuation_lag"], EMOptions(), jobs=1, progress=said.append)
+    assert found["named"] == [], [c.as_dict() for c in found["rounds"][-1]]
+    assert any("better than the null: the round is repeated" in s for s in said), said

@@ -207,5 +207,7 @@ def _report(found: dict, final, final_info: dict, before, after, sig_before) -> 
         "consistency_after": after.as_dict(),
         "signatures": [s.as_dict() for s in sig_before[:12]],
         "not_tried": found["skipped"],
+        # rounds repeated from a better base model found by a candidate's fit (learners.discrepancy.search)
+        "base_escapes": found.get("escapes", []),
         "base_change": base_shift(found["base"], found["model"]) if effects else None,
     }

@@ -17,6 +17,16 @@ null gained 5.4 nats, ``velocity_fade`` 5.7 nats over the unrefitted model (p = 
 fade_per_min 0.0015), i.e. 0.3 nats over its own null. Every candidate's gain is therefore taken over the
 refitted null (:func:`null_fit`: one extra fit per round); for a grid-profiled candidate whose grid holds
 its neutral value, over that grid point's fit (the same start and budget).
+Given its own base (a deviation: every significant candidate is tested twice): EM from the paper's start can stop
+at a poor optimum of the base parameters (a command held once, for a few seconds, left at a wrong velocity), and a
+candidate's fit, with one more parameter, can leave it; the gain is then the base model's. Measured on the
+effect-free 5-minute log of seed 1005 (``paper-sim`` noise, 0.5 rad bearings): ``actuation_lag`` 0.1 s gained 28.7
+nats (p = 4e-14) and was named; the base refitted from the truth reaches 210 nats above the base fit (on seed 1006,
+410). So a significant candidate's fit is refitted WITHOUT the effect (``_given_its_own_base``) and the candidate
+stays significant only if it passes the test against that too; on seed 1005 the refit without the lag kept the
+whole gain (the lag: +0.0 nats over it). And where such a refit beats the round's null by ``ESCAPE_NATS`` it
+becomes the current model and the round is repeated from it (at most ``MAX_ESCAPES`` times): on seed 1005 the
+refit from ``false_sightings``'s fit was 155.8 nats above the null, and the repeated round named nothing.
 Given the walls (a deviation: one candidate is tested twice): a fade of the speed over the log
 (``velocity_fade``, residual signature elapsed time) is what a robot that spends more of the later minutes
 pushing against a wall looks like, and ``wall_contact`` (read off the smoothed path, which the unmodelled
@@ -47,6 +57,7 @@ first; given the spurious sightings it explains nothing and is dropped.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field, replace
 from typing import Any, Callable
@@ -82,6 +93,10 @@ SEARCH_PATIENCE = 15
 #: MRCLAM robot 1 with bias states, in nats over no lag: 0, 246, 457, 371, 181, 15), and the values past it, each a
 #: fit of up to 150 iterations, cannot win.
 PAST_PEAK_NATS = 20.0
+#: A candidate's base refit (``_given_its_own_base``) this many nats above the round's null replaces the current model
+#: and the round is repeated from it, at most ``MAX_ESCAPES`` times per search.
+ESCAPE_NATS = 2.0
+MAX_ESCAPES = 2
 GIVEN_WALLS = ("velocity_fade",)  # candidates tested again given the wall nuisance (module docstring)
 
 
@@ -100,9 +115,11 @@ class Candidate:
     note: str = ""
     seconds: float = 0.0
     model: Model | None = field(default=None, repr=False)
+    escape: Model | None = field(default=None, repr=False)  # the base refitted from this fit (``_given_its_own_base``)
+    escape_ll: float = float("-inf")  # its training log-likelihood
 
     def as_dict(self) -> dict[str, Any]:
-        d = {k: v for k, v in self.__dict__.items() if k != "model"}
+        d = {k: v for k, v in self.__dict__.items() if k not in ("model", "escape", "escape_ll")}
         d["parameters"] = {k: np.asarray(v).tolist() for k, v in self.parameters.items()}
         return d
 
@@ -186,17 +203,20 @@ def try_candidate(name: str, base: Model, base_ll: float, base_heldout: float, t
         flat = False
     dof = model.effect(name).dof()
     gain = max(ll - base_ll, 0.0)
-    heldout = score(model, logs).heldout_loglik - base_heldout
+    heldout_ll = score(model, logs).heldout_loglik
+    heldout = heldout_ll - base_heldout
     p, significant = lr_test(gain, heldout, dof, n_candidates)
     c = Candidate(name, model.effect(name).values(), gain, heldout, dof, p, significant, model=model)
     if c.significant and name in GIVEN_WALLS:
         _given_walls(c, start, base, batch, train, logs, opts, n_candidates)
     effect = model.effect(name)
+    if c.significant:
+        _reparameterization(c, effect, model, ll, train)
+    if c.significant:
+        _given_its_own_base(c, model, ll, heldout_ll, train, logs, opts, n_candidates)
     small = (effect.negligible(sum(tr.n_sightings for tr in logs)) or effect.implausible()) if c.significant else ""
     if small:
         c.significant, c.note = False, small
-    if c.significant and (same := _reparameterization(effect, model, ll, train)):
-        c.identifiable, c.significant, c.note = False, False, same
     if not c.significant and cls.PROBE and not cls.GRID:
         shifted = {k: np.asarray(v) + np.asarray(model.effect(name).values()[k]) for k, v in cls.PROBE.items()}
         probe = model.with_effect(_with(model.effect(name), shifted))  # the estimate moved by a plausible step
@@ -210,20 +230,44 @@ def try_candidate(name: str, base: Model, base_ll: float, base_heldout: float, t
     return c
 
 
-def _reparameterization(effect: EffectModel, model: Model, ll: float, train: list[Trajectory]) -> str:
-    """Why the fitted ``effect`` is a reparameterization of the base model ("" when it is not): its class's
-    ``equivalent`` model (without it) scores within ``FLAT_NATS`` of ``model``'s training log-likelihood ``ll``. A
-    constant bearing offset is a start heading and velocities turned by it (``AngleBias.equivalent``); EM, slow
-    along that direction, left the gain to the candidate: measured on the effect-free wall log of seed 3007
-    (``paper-sim`` noise, 5 min), ``angle_bias`` 0.0086 rad gained 9.1 nats (p = 2e-5) and was named."""
+def _reparameterization(c: Candidate, effect: EffectModel, model: Model, ll: float, train: list[Trajectory]) -> None:
+    """Marks ``c`` not identifiable (not significant) when the fitted ``effect`` is a reparameterization of the base
+    model: its class's ``equivalent`` model (without it) scores within ``FLAT_NATS`` of ``model``'s training
+    log-likelihood ``ll``; that model is then ``c``'s better base (``c.escape``). A constant bearing offset is a start
+    heading and velocities turned by it (``AngleBias.equivalent``); EM, slow along that direction, left the gain to
+    the candidate: measured on the effect-free wall log of seed 3007 (``paper-sim`` noise, 5 min), ``angle_bias``
+    0.0086 rad gained 9.1 nats (p = 2e-5) and was named."""
     eq = effect.equivalent(model)
     if eq is None:
-        return ""
+        return
     ll_eq = _train_loglik(eq, train)
     if ll - ll_eq >= FLAT_NATS:
-        return ""
-    return ("not identifiable from these data: the model without it explains the sightings as well "
-            f"({ll_eq - ll:+.1f} nats); " + (EFFECT_MODELS[effect.name].REMEDY or "a reparameterization of the base model"))
+        return
+    c.identifiable, c.significant, c.escape, c.escape_ll = False, False, eq, ll_eq
+    c.note = ("not identifiable from these data: the model without it explains the sightings as well "
+              f"({ll_eq - ll:+.1f} nats); " + (EFFECT_MODELS[effect.name].REMEDY or "a reparameterization of the base model"))
+
+
+def _given_its_own_base(c: Candidate, model: Model, ll: float, heldout_ll: float, train: list[Trajectory],
+                        logs: list[Trajectory], opts: EMOptions, n_candidates: int) -> None:
+    """The candidate's test repeated against the base model refitted from the candidate's own fit (the effect
+    removed, everything else where the candidate's fit left it): ``c`` stays significant only if it passes that test
+    too. A gain that the base model keeps without the effect was EM leaving a poor optimum of the base parameters
+    while the effect was in, not the effect (module docstring, "The null of the test"). The refitted base is kept
+    on ``c.escape`` with its training log-likelihood."""
+    escape = _fit(train, model.without_effect(c.name), opts)
+    ll_esc = _train_loglik(escape, train)
+    gain = max(ll - ll_esc, 0.0)
+    # the training half's test only: the held-out gain was tested against the round's null. Two fits of the base
+    # model with the same training likelihood can differ by tens of nats held out (the effect-free wall log of seed
+    # 3002, aibo noise: this refit without wall_contact scored -0.8 nats in training and +48.6 held out against the
+    # null), so the held-out difference to this refit says little about the effect.
+    p, ok = lr_test(gain, math.inf, c.dof, n_candidates)
+    c.escape, c.escape_ll = escape, ll_esc
+    if not ok:
+        c.significant = False
+        c.note = (f"the base model refitted from its fit without it keeps the gain (train +{gain:.1f} nats over it, "
+                  f"p = {p:.2g}): the base model was at a poorer optimum")
 
 
 def _given_walls(c: Candidate, start: Model, base: Model, batch: Any, train: list[Trajectory], logs: list[Trajectory],
@@ -356,8 +400,9 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
                for c in candidates if c not in remaining}
     for name, why in skipped.items():
         progress(f"  {name}: not tried ({why})")
+    escapes: list[dict[str, Any]] = []
     with process_pool(max(jobs, 1)) as pool:
-        for _ in range(MAX_ROUNDS):
+        while len(rounds) < MAX_ROUNDS:
             if not remaining:
                 break
             # the null: not ``current`` as it stands but refitted like the candidates (module docstring)
@@ -371,6 +416,15 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
                 progress(f"  {c.name:26s} train +{c.gain_train:8.1f} nats, held-out {c.gain_heldout:+8.1f} nats, "
                          f"p = {c.p_value:.2g}{'  SIGNIFICANT' if c.significant else ''}"
                          f"{'  (not identifiable)' if not c.identifiable else ''}  [{c.seconds:.1f} s]")
+            escape = max(tried, key=lambda c: c.escape_ll)
+            if escape.escape_ll > null_ll + ESCAPE_NATS and len(escapes) < MAX_ESCAPES:
+                # a better base model than the null, found from a candidate's fit: the round is repeated from it
+                escapes.append({"round": len(rounds), "from": escape.name, "nats": escape.escape_ll - null_ll,
+                                "candidates": [c.as_dict() for c in rounds.pop()]})
+                current, current_ll = escape.escape, escape.escape_ll
+                progress(f"  the base model refitted from {escape.name}'s fit without it is {escape.escape_ll - null_ll:.1f} "
+                         "nats better than the null: the round is repeated from it")
+                continue
             best = max((c for c in tried if c.significant), key=lambda c: c.gain_heldout, default=None)
             if best is None:
                 break
@@ -381,4 +435,5 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
             progress(f"named: {best.name} {best.as_dict()['parameters']}")
         current, current_ll = prune(named, current, current_ll, train, logs, opts, pool if jobs > 1 else None,
                                     progress)
-    return {"base": base, "rounds": rounds, "named": named, "model": current, "logs": logs, "skipped": skipped}
+    return {"base": base, "rounds": rounds, "named": named, "model": current, "logs": logs, "skipped": skipped,
+            "escapes": escapes}
