@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -85,10 +86,20 @@ def one(effect: str | None, params: dict | None, seed: int, minutes: float, pres
     found = search([tr], sorted(EFFECT_MODELS), EMOptions(), jobs=2, progress=lambda s: None)
     named = [c.name for c in found["named"]]
     values = {n: {k: np.asarray(v).tolist() for k, v in found["model"].effect(n).values().items()} for n in named}
-    right = "" if effect in NOT_IDENTIFIABLE else (effect or "")
     return {"effect": effect or "none", "params": params if effects is None else effects, "seed": seed,
             "preset": preset, "walls": walls, "named": named, "values": values,
-            "detected": (named[0] if named else "") == right, "seconds": time.perf_counter() - t0}
+            "detected": first_named(named) == right_answer(effect or "none"), "seconds": time.perf_counter() - t0}
+
+
+def first_named(named: list[str]) -> str:
+    """The effect a run named first, "none" when it named nothing."""
+    return named[0] if named else "none"
+
+
+def right_answer(effect: str) -> str:
+    """What a run hiding ``effect`` should name first: the effect itself, "none" for an effect-free log or one that is
+    not identifiable."""
+    return "none" if effect in NOT_IDENTIFIABLE else effect
 
 
 def pair_ok(r: dict) -> tuple[bool, bool]:
@@ -173,39 +184,52 @@ def false_alarm_lines(none: list[dict]) -> list[str]:
     return lines
 
 
-def confusion(done: list[dict]) -> tuple[list[str], list[str], np.ndarray, np.ndarray]:
-    """(row labels "effect strength", column names (named first, "none" last), counts (rows, cols), runs per row)."""
-    rows, counts, runs = [], [], []
-    cols = sorted(STRENGTHS) + ["none"]
+@dataclass
+class Confusion:
+    """Hidden effect (one row per effect and strength) against the effect named first (columns: every name named
+    first in these runs or hidden in them, "none" last)."""
+
+    rows: list[str]  # "effect strength"
+    cols: list[str]
+    counts: np.ndarray  # (rows, cols) runs
+    runs: np.ndarray  # (rows,)
+    right: np.ndarray  # (rows,) the column of each row's right answer (``right_answer``)
+
+    def detected(self) -> np.ndarray:
+        """(rows,) the share of runs that named the right answer first."""
+        return self.counts[np.arange(len(self.rows)), self.right] / np.maximum(self.runs, 1)
+
+
+def confusion(done: list[dict]) -> Confusion:
+    power = [r for r in done if r["effect"] in STRENGTHS]
+    cols = sorted(set(STRENGTHS) | {first_named(r["named"]) for r in power} - {"none"}) + ["none"]
+    rows, counts, runs, right = [], [], [], []
     for e in sorted(STRENGTHS):
         for k, p in enumerate(STRENGTHS[e]):
-            rs = [r for r in done if r["effect"] == e and r["params"] == p]
+            rs = [r for r in power if r["effect"] == e and r["params"] == p]
             if not rs:
                 continue
             rows.append(f"{e} {['weak', 'medium', 'strong'][k]}")
             c = np.zeros(len(cols), int)
             for r in rs:
-                first = r["named"][0] if r["named"] else "none"
-                c[cols.index(first) if first in cols else -1] += 1
+                c[cols.index(first_named(r["named"]))] += 1
             counts.append(c)
             runs.append(len(rs))
-    return rows, cols, np.array(counts).reshape(len(rows), len(cols)), np.array(runs)
+            right.append(cols.index(right_answer(e)))
+    return Confusion(rows, cols, np.array(counts, int).reshape(len(rows), len(cols)), np.array(runs, int),
+                     np.array(right, int))
 
 
-def confusion_lines(done: list[dict]) -> list[str]:
-    rows, cols, counts, runs = confusion(done)
-    if not rows:
+def confusion_lines(conf: Confusion) -> list[str]:
+    if not conf.rows:
         return []
-    short = [c.replace("_", " ") for c in cols]
     lines = ["", "Confusion matrix (`aibo` preset): the effect named first against the hidden one, runs per cell; "
              "detected = the hidden effect named first (for `angle_bias`, none: it is not identifiable).", "",
-             "| hidden effect, strength | " + " | ".join(short) + " | detected | runs |",
-             "|---|" + "---|" * (len(cols) + 2)]
-    for label, c, n in zip(rows, counts, runs):
-        e = label.rsplit(" ", 1)[0]
-        right = cols.index("none" if e in NOT_IDENTIFIABLE else e)
+             "| hidden effect, strength | " + " | ".join(c.replace("_", " ") for c in conf.cols) + " | detected | runs |",
+             "|---|" + "---|" * (len(conf.cols) + 2)]
+    for label, c, n, right, rate in zip(conf.rows, conf.counts, conf.runs, conf.right, conf.detected()):
         cells = [f"**{v}**" if j == right else (str(v) if v else ".") for j, v in enumerate(c)]
-        lines.append(f"| {label} | " + " | ".join(cells) + f" | {c[right] / n:.0%} | {n} |")
+        lines.append(f"| {label} | " + " | ".join(cells) + f" | {rate:.0%} | {n} |")
     return lines
 
 
@@ -232,27 +256,26 @@ def summarize(done: list[dict], out: Path) -> None:
     none = [r for r in done if r["effect"] == "none"]
     alarms = sum(false_alarm(r) for r in none)
     fa = alarms / len(none) if none else float("nan")
+    conf = confusion(done)
     lines = false_alarm_lines(none) if none else []
-    lines += confusion_lines(done) + pair_lines(done)
-    power = {}
-    rows, cols, counts, runs = confusion(done)
-    for label, c, n in zip(rows, counts, runs):
-        e = label.rsplit(" ", 1)[0]
-        power.setdefault(e, []).append(float(c[cols.index("none" if e in NOT_IDENTIFIABLE else e)] / n))
+    lines += confusion_lines(conf) + pair_lines(done)
+    power: dict[str, list[float]] = {}
+    for label, rate in zip(conf.rows, conf.detected()):
+        power.setdefault(label.rsplit(" ", 1)[0], []).append(float(rate))
     text = "\n".join(lines) + "\n"
     atomic_write(out / "power.md", lambda f: f.write(text.encode()))
     summary = json.dumps({"false_alarm_rate": fa, "false_alarm_upper95": upper95(alarms, len(none)) if none else None,
                           "n_none": len(none), "power": power,
-                          "confusion": {"rows": rows, "columns": cols, "counts": counts.tolist(), "runs": runs.tolist()},
+                          "confusion": {"rows": conf.rows, "columns": conf.cols, "counts": conf.counts.tolist(),
+                                        "runs": conf.runs.tolist()},
                           "pairs": {label: [pair_ok(r) for r in done if r["effect"] == label] for label, _, _ in PAIRS}},
                          indent=1)
     atomic_write(out / "power.json", lambda f: f.write(summary.encode()))
-    figures(power, fa, rows, cols, counts, runs, out)
+    figures(power, fa, conf, out)
     print(text)
 
 
-def figures(power: dict, fa: float, rows: list[str], cols: list[str], counts: np.ndarray, runs: np.ndarray,
-            out: Path) -> None:
+def figures(power: dict, fa: float, conf: Confusion, out: Path) -> None:
     """power.png (detection rate against strength) and confusion.png (the confusion matrix as fractions)."""
     import matplotlib
 
@@ -271,8 +294,9 @@ def figures(power: dict, fa: float, rows: list[str], cols: list[str], counts: np
     fig.tight_layout()
     fig.savefig(out / "power.png", dpi=110)
     plt.close(fig)
-    if not rows:
+    if not conf.rows:
         return
+    rows, cols, counts, runs = conf.rows, conf.cols, conf.counts, conf.runs
     frac = counts / runs[:, None]
     fig, ax = plt.subplots(figsize=(1.2 + 0.55 * len(cols), 1.0 + 0.3 * len(rows)))
     ax.imshow(frac, cmap="Blues", vmin=0, vmax=1, aspect="auto")
