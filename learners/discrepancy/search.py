@@ -203,8 +203,7 @@ def try_candidate(name: str, base: Model, base_ll: float, base_heldout: float, t
         flat = False
     dof = model.effect(name).dof()
     gain = max(ll - base_ll, 0.0)
-    heldout_ll = score(model, logs).heldout_loglik
-    heldout = heldout_ll - base_heldout
+    heldout = score(model, logs).heldout_loglik - base_heldout
     p, significant = lr_test(gain, heldout, dof, n_candidates)
     c = Candidate(name, model.effect(name).values(), gain, heldout, dof, p, significant, model=model)
     if c.significant and name in GIVEN_WALLS:
@@ -213,7 +212,7 @@ def try_candidate(name: str, base: Model, base_ll: float, base_heldout: float, t
     if c.significant:
         _reparameterization(c, effect, model, ll, train)
     if c.significant:
-        _given_its_own_base(c, model, ll, heldout_ll, train, logs, opts, n_candidates)
+        _given_its_own_base(c, model, ll, train, opts, n_candidates)
     small = (effect.negligible(sum(tr.n_sightings for tr in logs)) or effect.implausible()) if c.significant else ""
     if small:
         c.significant, c.note = False, small
@@ -248,8 +247,8 @@ def _reparameterization(c: Candidate, effect: EffectModel, model: Model, ll: flo
               f"({ll_eq - ll:+.1f} nats); " + (EFFECT_MODELS[effect.name].REMEDY or "a reparameterization of the base model"))
 
 
-def _given_its_own_base(c: Candidate, model: Model, ll: float, heldout_ll: float, train: list[Trajectory],
-                        logs: list[Trajectory], opts: EMOptions, n_candidates: int) -> None:
+def _given_its_own_base(c: Candidate, model: Model, ll: float, train: list[Trajectory], opts: EMOptions,
+                        n_candidates: int) -> None:
     """The candidate's test repeated against the base model refitted from the candidate's own fit (the effect
     removed, everything else where the candidate's fit left it): ``c`` stays significant only if it passes that test
     too. A gain that the base model keeps without the effect was EM leaving a poor optimum of the base parameters

@@ -337,10 +337,9 @@ def _gram(G: np.ndarray) -> np.ndarray:
     return flat @ flat.T
 
 
-def _cross(A: np.ndarray, B: np.ndarray, chunk: int | None = None) -> np.ndarray:
+def _cross(A: np.ndarray, B: np.ndarray, chunk: int = CROSS_CHUNK) -> np.ndarray:
     """The sum over sightings and rows of A B^T for float32 (a, n, 5) and (b, n, 5), summed in float64
-    ``chunk`` (default CROSS_CHUNK) sightings at a time: (a, b)."""
-    chunk = chunk or CROSS_CHUNK
+    ``chunk`` sightings at a time: (a, b)."""
     out = np.zeros((len(A), len(B)))
     for s in range(0, A.shape[1], chunk):
         a = A[:, s : s + chunk].astype(np.float64).reshape(len(A), -1)

@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from aibo_core.geometry import wrap
+from aibo_core.geometry import rot, wrap
 from learners.inference.batch import Batch
 from learners.inference.lowered import Lowered
 from learners.inference.posterior import Posterior
@@ -173,13 +173,13 @@ class AngleBias(EffectModel):
         every robot-frame displacement weight (and Sigma_A's x-y block) turns by R(b). None when the action model
         holds the rotated weights at 0 (a unicycle has no lateral motion: there the offset is identifiable)."""
         b = float(self.bias_rad)
-        c, s = math.cos(b), math.sin(b)
-        rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        turn = np.eye(3)
+        turn[:2, :2] = rot(b)
         action = model.action
-        weights = np.asarray(action.weights, float) @ rot.T
+        weights = np.asarray(action.weights, float) @ turn.T
         if np.any(np.abs(weights[action.zero_cells()]) > 1e-12 * max(1.0, float(np.abs(weights).max()))):
             return None
-        cov = rot @ np.asarray(action.cov, float) @ rot.T
+        cov = turn @ np.asarray(action.cov, float) @ turn.T
         init = tuple(replace(i, mean=np.asarray(i.mean, float) - np.array([0.0, 0.0, b])) for i in model.init)
         return model.without_effect(self.name).with_(action=action.with_values(weights=weights, cov=0.5 * (cov + cov.T)),
                                                      init=init)
