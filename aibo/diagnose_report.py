@@ -152,12 +152,26 @@ def _calibrated(cal: dict[str, Any] | None, unexplained: list[dict[str, Any]]) -
             f"named effects ({worst(cal['after'])}).</p>" + "".join(
                 f"<p><b>Still unlike its simulation:</b> {html.escape(u['statistic'])} ({z_text(u['z'])}), the residual "
                 f"signature of <b>{html.escape(u['effect'])}</b>, which was not named ({html.escape(u['why_not_named'])}).</p>"
-                for u in unexplained))
+                for u in unexplained if "probe" not in u))
+
+
+def _none_of_the_above(unexplained: list[dict[str, Any]]) -> str:
+    """One paragraph per significant probe (``report.json["unexplained"]`` entries with a ``"probe"``): a dependence
+    that no catalogue effect explains."""
+    return "".join(
+        f"<p><b>None of the above:</b> {html.escape(u['describes'])} (train +{u['gain_train']:.1f} nats, held-out "
+        f"{u['gain_heldout']:+.1f} nats, p = {u['p_value']:.2g}); {html.escape(u['why_not_named'])}. Its signature: "
+        f"{html.escape(u['statistic'])}" + (f", p = {u['signature']['p_value']:.2g}" if u.get("signature") else "")
+        + ".</p>" for u in unexplained if "probe" in u)
 
 
 def _verdict(report: dict[str, Any]) -> str:
     """The page's first line: the named effects with their values and intervals, and how far they moved the base."""
+    odd = [u for u in report.get("unexplained", []) if "probe" in u]
     if not report["effects"]:
+        if odd:
+            return ("Verdict: <b>none of the above</b>: no candidate of the catalogue improved the fit significantly, "
+                    "but the logs show a dependence that none of them is (below)")
         return ("Verdict: <b>no missing effect found</b>: no candidate improved the fit significantly on both halves "
                 "of the log")
     named = []
@@ -166,7 +180,8 @@ def _verdict(report: dict[str, Any]) -> str:
         named.append(f"<b>{html.escape(e['name'])}</b> ({html.escape(short(e['parameters']) + grid_note(e['name']))}"
                      f"{html.escape('; ' + interval) if interval else ''})")
     shift = f"; {html.escape(shift_text(report['base_change']))}" if report.get("base_change") else ""
-    return "Verdict: the base model misses " + ", ".join(named) + shift
+    rest = "; and something outside the catalogue (none of the above, below)" if odd else ""
+    return "Verdict: the base model misses " + ", ".join(named) + shift + rest
 
 
 def html_page(path: Path, report: dict[str, Any], text: str, figures: list[Path]) -> None:
@@ -191,6 +206,7 @@ sighting; lower is better): <b>{report['gap_before']:.4f}</b> before, <b>{report
 tried, and a long log makes tiny drifts "significant". The verdict rests on the candidates' likelihood-ratio tests and
 held-out gains (table below).</p>
 {_calibrated(report.get("calibrated_simulation"), report.get("unexplained", []))}
+{_none_of_the_above(report.get("unexplained", []))}
 {''.join(_img(p) for p in figures if p.exists())}
 <h2>Candidates</h2><table><tr><th>round</th><th>effect</th><th>train gain (nats)</th><th>held-out gain (nats)</th>
 <th>p</th><th>significant</th><th>identifiable</th><th>note</th></tr>{rows}</table>

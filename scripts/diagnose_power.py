@@ -88,6 +88,7 @@ def one(effect: str | None, params: dict | None, seed: int, minutes: float, pres
     values = {n: {k: np.asarray(v).tolist() for k, v in found["model"].effect(n).values().items()} for n in named}
     return {"effect": effect or "none", "params": params if effects is None else effects, "seed": seed,
             "preset": preset, "walls": walls, "named": named, "values": values,
+            "unexplained": [c.name for c in found["probes"] if c.significant],
             "detected": first_named(named) == right_answer(effect or "none"), "seconds": time.perf_counter() - t0}
 
 
@@ -168,10 +169,13 @@ def main() -> None:
 def false_alarm_lines(none: list[dict]) -> list[str]:
     """The false-alarm table: per noise preset and walls met, the logs with a wrong name."""
     alarms = sum(false_alarm(r) for r in none)
+    checked = [r for r in none if "unexplained" in r]  # runs older than the "none of the above" check lack it
+    odd = sum(bool(r["unexplained"]) for r in checked)
     lines = [f"False alarms: {alarms} of {len(none)} effect-free logs ({alarms / max(len(none), 1):.1%}; 95% upper "
-             f"bound {upper95(alarms, len(none)):.1%}); angle_bias named in {sum('angle_bias' in r['named'] for r in none)}.",
-             "", "| noise preset | walls met | logs | false alarms | 95% upper bound | named (count) |",
-             "|---|---|---|---|---|---|"]
+             f"bound {upper95(alarms, len(none)):.1%}); angle_bias named in {sum('angle_bias' in r['named'] for r in none)}; "
+             f"\"none of the above\" reported in {odd} of {len(checked)}.",
+             "", "| noise preset | walls met | logs | false alarms | 95% upper bound | named (count) | none of the above |",
+             "|---|---|---|---|---|---|---|"]
     for preset, walls in sorted({(r.get("preset", "aibo"), bool(r.get("walls"))) for r in none}):
         rs = [r for r in none if (r.get("preset", "aibo"), bool(r.get("walls"))) == (preset, walls)]
         k = sum(false_alarm(r) for r in rs)
@@ -180,8 +184,22 @@ def false_alarm_lines(none: list[dict]) -> list[str]:
             for n in r["named"]:
                 counts[n] = counts.get(n, 0) + 1
         lines.append(f"| {preset} | {'yes' if walls else 'no'} | {len(rs)} | {k} ({k / len(rs):.0%}) | "
-                     f"{upper95(k, len(rs)):.0%} | {', '.join(f'{n} {c}' for n, c in sorted(counts.items())) or '-'} |")
+                     f"{upper95(k, len(rs)):.0%} | {', '.join(f'{n} {c}' for n, c in sorted(counts.items())) or '-'} | "
+                     f"{_unexplained_cell(rs)} |")
     return lines
+
+
+def _unexplained_cell(rs: list[dict]) -> str:
+    """How many of the runs ``rs`` reported "none of the above", and which probes (count)."""
+    checked = [r for r in rs if "unexplained" in r]
+    if not checked:
+        return "not checked"
+    counts: dict[str, int] = {}
+    for r in checked:
+        for n in r["unexplained"]:
+            counts[n] = counts.get(n, 0) + 1
+    k = sum(bool(r["unexplained"]) for r in checked)
+    return f"{k} of {len(checked)}" + (f" ({', '.join(f'{n} {c}' for n, c in sorted(counts.items()))})" if k else "")
 
 
 @dataclass

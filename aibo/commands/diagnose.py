@@ -19,7 +19,7 @@ from aibo_core.compat import check_compatible
 from learners.discrepancy.effect_sizes import base_shift, effect_intervals
 from learners.discrepancy.score import GAP_METRIC, score
 from learners.discrepancy.search import search
-from learners.discrepancy.signatures import signatures
+from learners.discrepancy.signatures import probe_signature, signatures
 from learners.em.learner import EMLearner, feature_map_for
 from learners.em.options import EMOptions
 from learners.model.effects import EFFECT_MODELS
@@ -101,6 +101,11 @@ def run(args) -> int:
     for u in report["unexplained"]:
         say(f"  still unlike its simulation: {u['statistic']} ({fig.z_text(u['z'])}), the signature of {u['effect']}, "
             f"not named ({u['why_not_named']})")
+    report["unexplained"] += none_of_the_above(found, logs)
+    for u in (u for u in report["unexplained"] if u["effect"] == NONE_OF_THE_ABOVE):
+        say(f"none of the above: {u['describes']} (train +{u['gain_train']:.1f} nats, held-out {u['gain_heldout']:+.1f} "
+            f"nats, p = {u['p_value']:.2g}); {u['why_not_named']}; its signature: {u['statistic']}"
+            + (f", p = {u['signature']['p_value']:.2g}" if u["signature"] else ""))
     report["warnings"] = list(final.info.get("warnings", []))  # e.g. a fit that may be a wrong world: said loudly
     report["warnings"] += [f"{e.name}: {e.implausible()}" for e in final.params.effects if e.implausible()]
     for w in report["warnings"]:
@@ -181,6 +186,30 @@ def unexplained(report: dict) -> list[dict]:
             why = ("not among the candidates" if c is None else c["note"] or
                    f"training gain {c['gain_train']:.1f} nats, p = {c['p_value']:.2g}; held-out gain {c['gain_heldout']:+.1f} nats")
             out.append({"statistic": d["statistic"], "z": d["z"], "effect": name, "why_not_named": why})
+    return out
+
+
+#: ``report.json["unexplained"][*]["effect"]`` of a significant probe (``learners.model.probes``)
+NONE_OF_THE_ABOVE = "none of the above"
+
+
+def none_of_the_above(found: dict, logs: list) -> list[dict]:
+    """The search's significant probes (``found["probes"]``: a speed that depends on the heading or the position, no
+    catalogue effect) as ``report.json["unexplained"]`` entries: what the probe found, its test, and the residual
+    signature that shows it (``probe_signature``: the final model's smoothed forward speed relative to its prediction
+against the probe's fitted factor)."""
+    out = []
+    for c in found.get("probes", []):
+        if not c.significant:
+            continue
+        probe = c.model.effect(c.name)
+        sig = probe_signature(found["model"], logs, probe)
+        out.append({"statistic": f"{sig.residual} vs {sig.variable}" if sig else "", "z": None,
+                    "effect": NONE_OF_THE_ABOVE, "probe": c.name, "describes": probe.describe(),
+                    "parameters": {"coef": np.asarray(probe.coef).tolist()}, "gain_train": c.gain_train,
+                    "gain_heldout": c.gain_heldout, "p_value": c.p_value,
+                    "why_not_named": "no effect of the catalogue is this dependence; the named effects do not explain it",
+                    "signature": sig.as_dict() if sig is not None else None})
     return out
 
 

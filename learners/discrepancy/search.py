@@ -75,6 +75,7 @@ from learners.inference.batch import make_batch
 from learners.model.catalogue_more import WallSlowdown
 from learners.model.effects import EFFECT_MODELS, EffectModel
 from learners.model.model import Model
+from learners.model.probes import PROBES
 
 from .score import score
 from .split import training_log
@@ -201,11 +202,7 @@ def try_candidate(name: str, base: Model, base_ll: float, base_heldout: float, t
         model = _fit(train, start, opts)
         ll = _train_loglik(model, train)
         flat = False
-    dof = model.effect(name).dof()
-    gain = max(ll - base_ll, 0.0)
-    heldout = score(model, logs).heldout_loglik - base_heldout
-    p, significant = lr_test(gain, heldout, dof, n_candidates)
-    c = Candidate(name, model.effect(name).values(), gain, heldout, dof, p, significant, model=model)
+    c = _tested(name, model, ll, base_ll, base_heldout, logs, n_candidates)
     if c.significant and name in GIVEN_WALLS:
         _given_walls(c, start, base, batch, train, logs, opts, n_candidates)
     effect = model.effect(name)
@@ -225,6 +222,33 @@ def try_candidate(name: str, base: Model, base_ll: float, base_heldout: float, t
     if flat:
         c.identifiable, c.significant = False, False
         c.note = "not identifiable from these data: " + (cls.REMEDY or "its profile likelihood is flat")
+    c.seconds = time.perf_counter() - t0
+    return c
+
+
+def _tested(name: str, model: Model, ll: float, base_ll: float, base_heldout: float, logs: list[Trajectory],
+            n_tests: int) -> Candidate:
+    """``model`` (holding effect ``name``, training log-likelihood ``ll``) tested against the null (``base_ll``,
+    ``base_heldout``): :func:`lr_test` as one of ``n_tests``."""
+    dof = model.effect(name).dof()
+    gain = max(ll - base_ll, 0.0)
+    heldout = score(model, logs).heldout_loglik - base_heldout
+    p, significant = lr_test(gain, heldout, dof, n_tests)
+    return Candidate(name, model.effect(name).values(), gain, heldout, dof, p, significant, model=model)
+
+
+def try_probe(name: str, base: Model, base_ll: float, base_heldout: float, train: list[Trajectory],
+              logs: list[Trajectory], opts: EMOptions, n_probes: int) -> Candidate:
+    """The "none of the above" check of probe ``name`` (``learners.model.probes``) on the search's final model
+    ``base``: fitted warm-started with its covariates read off ``base``'s smoothed path, tested as a candidate is
+    (one of ``n_probes`` tests, against the null ``base_ll``, ``base_heldout``; and against its own base)."""
+    t0 = time.perf_counter()
+    batch = make_batch(train)
+    model = _fit(train, base.with_effect(PROBES[name].around(e_step(base, batch, "compiled"), batch)), opts)
+    ll = _train_loglik(model, train)
+    c = _tested(name, model, ll, base_ll, base_heldout, logs, n_probes)
+    if c.significant:
+        _given_its_own_base(c, model, ll, train, opts, n_probes)
     c.seconds = time.perf_counter() - t0
     return c
 
@@ -289,11 +313,13 @@ def _given_walls(c: Candidate, start: Model, base: Model, batch: Any, train: lis
 
 
 def _job(args: tuple) -> Candidate:
-    """One candidate; a fit that fails numerically is reported (not significant) instead of ending the search."""
+    """One candidate or probe, ``(try_candidate or try_probe, *its arguments)``; a fit that fails numerically is
+    reported (not significant) instead of ending the search."""
+    trial, *rest = args
     try:
-        return try_candidate(*args)
+        return trial(*rest)
     except (FloatingPointError, np.linalg.LinAlgError, ValueError) as err:
-        return Candidate(args[0], {}, 0.0, 0.0, 0, 1.0, note=f"fit failed: {err}")
+        return Candidate(rest[0], {}, 0.0, 0.0, 0, 1.0, note=f"fit failed: {err}")
 
 
 def drop_outliers(model: Model, logs: list[Trajectory]) -> tuple[list[Trajectory], int]:
@@ -400,15 +426,17 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
     for name, why in skipped.items():
         progress(f"  {name}: not tried ({why})")
     escapes: list[dict[str, Any]] = []
+    null: tuple[Model, float, float] | None = None
     with process_pool(max(jobs, 1)) as pool:
         while len(rounds) < MAX_ROUNDS:
             if not remaining:
                 break
             # the null: not ``current`` as it stands but refitted like the candidates (module docstring)
             null_ll, heldout = null_fit(current, train, logs, opts)
+            null = (current, null_ll, heldout)
             progress(f"  (null: the current model refitted as the candidates are, train +{null_ll - current_ll:.1f} "
                      "nats)")
-            args = [(n, current, null_ll, heldout, train, logs, opts, len(remaining)) for n in remaining]
+            args = [(try_candidate, n, current, null_ll, heldout, train, logs, opts, len(remaining)) for n in remaining]
             tried = list(pool.map(_job, args)) if jobs > 1 else [_job(a) for a in args]
             rounds.append(tried)
             for c in tried:
@@ -434,5 +462,25 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
             progress(f"named: {best.name} {best.as_dict()['parameters']}")
         current, current_ll = prune(named, current, current_ll, train, logs, opts, pool if jobs > 1 else None,
                                     progress)
+        probes = none_of_the_above(current, null if null is not None and null[0] is current else None, train, logs, opts,
+                                   pool if jobs > 1 else None, progress)
     return {"base": base, "rounds": rounds, "named": named, "model": current, "logs": logs, "skipped": skipped,
-            "escapes": escapes}
+            "escapes": escapes, "probes": probes}
+
+
+def none_of_the_above(current: Model, null: tuple[Model, float, float] | None, train: list[Trajectory],
+                      logs: list[Trajectory], opts: EMOptions, pool: Any, progress: Callable[[str], None]
+                      ) -> list[Candidate]:
+    """The final check: every probe (``learners.model.probes``: a speed that depends on the heading or the position,
+    effects outside the catalogue) fitted on the search's final model ``current`` and tested as the candidates are,
+    the probes sharing the level ``ALPHA``. ``null``: ``(current, training, held-out log-likelihood)`` of the last
+    round's null when it was ``current``'s (else refitted). A significant probe is a dependence no named effect
+    explains: the report's "none of the above"."""
+    _, null_ll, heldout = null if null is not None else (current, *null_fit(current, train, logs, opts))
+    args = [(try_probe, n, current, null_ll, heldout, train, logs, opts, len(PROBES)) for n in PROBES]
+    tried = list(pool.map(_job, args)) if pool is not None else [_job(a) for a in args]
+    progress("none of the above? (effects outside the catalogue, on the final model)")
+    for c in tried:
+        progress(f"  {c.name:26s} train +{c.gain_train:8.1f} nats, held-out {c.gain_heldout:+8.1f} nats, "
+                 f"p = {c.p_value:.2g}{'  SIGNIFICANT' if c.significant else ''}  [{c.seconds:.1f} s]")
+    return tried

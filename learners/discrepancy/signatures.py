@@ -9,6 +9,7 @@ they rank where to look, the candidate search decides.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy import stats
@@ -21,6 +22,9 @@ from learners.inference.augmented import size_factor_moments
 from learners.inference.batch import Batch, make_batch
 from learners.inference.posterior import Posterior
 from learners.model.model import Model
+
+if TYPE_CHECKING:
+    from learners.model.probes import SpeedProbe
 
 N_BINS = 8
 
@@ -122,3 +126,23 @@ def signatures(model: Model, logs: list[Trajectory]) -> list[Signature]:
         for var in [k for k in m if k not in ("forward motion", "lateral motion", "turn")]:
             found.append(_binned(f"{res} (sigma)", var, m[res], m[var]))
     return sorted([f for f in found if f is not None], key=lambda f: f.p_value)
+
+
+def probe_signature(model: Model, logs: list[Trajectory], probe: "SpeedProbe") -> Signature | None:
+    """The residual signature that shows a probe's dependence (``learners.model.probes``): ``model``'s smoothed
+    forward speed relative to its own prediction (smoothed / predicted forward displacement - 1, on the frames
+    that walk forward or back at least half the median speed) against the fitted probe's factor - 1 (e.g.
+    0.11 cos(heading) + 0.05 sin(heading)). A dependence the model lacks shows as binned means rising with it,
+    attenuated: the smoothed displacement of one frame stays near the model's, the effect adds up over many."""
+    batch = make_batch(logs)
+    post = e_step(model, batch, "compiled", DEFAULT_GATE)
+    lo = model.lower(batch)
+    p = batch.frame_to_pose
+    smoothed = rel_disp(post.mu_gamma[p], post.mu_gamma[p + 1] - lo.offset)[:, 0]
+    fwd = lo.disp[:, 0]
+    moving = np.abs(fwd) > 1e-9
+    if not moving.any():
+        return None
+    walk = np.abs(fwd) >= 0.5 * np.median(np.abs(fwd[moving]))
+    return _binned("forward speed / predicted - 1", f"{probe.name} factor - 1", smoothed[walk] / fwd[walk] - 1.0,
+                   (probe.basis @ probe.coef)[walk])
