@@ -111,12 +111,15 @@ def short(params: dict[str, Any]) -> str:
 
 
 def interval_text(intervals: dict[str, Any]) -> str:
-    """``95%: sigma_rel [0.041, 0.049], tau_s [6.9, 11.2]`` (scalars), ``SE scale [0.003, ...]`` (arrays); the
-    parameters without a determined standard error are left out; "" when none has one."""
+    """``95%: sigma_rel [0.041, 0.049], tau_s [6.9, 11.2]`` (scalars; ``lag_s [0.1, 0.3] (profile)`` for a grid
+    parameter), ``SE scale [0.003, ...]`` (arrays); the parameters without an interval are left out; "" when none
+    has one."""
     def num(v: Any) -> str:
         return "[" + ", ".join(num(x) for x in v) + "]" if isinstance(v, (list, tuple)) else f"{v:.3g}"
-    parts = [f"{k} [{num(iv['interval_95'][0])}, {num(iv['interval_95'][1])}]" if np.ndim(iv["value"]) == 0
-             else f"{k} SE {num(iv['se'])}" for k, iv in intervals.items() if iv["se"] is not None]
+    parts = [f"{k} [{num(iv['interval_95'][0])}, {num(iv['interval_95'][1])}]"
+             + (" (profile)" if str(iv.get("method", "")).startswith("profile") else "")
+             if np.ndim(iv["value"]) == 0 else f"{k} SE {num(iv['se'])}"
+             for k, iv in intervals.items() if iv["interval_95"] is not None]
     return "95%: " + ", ".join(parts) if parts else ""
 
 

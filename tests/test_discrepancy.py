@@ -82,6 +82,11 @@ def test_diagnose_names_a_hidden_effect(tmp_path, name):
     assert check(report["parameters"]), report["parameters"]
     assert report["gap_after"] < report["gap_before"]
     assert [e["name"] for e in report["effects"]] == [name]
+    for pname, iv in report["effects"][0]["intervals"].items():  # a 95% interval, Wald or (a grid's) profile
+        if iv["interval_95"] is not None and np.ndim(iv["value"]) == 0:
+            assert iv["interval_95"][0] <= iv["value"] <= iv["interval_95"][1], (pname, iv)
+    if name == "actuation_lag":
+        assert report["effects"][0]["intervals"]["lag_s"]["method"].startswith("profile")
 
 
 @pytest.mark.slow

@@ -123,9 +123,25 @@ def test_effect_intervals_are_wald_intervals_clipped_to_the_domain():
     se = {"effects.landmark_bias.sigma_rel": 0.01, "effects.landmark_bias.tau_s": None}
     iv = effect_intervals(model, "landmark_bias", se)
     assert iv["sigma_rel"]["interval_95"] == pytest.approx([0.05 - Z95 * 0.01, 0.05 + Z95 * 0.01])
-    assert iv["tau_s"] == {"value": 8.0, "se": None, "interval_95": None}  # undetermined: no interval
+    assert iv["tau_s"] == {"value": 8.0, "se": None, "interval_95": None, "method": None}  # undetermined: none
     wide = effect_intervals(model, "landmark_bias", {"effects.landmark_bias.sigma_rel": 0.04})
     assert wide["sigma_rel"]["interval_95"][0] == 0.0  # clipped at the domain's lower bound
+
+
+def test_a_grid_parameter_gets_the_profile_likelihood_interval():
+    from learners.discrepancy.effect_sizes import effect_intervals, profile_interval
+    from learners.model.catalogue import ActuationLag
+    from learners.model.model import Model
+
+    grid = [0.0, 0.1, 0.2, 0.3, 0.4, 0.5]
+    # within 1.92 nats of the best (0.2): 0.1 (-1.9) and 0.3 (-0.5); 0.4 (-2.0) just outside; the walk stopped there
+    lls = [-30.0, -1.9, 0.0, -0.5, -2.0]
+    assert profile_interval(grid, lls) == [0.1, 0.3]
+    assert profile_interval(grid, [0.0, -25.0]) == [0.0, 0.0]  # a sharp profile: the grid point itself
+    model = Model(action=None, sensor=None, init=(), effects=(ActuationLag(0.2),))
+    iv = effect_intervals(model, "actuation_lag", {}, {"lag_s": [grid[:5], lls]})["lag_s"]
+    assert iv["interval_95"] == [0.1, 0.3] and iv["se"] is None and iv["method"].startswith("profile")
+    assert effect_intervals(model, "actuation_lag", {})["lag_s"]["interval_95"] is None  # no profile: no interval
 
 
 def test_base_shift_reports_the_largest_velocity_and_curve_changes_in_file_units():

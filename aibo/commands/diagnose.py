@@ -221,7 +221,7 @@ def _report(found: dict, final, final_info: dict, before, after, sig_before) -> 
     half)."""
     se = final_info.get("standard_errors", {})
     effects = [{"name": c.name, "parameters": _values(final.effect(c.name)),
-                "intervals": effect_intervals(final, c.name, se),
+                "intervals": effect_intervals(final, c.name, se, c.profile),
                 "parameters_when_named": c.as_dict()["parameters"]} for c in found["named"]]
     tried = [dict(c.as_dict(), round=k + 1) for k, rnd in enumerate(found["rounds"]) for c in rnd]
     return {

@@ -5,7 +5,10 @@ Intervals are Wald intervals, value +- 1.96 SE, from the Fisher information of t
 (``learners.em.uncertainty``: finite differences of the EKF innovations); where that information does not
 determine a parameter its standard error is None and so is the interval. A Wald interval assumes a quadratic
 log-likelihood: for a parameter near a bound (a rate near 0, a correlation time near its cap) it is only a guide,
-and it is clipped to the parameter's domain.
+and it is clipped to the parameter's domain. A parameter profiled over a grid (``EffectModel.GRID``, a lag) has no
+standard error; its interval is the profile-likelihood one, from the search's profile on the training half: the grid
+values within chi-square(1, 0.95) / 2 = 1.92 nats of the best (``profile_interval``), good to the grid's step and
+wider than the whole log's would be (half the sightings).
 """
 
 from __future__ import annotations
@@ -18,23 +21,38 @@ from learners.em.uncertainty import file_values
 from learners.model.model import Model
 
 Z95 = 1.959963984540054  # two-sided 95% quantile of the standard normal
+CHI2_1_95 = 3.841458820694124  # 95% quantile of chi-square with 1 degree of freedom
 
 
-def effect_intervals(model: Model, name: str, standard_errors: dict[str, Any]) -> dict[str, dict[str, Any]]:
-    """Per parameter of effect ``name`` in ``model``: {"value", "se", "interval_95"} (lists for array
-    parameters; se and interval None where the fit's information does not determine it)."""
+def profile_interval(grid: list[float], lls: list[float]) -> list[float]:
+    """[lowest, highest] grid value whose profile log-likelihood ``lls`` (nats, over ``grid`` in order) is within
+    ``CHI2_1_95 / 2`` of the best: the 95% profile-likelihood interval, good to the grid's step."""
+    ll = np.asarray(lls, dtype=float)
+    inside = np.asarray(grid, dtype=float)[:len(ll)][ll >= ll.max() - CHI2_1_95 / 2.0]
+    return [float(inside.min()), float(inside.max())]
+
+
+def effect_intervals(model: Model, name: str, standard_errors: dict[str, Any],
+                     profiles: dict[str, list[list[float]]] | None = None) -> dict[str, dict[str, Any]]:
+    """Per parameter of effect ``name`` in ``model``: {"value", "se", "interval_95", "method"} (lists for array
+    parameters; se and interval None where the fit's information does not determine it). ``profiles``: a grid
+    parameter's profile (``Candidate.profile``), whose interval is then the profile-likelihood one (se None)."""
     effect = model.effect(name)
     out = {}
     for pname, value in effect.values().items():
         v = np.asarray(value, dtype=float)
+        if profiles and pname in profiles:
+            out[pname] = {"value": v.tolist(), "se": None, "interval_95": profile_interval(*profiles[pname]),
+                          "method": "profile likelihood over the grid, training half"}
+            continue
         se = standard_errors.get(f"effects.{name}.{pname}")
         if se is None or np.any(np.asarray(se, dtype=object) == None):  # noqa: E711 (None entries: undetermined)
-            out[pname] = {"value": v.tolist(), "se": None, "interval_95": None}
+            out[pname] = {"value": v.tolist(), "se": None, "interval_95": None, "method": None}
             continue
         se = np.asarray(se, dtype=float)
         param = effect.PARAMS[pname]
         lo, hi = np.clip(v - Z95 * se, param.low, param.high), np.clip(v + Z95 * se, param.low, param.high)
-        out[pname] = {"value": v.tolist(), "se": se.tolist(), "interval_95": [lo.tolist(), hi.tolist()]}
+        out[pname] = {"value": v.tolist(), "se": se.tolist(), "interval_95": [lo.tolist(), hi.tolist()], "method": "wald"}
     return out
 
 

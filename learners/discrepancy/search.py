@@ -118,6 +118,8 @@ class Candidate:
     model: Model | None = field(default=None, repr=False)
     escape: Model | None = field(default=None, repr=False)  # the base refitted from this fit (``_given_its_own_base``)
     escape_ll: float = float("-inf")  # its training log-likelihood
+    #: a grid parameter's profile: name -> [grid values walked, training log-likelihoods (nats)]
+    profile: dict[str, list[list[float]]] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         d = {k: v for k, v in self.__dict__.items() if k not in ("model", "escape", "escape_ll")}
@@ -191,6 +193,7 @@ def try_candidate(name: str, base: Model, base_ll: float, base_heldout: float, t
             return _train_loglik(fits[-1], train)
 
         lls = walk_profile(grid, profile)
+        profiled = {pname: [list(grid[:len(lls)]), lls]}
         k = int(np.argmax(lls))
         model, ll = fits[k], lls[k]
         flat = max(lls) - min(lls) < FLAT_NATS
@@ -201,8 +204,9 @@ def try_candidate(name: str, base: Model, base_ll: float, base_heldout: float, t
     else:
         model = _fit(train, start, opts)
         ll = _train_loglik(model, train)
-        flat = False
+        flat, profiled = False, {}
     c = _tested(name, model, ll, base_ll, base_heldout, logs, n_candidates)
+    c.profile = profiled
     if c.significant and name in GIVEN_WALLS:
         _given_walls(c, start, base, batch, train, logs, opts, n_candidates)
     effect = model.effect(name)
