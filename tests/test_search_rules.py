@@ -107,6 +107,15 @@ def test_a_bias_of_more_than_a_fifth_of_the_size_is_not_credible():
     assert "0.47" in note and "wrong world" in note
 
 
+def test_a_bias_that_holds_for_minutes_is_not_a_pass_to_pass_bias():
+    from learners.model.landmark_bias import MAX_PLAUSIBLE_TAU_S
+
+    assert LandmarkBias(0.045, 34.6).implausible() == ""  # MRCLAM robot 4, the longest real one measured
+    assert LandmarkBias(0.05, MAX_PLAUSIBLE_TAU_S).implausible() == ""
+    note = LandmarkBias(0.02, 104.1).implausible()  # per-beacon height factors of 2% (5-minute log, seed 2005)
+    assert "104 s" in note and "beacon_height_scale" in note
+
+
 @pytest.mark.parametrize("frac, warned", [(0.0, False), (MAX_OFF_FIELD, False), (0.975, True)])
 def test_a_fit_off_the_field_is_warned(frac, warned):
     w = field_warnings(frac)

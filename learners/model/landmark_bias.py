@@ -49,6 +49,12 @@ TAU_BOUNDS_S = (1e-2, 1e4)  # the M-step's search range for tau_s (s)
 #: real robots"), 0.24 on robot 3 in a wrong world, and 0.47 on a simulated log with 10% spurious sightings and no
 #: bias, whose base fit was in a wrong world (97.5% of its poses off the field): there it was named before them.
 MAX_PLAUSIBLE_SIGMA = 0.2
+#: The longest credible correlation time (s). A bias process that holds for minutes is a per-landmark constant
+#: (``beacon_height_scale``) or a slow error of the pose, not a pass-to-pass bias. Measured: 7.8-34.6 s on the
+#: five MRCLAM robots; 5-17 s on 11 simulated 5-minute logs with tau_s 8; 87-208 s where it stood in for
+#: per-beacon height factors of 1-4% (9 logs) and 437-575 s where it stood in for unmodelled wall contacts
+#: (``paper-sim`` noise, effect-free wall logs of seeds 3000 and 3008: docs/results.md).
+MAX_PLAUSIBLE_TAU_S = 60.0
 WARM_GRID = ((0.01, 0.02, 0.04, 0.08), (1.0, 3.0, 10.0, 30.0))  # warm_start's sigma_rel and tau_s (s)
 
 
@@ -157,11 +163,16 @@ class LandmarkBias(EffectModel):
 
     def implausible(self) -> str:
         """A 'bias' above ``MAX_PLAUSIBLE_SIGMA`` is not one: the base model's sizes are off by more than a
-        landmark's apparent size drifts, and the states stand in for a wrong world or outliers."""
-        if self.sigma_rel <= MAX_PLAUSIBLE_SIGMA:
-            return ""
-        return (f"sigma_rel {self.sigma_rel:.2f} is no bias (above {MAX_PLAUSIBLE_SIGMA}): the bias states stand in for "
-                "something larger (a wrong world of the base model, or outliers: see the other candidates)")
+        landmark's apparent size drifts, and the states stand in for a wrong world or outliers; nor is one that
+        holds longer than ``MAX_PLAUSIBLE_TAU_S``."""
+        if self.sigma_rel > MAX_PLAUSIBLE_SIGMA:
+            return (f"sigma_rel {self.sigma_rel:.2f} is no bias (above {MAX_PLAUSIBLE_SIGMA}): the bias states stand in "
+                    "for something larger (a wrong world of the base model, or outliers: see the other candidates)")
+        if self.tau_s > MAX_PLAUSIBLE_TAU_S:
+            return (f"tau_s {self.tau_s:.0f} s is no pass-to-pass bias (above {MAX_PLAUSIBLE_TAU_S:.0f} s): the states "
+                    "stand in for a per-landmark constant (beacon_height_scale) or a slow error of the pose (e.g. "
+                    "unmodelled walls)")
+        return ""
 
     def transitions(self, dt: float) -> tuple[float, float]:
         """(phi, q) of one frame of ``dt`` s: b' = phi b + N(0, q)."""
