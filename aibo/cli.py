@@ -67,7 +67,8 @@ def build_parser() -> argparse.ArgumentParser:
     lr.add_argument("--out", required=True, help="model file to write (aibo-model/1 JSON)")
     lr.add_argument("--learner", default="em", help="em (default), oracle, or an installed plugin")
     lr.add_argument("--max-iter", type=integer(1), default=3000)
-    lr.add_argument("--patience", type=integer(1), default=50, help="stop after N iterations without a new best likelihood")
+    lr.add_argument("--patience", type=integer(1), default=None,
+                    help="stop after N iterations without a new best likelihood (default 10; --paper-recipe 50)")
     lr.add_argument("--seed", type=integer(0), default=0)
     lr.add_argument("--init", help="start from this model file instead of the paper's start")
     lr.add_argument("--action-model", choices=["table", "features", "unicycle"], default=None,

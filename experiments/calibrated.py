@@ -44,7 +44,7 @@ from learners.discrepancy.search import drop_outliers
 from learners.discrepancy.split import training_log
 from learners.discrepancy.statistics import check_statistics
 from learners.em.learner import EMLearner
-from learners.em.options import EMOptions
+from learners.em.options import COMPARABLE_IMPROVEMENT, EMOptions
 from learners.model.model import Model
 
 #: Camera and body settings taken from a log made by this simulator (``meta["config"]``).
@@ -57,7 +57,8 @@ MIN_REPLICAS = 3
 #: The replicas' refit: a warm-started polish, as the search's fits of the measured log are (one start, no alias
 #: search: from the generating model there is no heading alias to escape, and it took 0.8 of a replica's 1.8 s on a
 #: 10-minute log; no lag search, no standard errors).
-REFIT = EMOptions(starts=1, max_iter=60, patience=10, uncertainty=False, lag_search=False, alias_search=False)
+REFIT = EMOptions(starts=1, max_iter=60, patience=10, min_improvement=COMPARABLE_IMPROVEMENT, uncertainty=False,
+                  lag_search=False, alias_search=False)
 FIELD_MARGIN_MM = 1000.0  # a log without a field: the landmarks' bounding box grown by this
 
 

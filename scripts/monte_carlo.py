@@ -39,14 +39,15 @@ VARIANTS = {
     "inverse, 1 start": EMOptions(basis="inverse", starts=1),
     "default without the alias search": EMOptions(alias_search=False),
     "default with the scoring finish": EMOptions(finish="scoring"),
-    # issue 19: EM's late iterations, 10 iterations gaining < 1 nat, change no error on average (the finish's study)
-    "early stop (a record must gain 1 nat, patience 10)": EMOptions(min_improvement=1.0, patience=10),
-    "early stop, starts screened 15 iterations": EMOptions(min_improvement=1.0, patience=10, screen_iter=15),
+    # issue 19's stop rule (EMOptions.patience): the old one, and the new one with the old screening
+    "before the early stop (0.1 nats, patience 50, screened 30)": EMOptions(min_improvement=0.1, patience=50,
+                                                                             screen_iter=30),
+    "default, starts screened 30 iterations": EMOptions(screen_iter=30),
 }
 SHORT = {"default": "default (inverse, 3 starts)", "paper": "paper recipe", "old": "cubic, 1 start (old default)",
          "noalias": "default without the alias search",
-         "finish": "default with the scoring finish", "early": "early stop (a record must gain 1 nat, patience 10)",
-         "early15": "early stop, starts screened 15 iterations"}
+         "finish": "default with the scoring finish", "slow": "before the early stop (0.1 nats, patience 50, screened 30)",
+         "screen30": "default, starts screened 30 iterations"}
 #: A fit whose vx or vy error exceeds this fraction of the range is a failure (a wrong optimum).
 FAIL_REL = 0.05
 KEYS = ("vx_rel", "vy_rel", "vtheta_rel", "sigma_height_rel", "sigma_angle_rel", "sensor_rms_px")

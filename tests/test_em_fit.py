@@ -86,7 +86,7 @@ def test_max_iter_is_not_convergence():
 # several starts after their screening (30 iterations), whose iterations are reported afterwards
 @pytest.mark.parametrize("opts, saved_at", [(EMOptions.paper(max_iter=12, seed=2), 8),
                                              (EMOptions(max_iter=12, seed=2, starts=1), None),
-                                             (EMOptions(max_iter=40, seed=2), 30)])
+                                             (EMOptions(max_iter=40, seed=2, screen_iter=30), 30)])
 def test_resume_after_interruption_gives_the_same_fit(tmp_path, opts, saved_at):
     tr = sim_log(3000, seed=4)
     full = EMLearner(opts).fit([tr])

@@ -24,7 +24,9 @@ from learners.model import io as model_io
 def em_options(args) -> EMOptions:
     """Defaults (or the paper's recipe), overridden by every option the user gave."""
     opts = EMOptions.paper() if args.paper_recipe else EMOptions()
-    opts.max_iter, opts.patience, opts.seed, opts.estep = args.max_iter, args.patience, args.seed, args.estep
+    opts.max_iter, opts.seed, opts.estep = args.max_iter, args.seed, args.estep
+    if args.patience is not None:
+        opts.patience = args.patience
     for name in ("sensor_method", "learn_motion_noise", "accel", "alias_search", "lag_search", "finish", "range_curve",
                  "face_value_gate"):
         if getattr(args, name) is not None:

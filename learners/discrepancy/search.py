@@ -412,6 +412,7 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
     (``"skipped"``: name -> what the log lacks). ``action_model``: of the base fit (``aibo learn
     --action-model``)."""
     t0 = time.perf_counter()
+    opts = opts.comparable()  # every fit of the search is compared with another: converged to 0.1 nats (EMOptions)
     base = base_fit(logs, opts, action_model)
     logs, n_out = drop_outliers(base, logs)
     train = [training_log(tr) for tr in logs]
