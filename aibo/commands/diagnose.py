@@ -71,13 +71,16 @@ def run(args) -> int:
     with naming_files(args.logs):
         found = search(logs, names, opts, jobs=args.jobs, progress=say, action_model=args.action_model)
     logs = found["logs"]  # outliers set aside, as in every score of the search
+    seconds = {"search": time.perf_counter() - t0}
     before, after = score(found["base"], logs), score(found["model"], logs)
     sig_before, sig_after = signatures(found["base"], logs), signatures(found["model"], logs)
     # warm-started: one start (the screening of stretched sensor curves is the paper's-start rescue; from the
     # searched model it once kept a curve with distances x0.25 and a world 99% off the field) and no alias search
     # (it ran in the base fit, from the paper's start, as in every fit of the search; on a 10-minute log with 10%
     # false sightings it took 104 of this fit's 128 s)
+    t1 = time.perf_counter()
     final = EMLearner(replace(opts, starts=1, alias_search=False), check_field=False).fit(logs, init=found["model"])
+    seconds["final fit with standard errors"] = time.perf_counter() - t1
     report = _report(found, final.params, final.info, before, after, sig_before)
     say("")
     say(f"named effects, in order: {', '.join(e['name'] for e in report['effects']) or 'none'}")
@@ -96,7 +99,9 @@ def run(args) -> int:
         "long logs make tiny drifts 'significant', the verdict rests on the candidates' tests above):")
     for s in sig_before[:6]:
         say(f"  {s.residual:24s} vs {s.variable:32s} p = {s.p_value:.1g}")
+    t1 = time.perf_counter()
     report["calibrated_simulation"] = calibrated(found, logs, args, say)
+    seconds["calibrated check"] = time.perf_counter() - t1
     report["unexplained"] = unexplained(report)
     for u in report["unexplained"]:
         say(f"  still unlike its simulation: {u['statistic']} ({fig.z_text(u['z'])}), the signature of {u['effect']}, "
@@ -112,7 +117,8 @@ def run(args) -> int:
         print(f"aibo: warning: the diagnosed model: {w}", file=sys.stderr)
         lines.append(f"warning: {w}")
     report["seconds"] = time.perf_counter() - t0
-    say(f"{report['seconds']:.1f} s in all")
+    report["seconds_by_stage"] = seconds
+    say(f"{report['seconds']:.1f} s in all ({', '.join(f'{k} {v:.1f} s' for k, v in seconds.items())})")
     written = write_outputs(out, final, report, lines, sig_before, sig_after, before, after)
     print(f"wrote {out}/: {', '.join(written)}")
     return 0
