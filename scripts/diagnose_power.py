@@ -1,7 +1,11 @@
 """Error rates of the discrepancy workflow (``aibo diagnose``'s search): false alarms, a confusion matrix, pairs.
 
     python scripts/diagnose_power.py [--seeds 20] [--presets aibo,paper-sim] [--wall-seeds 0] [--power-seeds 5]
-                                     [--minutes 10] [--effects a,b] [--pair-seeds 0] [--out runs/power]
+                                     [--minutes 10] [--effects a,b] [--pair-seeds 0] [--pair-minutes M] [--out runs/power]
+
+The published tables (docs/results.md, README "How often aibo diagnose is wrong"), in one command (about 1 h on 2
+cores): ``python scripts/diagnose_power.py --presets aibo,paper-sim --seeds 25 --wall-seeds 25 --power-seeds 10
+--pair-seeds 10 --minutes 5 --pair-minutes 10``.
 
 Blind simulated logs, every effect of the catalogue a candidate:
 - effect-free logs, ``--seeds`` per noise preset, and ``--wall-seeds`` per preset whose random walk leaves the
@@ -11,8 +15,10 @@ Blind simulated logs, every effect of the catalogue a candidate:
 - each effect at three strengths over ``--power-seeds`` seeds (``aibo`` preset): the confusion matrix of the
   effect named first (or none) against the hidden one, and the detection rate (the hidden effect named first).
   ``angle_bias`` is in it with "none" as the right answer (not identifiable: ``AngleBias.equivalent``);
-- pairs of effects at once (``--pair-seeds`` seeds each, ``PAIRS``): both named, and each estimate within the
-  single-effect tolerance (``TOLERANCE``, as ``tests/test_discrepancy.py``).
+- pairs of effects at once (``--pair-seeds`` seeds each, ``PAIRS``, logs of ``--pair-minutes``): both named, and
+  each estimate within the single-effect tolerance (``TOLERANCE``, as ``tests/test_discrepancy.py``);
+- on every log, whether the search's "none of the above" check (``learners.model.probes``) reported a dependence
+  outside the catalogue.
 Writes ``power.json``, ``power.md`` (tables), ``power.png`` (detection rates) and ``confusion.png``; resumable
 (finished runs are kept in ``runs.jsonl``).
 """
@@ -133,6 +139,7 @@ def main() -> None:
     ap.add_argument("--minutes", type=float, default=10.0)
     ap.add_argument("--effects", default=",".join(STRENGTHS))
     ap.add_argument("--pair-seeds", type=int, default=0, help="logs per pair of effects (PAIRS)")
+    ap.add_argument("--pair-minutes", type=float, default=None, help="length of the pairs' logs (default: --minutes)")
     ap.add_argument("--out", default="runs/power")
     args = ap.parse_args()
     out = Path(args.out)
@@ -157,7 +164,7 @@ def main() -> None:
         if (effect or "none", json.dumps(params), seed, preset, walls) in key:
             continue
         pair = effect is not None and effect not in STRENGTHS
-        r = (one(effect, None, seed, args.minutes, preset, walls, effects=params) if pair
+        r = (one(effect, None, seed, args.pair_minutes or args.minutes, preset, walls, effects=params) if pair
              else one(effect, params, seed, args.minutes, preset, walls))
         done.append(r)
         write_jsonl(done_path, done)
