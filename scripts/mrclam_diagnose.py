@@ -1,0 +1,106 @@
+"""``aibo diagnose`` on the real robots (issue 17, items 3-5): per MRCLAM Dataset 7 robot, the command as a user runs
+it (defaults, 2 workers, wall time), and the ``model.json`` it writes scored against Vicon beside the commands at
+face value (with the diagnosed model's noise) and ``aibo learn``'s model (``scripts/mrclam_bias.py``'s base column).
+
+    python scripts/mrclam_diagnose.py [DATA] [--out /tmp/mrclam_diagnose] [--robots 1,2,3,4,5]
+
+DATA defaults to ../shared/data/mrclam7 (never copied into the repository). Per robot: forward speed and turn rate
+RMS against Vicon over 1 s windows, the gated smoothed pose RMS (``learners.scoring``), the lag-1 autocorrelation
+of the normalized range innovations (``mrclam_bias.model_row``), the gap (held-out NLL per sighting) of diagnose's
+base model and of its model (``report.json``), the named effects, any "none of the above", the warnings, and the
+wall time with its stages. Finished robots are kept in OUT/robots.jsonl (a rerun skips them); OUT/table.md is
+rewritten after each.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from aibo_core import trajectory  # noqa: E402
+from aibo_core.atomic import atomic_write, read_jsonl, write_jsonl  # noqa: E402
+from aibo_core.mrclam import import_robot  # noqa: E402
+from learners.model.io import load_model  # noqa: E402
+from learners.scoring import face_value_model  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from mrclam_bias import ROOT, model_row  # noqa: E402
+
+
+def diagnose_robot(data: Path, robot: int, out: Path) -> dict:
+    """The record of one robot (module docstring)."""
+    tr = import_robot(data, robot)
+    log = out / f"r{robot}.npz"
+    trajectory.save(tr, log)
+    folder = out / f"diagnose_r{robot}"
+    t0 = time.perf_counter()
+    run = subprocess.run([sys.executable, "-m", "aibo.cli", "diagnose", str(log), "--out", str(folder)],
+                         capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    if run.returncode != 0:
+        return {"robot": robot, "error": run.stderr.strip().splitlines()[-1:], "wall_s": wall}
+    report = json.loads((folder / "report.json").read_text())
+    model = load_model(folder / "model.json")
+    return {"robot": robot, "wall_s": wall, "stages": report.get("seconds_by_stage", {}),
+            "named": [(e["name"], e["parameters"]) for e in report["effects"]],
+            "none_of_the_above": [u.get("describes", u["statistic"]) for u in report.get("unexplained", [])
+                                  if u.get("probe")],
+            "warnings": report.get("warnings", []), "gap_before": report["gap_before"], "gap_after": report["gap_after"],
+            "face": model_row(face_value_model(model), tr, 2.0), "diagnosed": model_row(model, tr, 2.0)}
+
+
+def _named(rec: dict) -> str:
+    def short(p: dict) -> str:
+        return " ".join(f"{v:.3g}" for v in p.values() if isinstance(v, (int, float)))
+    return ", ".join(f"{n} {short(p)}".strip() for n, p in rec["named"]) or "none"
+
+
+def table(records: list[dict]) -> str:
+    head = ("| robot | forward mm/s: face / diagnosed | turn rad/s: face / diagnosed | pose mm: face / diagnosed | "
+            "autocorr.: face / diagnosed | gap: base -> model | s (search / final / calibrated) | named | none of the "
+            "above | warnings |\n|" + "---|" * 10)
+    rows = []
+    for r in records:
+        if "error" in r:
+            rows.append(f"| {r['robot']} | failed: {r['error']} |" + " |" * 9)
+            continue
+        f, d, st = r["face"], r["diagnosed"], r["stages"]
+        rows.append(f"| {r['robot']} | {f['vx_rms']:.1f} / {d['vx_rms']:.1f} | {f['vtheta_rms']:.4f} / "
+                    f"{d['vtheta_rms']:.4f} | {f['pose_rms']:.0f} / {d['pose_rms']:.0f} | {f['ac1']:.2f} / {d['ac1']:.2f} | "
+                    f"{r['gap_before']:.2f} -> {r['gap_after']:.2f} | {r['wall_s']:.0f} ("
+                    + " / ".join(f"{v:.0f}" for v in st.values()) + f") | {_named(r)} | "
+                    f"{'; '.join(r['none_of_the_above']) or '-'} | {len(r['warnings'])} |")
+    return head + "\n" + "\n".join(rows) + "\n"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("data", nargs="?", default=str(ROOT / ".." / "shared" / "data" / "mrclam7"))
+    ap.add_argument("--out", default="/tmp/mrclam_diagnose")
+    ap.add_argument("--robots", default="1,2,3,4,5", help="comma-separated robot numbers (default 1,2,3,4,5)")
+    args = ap.parse_args(argv)
+    data, out = Path(args.data), Path(args.out)
+    if not data.is_dir():
+        print(f"mrclam_diagnose: no MRCLAM data at {data}", file=sys.stderr)
+        return 2
+    out.mkdir(parents=True, exist_ok=True)
+    done = read_jsonl(out / "robots.jsonl")
+    for robot in (int(x) for x in args.robots.split(",")):
+        if any(r["robot"] == robot for r in done):
+            continue
+        done.append(diagnose_robot(data, robot, out))
+        write_jsonl(out / "robots.jsonl", done)
+        md = table(sorted(done, key=lambda r: r["robot"]))
+        atomic_write(out / "table.md", lambda f: f.write(md.encode()))
+        print(md.splitlines()[-1], flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
