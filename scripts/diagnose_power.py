@@ -138,6 +138,8 @@ def main() -> None:
     ap.add_argument("--power-seeds", type=int, default=5)
     ap.add_argument("--minutes", type=float, default=10.0)
     ap.add_argument("--effects", default=",".join(STRENGTHS))
+    ap.add_argument("--first-power-seed", type=int, default=0,
+                    help="start the confusion matrix's seeds here (a second process can take the later seeds)")
     ap.add_argument("--pair-seeds", type=int, default=0, help="logs per pair of effects (PAIRS)")
     ap.add_argument("--pair-minutes", type=float, default=None, help="length of the pairs' logs (default: --minutes)")
     ap.add_argument("--out", default="runs/power")
@@ -156,7 +158,7 @@ def main() -> None:
             jobs += [(None, None, 1000 + s, preset, False)] if s < args.seeds else []
             jobs += [(None, None, 3000 + s, preset, True)] if s < args.wall_seeds else []
     # strength by strength, seed by seed: a run stopped early has every cell of the confusion matrix
-    for s in range(args.power_seeds):
+    for s in range(args.first_power_seed, args.power_seeds):
         for k in range(3):
             jobs += [(e, STRENGTHS[e][k], 2000 + s, "aibo", False) for e in filter(None, args.effects.split(","))]
     jobs += [(label, hidden, 5000 + s, "aibo", walls) for s in range(args.pair_seeds) for label, hidden, walls in PAIRS]
