@@ -18,7 +18,7 @@ from learners.em.estep import e_step
 from learners.em.finish import fisher_scoring
 from learners.em.fit import EMState, initial_state, options_json, run
 from learners.em.info import FitInfo, FitTimings
-from learners.em.options import EMOptions
+from learners.em.options import COMPARABLE_IMPROVEMENT, EARLY_STOP, EMOptions
 from learners.em.start import initial_state_for
 from learners.em.starts import disagreement, screen
 from learners.em.support import (
@@ -134,7 +134,8 @@ def face_value_gate(batch: Batch, start: Model, gate: float) -> np.ndarray | Non
 
 
 def fit_options(opts: EMOptions, batch: Batch, start: Model) -> tuple[EMOptions, Batch, int | None]:
-    """(the options of this fit, its batch, sightings pruned by the face-value gate (None: not applied)).
+    """(the options of this fit, its batch, sightings pruned by the face-value gate (None: not applied)). A start with
+    effects and the default stop rule is fitted to the strict one (0.1 nat, patience 50).
 
     A range sensor (``range_mm``) with ``range_curve="held"`` keeps its start's curve (range = distance) and
     screens no stretched starts (they differ only in the curve). With ``face_value_gate`` and continuous (v, omega)
@@ -142,6 +143,12 @@ def fit_options(opts: EMOptions, batch: Batch, start: Model) -> tuple[EMOptions,
     without its own first-iteration gate, so every start sees the same sightings."""
     if opts.range_curve == "held" and start.sensor.kind == "range_mm":
         opts = replace(opts, hold_curve=True, starts=1)
+    if start.effects and (opts.min_improvement, opts.patience) == EARLY_STOP:
+        # The default early stop (EMOptions.patience) rests on base models; EM moves an effect's parameters slowly (on
+        # the 10-minute log of tests/test_landmark_bias.py it stopped landmark_bias at tau_s 12.6 s for 8, where the
+        # 0.1-nat rule reaches 8.05 s), so with effects the defaults mean the strict stop. Explicit rules are kept
+        # (the discrepancy search's: 0.1 nat, patience 15).
+        opts = replace(opts, min_improvement=COMPARABLE_IMPROVEMENT, patience=50)
     pruned = None
     if opts.face_value_gate and opts.gate is not None and batch.controls is not None:
         out = face_value_gate(batch, start, opts.gate)

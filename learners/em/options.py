@@ -19,6 +19,9 @@ DEFAULT_BASIS = {"height_px": "inverse", "range_mm": "power"}
 #: this many iterations, and not before this many E-steps (the screening's included).
 SWITCH_WINDOW = 10
 COMPARABLE_IMPROVEMENT = 0.1  # nats: the stop rule's record margin in fits that are compared (``comparable``)
+#: The default stop rule (min_improvement nats, patience iterations) of a base model; a model with effects fitted
+#: with it resolves to the strict rule (``learners.em.learner.fit_options``).
+EARLY_STOP = (1.0, 10)
 SWITCH_MIN_ITER = 60
 
 
@@ -35,7 +38,8 @@ class EMOptions:
     # iterations (with starts screened 15 iterations) gave the same velocity errors (vx 1.48 vs 1.45%, vy 1.25 vs
     # 1.26%, vtheta 0.78 vs 0.78% on paper-sim; 1.34 / 1.52 / 0.73 vs 1.33 / 1.56 / 0.73% on aibo), a sensor curve
     # 0.005-0.011 px worse, in 123-136 instead of 345-396 E-steps. Fits whose likelihoods are compared with each
-    # other (the discrepancy search, the lag profile, the calibrated check's refits) keep converging to 0.1 nats.
+    # other (the discrepancy search, the lag profile, the calibrated check's refits) keep converging to 0.1 nats, and
+    # so does a model with effects fitted with these defaults (EARLY_STOP; EM moves an effect's parameters slowly).
     patience: int = 10
     gate: float | None = DEFAULT_GATE  # first-iteration Mahalanobis^2 gate; None disables pruning
     sensor_method: str = "cubature"  # paper: "sample" (one draw per sighting); deterministic: "cubature"
