@@ -344,6 +344,11 @@ def _job(args: tuple) -> Candidate:
         return Candidate(rest[0], {}, 0.0, 0.0, 0, 1.0, note=f"fit failed: {err}")
 
 
+def _map(pool: Any, fn: Callable[[tuple], Any], args: list[tuple]) -> list[Any]:
+    """``fn`` over ``args``, in the worker pool when there is one, else in this process; results in order."""
+    return list(pool.map(fn, args)) if pool is not None else [fn(a) for a in args]
+
+
 def drop_outliers(model: Model, logs: list[Trajectory]) -> tuple[list[Trajectory], int]:
     """The logs without the sightings ``model`` gates out as outliers (Mahalanobis^2 > the fit's gate),
     so that every candidate is fitted and scored on the same sightings (likelihoods comparable)."""
@@ -379,7 +384,7 @@ def prune(named: list[Candidate], current: Model, current_ll: float, train: list
         current_ll = _train_loglik(current, train)
     while len(named) > 1:
         args = [(c.name, current, train, opts) for c in named]
-        refits = list(pool.map(_drop_job, args)) if pool is not None else [_drop_job(a) for a in args]
+        refits = _map(pool, _drop_job, args)
         heldout = score(current, logs).heldout_loglik
         tests = []
         for c, (reduced, ll) in zip(named, refits):
@@ -460,7 +465,7 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
             progress(f"  (null: the current model refitted as the candidates are, train +{null_ll - current_ll:.1f} "
                      "nats)")
             args = [(try_candidate, n, current, null_ll, heldout, train, logs, opts, len(remaining)) for n in remaining]
-            tried = list(pool.map(_job, args)) if jobs > 1 else [_job(a) for a in args]
+            tried = _map(pool if jobs > 1 else None, _job, args)
             rounds.append(tried)
             for c in tried:
                 progress(f"  {c.name:26s} train +{c.gain_train:8.1f} nats, held-out {c.gain_heldout:+8.1f} nats, "
@@ -501,7 +506,7 @@ def none_of_the_above(current: Model, null: tuple[Model, float, float] | None, t
     explains: the report's "none of the above"."""
     _, null_ll, heldout = null if null is not None else (current, *null_fit(current, train, logs, opts))
     args = [(try_probe, n, current, null_ll, heldout, train, logs, opts, len(PROBES)) for n in PROBES]
-    tried = list(pool.map(_job, args)) if pool is not None else [_job(a) for a in args]
+    tried = _map(pool, _job, args)
     progress("none of the above? (effects outside the catalogue, on the final model)")
     for c in tried:
         progress(f"  {c.name:26s} train +{c.gain_train:8.1f} nats, held-out {c.gain_heldout:+8.1f} nats, "

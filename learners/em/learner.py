@@ -18,7 +18,7 @@ from learners.em.estep import e_step
 from learners.em.finish import fisher_scoring
 from learners.em.fit import EMState, initial_state, options_json, run
 from learners.em.info import FitInfo, FitTimings
-from learners.em.options import COMPARABLE_IMPROVEMENT, EARLY_STOP, EMOptions
+from learners.em.options import COMPARABLE_IMPROVEMENT, EARLY_STOP, STRICT_PATIENCE, EMOptions
 from learners.em.start import initial_state_for
 from learners.em.starts import disagreement, screen
 from learners.em.support import (
@@ -148,7 +148,7 @@ def fit_options(opts: EMOptions, batch: Batch, start: Model) -> tuple[EMOptions,
         # the 10-minute log of tests/test_landmark_bias.py it stopped landmark_bias at tau_s 12.6 s for 8, where the
         # 0.1-nat rule reaches 8.05 s), so with effects the defaults mean the strict stop. Explicit rules are kept
         # (the discrepancy search's: 0.1 nat, patience 15).
-        opts = replace(opts, min_improvement=COMPARABLE_IMPROVEMENT, patience=50)
+        opts = replace(opts, min_improvement=COMPARABLE_IMPROVEMENT, patience=STRICT_PATIENCE)
     pruned = None
     if opts.face_value_gate and opts.gate is not None and batch.controls is not None:
         out = face_value_gate(batch, start, opts.gate)

@@ -22,6 +22,7 @@ COMPARABLE_IMPROVEMENT = 0.1  # nats: the stop rule's record margin in fits that
 #: The default stop rule (min_improvement nats, patience iterations) of a base model; a model with effects fitted
 #: with it resolves to the strict rule (``learners.em.learner.fit_options``).
 EARLY_STOP = (1.0, 10)
+STRICT_PATIENCE = 50  # iterations: the paper's patience, kept by fits whose likelihoods are compared
 SWITCH_MIN_ITER = 60
 
 
@@ -34,7 +35,7 @@ class EMOptions:
     # The stop rule (a deviation from the paper, issue 19): stop after ``patience`` iterations without a new best
     # likelihood that beats the old by ``min_improvement`` nats; paper: 50 iterations, any amount (``paper()``).
     # EM's late iterations climb a ridge of the EKF likelihood that moves no velocity: on 10 + 10 fifteen-minute logs
-    # (paper-sim, aibo; ``scripts/monte_carlo.py --variants default early early15``, docs/results.md) 1 nat and 10
+    # (paper-sim, aibo; ``scripts/monte_carlo.py --variants slow screen30 default``, docs/results.md) 1 nat and 10
     # iterations (with starts screened 15 iterations) gave the same velocity errors (vx 1.48 vs 1.45%, vy 1.25 vs
     # 1.26%, vtheta 0.78 vs 0.78% on paper-sim; 1.34 / 1.52 / 0.73 vs 1.33 / 1.56 / 0.73% on aibo), a sensor curve
     # 0.005-0.011 px worse, in 123-136 instead of 345-396 E-steps. Fits whose likelihoods are compared with each
@@ -76,12 +77,13 @@ class EMOptions:
         test, a profile): a new best must beat the old by 0.1 nats, patience at least 50 (before the search caps
         it), starts screened 30 iterations: the defaults before issue 19's early stop, kept where nats are compared."""
         return replace(self, min_improvement=min(self.min_improvement, COMPARABLE_IMPROVEMENT),
-                       patience=max(self.patience, 50), screen_iter=max(self.screen_iter, 30))
+                       patience=max(self.patience, STRICT_PATIENCE), screen_iter=max(self.screen_iter, 30))
 
     @classmethod
     def paper(cls, **overrides) -> "EMOptions":
         """The paper's recipe: fixed motion noise, one sample per sighting, plain EM, strict stop rule."""
-        base = dict(sensor_method="sample", learn_motion_noise=False, accel="none", min_improvement=0.0, patience=50,
+        base = dict(sensor_method="sample", learn_motion_noise=False, accel="none", min_improvement=0.0,
+                    patience=STRICT_PATIENCE,
                     basis="power", degree=3, starts=1, alias_search=False, lag_search=False, range_curve="free",
                     face_value_gate=False)
         return cls(**{**base, **overrides})
