@@ -99,13 +99,14 @@ class VelocityFade(Effect):
     """A draining battery: every walking velocity shrinks linearly with elapsed time.
 
     velocity x max(0, 1 - fade_per_min * t / 60 s), t = ``frame.time`` (s at the frame's start);
-    ``fade_per_min`` is the fraction of speed lost per minute. Slip noise is unchanged.
+    ``fade_per_min`` is the fraction of speed lost per minute (negative, down to -1: a speed that grows, as the
+    learner twin may fit it and its calibrated simulator then replays it). Slip noise is unchanged.
     Residual signature: elapsed time.
     """
 
     name = "velocity_fade"
     defaults = {"fade_per_min": 0.0}
-    bounds = {"fade_per_min": (0.0, math.inf)}
+    bounds = {"fade_per_min": (-1.0, math.inf)}
 
     def motion(self, m: Motion, frame: Frame) -> Motion:
         factor = max(0.0, 1.0 - self.params["fade_per_min"] * frame.time / 60.0)
@@ -178,12 +179,13 @@ class OffCenterShrink(Effect):
     """Lens falloff: the apparent height shrinks away from the image centre.
 
     height = true height x (1 - k phi^2) + noise, phi = ``Sighting.image_angle`` = bearing - head pan
-    (rad). ``k`` >= 0 with 1 - k (fov/2)^2 > 0. Residual signature: position in the image.
+    (rad). ``k`` >= 0 with 1 - k (fov/2)^2 > 0 (negative, down to -10: heights that grow away from the centre, as
+    the learner twin may fit them). Residual signature: position in the image.
     """
 
     name = "off_center_shrink"
     defaults = {"k": 0.0}
-    bounds = {"k": (0.0, math.inf)}
+    bounds = {"k": (-10.0, math.inf)}
 
     @classmethod
     def finalize(cls, params: dict[str, Any], cfg: dict[str, Any]) -> dict[str, Any]:

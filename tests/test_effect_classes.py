@@ -36,6 +36,17 @@ def test_the_example_is_a_valid_parameter_set_of_both_twins(name):
 
 
 @pytest.mark.parametrize("name", NAMES)
+def test_the_simulator_twin_accepts_every_value_the_learner_twin_can_fit(name):
+    """A diagnosed model is replayed by its calibrated simulator (``experiments.calibrated``): a fitted value inside
+    the learner twin's bounds that the simulator twin refused made every replica fail (MRCLAM robot 5: the search's
+    ``velocity_fade`` at -0.0075/min, a speed that grows, against the simulator's [0, inf])."""
+    cls = EFFECT_MODELS[name]
+    for key, param in cls.PARAMS.items():
+        lo, hi = EFFECTS[name].bounds.get(key, (-np.inf, np.inf))
+        assert lo <= param.low and param.high <= hi, (name, key, (param.low, param.high), (lo, hi))
+
+
+@pytest.mark.parametrize("name", NAMES)
 def test_the_example_lowers_into_a_model(name, batch):
     cls = EFFECT_MODELS[name]
     effect = cls.start(batch).with_values(**cls.EXAMPLE)

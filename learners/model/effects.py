@@ -53,6 +53,9 @@ class EffectModel(Component):
     #: A realistic parameter set (every key of ``PARAMS``; array parameters of a 4-beacon field), valid
     #: for ``cls.start(batch).with_values(**EXAMPLE)`` and for the simulator twin: the tests use it.
     EXAMPLE: ClassVar[dict[str, Any]] = {}
+    #: Effects lower (``Model.lower``) in this order, the order they were added within one value: a constraint on
+    #: the motion (``wall_contact``: 1) after every effect that moves the robot (a floor drift).
+    LOWER_ORDER: ClassVar[int] = 0
 
     def negligible(self, n_sightings: int) -> str:
         """Why the fitted effect is too small to name ("" when it is not), on data of ``n_sightings``
@@ -196,7 +199,7 @@ class BeaconHeightScale(EffectModel):
     name: ClassVar[str] = "beacon_height_scale"
     SIGNATURE: ClassVar[str] = "size (sigma) vs landmark"
     PARAMS: ClassVar[dict[str, Param]] = {  # normalized to geometric mean 1: B - 1 free numbers
-        "scale": Param("factor per landmark", "logcontrast", high=1e3, shape=(-1,))}
+        "scale": Param("factor per landmark", "logcontrast", low=1e-6, high=1e3, shape=(-1,))}
     EXAMPLE: ClassVar[dict[str, Any]] = {"scale": np.array([1.02, 0.98, 1.01, 0.99])}
 
     @classmethod
