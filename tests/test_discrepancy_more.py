@@ -62,6 +62,36 @@ def test_wall_contact_cancels_outward_motion_only():
     assert wc.dof() == 0 and ZERO_DOF_NATS > 0
 
 
+def test_a_wall_stops_a_floor_drift_whichever_was_named_first():
+    """``wall_contact`` lowers after every effect that moves the robot (``LOWER_ORDER``): named before a drift, the
+    drift pushed through the walls in the model. The drift's M-step leaves the blocked frames out."""
+    from learners.em.estep import e_step
+    from learners.model.catalogue import FloorDrift
+    from learners.model.catalogue_more import _frame_key
+
+    tr = sim_log(3000)
+    model = EMLearner(EMOptions(max_iter=20)).fit([tr]).params
+    batch = make_batch([tr])
+    contact = np.zeros((batch.n_frames, 2))
+    contact[:5, 0] = 1.0  # against the +x wall
+    wc = WallContact(contact=contact, heading=np.zeros(batch.n_frames), key=_frame_key(batch))
+    drift = FloorDrift(np.array([30.0, 0.0]))  # outwards, +x
+    first, second = model.with_effect(wc).with_effect(drift), model.with_effect(drift).with_effect(wc)
+    lo1, lo2 = first.lower(batch), second.lower(batch)
+    np.testing.assert_array_equal(lo1.offset, lo2.offset)
+    base = model.lower(batch)
+    assert np.all(base.disp[:5, 0] + lo1.offset[:5, 0] <= 1e-12)  # nothing moves through the +x wall
+    blocked = lo1.blocked
+    assert blocked is not None and blocked[:5].all() and not blocked[5:].any()
+    # the drift's M-step: the same estimate when the blocked frames' displacements are anything at all
+    post = e_step(first, batch, "compiled")
+    mu = np.array(base.disp)  # any displacement estimate will do
+    est = first.effect("floor_drift").maximize(first, batch, post, mu).effect("floor_drift").drift_mm_s
+    mu[:5] += 500.0
+    moved = first.effect("floor_drift").maximize(first, batch, post, mu).effect("floor_drift").drift_mm_s
+    np.testing.assert_allclose(moved, est, atol=1e-9)
+
+
 @pytest.mark.slow
 def test_diagnose_names_false_sightings(tmp_path):
     report = diagnose(tmp_path, collect({"noise": "aibo", "effects": {"false_sightings": {"rate": 0.1}}}, 18000,

@@ -71,7 +71,9 @@ class FloorDrift(EffectModel):
     def maximize(self, model: "Model", batch: Batch, post: Posterior, mu_star: np.ndarray) -> "Model":
         """drift dt = (sum Q_i^-1)^-1 sum Q_i^-1 e_i, with e_i = R(theta_i) (mu*_i - u_i) + o_i the world-frame
         motion the new action model u_i leaves unexplained (mu*_i net of the previous offset o_i, so the
-        prior's pull keeps frames without sightings near zero: EM-consistent), Q_i = R Sigma_xy R^T."""
+        prior's pull keeps frames without sightings near zero: EM-consistent), Q_i = R Sigma_xy R^T. Frames a wall
+        blocks (``Lowered.blocked``, ``wall_contact``) are left out: there the drift moves the robot along the wall
+        at most, and the cancelled offset says nothing of it."""
         p = batch.frame_to_pose
         lo = model.lower(batch)
         th = post.mu_gamma[p, 2]
@@ -81,6 +83,8 @@ class FloorDrift(EffectModel):
         Wr = np.linalg.inv(np.asarray(model.action.cov)[:2, :2])  # robot-frame information
         R = np.stack([np.stack([c, -s], 1), np.stack([s, c], 1)], 1)  # (N, 2, 2)
         W = R @ Wr @ np.swapaxes(R, 1, 2) / lo.cov_scale[:, None, None]
+        if lo.blocked is not None:
+            W = W * ~lo.blocked[:, None, None]
         drift = np.linalg.solve(W.sum(axis=0), np.einsum("nij,nj->i", W, e)) / batch.dt
         return model.with_effect(FloorDrift(drift))
 

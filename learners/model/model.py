@@ -67,7 +67,7 @@ class Model:
             self.sensor.sigma_size, self.sensor.sigma_bearing, np.stack([s.mean for s in self.init]),
             np.stack([s.cov for s in self.init]), batch.n_sightings,
         )
-        for e in self.effects:
+        for e in sorted(self.effects, key=lambda e: e.LOWER_ORDER):  # stable: the order added within one value
             e.lower(lo, batch)
         return lo
 
