@@ -180,6 +180,28 @@ def _sensor_gram(dist, ws2, wsh, lo, hi, gram, rhs):
         gram[2, 2], gram[2, 3], gram[3, 3] = g22, g23, g33
         rhs[0], rhs[1], rhs[2], rhs[3] = r0, r1, r2, r3
         m = 0  # skip the generic loop
+    elif m == 3:  # the default inverse basis' quadratic (c0 + c1/d + c2/d^2), unrolled: the same operations
+        g00 = g01 = g02 = g11 = g12 = g22 = 0.0
+        r0 = r1 = r2 = 0.0
+        for n in range(dist.shape[0]):
+            h = wsh[n]
+            w = ws2[n]
+            for jj in range(dist.shape[1]):
+                u = (2.0 * dist[n, jj] - off) / span
+                t2 = u * (2.0 * u) - 1.0
+                g00 += w
+                g01 += w * u
+                g02 += w * t2
+                g11 += w * (u * u)
+                g12 += w * (u * t2)
+                g22 += w * (t2 * t2)
+                r0 += h
+                r1 += u * h
+                r2 += t2 * h
+        gram[0, 0], gram[0, 1], gram[0, 2] = g00, g01, g02
+        gram[1, 1], gram[1, 2], gram[2, 2] = g11, g12, g22
+        rhs[0], rhs[1], rhs[2] = r0, r1, r2
+        m = 0  # skip the generic loop
     for n in range(dist.shape[0] if m else 0):
         h = wsh[n]
         w = ws2[n]
