@@ -409,16 +409,19 @@ def _drop_job(args: tuple) -> tuple[Model, float]:
 def prune(named: list[Candidate], current: Model, current_ll: float, train: list[Trajectory],
           logs: list[Trajectory], opts: EMOptions, pool: Any, progress: Callable[[str], None]) -> tuple[Model, float]:
     """The backward check (module docstring): drops from ``named`` (in place) each effect the others make
-    unnecessary, weakest first; returns the model with the effects kept and its training log-likelihood. First,
-    an effect whose values the later ones made implausible (``EffectModel.implausible``, e.g. a landmark "bias" of
-    30%) is dropped: it was credible when named and now stands in for something else."""
-    while bad := [c for c in named if current.effect(c.name).implausible()]:
-        c = bad[0]
-        progress(f"dropped: {c.name} (given the others, {current.effect(c.name).implausible()})")
-        named.remove(c)
-        current = _fit(train, current.without_effect(c.name), opts)
-        current_ll = _train_loglik(current, train)
-    while len(named) > 1:
+    unnecessary, weakest first; returns the model with the effects kept and its training log-likelihood. Before each
+    test, an effect whose values the others made implausible (``EffectModel.implausible``, e.g. a landmark "bias" of
+    30%) is dropped: it was credible when named and now stands in for something else (checked again after every
+    drop, which refits the rest)."""
+    while True:
+        while bad := [c for c in named if current.effect(c.name).implausible()]:
+            c = bad[0]
+            progress(f"dropped: {c.name} (given the others, {current.effect(c.name).implausible()})")
+            named.remove(c)
+            current = _fit(train, current.without_effect(c.name), opts)
+            current_ll = _train_loglik(current, train)
+        if len(named) < 2:
+            return current, current_ll
         args = [(c.name, current, train, opts) for c in named]
         refits = _map(pool, _drop_job, args)
         heldout = score(current, logs).heldout_loglik
@@ -433,11 +436,10 @@ def prune(named: list[Candidate], current: Model, current_ll: float, train: list
             tests.append((keep, p, c, reduced, ll))
         dropped = [t for t in tests if not t[0]]
         if not dropped:
-            break
+            return current, current_ll
         _, _, c, current, current_ll = max(dropped, key=lambda t: t[1])
         named.remove(c)
         progress(f"dropped: {c.name} (the other named effects explain what it did)")
-    return current, current_ll
 
 
 def null_fit(current: Model, train: list[Trajectory], logs: list[Trajectory], opts: EMOptions) -> tuple[float, float]:
