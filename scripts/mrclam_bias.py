@@ -42,7 +42,7 @@ from learners.discrepancy.split import training_log  # noqa: E402
 from learners.em.learner import EMLearner  # noqa: E402
 from learners.em.start import initial_state_for  # noqa: E402
 from learners.inference.batch import make_batch  # noqa: E402
-from learners.inference.kernels import innovations_compiled  # noqa: E402
+from learners.inference.whiteness import normalized_size_innovations, size_error_lag1  # noqa: E402
 from learners.model.landmark_bias import LandmarkBias  # noqa: E402
 from learners.scoring import face_value_model, pose_scores, velocity_scores  # noqa: E402
 
@@ -57,25 +57,7 @@ def learn_options():
 
 def normalized_range_innovations(model, tr) -> np.ndarray:
     """(S,) v_size / sqrt(S00) of the forward filter over the whole log (NaN where a sighting was not applied)."""
-    batch = make_batch([tr])
-    _, innov = innovations_compiled(model.lower(batch), batch)
-    return innov[:, 0] / np.sqrt(innov[:, 2])
-
-
-def consecutive_pairs(tr, z: np.ndarray, pair_s: float = 2.0, clip: float = 5.0) -> np.ndarray:
-    """(n, 2) normalized innovations of consecutive sightings of the same landmark at most ``pair_s`` s apart."""
-    out = []
-    for lm in np.unique(tr.sighting_landmark):
-        idx = np.flatnonzero((tr.sighting_landmark == lm) & np.isfinite(z) & (np.abs(z) < clip))
-        idx = idx[np.argsort(tr.sighting_frame[idx], kind="stable")]
-        close = np.diff(tr.sighting_frame[idx]) * tr.dt <= pair_s
-        out.append(np.stack([z[idx[:-1][close]], z[idx[1:][close]]], axis=1))
-    return np.concatenate(out) if out else np.zeros((0, 2))
-
-
-def lag1(pairs: np.ndarray) -> float:
-    """Pearson correlation of the pairs (the lag-1 autocorrelation); NaN with fewer than 3 pairs."""
-    return float(np.corrcoef(pairs[:, 0], pairs[:, 1])[0, 1]) if len(pairs) >= 3 else float("nan")
+    return normalized_size_innovations(model, make_batch([tr]))
 
 
 def model_row(model, tr, pair_s: float) -> dict:
@@ -83,8 +65,7 @@ def model_row(model, tr, pair_s: float) -> dict:
     row = {k: v for k, v in velocity_scores(model, [tr]).items() if k in ("vx_rms", "vtheta_rms", "windows")}
     row["pose_rms"] = pose_scores(model, [tr])["pose_rms"]
     row["gap"] = float(heldout_score(model, [tr]).gap)
-    pairs = consecutive_pairs(tr, normalized_range_innovations(model, tr), pair_s)
-    row["ac1"], row["pairs"] = lag1(pairs), int(len(pairs))
+    row["ac1"], row["pairs"] = size_error_lag1(model, make_batch([tr]), pair_s)
     return row
 
 

@@ -245,3 +245,24 @@ def test_an_implausible_bias_fit_is_refitted_in_stages_and_named():
     assert [c.name for c in found["named"]] == ["landmark_bias"]
     bias = found["model"].effect("landmark_bias")
     assert 0.08 <= bias.sigma_rel <= 0.13 and 5.0 <= bias.tau_s <= 16.0 and not bias.implausible()
+
+
+def test_a_fit_without_bias_states_says_when_the_size_errors_drift_per_landmark():
+    """``correlated_size_warnings``: a log simulated with a per-landmark bias (sigma_rel 0.1, tau_s 8 s) gets the
+    warning that names ``aibo diagnose``; the same seed without the bias does not (lag-1 about 0)."""
+    from dataclasses import replace as _replace
+
+    from aibo_gym.collect import collect
+    from learners.em.learner import EMLearner
+    from learners.inference.batch import make_batch
+    from learners.inference.whiteness import size_error_lag1
+
+    opts = _replace(EMOptions(), uncertainty=False, alias_search=False, starts=1)
+    said = {}
+    for label, effects in (("bias", {"landmark_bias": {"sigma_rel": 0.1, "tau_s": 8.0}}), ("none", {})):
+        tr = collect({"noise": "aibo", "effects": effects}, 9000, seed=21)
+        res = EMLearner(opts).fit([tr])
+        said[label] = [w for w in res.info["warnings"] if "correlate from sighting to sighting" in w]
+        said[label + " lag1"] = size_error_lag1(res.params, make_batch([tr]))[0]
+    assert len(said["bias"]) == 1 and "aibo diagnose" in said["bias"][0], said
+    assert said["none"] == [] and abs(said["none lag1"]) < 0.15, said

@@ -156,6 +156,8 @@ def test_real_robot1_learned_beats_face_value(tmp_path, capsys):
         captured = capsys.readouterr()
         assert "face value" in captured.out and "smoothed pose RMS" in captured.out
         assert "may be wrong" not in captured.err
+        # the range errors drift per landmark (issue 17): said in one line, with what to run
+        assert "correlate from sighting to sighting" in captured.err and "aibo diagnose" in captured.err
         m = load_model(model)
         scores[action_model] = s = score(m, [tr])
         # 0.9x: this excerpt holds one biased pass (5 sightings at 93-95 s, ranges 360-490 mm short) that the paper's
@@ -222,7 +224,10 @@ def test_real_robot3_the_gate_judged_at_the_face_value_keeps_the_right_world():
     assert face_value_gate(batch, start, 50.0).mean() < 0.1
     res = learner.fit([train], action_model="unicycle")
     np.testing.assert_array_equal(res.params.sensor.coef, start.sensor.coef)  # held: range = distance
-    assert res.info["face_value_gate_pruned"] < 0.1 * train.n_sightings and not res.info["warnings"]
+    assert res.info["face_value_gate_pruned"] < 0.1 * train.n_sightings
+    # no warning of a wrong world; only that the range errors drift per landmark (no bias states in this model)
+    assert [w for w in res.info["warnings"] if "correlate from sighting to sighting" not in w] == []
+    assert len(res.info["warnings"]) == 1, res.info["warnings"]
     got, face = velocity_scores(res.params, [tr]), velocity_scores(face_value_model(res.params), [tr])
     assert got["vx_rms"] < 0.8 * face["vx_rms"] and got["vtheta_rms"] < face["vtheta_rms"], (got, face)
     # the paper's gate and a free curve: the wrong world (kept to show the test can fail)

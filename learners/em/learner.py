@@ -24,6 +24,7 @@ from learners.em.starts import disagreement, screen
 from learners.em.support import (
     StartModelError,
     check_support,
+    correlated_size_warnings,
     curve_warnings,
     face_value_warnings,
     mirror_warnings,
@@ -284,7 +285,7 @@ class EMLearner:
         info.warnings = curve_warnings(state.best) + face_value_warnings(state.best, batch.controls) + \
             mirror_warnings(state.best, batch.controls) + (
             [split] if split else []) + ([close] if close else []) + field_warnings(info.off_field_fraction) + \
-            weak_command_warnings(state.best, se) + (
+            weak_command_warnings(state.best, se) + correlated_size_warnings(state.best, used) + (
             [f"{len(undetermined)} parameter(s) not determined by the data (e.g. {undetermined[0]}): kept at their "
              "start values"] if undetermined else [])
         converged = state.converged and (scoring is None or scoring.record["converged"])

@@ -188,3 +188,29 @@ def weak_command_warnings(model: Model, se_velocities: np.ndarray | None) -> lis
     return [f"weakly determined: command(s) {', '.join(str(int(a)) for a in weak)} have standard errors above "
             f"{WEAK_SE_FRACTION:.0%} of the learned range (command {worst}: {detail}); their velocities may be off by "
             "several times that: a longer log, with more holds of them, would pin them down"]
+
+
+#: Lag-1 autocorrelation of the normalized size innovations above which a model without bias states is told that its
+#: size errors drift per landmark (``learners.inference.whiteness``), and at least 3 standard errors (3 / sqrt(pairs))
+#: above 0. Measured on fits without bias states: MRCLAM robots 0.71-0.89; simulated 5-minute logs (seed 21) with
+#: ``landmark_bias`` sigma_rel 0.1 / 0.15 / 0.2 and tau_s 8 / 20 / 20 s: 0.19 / 0.21 / 0.24 (the filter follows the
+#: heights with the pose and takes part of the bias out of the innovations); without a bias -0.03 to 0.003, and
+#: 0.07 with per-beacon height factors of 4-8% (no drift, a constant per landmark).
+CORRELATED_SIZE_LAG1 = 0.15
+MIN_PAIRS = 30  # fewer pairs of consecutive sightings of one landmark: no verdict
+
+
+def correlated_size_warnings(model: Model, batch: Batch) -> list[str]:
+    """A warning when the size (height or range) errors of one landmark correlate from sighting to sighting and the
+    model holds no bias states: the fit then absorbs the drifting errors as motion noise and pose error, and
+    ``aibo diagnose`` tests ``landmark_bias`` (module docstring of ``learners.model.landmark_bias``)."""
+    from learners.inference.whiteness import size_error_lag1
+
+    if model.effect("landmark_bias") is not None:
+        return []
+    r, n = size_error_lag1(model, batch)
+    if n < MIN_PAIRS or not r > max(CORRELATED_SIZE_LAG1, 3.0 / np.sqrt(n)):
+        return []
+    return [f"the size errors of one landmark correlate from sighting to sighting (lag-1 autocorrelation {r:.2f} over "
+            f"{n} pairs; white errors give about 0): they drift per landmark, which this model does not hold; "
+            "`aibo diagnose` on the log(s) tests landmark_bias (bias states)"]
