@@ -225,39 +225,3 @@ def test_a_gain_that_the_base_keeps_without_the_effect_is_not_the_effects():
     assert found["named"] == [], [c.as_dict() for c in found["rounds"][-1]]
     assert any("better than the null: the round is repeated" in s for s in said), said
 
-
-def test_the_backward_check_drops_an_effect_made_implausible_by_a_drop(monkeypatch):
-    """``prune`` checks implausibility again after every drop (the drop refits the rest): here dropping
-    ``velocity_fade`` leaves ``landmark_bias`` at sigma_rel 0.3 (no bias), which is then dropped too. The fits and
-    scores are stand-ins; what is tested is the order of the checks."""
-    from types import SimpleNamespace
-
-    from learners.discrepancy import search as s
-    from learners.model.catalogue import VelocityFade
-    from learners.model.landmark_bias import LandmarkBias
-    from learners.model.model import start_model
-
-    batch = make_batch([collect(None, 600, seed=5)])
-    base = start_model(batch, 1 / 30)
-    current = base.with_effect(VelocityFade(0.01)).with_effect(LandmarkBias(0.05, 10.0))
-    lls = {("velocity_fade", "landmark_bias"): 100.0, ("landmark_bias",): 99.9, ("velocity_fade",): 50.0, (): 0.0}
-
-    def names(m):
-        return tuple(e.name for e in m.effects)
-
-    def drop_job(args):  # without velocity_fade the bias goes implausible; the fade gains nothing
-        name, model, _, _ = args
-        reduced = model.without_effect(name)
-        if name == "velocity_fade":
-            reduced = reduced.with_effect(LandmarkBias(0.3, 10.0))
-        return reduced, lls[names(reduced)]
-
-    monkeypatch.setattr(s, "_drop_job", drop_job)
-    monkeypatch.setattr(s, "_fit", lambda train, init, opts, *a: init)
-    monkeypatch.setattr(s, "_train_loglik", lambda m, train: lls[names(m)])
-    monkeypatch.setattr(s, "score", lambda m, logs: SimpleNamespace(heldout_loglik=lls[names(m)]))
-    named = [s.Candidate("velocity_fade", {}, 5.0, 5.0, 1, 0.01), s.Candidate("landmark_bias", {}, 50.0, 50.0, 2, 0.0)]
-    said = []
-    model, _ = s.prune(named, current, 100.0, [], [], EMOptions(), None, said.append)
-    assert named == [] and names(model) == (), said
-    assert said[-1].startswith("dropped: landmark_bias (given the others, sigma_rel 0.30")

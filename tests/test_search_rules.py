@@ -100,6 +100,43 @@ def test_an_effect_the_later_ones_made_implausible_is_dropped_before_the_backwar
     assert ll == -1100.0 and said == ["dropped: bias (given the others, sigma_rel 0.33 is no bias)"]
 
 
+def test_an_effect_made_implausible_by_a_drop_is_dropped_too(monkeypatch):
+    """Implausibility is checked again after every drop (the drop refits the rest): dropping 'fade' (it gains 0.1
+    nats) leaves 'bias' at 30% (no bias), which is then dropped before any other test."""
+    s = frozenset
+    train = {s({"fade", "bias"}): -1000.0, s({"bias"}): -1000.1, s({"fade"}): -1050.0, s(): -1050.0}
+    held = {s({"fade", "bias"}): -900.0, s({"bias"}): -899.0, s({"fade"}): -950.0}
+
+    def drop_job(args):
+        reduced = args[1].without_effect(args[0])
+        if args[0] == "fade":  # the refit without the fade pushes the bias out of its credible range
+            reduced = _Model((_Effect("bias", why_implausible="sigma_rel 0.30 is no bias"),))
+        return reduced, train[s(e.name for e in reduced.effects)]
+
+    monkeypatch.setattr(search_module, "_drop_job", drop_job)
+    monkeypatch.setattr(search_module, "score", lambda model, logs: _Score(held[s(e.name for e in model.effects)]))
+    monkeypatch.setattr(search_module, "_fit", lambda logs, init, opts: init)
+    monkeypatch.setattr(search_module, "_train_loglik", lambda model, logs: train[s(e.name for e in model.effects)])
+    named = [Candidate(n, {}, 0.0, 0.0, 1, 0.0) for n in ("fade", "bias")]
+    said = []
+    model, ll = prune(named, _Model((_Effect("fade"), _Effect("bias"))), -1000.0, [], [], None, None, said.append)
+    assert named == [] and model.effects == () and ll == -1050.0, said
+    assert said[-1] == "dropped: bias (given the others, sigma_rel 0.30 is no bias)"
+
+
+def test_a_named_effect_whose_intervals_hold_its_off_value_is_said_to_be_weak():
+    from learners.discrepancy.effect_sizes import holds_off
+
+    fade = {"fade_per_min": {"value": 0.0002, "se": 0.0024, "interval_95": [-0.0045, 0.0049], "method": "wald"}}
+    assert "not distinguishable from none" in holds_off("velocity_fade", fade, {"fade_per_min": 0.0})
+    assert holds_off("velocity_fade", fade, {"fade_per_min": 0.01}) == ""  # 0.01 is outside: the fade is there
+    drift = {"drift_mm_s": {"value": [15.0, 0.5], "se": [1.0, 1.0], "interval_95": [[13.0, -1.5], [17.0, 2.5]],
+                            "method": "wald"}}
+    assert holds_off("floor_drift", drift, {"drift_mm_s": [0.0, 0.0]}) == ""  # one entry off zero: there
+    undetermined = {"fade_per_min": {"value": 0.0, "se": None, "interval_95": None, "method": None}}
+    assert holds_off("velocity_fade", undetermined, {"fade_per_min": 0.0}) == ""
+
+
 def test_a_bias_of_more_than_a_fifth_of_the_size_is_not_credible():
     assert LandmarkBias(0.05, 8.0).implausible() == ""
     assert LandmarkBias(MAX_PLAUSIBLE_SIGMA, 8.0).implausible() == ""

@@ -16,12 +16,13 @@ from aibo.paths import check_files, check_replaceable, declared_inputs
 from aibo_core import trajectory
 from aibo_core.atomic import atomic_folder, write_json
 from aibo_core.compat import check_compatible
-from learners.discrepancy.effect_sizes import base_shift, effect_intervals
+from learners.discrepancy.effect_sizes import base_shift, effect_intervals, holds_off
 from learners.discrepancy.score import GAP_METRIC, score
 from learners.discrepancy.search import SEARCH_PATIENCE, search
 from learners.discrepancy.signatures import probe_signature, signatures
 from learners.em.learner import EMLearner, feature_map_for
 from learners.em.options import EMOptions
+from learners.inference.batch import make_batch
 from learners.model.effects import EFFECT_MODELS
 from learners.model.io import save_result
 
@@ -116,6 +117,7 @@ def run(args) -> int:
             + (f", p = {u['signature']['p_value']:.2g}" if u["signature"] else ""))
     report["warnings"] = list(final.info.get("warnings", []))  # e.g. a fit that may be a wrong world: said loudly
     report["warnings"] += [f"{e.name}: {e.implausible()}" for e in final.params.effects if e.implausible()]
+    report["warnings"] += off_held(report["effects"], logs)
     for w in report["warnings"]:
         print(f"aibo: warning: the diagnosed model: {w}", file=sys.stderr)
         lines.append(f"warning: {w}")
@@ -175,6 +177,19 @@ def calibrated(found: dict, logs: list, args, say) -> dict:
         for failure in check.failed:
             say(f"    {failure}")
     return checks
+
+
+def off_held(effects: list[dict], logs: list) -> list[str]:
+    """A warning per named effect whose every 95% interval holds the value that switches it off
+    (``effect_sizes.holds_off``; effects whose start is that value, ``EffectModel.STARTS_OFF``)."""
+    batch = make_batch(logs)
+    out = []
+    for e in effects:
+        cls = EFFECT_MODELS[e["name"]]
+        if cls.STARTS_OFF and cls.PARAMS:
+            why = holds_off(e["name"], e["intervals"], cls.start(batch).values())
+            out += [why] if why else []
+    return out
 
 
 def unexplained(report: dict) -> list[dict]:

@@ -98,6 +98,7 @@ class FalseSightings(EffectModel):
     name: ClassVar[str] = "false_sightings"
     PARAMS: ClassVar[dict[str, Param]] = {"rate": Param("fraction of sightings", "log", low=0.0, high=0.5, shape=())}
     EXAMPLE: ClassVar[dict[str, Any]] = {"rate": 0.05}
+    STARTS_OFF: ClassVar[bool] = False  # EM starts from a few spurious sightings (START_RATE)
 
     @classmethod
     def start(cls, batch: Batch) -> "FalseSightings":

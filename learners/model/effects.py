@@ -56,6 +56,9 @@ class EffectModel(Component):
     #: Effects lower (``Model.lower``) in this order, the order they were added within one value: a constraint on
     #: the motion (``wall_contact``: 1) after every effect that moves the robot (a floor drift).
     LOWER_ORDER: ClassVar[int] = 0
+    #: Whether ``start`` switches the effect off (its values the neutral ones: a rate 0, a scale 1); False where EM
+    #: needs a weak effect to start from (a bias of 1%, a few spurious sightings).
+    STARTS_OFF: ClassVar[bool] = True
 
     def negligible(self, n_sightings: int) -> str:
         """Why the fitted effect is too small to name ("" when it is not), on data of ``n_sightings``

@@ -144,6 +144,8 @@ class LandmarkBias(EffectModel):
     }
     EXAMPLE: ClassVar[dict[str, Any]] = {"sigma_rel": 0.03, "tau_s": 10.0}
 
+    STARTS_OFF: ClassVar[bool] = False  # at sigma_rel 0 EM could not move it (``start``)
+
     @classmethod
     def start(cls, batch: Batch) -> "LandmarkBias":
         """A weak bias to start EM from (at sigma_rel = 0 EM could not move it: its moments would be 0)."""
