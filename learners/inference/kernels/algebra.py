@@ -232,7 +232,7 @@ def _scratch(name: str, shape) -> np.ndarray:
     store = getattr(_SCRATCH, "arrays", None)
     if store is None:
         store = _SCRATCH.arrays = {}
-    size = int(np.prod(shape))
+    size = math.prod(shape) if isinstance(shape, tuple) else int(shape)
     buf = store.get(name)
     if buf is None or buf.size < size:
         buf = store[name] = np.empty(max(size, 1))
