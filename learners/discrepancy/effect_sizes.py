@@ -69,14 +69,14 @@ def holds_off(name: str, intervals: dict[str, dict[str, Any]], off: dict[str, An
         o = np.broadcast_to(np.asarray(off[pname], dtype=float), lo.shape)
         if not np.all((lo <= o) & (o <= hi)):
             return ""
-        held.append(f"{pname} {fmt(off[pname])} in [{fmt(iv['interval_95'][0])}, {fmt(iv['interval_95'][1])}]")
+        held.append(f"{pname} {_fmt(off[pname])} in [{_fmt(iv['interval_95'][0])}, {_fmt(iv['interval_95'][1])}]")
     if not held:
         return ""
     return (f"{name}: the final fit's 95% intervals hold the value that switches it off ({'; '.join(held)}): "
             "named on the training half, it is not distinguishable from none on the whole log(s)")
 
 
-def fmt(v: Any) -> str:
+def _fmt(v: Any) -> str:
     a = np.asarray(v, dtype=float)
     return f"{float(a):.3g}" if a.ndim == 0 else "[" + ", ".join(f"{x:.3g}" for x in a.ravel()) + "]"
 

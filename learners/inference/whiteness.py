@@ -28,14 +28,11 @@ def consecutive_pairs(batch: Batch, z: np.ndarray, pair_s: float = PAIR_S, clip:
     (the used sightings with |z| < ``clip``)."""
     frame = batch.sight_frame
     log = np.searchsorted(batch.frame_start, frame, side="right") - 1
-    ok = np.asarray(batch.used, bool) & np.isfinite(z) & (np.abs(z) < clip)
-    out = []
-    for lm in np.unique(batch.sight_landmark[ok]):
-        idx = np.flatnonzero(ok & (batch.sight_landmark == lm))
-        idx = idx[np.lexsort((frame[idx], log[idx]))]
-        close = (np.diff(frame[idx]) * batch.dt <= pair_s) & (np.diff(log[idx]) == 0)
-        out.append(np.stack([z[idx[:-1][close]], z[idx[1:][close]]], axis=1))
-    return np.concatenate(out) if out else np.zeros((0, 2))
+    ok = np.flatnonzero(np.asarray(batch.used, bool) & np.isfinite(z) & (np.abs(z) < clip))
+    idx = ok[np.lexsort((frame[ok], log[ok], batch.sight_landmark[ok]))]  # by landmark, then log, then frame
+    same = (np.diff(batch.sight_landmark[idx]) == 0) & (np.diff(log[idx]) == 0)
+    close = same & (np.diff(frame[idx]) * batch.dt <= pair_s)
+    return np.stack([z[idx[:-1][close]], z[idx[1:][close]]], axis=1)
 
 
 def lag1(pairs: np.ndarray) -> float:
