@@ -338,10 +338,12 @@ class EMLearner:
     def _uncertainty(self, info: FitInfo, best: Model, batch: Batch) -> None:
         """Fill ``info``'s ``standard_errors`` and ``information`` (module uncertainty) at ``best``; on a
         failure, ``information`` holds the error."""
+        from learners.em import second_thread
         from learners.em.uncertainty import parameter_uncertainty
         from learners.inference.kernels import release_scratch
 
         release_scratch()  # EM's work arrays (1,000,000 frames: 171 MiB), made again if another fit runs
+        second_thread.release_scratch()  # and the sensor update's, made on the M-step's second thread
         t0, c0 = time.perf_counter(), time.process_time()
         try:
             unc = parameter_uncertainty(best, batch, Packer(self.options).fixed)

@@ -12,10 +12,12 @@
 
 from __future__ import annotations
 
+from concurrent.futures import wait
 from dataclasses import replace
 
 import numpy as np
 
+from learners.em import second_thread
 from learners.em.options import EMOptions
 from learners.inference.augmented import displacement_statistics, sensor_update_augmented
 from learners.inference.batch import Batch
@@ -47,6 +49,49 @@ def maximize(model: Model, batch: Batch, post: Posterior, rng: np.random.Generat
     ``lo``: ``model.lower(batch)`` if the caller has it."""
     action_stats, resid_cov, sensor_update = _statistics(opts.estep == "compiled")
     lo = model.lower(batch) if lo is None else lo
+    degree = len(model.sensor.coef) - 1
+    # the compiled sensor-curve update on the second thread while this one does the action model: the two
+    # read the same posterior and write nothing the other reads (the same numbers; module second_thread)
+    pending = None
+    if opts.estep == "compiled" and post.extra is None and not opts.hold_curve:
+        pending = second_thread.submit(sensor_update, lo, batch, post, rng, method=opts.sensor_method,
+                                       n_samples=opts.n_samples, degree=degree)
+    try:
+        action, mu_star = _action_update(model, batch, post, opts, lo, action_stats, resid_cov)
+    finally:
+        if pending is not None:  # never leave it reading a posterior the caller may overwrite next
+            wait([pending])
+    if pending is not None:
+        coef, sigma_size, sigma_bearing, drange = pending.result()
+    elif post.extra is not None:  # the expectations over each sighting's joint belief of (pose, its size state)
+        coef, sigma_size, sigma_bearing, drange = sensor_update_augmented(lo, batch, post, degree)
+    elif opts.hold_curve:  # a range sensor's curve held at its start (EMOptions.range_curve): NumPy statistics,
+        # sigma_size about the held curve (the conditional maximum); a few thousand sightings cost ~1 ms
+        from learners.inference.sensor_stats import update_sensor_curve
+
+        coef, sigma_size, sigma_bearing, drange = update_sensor_curve(
+            lo, batch, post, rng, method=opts.sensor_method, n_samples=opts.n_samples, degree=degree,
+            held=model.sensor.coef)
+    else:
+        coef, sigma_size, sigma_bearing, drange = sensor_update(
+            lo, batch, post, rng, method=opts.sensor_method, n_samples=opts.n_samples, degree=degree)
+    if opts.hold_curve:  # with bias states too: the curve stays at its start
+        coef = model.sensor.coef
+    sensor = replace(model.sensor, coef=coef, sigma_size=sigma_size, sigma_bearing=sigma_bearing,
+                     distance_range_mm=(float(drange[0]), float(drange[1])))
+    first = batch.pose_start[:-1]
+    init = tuple(InitialState(post.mu_gamma[p].copy(), post.cov_gamma[p].copy()) for p in first)
+    new = model.with_(action=action, sensor=sensor, init=init)
+    for effect in model.effects:
+        if effect.name not in opts.frozen:
+            new = new.effect(effect.name).maximize(new, batch, post, mu_star)
+    return new
+
+
+def _action_update(model: Model, batch: Batch, post: Posterior, opts: "EMOptions", lo: Lowered, action_stats,
+                   resid_cov):
+    """(the new action model, mu_star (N, 3)): the displacement statistics regressed on the commands,
+    and with ``learn_motion_noise`` the new Sigma_A."""
     commands, scale = model.effective_commands(batch)
     if post.extra is not None:  # an augmented E-step (extra states): its smoothed joint gives the statistics
         if opts.estep == "compiled":
@@ -72,27 +117,4 @@ def maximize(model: Model, batch: Batch, post: Posterior, rng: np.random.Generat
             pred = action.displacements(commands)
             R = resid_cov(mu_star, pred if scale is None else pred * scale, lo.cov_scale)
         action = action.with_values(cov=_sym(C_sum * inv_n + R * inv_n))
-    if post.extra is not None:  # the expectations over each sighting's joint belief of (pose, its size state)
-        coef, sigma_size, sigma_bearing, drange = sensor_update_augmented(lo, batch, post, len(model.sensor.coef) - 1)
-    elif opts.hold_curve:  # a range sensor's curve held at its start (EMOptions.range_curve): NumPy statistics,
-        # sigma_size about the held curve (the conditional maximum); a few thousand sightings cost ~1 ms
-        from learners.inference.sensor_stats import update_sensor_curve
-
-        coef, sigma_size, sigma_bearing, drange = update_sensor_curve(
-            lo, batch, post, rng, method=opts.sensor_method, n_samples=opts.n_samples,
-            degree=len(model.sensor.coef) - 1, held=model.sensor.coef)
-    else:
-        coef, sigma_size, sigma_bearing, drange = sensor_update(
-            lo, batch, post, rng, method=opts.sensor_method, n_samples=opts.n_samples,
-            degree=len(model.sensor.coef) - 1)
-    if opts.hold_curve:  # with bias states too: the curve stays at its start
-        coef = model.sensor.coef
-    sensor = replace(model.sensor, coef=coef, sigma_size=sigma_size, sigma_bearing=sigma_bearing,
-                     distance_range_mm=(float(drange[0]), float(drange[1])))
-    first = batch.pose_start[:-1]
-    init = tuple(InitialState(post.mu_gamma[p].copy(), post.cov_gamma[p].copy()) for p in first)
-    new = model.with_(action=action, sensor=sensor, init=init)
-    for effect in model.effects:
-        if effect.name not in opts.frozen:
-            new = new.effect(effect.name).maximize(new, batch, post, mu_star)
-    return new
+    return action, mu_star

@@ -60,7 +60,7 @@ def _rot_sandwich(c, s, A):
     )  # fmt: skip
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _action_stats_kernel(frame_start, disp, offset, cov_scale, sig_a, mu_alpha, cov_alpha, mu_gamma, info_delta,
                          vec_delta, need_cov, mu_star, cov_out, cos_th, sin_th):  # fmt: skip
     """Fills mu_star (N, 3) and (if need_cov) cov_out (3, 3) = sum_i C*_i / cov_scale_i.
@@ -160,7 +160,7 @@ def residual_cov_compiled(mu_star: np.ndarray, pred: np.ndarray, cov_scale: np.n
 # ----------------------------------------------------------------------------------------------
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _table_means_kernel(commands, mu_star, old, out):
     """out[a] = mean of mu_star over the frames of command a (old[a] where a is never executed)."""
     n_act = old.shape[0]
@@ -184,7 +184,7 @@ def table_means_compiled(commands: np.ndarray, mu_star: np.ndarray, old: np.ndar
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _table_residual_kernel(commands, mu_star, weights, cov_scale):
     """sum_i r_i r_i^T / cov_scale_i, r_i = mu_star_i - weights[commands_i], in frame order (upper triangle)."""
     r00 = r01 = r02 = r11 = r12 = r22 = 0.0

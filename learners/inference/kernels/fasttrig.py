@@ -55,7 +55,7 @@ def _cos_sin(x):
     return math.cos(x), math.sin(x)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _cos_sin_all(x, cos_out, sin_out):
     """cos_out[i], sin_out[i] = cos(x[i]), sin(x[i]) (|error| <= ~1 ulp; 1.2e-16 absolute)."""
     for i in range(x.shape[0]):

@@ -31,7 +31,7 @@ def _wrap_fast(a):
     return a - _TWO_PI * math.ceil((a - math.pi) * (1.0 / _TWO_PI))
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _sensor_points_xy(sight_idx, pose_idx, mu_gamma, cov_gamma, beacon_xy, obs, bearing_offset, z, cubature, dxs, dys,
                       pto, out):  # fmt: skip
     """Pass 1a, per used sighting n (sighting sight_idx[n] of pose pose_idx[n]): L = Cholesky(Sigma_gamma)
@@ -102,7 +102,7 @@ def _sensor_points_xy(sight_idx, pose_idx, mu_gamma, cov_gamma, beacon_xy, obs, 
     return -1
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _sensor_dist_resid(dxs, dys, pto, dist, ra2):
     """Pass 1b (branch-free, vectorizes): distance and squared wrapped angle residual
     wrap(bearing - o2)^2 of every point (flat arrays)."""
@@ -114,7 +114,7 @@ def _sensor_dist_resid(dxs, dys, pto, dist, ra2):
         ra2[m] = r * r
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _sensor_reduce(dist, ra2, out):
     """Pass 1c: out[0] = sum ra2, out[1:3] = (min, max) of x (the distance or its inverse);
     out[5] = 1 if one is not finite."""
@@ -135,7 +135,7 @@ def _sensor_reduce(dist, ra2, out):
         out[5] = 1.0
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _sensor_gram(dist, ws2, wsh, lo, hi, gram, rhs):
     """gram = sum_points ws2 T(u) T(u)^T, rhs = sum_points T(u) wsh, T = Chebyshev polynomials
     T_0..T_deg of u (from dist = x) by chebvander's recurrence; per used sighting n,
@@ -223,7 +223,7 @@ def _sensor_gram(dist, ws2, wsh, lo, hi, gram, rhs):
             gram[a, b] = gram[b, a]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _sensor_height_ss(sight_idx, obs, dist, coef, size_scale, size_offset, size_var_factor):
     """sum over points of (size_scale f(x) + size_offset - size)^2 / size_var_factor, f by Horner in
     ascending powers of x = dist (as polyval)."""
