@@ -153,6 +153,7 @@ def train_info_explorer(steps: int, seed: int, out: str | os.PathLike, config: d
         data = teacher_rollouts(teacher_env, warm_holds, INFO_PPO["gamma"])
         warm_loss = warm_start(model, *data, seed=seed)
     if steps > 0:
+        _no_log_folder(model)
         model.learn(total_timesteps=steps, callback=_progress_callback(steps) if progress else None)
     vec.close()
     meta = {"format": "aibo-explorer/1", "policy": "explorer", "algo": "ppo", "hold_s": float(hold_s),
@@ -161,6 +162,15 @@ def train_info_explorer(steps: int, seed: int, out: str | os.PathLike, config: d
             "n_envs": 1, "config": cfg, "algo_kwargs": kwargs, "robot_seeds": list(TRAIN_ROBOT_SEEDS)}
     _save(model, out, meta)
     return meta
+
+
+def _no_log_folder(model) -> None:
+    """A logger that writes nothing: without one, SB3's ``learn`` makes an empty folder ``SB3-<time>`` in the
+    system's temporary directory on every call (``configure_logger`` with no TensorBoard folder), which is
+    never removed."""
+    from stable_baselines3.common.logger import Logger
+
+    model.set_logger(Logger(folder=None, output_formats=[]))
 
 
 def _check_out(out: str | os.PathLike) -> Path:
@@ -197,6 +207,8 @@ def train_explorer(algo: str, steps: int, seed: int, out: str | os.PathLike, con
     if algo == "ppo":
         kwargs["batch_size"] = min(kwargs["batch_size"], kwargs["n_steps"] * n_envs)
     model = getattr(sb3, algo.upper())("MlpPolicy", vec, seed=seed, verbose=0, device="cpu", tensorboard_log=tb, **kwargs)
+    if tb is None:
+        _no_log_folder(model)
     try:
         model.learn(total_timesteps=steps, callback=_progress_callback(steps) if progress else None)
     finally:

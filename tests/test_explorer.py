@@ -66,6 +66,22 @@ def agent(tmp_path_factory):
     return out
 
 
+def test_training_leaves_no_folder_in_the_temporary_directory(tmp_path, monkeypatch):
+    """SB3's default logger made an empty ``SB3-<time>`` folder in the system's temporary directory per run."""
+    pytest.importorskip("stable_baselines3", reason="SB3 is in the 'agents' extra")
+    import tempfile
+
+    from aibo_gym.train import train_explorer
+
+    system_tmp = tmp_path / "system_tmp"
+    system_tmp.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(system_tmp))
+    train_explorer("ppo", 64, 0, tmp_path / "ppo.zip", {"max_steps": 600}, hold_s=0.5, n_envs=1, subprocess=False,
+                   progress=False, algo_kwargs={"n_steps": 32, "n_epochs": 1})
+    assert (tmp_path / "ppo.zip").exists()
+    assert list(system_tmp.glob("SB3-*")) == []  # (torch may keep its one compile cache there: not per run)
+
+
 @pytest.mark.slow
 def test_short_ppo_run_trains_and_its_rollouts_are_valid_logs(agent, tmp_path):
     meta = json.loads(agent.with_suffix(".json").read_text())
