@@ -17,6 +17,7 @@ from aibo_core import trajectory
 from aibo_core.atomic import atomic_folder, write_json
 from aibo_core.compat import check_compatible
 from learners.discrepancy.effect_sizes import base_shift, effect_intervals, holds_off
+from learners.discrepancy.profile import profile_where_wald_fails
 from learners.discrepancy.score import GAP_METRIC, score
 from learners.discrepancy.search import SEARCH_PATIENCE, search
 from learners.discrepancy.signatures import probe_signature, signatures
@@ -86,6 +87,9 @@ def run(args) -> int:
     final = EMLearner(final_opts, check_field=False).fit(logs, init=found["model"])
     seconds["final fit with standard errors"] = time.perf_counter() - t1
     report = _report(found, final.params, final.info, before, after, sig_before)
+    t1 = time.perf_counter()
+    if profile_where_wald_fails(report["effects"], final.params, logs, final_opts):  # a rate near its bound
+        seconds["profile intervals"] = time.perf_counter() - t1
     say("")
     say(f"named effects, in order: {', '.join(e['name'] for e in report['effects']) or 'none'}")
     for e in report["effects"]:

@@ -1,15 +1,15 @@
-"""What a named effect is worth, beside its name: its parameters with standard errors and 95% intervals, and how
-far adding it moved the base model (velocities and sensor curve), in the model file's units.
+"""What a named effect is worth, beside its name: its parameters with standard errors and 95% intervals, and how far
+adding it moved the base model (velocities and sensor curve), in the model file's units.
 
 Intervals are Wald intervals, value +- 1.96 SE, from the Fisher information of the diagnosed model's fit
-(``learners.em.uncertainty``: finite differences of the EKF innovations); where that information does not
-determine a parameter its standard error is None and so is the interval. A Wald interval assumes a quadratic
-log-likelihood: for a parameter near a bound (a rate near 0, a correlation time near its cap) it is only a guide,
-and it is clipped to the parameter's domain. A parameter profiled over a grid (``EffectModel.GRID``, a lag) has no
-standard error; its interval is the profile-likelihood one, from the search's profile on the training half: the grid
-values within chi-square(1, 0.95) / 2 = 1.92 nats of the best (``profile_interval``), good to the grid's step and
-wider than the whole log's would be (half the sightings).
-"""
+(``learners.em.uncertainty``: finite differences of the EKF innovations); where that information does not determine
+a parameter its standard error is None and so is the interval. A Wald interval assumes a quadratic log-likelihood:
+for a parameter near a bound (a rate near 0, a correlation time near its cap) it is only a guide, and it is clipped
+to the parameter's domain (``clipped``: true); ``aibo diagnose`` then replaces it by the profile-likelihood interval
+on the whole logs where the effect has one scalar parameter (``profile``). A parameter profiled over a grid
+(``EffectModel.GRID``, a lag) has no standard error; its interval is the profile-likelihood one, from the search's
+profile on the training half: the grid values within chi-square(1, 0.95) / 2 = 1.92 nats of the best
+(``profile_interval``), good to the grid's step and wider than the whole log's would be (half the sightings)."""
 
 from __future__ import annotations
 
@@ -52,7 +52,9 @@ def effect_intervals(model: Model, name: str, standard_errors: dict[str, Any],
         se = np.asarray(se, dtype=float)
         param = effect.PARAMS[pname]
         lo, hi = np.clip(v - Z95 * se, param.low, param.high), np.clip(v + Z95 * se, param.low, param.high)
-        out[pname] = {"value": v.tolist(), "se": se.tolist(), "interval_95": [lo.tolist(), hi.tolist()], "method": "wald"}
+        clipped = bool(np.any(v - Z95 * se < param.low) or np.any(v + Z95 * se > param.high))
+        out[pname] = {"value": v.tolist(), "se": se.tolist(), "interval_95": [lo.tolist(), hi.tolist()], "method": "wald",
+                      "clipped": clipped}
     return out
 
 

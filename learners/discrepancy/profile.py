@@ -1,0 +1,156 @@
+"""Profile-likelihood intervals for a named effect's one scalar parameter, on the whole logs.
+
+A Wald interval (value +- 1.96 SE, ``effect_sizes``) assumes a quadratic log-likelihood. Where it crosses the
+parameter's domain (a rate near 0) it is clipped and only a guide, and where the information does not determine
+the parameter there is none. There the 95% profile-likelihood interval is the honest one: the values v whose fit with
+the effect held at v (everything else refitted, warm-started from the diagnosed model) is within
+chi-square(1, 0.95) / 2 = 1.92 nats of the best fit.
+
+``profile_bounds`` walks out from the estimate on each side in steps that double (the first is the standard error,
+or a tenth of the value's scale without one) until the profile drops more than 1.92 nats or the domain ends, then
+bisects the last step ``BISECTIONS`` times: an end is good to 1/2**BISECTIONS of its bracket. Each point is one EM
+fit (the search's stop rule, at most ``MAX_ITER`` iterations); a side costs 2-8 fits. The likelihood compared is
+the E-step's on the logs' sightings (``search._train_loglik``), the same for every point.
+
+Only effects with exactly one scalar parameter and no per-batch state qualify (``profiled_parameter``): freezing is
+per effect (``EMOptions.frozen``), so holding one of several parameters would need per-parameter freezing. Grid
+parameters (a lag) have their grid profile already.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import replace
+from typing import Callable
+
+import numpy as np
+
+from aibo_core.trajectory import Trajectory
+from learners.em.options import EMOptions
+from learners.model.effects import EFFECT_MODELS
+from learners.model.model import Model
+
+HALF_CHI2_1_95 = 3.841458820694124 / 2.0  # nats: the drop that bounds a 95% profile-likelihood interval
+BISECTIONS = 4  # per end, after the bracket is found
+MAX_STEPS = 8  # doublings per side before giving up (the end is then reported as not found: None)
+MAX_ITER = 150  # EM iterations per profile point
+BEATEN_NATS = 0.5  # a held fit this much more likely than the diagnosed one is reported (EM's stop rule: 0.1 nat)
+
+
+def profiled_parameter(name: str) -> str | None:
+    """The one scalar, non-grid parameter of effect ``name`` a profile can hold, or None. Not for an effect that
+    carries per-batch state besides its parameter (a dataclass field with ``compare=False``, e.g.
+    ``false_sightings``' responsibilities): its own M-step recomputes that state, and held, it would go stale."""
+    cls = EFFECT_MODELS[name]
+    if len(cls.PARAMS) != 1 or cls.GRID or any(not f.compare for f in dataclasses.fields(cls)):
+        return None
+    (pname, param), = cls.PARAMS.items()
+    return pname if param.shape == () else None
+
+
+def wants_profile(entry: dict) -> bool:
+    """Whether an interval entry (``effect_sizes.effect_intervals``) is one a Wald interval cannot be trusted for:
+    no standard error, or an interval clipped at the parameter's domain."""
+    return entry.get("method") != "profile likelihood over the grid, training half" and (
+        entry.get("se") is None or bool(entry.get("clipped")))
+
+
+def profile_bounds(loglik: Callable[[float], float], value: float, best: float, step: float, low: float,
+                   high: float) -> tuple[list[float], list[bool], list[tuple[float, float]], float]:
+    """([lower, upper] ends of the 95% profile interval around ``value``, [lower, upper] open: the profile stayed
+    within 1.92 nats up to that end (the domain's bound, or the farthest of MAX_STEPS doubling steps), the
+    (v, loglik) points evaluated, the best log-likelihood seen; a failed point is -inf, beyond the interval).
+    ``loglik(v)``: the profile at v; ``best``: its maximum so far (the free fit's), raised when a point beats it."""
+    points: list[tuple[float, float]] = []
+
+    def ll(v: float) -> float:
+        nonlocal best
+        out = loglik(v)
+        points.append((v, out))
+        best = max(best, out)
+        return out
+
+    ends: list[float] = []
+    open_ends: list[bool] = []
+    for side in (-1.0, 1.0):
+        bound = low if side < 0 else high
+        inside, outside = value, None
+        d = step
+        for _ in range(MAX_STEPS):
+            v = value + side * d
+            if (v - bound) * side >= 0:  # at or past the domain's end: try the end itself
+                v = bound
+            if ll(v) < best - HALF_CHI2_1_95:
+                outside = v
+                break
+            inside = v
+            if v == bound:
+                break
+            d *= 2.0
+        open_ends.append(outside is None)
+        if outside is None:
+            ends.append(inside)
+            continue
+        for _ in range(BISECTIONS):
+            mid = 0.5 * (inside + outside)
+            if ll(mid) < best - HALF_CHI2_1_95:
+                outside = mid
+            else:
+                inside = mid
+        ends.append(0.5 * (inside + outside))
+    return ends, open_ends, points, best
+
+
+def profile_interval(final: Model, logs: list[Trajectory], name: str, se: float | None, opts: EMOptions) -> dict:
+    """The 95% profile-likelihood interval of effect ``name``'s one scalar parameter in the diagnosed model
+    ``final`` (fitted on ``logs``): {"interval_95", "method", "points"} (module docstring)."""
+    from learners.discrepancy.search import SEARCH_PATIENCE, _fit, _train_loglik, _with
+
+    pname = profiled_parameter(name)
+    if pname is None:
+        raise ValueError(f"{name}: no single scalar parameter to profile")
+    param = EFFECT_MODELS[name].PARAMS[pname]
+    value = float(np.asarray(final.effect(name).values()[pname]))
+    scale = float(np.max(np.atleast_1d(param.scale)))
+    step = se if se is not None and math.isfinite(se) and se > 0 else 0.1 * max(abs(value), scale)
+    held = replace(opts.comparable(), frozen=opts.frozen + (name,), max_iter=min(opts.max_iter, MAX_ITER), patience=SEARCH_PATIENCE,
+                   starts=1, alias_search=False)
+
+    failed: list[str] = []
+
+    def loglik(v: float) -> float:
+        try:
+            return _train_loglik(_fit(logs, final.with_effect(_with(final.effect(name), {pname: v})), held), logs)
+        except (FloatingPointError, np.linalg.LinAlgError, ValueError) as err:  # counted as beyond the interval
+            failed.append(f"the fit with {pname} held at {v:.3g} failed ({err})")
+            return -math.inf
+
+    free = _train_loglik(final, logs)
+    ends, open_ends, points, best = profile_bounds(loglik, value, free, step, param.low, param.high)
+    notes = [f"the profile stays within {HALF_CHI2_1_95:.2f} nats of its best up to "
+             f"{'the domain bound ' if e in (param.low, param.high) else ''}{e:.3g}" for e, o in zip(ends, open_ends) if o]
+    notes += failed
+    if best > free + BEATEN_NATS:  # the fit held elsewhere is more likely: the diagnosed fit is not the maximum
+        notes.append(f"a fit with {pname} held at another value is {best - free:.1f} nats more likely than the diagnosed "
+                     "model: its fit may not be the maximum")
+    return {"interval_95": ends, "open": open_ends, "method": "profile likelihood, whole logs",
+            "points": [[float(v), float(ll)] for v, ll in sorted(points)], "note": "; ".join(notes)}
+
+
+def profile_where_wald_fails(effects: list[dict], final: Model, logs: list[Trajectory], opts: EMOptions) -> list[str]:
+    """For each named effect of ``report.json["effects"]`` (each with its ``intervals``) whose one scalar parameter's
+    Wald interval is clipped at its domain or missing (``wants_profile``): its interval replaced, in place, by the
+    profile-likelihood one (the Wald one kept as ``wald_interval_95``; ``profile``: the points, ``note``). Returns
+    the names profiled."""
+    done = []
+    for e in effects:
+        pname = profiled_parameter(e["name"])
+        if pname is None or not wants_profile(e["intervals"][pname]):
+            continue
+        entry = e["intervals"][pname]
+        p = profile_interval(final, logs, e["name"], entry["se"], opts)
+        entry.update(wald_interval_95=entry["interval_95"], interval_95=p["interval_95"], open=p["open"],
+                     method=p["method"], profile=p["points"], note=p["note"])
+        done.append(e["name"])
+    return done

@@ -1,0 +1,81 @@
+"""Profile-likelihood intervals (learners/discrepancy/profile.py): the walk and bisection on a profile with a known
+answer, the effects it applies to, and on a simulated log the interval agrees with the Wald one where the
+likelihood is quadratic."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from learners.discrepancy.profile import BISECTIONS, profile_bounds, profile_where_wald_fails, profiled_parameter
+
+Z95 = 1.959963984540054
+
+
+def quadratic(mean: float, sd: float):
+    return lambda v: -0.5 * ((v - mean) / sd) ** 2
+
+
+def test_the_ends_of_a_quadratic_profile_are_the_wald_ones():
+    (lo, hi), open_ends, points, best = profile_bounds(quadratic(2.0, 0.5), 2.0, 0.0, 0.5, -np.inf, np.inf)
+    tol = 2 * 0.5 / 2 ** BISECTIONS  # the bracket's last step, halved BISECTIONS times
+    assert lo == pytest.approx(2.0 - Z95 * 0.5, abs=tol)
+    assert hi == pytest.approx(2.0 + Z95 * 0.5, abs=tol)
+    assert open_ends == [False, False] and best == 0.0
+    assert len(points) <= 2 * (3 + BISECTIONS)
+
+
+def test_an_end_the_profile_does_not_leave_before_the_domain_ends_is_the_bound_and_open():
+    (lo, hi), open_ends, _, _ = profile_bounds(quadratic(2.0, 0.5), 2.0, 0.0, 0.5, 1.5, np.inf)
+    assert lo == 1.5 and open_ends == [True, False]
+    assert hi == pytest.approx(2.0 + Z95 * 0.5, abs=0.07)
+
+
+def test_a_point_better_than_the_free_fit_raises_the_reference():
+    """Started 0.4 from the maximum with the free fit's likelihood understated: the ends are still the true ones."""
+    (lo, hi), _, _, best = profile_bounds(quadratic(2.0, 0.5), 2.4, -0.32, 0.5, -np.inf, np.inf)
+    assert best == pytest.approx(0.0, abs=0.05)  # the best point seen, 0.1 from the maximum
+    assert hi == pytest.approx(2.0 + Z95 * 0.5, abs=0.07)
+
+
+def test_only_effects_with_one_scalar_parameter_and_no_batch_state_are_profiled():
+    assert profiled_parameter("velocity_fade") == "fade_per_min"
+    assert profiled_parameter("off_center_shrink") == "k"
+    assert profiled_parameter("false_sightings") is None  # its responsibilities would go stale when held
+    assert profiled_parameter("landmark_bias") is None  # two parameters
+    assert profiled_parameter("actuation_lag") is None  # a grid: profiled by the search
+    assert profiled_parameter("floor_drift") is None  # a vector
+
+
+def test_on_a_simulated_fade_the_profile_interval_agrees_with_the_wald_one():
+    from experiments.loop import simulate
+    from learners.discrepancy.effect_sizes import effect_intervals
+    from learners.em.learner import EMLearner
+    from learners.em.options import EMOptions
+    from learners.inference.batch import make_batch
+    from learners.model.catalogue import VelocityFade
+
+    log = simulate({"noise": "aibo", "effects": {"velocity_fade": {"fade_per_min": 0.03}}}, 9000, 1)
+    opts = EMOptions(seed=0, lag_search=False).comparable()
+    base = EMLearner(opts).fit([log]).params
+    start = base.with_effect(VelocityFade.start(make_batch([log])))
+    fit = EMLearner(replace(opts, starts=1, alias_search=False), check_field=False).fit([log], init=start)
+    intervals = effect_intervals(fit.params, "velocity_fade", fit.info["standard_errors"])
+    wald = intervals["fade_per_min"]
+    assert wald["method"] == "wald" and not wald["clipped"]
+    effects = [{"name": "velocity_fade", "intervals": intervals}]
+    assert profile_where_wald_fails(effects, fit.params, [log], opts) == []  # a Wald interval inside the domain stays
+    wald["clipped"] = True  # as if it had crossed the domain's bound
+    wald_interval = list(wald["interval_95"])
+    assert profile_where_wald_fails(effects, fit.params, [log], opts) == ["velocity_fade"]
+    entry = effects[0]["intervals"]["fade_per_min"]
+    assert entry["method"] == "profile likelihood, whole logs" and entry["wald_interval_95"] == wald_interval
+    (lo, hi), (wlo, whi) = entry["interval_95"], entry["wald_interval_95"]
+    assert lo < entry["value"] < hi and entry["open"] == [False, False] and entry["note"] == ""
+    assert 0.8 < (hi - lo) / (whi - wlo) < 1.25
+    assert abs((lo + hi) / 2 - (wlo + whi) / 2) < 0.2 * (whi - wlo)
+    lls = np.array([ll for _, ll in entry["profile"]])  # the held fits went past the 1.92-nat drop on both sides
+    vs = np.array([v for v, _ in entry["profile"]])
+    assert lls[vs < lo].max() < lls.max() - 1.92 + 0.05 and lls[vs > hi].max() < lls.max() - 1.92 + 0.05
