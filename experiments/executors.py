@@ -30,8 +30,9 @@ THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NU
 
 
 def worker_env() -> dict[str, str]:
-    """Environment variables for worker processes: one BLAS/OpenMP thread each (unless set)."""
-    return {k: os.environ.get(k, "1") for k in THREAD_VARS}
+    """Environment variables for worker processes: one BLAS/OpenMP thread each and no M-step second thread
+    (``learners.em.second_thread``), unless set: the workers are the parallelism."""
+    return {**{k: os.environ.get(k, "1") for k in THREAD_VARS}, "AIBO_SECOND_THREAD": os.environ.get("AIBO_SECOND_THREAD", "0")}
 
 
 def write_results(out_dir: Path, records: list[dict[str, Any]]) -> None:

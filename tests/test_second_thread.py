@@ -107,3 +107,24 @@ def test_the_second_threads_work_arrays_are_released(problem):
         assert second_thread.release_scratch() == 0
     finally:
         second_thread.set_enabled(previous)
+
+
+@pytest.mark.parametrize("value, expected", [("0", False), ("1", True)])
+def test_the_environment_turns_it_off_in_processes_that_share_the_cores(value, expected):
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    if second_thread._usable_cores() < 2:
+        pytest.skip("one usable core: the second thread is always off")
+    env = {**os.environ, second_thread.ENV_VAR: value, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    out = subprocess.run([sys.executable, "-c", "from learners.em import second_thread; print(second_thread.enabled())"],
+                         env=env, capture_output=True, text=True, check=True).stdout
+    assert out.strip() == str(expected)
+
+
+def test_sweep_workers_run_without_it():
+    from experiments.executors import worker_env
+
+    assert worker_env()[second_thread.ENV_VAR] == "0"

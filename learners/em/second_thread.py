@@ -6,8 +6,8 @@ the longer of the two instead of their sum: one EM iteration at 27,000 frames 6.
 (scripts in docs/results.md). The numbers do not change: each half runs its own serial code.
 
 - ``submit(fn, ...)`` returns a ``Future``, or None when the second thread is off (run ``fn`` in line);
-- it is off on a single usable core, and ``set_enabled(False)`` turns it off (e.g. when every core already
-  runs a process of its own);
+- it is off on a single usable core, with ``AIBO_SECOND_THREAD=0`` in the environment (a sweep's pool workers
+  and pytest-xdist's get it: every core already runs a process of its own), and after ``set_enabled(False)``;
 - a forked child forgets its parent's thread (it does not exist there) and starts its own on first use;
 - ``release_scratch()`` drops the thread's work arrays, as ``kernels.release_scratch`` does the caller's.
 """
@@ -23,7 +23,9 @@ def _usable_cores() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
-_ENABLED = _usable_cores() > 1
+#: set to "0" in processes that already share the cores with others (a sweep's pool workers, pytest-xdist's)
+ENV_VAR = "AIBO_SECOND_THREAD"
+_ENABLED = _usable_cores() > 1 and os.environ.get(ENV_VAR, "1") != "0"
 _EXECUTOR: ThreadPoolExecutor | None = None
 
 
