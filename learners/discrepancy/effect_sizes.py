@@ -51,8 +51,9 @@ def effect_intervals(model: Model, name: str, standard_errors: dict[str, Any],
             continue
         se = np.asarray(se, dtype=float)
         param = effect.PARAMS[pname]
-        lo, hi = np.clip(v - Z95 * se, param.low, param.high), np.clip(v + Z95 * se, param.low, param.high)
-        clipped = bool(np.any(v - Z95 * se < param.low) or np.any(v + Z95 * se > param.high))
+        wald_lo, wald_hi = v - Z95 * se, v + Z95 * se
+        lo, hi = np.clip(wald_lo, param.low, param.high), np.clip(wald_hi, param.low, param.high)
+        clipped = bool(np.any(wald_lo < param.low) or np.any(wald_hi > param.high))
         out[pname] = {"value": v.tolist(), "se": se.tolist(), "interval_95": [lo.tolist(), hi.tolist()], "method": "wald",
                       "clipped": clipped}
     return out

@@ -9,7 +9,7 @@ chi-square(1, 0.95) / 2 = 1.92 nats of the best fit.
 ``profile_bounds`` walks out from the estimate on each side in steps that double (the first is the standard error,
 or a tenth of the value's scale without one) until the profile drops more than 1.92 nats or the domain ends, then
 bisects the last step ``BISECTIONS`` times: an end is good to 1/2**BISECTIONS of its bracket. Each point is one EM
-fit (the search's stop rule, at most ``MAX_ITER`` iterations); a side costs 2-8 fits. The likelihood compared is
+fit (the search's stop rule, at most ``search.HELD_MAX_ITER`` iterations); a side costs 2-8 fits. The likelihood compared is
 the E-step's on the logs' sightings (``search._train_loglik``), the same for every point.
 
 Only effects with exactly one scalar parameter and no per-batch state qualify (``profiled_parameter``): freezing is
@@ -27,14 +27,14 @@ from typing import Callable
 import numpy as np
 
 from aibo_core.trajectory import Trajectory
+from learners.discrepancy.effect_sizes import CHI2_1_95
 from learners.em.options import EMOptions
 from learners.model.effects import EFFECT_MODELS
 from learners.model.model import Model
 
-HALF_CHI2_1_95 = 3.841458820694124 / 2.0  # nats: the drop that bounds a 95% profile-likelihood interval
+HALF_CHI2_1_95 = CHI2_1_95 / 2.0  # nats: the drop that bounds a 95% profile-likelihood interval
 BISECTIONS = 4  # per end, after the bracket is found
-MAX_STEPS = 8  # doublings per side before giving up (the end is then reported as not found: None)
-MAX_ITER = 150  # EM iterations per profile point
+MAX_STEPS = 8  # steps per side before giving up (the end is then the farthest tried, reported as open)
 BEATEN_NATS = 0.5  # a held fit this much more likely than the diagnosed one is reported (EM's stop rule: 0.1 nat)
 
 
@@ -50,10 +50,10 @@ def profiled_parameter(name: str) -> str | None:
 
 
 def wants_profile(entry: dict) -> bool:
-    """Whether an interval entry (``effect_sizes.effect_intervals``) is one a Wald interval cannot be trusted for:
-    no standard error, or an interval clipped at the parameter's domain."""
-    return entry.get("method") != "profile likelihood over the grid, training half" and (
-        entry.get("se") is None or bool(entry.get("clipped")))
+    """Whether an interval entry (``effect_sizes.effect_intervals``) of a ``profiled_parameter`` is one a Wald
+    interval cannot be trusted for: no standard error, or an interval clipped at the parameter's domain (a grid
+    parameter's entry has no standard error either, but ``profiled_parameter`` never names one)."""
+    return entry.get("se") is None or bool(entry.get("clipped"))
 
 
 def profile_bounds(loglik: Callable[[float], float], value: float, best: float, step: float, low: float,
@@ -104,8 +104,9 @@ def profile_bounds(loglik: Callable[[float], float], value: float, best: float, 
 
 def profile_interval(final: Model, logs: list[Trajectory], name: str, se: float | None, opts: EMOptions) -> dict:
     """The 95% profile-likelihood interval of effect ``name``'s one scalar parameter in the diagnosed model
-    ``final`` (fitted on ``logs``): {"interval_95", "method", "points"} (module docstring)."""
-    from learners.discrepancy.search import SEARCH_PATIENCE, _fit, _train_loglik, _with
+    ``final`` (fitted on ``logs``; ``opts``: its fit's options): {"interval_95", "open", "method", "points", "note"}
+    (module docstring, ``profile_bounds``)."""
+    from learners.discrepancy.search import SEARCH_PATIENCE, _fit, _train_loglik, _with, held
 
     pname = profiled_parameter(name)
     if pname is None:
@@ -114,14 +115,14 @@ def profile_interval(final: Model, logs: list[Trajectory], name: str, se: float 
     value = float(np.asarray(final.effect(name).values()[pname]))
     scale = float(np.max(np.atleast_1d(param.scale)))
     step = se if se is not None and math.isfinite(se) and se > 0 else 0.1 * max(abs(value), scale)
-    held = replace(opts.comparable(), frozen=opts.frozen + (name,), max_iter=min(opts.max_iter, MAX_ITER), patience=SEARCH_PATIENCE,
-                   starts=1, alias_search=False)
+    # warm-started, so one start and no alias search (``search._fit``)
+    held_opts = held(replace(opts.comparable(), patience=SEARCH_PATIENCE), name)
 
     failed: list[str] = []
 
     def loglik(v: float) -> float:
         try:
-            return _train_loglik(_fit(logs, final.with_effect(_with(final.effect(name), {pname: v})), held), logs)
+            return _train_loglik(_fit(logs, final.with_effect(_with(final.effect(name), {pname: v})), held_opts), logs)
         except (FloatingPointError, np.linalg.LinAlgError, ValueError) as err:  # counted as beyond the interval
             failed.append(f"the fit with {pname} held at {v:.3g} failed ({err})")
             return -math.inf

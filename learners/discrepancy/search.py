@@ -94,6 +94,7 @@ SEARCH_PATIENCE = 15
 #: the first value this many nats below the best so far: a lag's profile rises to one peak and falls (measured on
 #: MRCLAM robot 1 with bias states, in nats over no lag: 0, 246, 457, 371, 181, 15), and the values past it, each a
 #: fit of up to 150 iterations, cannot win.
+HELD_MAX_ITER = 150  # EM iterations of a fit with one effect held (a grid or profile point, the frozen probe)
 PAST_PEAK_NATS = 20.0
 #: A candidate's base refit (``_given_its_own_base``) this many nats above the round's null replaces the current model
 #: and the round is repeated from it, at most ``MAX_ESCAPES`` times per search.
@@ -149,6 +150,12 @@ def _fit(logs: list[Trajectory], init: Model, opts: EMOptions, action_model: str
     return learner.fit(logs, init=init, action_model=action_model, initial=initial).params
 
 
+def held(opts: EMOptions, name: str) -> EMOptions:
+    """``opts`` for a fit with effect ``name`` held at the values it starts from (a grid or profile point, the frozen
+    probe): at most HELD_MAX_ITER iterations."""
+    return replace(opts, frozen=opts.frozen + (name,), max_iter=min(opts.max_iter, HELD_MAX_ITER))
+
+
 def _with(effect: EffectModel, values: dict[str, Any]) -> EffectModel:
     return effect.with_values(**{k: (float(v) if np.ndim(v) == 0 else np.asarray(v, float)) for k, v in values.items()})
 
@@ -188,7 +195,7 @@ def try_candidate(name: str, base: Model, base_ll: float, base_heldout: float, t
     start = start.with_effect(start.effect(name).warm_start(start, batch))
     if cls.GRID:  # profile likelihood over the grid, the effect frozen at each value
         (pname, grid), = cls.GRID.items()
-        frozen = replace(opts, frozen=opts.frozen + (name,), max_iter=min(opts.max_iter, 150))
+        frozen = held(opts, name)
         fits = []
 
         def profile(g: float) -> float:
@@ -247,7 +254,7 @@ def _flat_job(args: tuple) -> bool:
     model, cls = c.model, EFFECT_MODELS[c.name]
     shifted = {k: np.asarray(v) + np.asarray(model.effect(c.name).values()[k]) for k, v in cls.PROBE.items()}
     probe = model.with_effect(_with(model.effect(c.name), shifted))
-    fitted = _fit(train, probe, replace(opts, frozen=opts.frozen + (c.name,), max_iter=min(opts.max_iter, 150)))
+    fitted = _fit(train, probe, held(opts, c.name))
     return c.loglik - _train_loglik(fitted, train) < FLAT_NATS
 
 
