@@ -21,7 +21,8 @@ Layout (one concept per module; import the public functions from this package):
 - ``augmented``: the E-step with extra states (pose plus K scalar states, ``Lowered.extra``: forward EKF and
   Rauch-Tung-Striebel), dispatched to by ``smooth_compiled`` and ``innovations_compiled``;
 - ``augmented_stats``: its action statistics ``displacement_statistics_compiled``;
-- ``arguments``: the kernels' inputs by name, ``FrameInputs`` and ``SightingInputs`` (``kernel_inputs``).
+- ``arguments``: the kernels' inputs by name, ``FrameInputs`` and ``SightingInputs`` (``kernel_inputs``);
+- ``cache``: the on-disk cache flushed when any kernel source changes (numba sees only a kernel's own file).
 """
 
 from __future__ import annotations
@@ -35,6 +36,29 @@ from learners.inference.kernels.action import (
 from learners.inference.kernels.algebra import release_scratch
 from learners.inference.kernels.estep import innovations_compiled, smooth_compiled
 from learners.inference.kernels.sensor import sensor_update_compiled
+
+
+def _flush_stale_caches() -> None:
+    """Before any kernel runs: every kernel's cache flushed if any kernel source changed (module ``cache``)."""
+    from pathlib import Path
+
+    from learners.inference.kernels import (
+        action,
+        algebra,
+        augmented,
+        augmented_stats,
+        cache,
+        estep,
+        fasttrig,
+        sensor,
+        structured,
+    )
+
+    modules = (action, algebra, augmented, augmented_stats, estep, fasttrig, sensor, structured)
+    cache.flush_if_changed(cache.cached_dispatchers(modules), cache.sources_digest(Path(__file__).parent))
+
+
+_flush_stale_caches()
 
 __all__ = ["smooth_compiled", "innovations_compiled", "action_statistics_compiled", "residual_cov_compiled",
            "sensor_update_compiled", "table_means_compiled", "table_residual_cov_compiled", "release_scratch"]
