@@ -62,6 +62,64 @@ def test_wall_contact_cancels_outward_motion_only():
     assert wc.dof() == 0 and ZERO_DOF_NATS > 0
 
 
+def test_contact_probability_known_answers():
+    """P(|x| > field / 2 - margin) under N(mean, var): 1/2 at the margin's edge, Phi(-1) one sd inside it, Phi(1)
+    one sd beyond it; either side of the field; the sd floored."""
+    from scipy.stats import norm
+
+    from learners.model.catalogue_more import contact_probability
+
+    field = np.array([5400.0, 3600.0])
+    edge = field / 2 - 60.0  # 2640, 1740
+    mean = np.array([[edge[0], -edge[1]], [edge[0] - 30.0, 0.0], [-(edge[0] + 30.0), edge[1] + 500.0],
+                     [edge[0] - 3.0, 0.0]])
+    var = np.array([[900.0, 900.0], [900.0, 900.0], [900.0, 900.0], [1.0, 900.0]])
+    p = contact_probability(mean, var, field, 60.0, 10.0)
+    np.testing.assert_allclose(p[0], [0.5, 0.5])
+    np.testing.assert_allclose(p[1, 0], norm.cdf(-1.0))
+    assert p[1, 1] == 0.0  # the field's centre line: 1740 mm from the wall, 58 sd
+    np.testing.assert_allclose(p[2], [norm.cdf(1.0), 1.0])
+    np.testing.assert_allclose(p[3, 0], norm.cdf(-0.3))  # sd 1 mm floored at 10 mm
+
+
+def test_wall_contact_cancels_its_probability_of_the_outward_motion():
+    """A contact probability p cancels p of the outward motion; the frames with p >= 1/2 are blocked."""
+    from learners.model.catalogue_more import _frame_key
+
+    tr = sim_log(3000)
+    model = EMLearner(EMOptions(max_iter=20)).fit([tr]).params
+    batch = make_batch([tr])
+    n = batch.n_frames
+    contact = np.zeros((n, 2))
+    contact[:6, 0] = [0.3, 0.3, 0.3, 0.7, 0.7, 0.7]  # against the +x wall
+    wc = WallContact(contact=contact, heading=np.zeros(n), key=_frame_key(batch))
+    base, lo = model.lower(batch), model.with_effect(wc).lower(batch)
+    d = base.disp[:6, 0]
+    np.testing.assert_allclose(d + lo.offset[:6, 0], np.where(d > 0, (1 - contact[:6, 0]) * d, d), atol=1e-12)
+    np.testing.assert_array_equal(lo.blocked[:6], (d > 0) & (contact[:6, 0] >= 0.5))
+    assert not lo.blocked[6:].any()
+
+
+def test_wall_contact_reads_probabilities_off_the_smoothed_path():
+    """The M-step's contacts are the end poses' contact probabilities (0 below ``MIN_PROBABILITY``), signed by
+    the wall's side."""
+    from learners.model.catalogue_more import contact_probability
+
+    tr = collect({"noise": "aibo"}, 1800, seed=11, policy_params={"margin_mm": -800.0})
+    model = EMLearner(EMOptions(max_iter=10)).fit([tr]).params
+    batch = make_batch([tr])
+    post = e_step(model, batch, "compiled")
+    end = post.mu_gamma[batch.frame_to_pose + 1]
+    wc = model.with_effect(WallContact()).effect("wall_contact").maximize(model.with_effect(WallContact()), batch,
+                                                                        post, None).effect("wall_contact")
+    prob = contact_probability(end[:, :2], np.diagonal(post.cov_gamma[batch.frame_to_pose + 1], axis1=1,
+                                                       axis2=2)[:, :2], np.asarray(batch.field), 60.0, 10.0)
+    expect = np.sign(end[:, :2]) * np.where(prob < WallContact.MIN_PROBABILITY, 0.0, prob)
+    np.testing.assert_array_equal(wc.contact, expect)
+    soft = (np.abs(wc.contact) > 0) & (np.abs(wc.contact) < 0.99)
+    assert wc.n_contacts() > 0 and soft.any()  # some frames neither surely free nor surely against a wall
+
+
 def test_a_wall_stops_a_floor_drift_whichever_was_named_first():
     """``wall_contact`` lowers after every effect that moves the robot (``LOWER_ORDER``): named before a drift, the
     drift pushed through the walls in the model. The drift's M-step leaves the blocked frames out."""
@@ -147,6 +205,31 @@ def test_diagnose_names_wall_contact(tmp_path):
     report = diagnose(tmp_path, tr, ALL)
     assert report["effect"] == "wall_contact", report["effects"]
     assert report["gap_after"] < report["gap_before"]
+
+
+@pytest.mark.slow
+def test_a_drift_that_pushes_into_the_walls_is_named_with_them(tmp_path):
+    """The drift + walls pair of ``scripts/diagnose_power.py`` (a drift of [15, -10] mm/s into a corner, blind
+    10-minute log): both named, the drift within the single-effect tolerance (5 mm/s). With contacts 0/1 by the
+    smoothed mean, this seed's drift gained 18.9 nats in training, -8.3 held out, and was not named (named on 5 of
+    10 seeds; 9 of 10 with the contact probabilities)."""
+    tr = collect({"noise": "aibo", "effects": {"floor_drift": {"drift_mm_s": [15.0, -10.0]}}}, 18000, seed=5004,
+                 policy_params={"margin_mm": -800.0})
+    report = diagnose(tmp_path, tr, ALL)
+    named = {e["name"]: e["parameters"] for e in report["effects"]}
+    assert set(named) == {"wall_contact", "floor_drift"}, named
+    np.testing.assert_allclose(named["floor_drift"]["drift_mm_s"], [15.0, -10.0], atol=5.0)
+
+
+@pytest.mark.slow
+def test_walls_are_not_reported_as_a_speed_that_depends_on_the_heading(tmp_path):
+    """An effect-free log that meets the walls: a robot pushing a wall moves slower towards it, which a speed that
+    depends on the heading mimics; the probe is tested given the wall nuisance (``search.GIVEN_WALLS``) and is not
+    reported (it was on this seed, p = 0.004)."""
+    tr = collect({"noise": "aibo"}, 9000, seed=3011, policy_params={"margin_mm": -800.0})
+    report = diagnose(tmp_path, tr, ALL)
+    assert {e["name"] for e in report["effects"]} <= {"wall_contact"}, report["effects"]
+    assert not [u for u in report["unexplained"] if "probe" in u], report["unexplained"]
 
 
 @pytest.mark.slow
