@@ -110,9 +110,10 @@ def right_answer(effect: str) -> str:
 
 
 def pair_ok(r: dict) -> tuple[bool, bool]:
-    """(both named, every estimate within its single-effect tolerance) of a pair run."""
+    """(both named, every estimate within its single-effect tolerance) of a pair run; a pair that meets the walls
+    names ``wall_contact`` too."""
     hidden = r["params"]
-    named = all(n in r["named"] for n in hidden)
+    named = all(n in r["named"] for n in list(hidden) + (["wall_contact"] if r.get("walls") else []))
     close = named and all(TOLERANCE[n](r["values"][n], p) for n, p in hidden.items() if n in TOLERANCE)
     return named, close
 

@@ -1,0 +1,37 @@
+"""scripts/diagnose_power.py: how a run counts (a pair both named and within tolerance, a false alarm)."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "diagnose_power.py"
+
+
+def _load():
+    spec = importlib.util.spec_from_file_location("diagnose_power", SCRIPT)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod  # its dataclasses look their module up there
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_a_pair_that_meets_the_walls_names_wall_contact_too():
+    dp = _load()
+    label, hidden, walls = dp.PAIRS[0]
+    assert walls and list(hidden) == ["floor_drift"]
+    run = {"effect": label, "params": hidden, "walls": True, "named": ["floor_drift"],
+           "values": {"floor_drift": {"drift_mm_s": [14.0, -11.0]}}}
+    assert dp.pair_ok(run) == (False, False)
+    run["named"] = ["wall_contact", "floor_drift"]
+    assert dp.pair_ok(run) == (True, True)
+    run["values"]["floor_drift"]["drift_mm_s"] = [9.0, -10.0]  # 6 mm/s off: outside the 5 mm/s tolerance
+    assert dp.pair_ok(run) == (True, False)
+
+
+def test_wall_contact_is_no_false_alarm_where_the_walls_are_met():
+    dp = _load()
+    assert not dp.false_alarm({"named": ["wall_contact"], "walls": True})
+    assert dp.false_alarm({"named": ["wall_contact"], "walls": False})
+    assert dp.false_alarm({"named": ["wall_contact", "velocity_fade"], "walls": True})
