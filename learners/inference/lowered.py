@@ -63,8 +63,8 @@ class Lowered:
     init_cov: np.ndarray  # (L, 3, 3)
     bearing_var_factor: np.ndarray | None = None  # (S,) multiplies sigma_bearing^2 (None: ones, filled in)
     extra: ExtraStates | None = None  # extra states beside the pose (None: the pose alone)
-    #: (N,) bool: frames likely (``WallContact.BLOCKED_PROBABILITY``) against a wall that cancels part of their
-    #: motion (``wall_contact``), None: none. Their displacement
+    #: (N,) bool: frames whose motion a wall may cancel in part (``wall_contact``: any contact probability), None:
+    #: none. Their displacement
     #: does not depend on what moves the robot outwards, so an M-step that estimates such a motion leaves them out.
     blocked: np.ndarray | None = None
 
