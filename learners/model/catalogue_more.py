@@ -35,10 +35,10 @@ outward motion (the expected cancellation to first order). Measured on the blind
 5000-5009): with contacts 0/1 by the smoothed mean the drift was named on 5 of 10 logs, within 5 mm/s
 on 3; with the probability, on 9 and 9 (docs/results.md). The drift's M-step leaves out every frame a
 wall may block (``Lowered.blocked``: a contact probability of ``MIN_PROBABILITY`` or more): only the frames
-at least 1/2 likely blocked, the drift came out shrunk by a tenth (within tolerance on 8 of 10). On seed 5004 the 0/1 rule flagged 3,627 frames, of which 1,158 had
-their true pose more than 5 mm from a wall, and missed 462 of the 2,931 against one; the drift's fit
-stopped 1.2 nats (training) below the true drift held fixed, and scored -8.3 nats held out where the
-true drift scored +6.6.
+at least 1/2 likely blocked, the drift came out shrunk by a tenth (within tolerance on 8 of 10). On
+seed 5004 the 0/1 rule flagged 3,627 frames, of which 1,158 had their true pose more than 5 mm from a
+wall, and missed 462 of the 2,931 against one; the drift's fit stopped 1.2 nats (training) below the
+true drift held fixed, and scored -8.3 nats held out where the true drift scored +6.6.
 """
 
 from __future__ import annotations
