@@ -44,17 +44,21 @@ def test_false_sightings_lowering_and_mixture_density():
     assert post2.loglik == pytest.approx(mix.sum())
 
 
-def test_wall_contact_cancels_outward_motion_only():
+def _against_the_plus_x_wall(probability: list[float]):
+    """(model fitted on sim_log(3000), its batch, a ``WallContact`` whose first frames touch the +x wall with these
+    contact probabilities, heading 0)."""
+    from learners.model.catalogue_more import _frame_key
+
     tr = sim_log(3000)
     model = EMLearner(EMOptions(max_iter=20)).fit([tr]).params
     batch = make_batch([tr])
-    n = batch.n_frames
-    contact = np.zeros((n, 2))
-    contact[:5, 0] = 1.0  # against the +x wall
-    heading = np.zeros(n)
-    from learners.model.catalogue_more import _frame_key
+    contact = np.zeros((batch.n_frames, 2))
+    contact[:len(probability), 0] = probability
+    return model, batch, WallContact(contact=contact, heading=np.zeros(batch.n_frames), key=_frame_key(batch))
 
-    wc = WallContact(contact=contact, heading=heading, key=_frame_key(batch))
+
+def test_wall_contact_cancels_outward_motion_only():
+    model, batch, wc = _against_the_plus_x_wall([1.0] * 5)
     base, lo = model.lower(batch), model.with_effect(wc).lower(batch)
     moved = base.disp[:5, 0] + lo.offset[:5, 0]
     np.testing.assert_allclose(moved, np.minimum(base.disp[:5, 0], 0.0), atol=1e-12)  # outward part removed
@@ -84,18 +88,11 @@ def test_contact_probability_known_answers():
 
 def test_wall_contact_cancels_its_probability_of_the_outward_motion():
     """A contact probability p cancels p of the outward motion; those frames are blocked."""
-    from learners.model.catalogue_more import _frame_key
-
-    tr = sim_log(3000)
-    model = EMLearner(EMOptions(max_iter=20)).fit([tr]).params
-    batch = make_batch([tr])
-    n = batch.n_frames
-    contact = np.zeros((n, 2))
-    contact[:6, 0] = [0.3, 0.3, 0.3, 0.7, 0.7, 0.7]  # against the +x wall
-    wc = WallContact(contact=contact, heading=np.zeros(n), key=_frame_key(batch))
+    p = np.array([0.3, 0.3, 0.3, 0.7, 0.7, 0.7])
+    model, batch, wc = _against_the_plus_x_wall(list(p))
     base, lo = model.lower(batch), model.with_effect(wc).lower(batch)
     d = base.disp[:6, 0]
-    np.testing.assert_allclose(d + lo.offset[:6, 0], np.where(d > 0, (1 - contact[:6, 0]) * d, d), atol=1e-12)
+    np.testing.assert_allclose(d + lo.offset[:6, 0], np.where(d > 0, (1 - p) * d, d), atol=1e-12)
     np.testing.assert_array_equal(lo.blocked[:6], d > 0)
     assert not lo.blocked[6:].any()
 
@@ -123,16 +120,9 @@ def test_wall_contact_reads_probabilities_off_the_smoothed_path():
 def test_a_wall_stops_a_floor_drift_whichever_was_named_first():
     """``wall_contact`` lowers after every effect that moves the robot (``LOWER_ORDER``): named before a drift, the
     drift pushed through the walls in the model. The drift's M-step leaves the blocked frames out."""
-    from learners.em.estep import e_step
     from learners.model.catalogue import FloorDrift
-    from learners.model.catalogue_more import _frame_key
 
-    tr = sim_log(3000)
-    model = EMLearner(EMOptions(max_iter=20)).fit([tr]).params
-    batch = make_batch([tr])
-    contact = np.zeros((batch.n_frames, 2))
-    contact[:5, 0] = 1.0  # against the +x wall
-    wc = WallContact(contact=contact, heading=np.zeros(batch.n_frames), key=_frame_key(batch))
+    model, batch, wc = _against_the_plus_x_wall([1.0] * 5)
     drift = FloorDrift(np.array([30.0, 0.0]))  # outwards, +x
     first, second = model.with_effect(wc).with_effect(drift), model.with_effect(drift).with_effect(wc)
     lo1, lo2 = first.lower(batch), second.lower(batch)
