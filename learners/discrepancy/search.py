@@ -84,6 +84,7 @@ from learners.em.learner import EMLearner
 from learners.em.options import DEFAULT_GATE, EMOptions
 from learners.em.start import initial_state_for
 from learners.inference.batch import make_batch
+from learners.inference.posterior import Posterior
 from learners.model.catalogue_more import WallSlowdown
 from learners.model.effects import EFFECT_MODELS, EffectModel
 from learners.model.model import Model
@@ -243,7 +244,7 @@ def try_candidate(name: str, base: Model, base_ll: float, base_heldout: float, t
     c = _tested(name, model, ll, base_ll, base_heldout, logs, n_candidates)
     c.profile, c.loglik = profiled, ll
     if c.significant and name in GIVEN_WALLS:
-        _given_walls(c, start, base, batch, train, logs, opts, n_candidates)
+        _given_walls(c, start, base, e_step(base, batch, "compiled"), batch, train, logs, opts, n_candidates)
     effect = model.effect(name)
     if c.significant:
         _reparameterization(c, effect, model, ll, train)
@@ -329,12 +330,13 @@ def try_probe(name: str, base: Model, base_ll: float, base_heldout: float, train
     ``GIVEN_WALLS`` says; and against its own base)."""
     t0 = time.perf_counter()
     batch = make_batch(train)
-    start = base.with_effect(PROBES[name].around(e_step(base, batch, "compiled"), batch))
+    post = e_step(base, batch, "compiled")
+    start = base.with_effect(PROBES[name].around(post, batch))
     model = _fit(train, start, opts)
     ll = _train_loglik(model, train)
     c = _tested(name, model, ll, base_ll, base_heldout, logs, n_probes)
     if c.significant and name in GIVEN_WALLS:
-        _given_walls(c, start, base, batch, train, logs, opts, n_probes)
+        _given_walls(c, start, base, post, batch, train, logs, opts, n_probes)
     if c.significant:
         _given_its_own_base(c, model, ll, train, opts, n_probes)
     c.seconds = time.perf_counter() - t0
@@ -381,12 +383,13 @@ def _given_its_own_base(c: Candidate, model: Model, ll: float, train: list[Traje
                   f"p = {p:.2g}): the base model was at a poorer optimum")
 
 
-def _given_walls(c: Candidate, start: Model, base: Model, batch: Any, train: list[Trajectory], logs: list[Trajectory],
-                 opts: EMOptions, n_candidates: int) -> None:
+def _given_walls(c: Candidate, start: Model, base: Model, post: Posterior, batch: Any, train: list[Trajectory],
+                 logs: list[Trajectory], opts: EMOptions, n_candidates: int) -> None:
     """The candidate's test repeated given the wall nuisance (module docstring, "Given the walls"): null = base +
-    ``WallSlowdown``, alternative = the candidate's start + ``WallSlowdown``, both fitted alike; ``c`` stays
-    significant only if this test passes too (its numbers go to ``c.note``)."""
-    nuisance = WallSlowdown.around(e_step(base, batch, "compiled"), batch)
+    ``WallSlowdown`` (its frames near a wall by ``post``, base's E-step on ``batch``), alternative = the candidate's
+    start + ``WallSlowdown``, both fitted alike; ``c`` stays significant only if this test passes too (its numbers go
+    to ``c.note``)."""
+    nuisance = WallSlowdown.around(post, batch)
     if not nuisance.n_near():
         return
     null = _fit(train, base.with_effect(nuisance), opts)
@@ -553,7 +556,7 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
                 escapes.append({"round": len(rounds), "from": escape.name, "nats": escape.escape_ll - null_ll,
                                 "candidates": [c.as_dict() for c in rounds.pop()]})
                 current, current_ll = escape.escape, escape.escape_ll
-                previous = {} if EFFECT_MODELS[escape.name].GRID else {escape.name: escape.model}
+                previous = {escape.name: escape.model}  # a grid candidate's profile ignores it (``try_candidate``)
                 progress(f"  the base model refitted from {escape.name}'s fit without it is {escape.escape_ll - null_ll:.1f} "
                          "nats better than the null: the round is repeated from it")
                 continue
