@@ -187,6 +187,28 @@ def _verdict(report: dict[str, Any]) -> str:
     return "Verdict: the base model misses " + ", ".join(named) + shift + rest
 
 
+def _motion(report: dict[str, Any]) -> str:
+    """The motion gap before and after, per horizon, with the paired change and its standard error."""
+    before, after = report.get("motion_gap_before"), report.get("motion_gap_after")
+    if not before:
+        return ""
+    change = report.get("motion_gap_change", {})
+    ex_b, ex_a = report.get("motion_excess_before", {}), report.get("motion_excess_after", {})
+    rows = "".join(
+        f"<tr><td>{html.escape(k)} s</td><td>{before[k]:.4f}</td><td>{after[k]:.4f}</td>"
+        f"<td>{change[k]['change']:+.4f} &plusmn; {change[k]['se']:.4f}</td>"
+        f"<td>{ex_b[k]:.4f}</td><td>{ex_a[k]:.4f}</td>"
+        f"<td>{change[k]['excess_change']:+.4f} &plusmn; {change[k]['excess_se']:.4f}</td><td>{change[k]['n']}</td></tr>"
+        for k in after if k in change and k in ex_b and k in ex_a)
+    return (f"<p>Motion gap ({html.escape(report['motion_gap_metric'])}): each held-out sighting predicted from the "
+            "filtered pose k seconds before it and the commands alone, in nats per sighting; lower is better. The "
+            "one-step gap above is mostly the sensor model; the excess (motion gap less the one-step gap of the same "
+            "sightings) is what the model loses when its motion has to carry the pose for k seconds.</p>"
+            "<table><tr><th>horizon</th><th>gap before</th><th>gap after</th><th>change (&plusmn; s.e., 30 s blocks)</th>"
+            "<th>excess before</th><th>excess after</th><th>change</th>"
+            f"<th>sightings</th></tr>{rows}</table>")
+
+
 def html_page(path: Path, report: dict[str, Any], text: str, figures: list[Path]) -> None:
     """One self-contained page: the verdict first, then the figures, the candidates and the full text."""
     verdict = _verdict(report)
@@ -205,6 +227,7 @@ pre{{background:#f6f6f6;padding:1em;overflow:auto}}</style></head><body>
 <p>Gap ({html.escape(report['gap_metric'])}: how unlikely the held-out half of the log is under the model, in nats per
 sighting; lower is better): <b>{report['gap_before']:.4f}</b> before, <b>{report['gap_after']:.4f}</b> after
 {f"the named effects: {change} nats per sighting" if report["effects"] else "(nothing named: the same model)"}.</p>
+{_motion(report)}
 <p>The residual signatures below are descriptive: each p-value tests one residual against one variable, many pairs are
 tried, and a long log makes tiny drifts "significant". The verdict rests on the candidates' likelihood-ratio tests and
 held-out gains (table below).</p>
