@@ -162,9 +162,9 @@ def build_parser() -> argparse.ArgumentParser:
     mi.set_defaults(run=commands.run_export)
     tu = xsub.add_parser("tum", help="a fitted model's smoothed poses (and the log's truth) in TUM format, for evo")
     tu.add_argument("log", help="aibo-trajectory/2 log (.npz)")
-    tu.add_argument("--model", required=True, help="model file fitted to the log (aibo learn's MODEL.json)")
-    tu.add_argument("--out", required=True, help="TUM file of the smoothed poses: 't x y z qx qy qz qw' (s, m, quaternion)")
-    tu.add_argument("--truth", help="also write the log's ground truth ('pose') to this TUM file (poses in truth gaps "
+    tu.add_argument("--model", required=True, metavar="MODEL.json", help="model file fitted to the log (aibo learn's MODEL.json)")
+    tu.add_argument("--out", required=True, metavar="EST.tum", help="TUM file of the smoothed poses: 't x y z qx qy qz qw' (s, m, quaternion)")
+    tu.add_argument("--truth", metavar="GT.tum", help="also write the log's ground truth ('pose') to this TUM file (poses in truth gaps "
                     "left out); then 'evo_ape tum GT.tum EST.tum' scores the track")
     tu.set_defaults(run=commands.run_export_tum)
 
@@ -180,19 +180,22 @@ def _add_import_bag(isub, commands) -> None:
                          "(range and bearing, or marker poses) and optional ground truth, in frames of --dt seconds. "
                          "ROS units (m, rad, s; x forward, y left). No ROS install needed.")
     bg.add_argument("bag", help="ROS 1 .bag file, ROS 2 bag folder (metadata.yaml + .db3 or .mcap) or bare .mcap file")
-    bg.add_argument("--commands", metavar="TOPIC", help="topic of velocity commands: geometry_msgs/Twist or TwistStamped (linear.x m/s, "
-                    "angular.z rad/s), each held until the next")
-    bg.add_argument("--odometry", metavar="TOPIC", help="instead of --commands, for a robot that logged none: nav_msgs/Odometry, whose "
-                    "measured twist stands in for the commands (said so in the log's meta)")
+    bg.add_argument("--commands", metavar="TOPIC",
+                    help="topic of velocity commands: geometry_msgs/Twist or TwistStamped (linear.x m/s, angular.z rad/s), "
+                    "each held until the next")
+    bg.add_argument("--odometry", metavar="TOPIC",
+                    help="instead of --commands, for a robot that logged none: nav_msgs/Odometry, whose measured twist "
+                    "stands in for the commands (said so in the log's meta)")
     bg.add_argument("--detections", required=True, metavar="TOPIC",
                     help="topic of landmark detections: messages with id, range (m) and bearing (rad, CCW from the heading) "
                     "as parallel arrays or a list of elements, or marker poses (AprilTag/ALVAR style: id + pose in the "
                     "sensor frame); custom types are read from the definitions the bag embeds (or --msg-def)")
     bg.add_argument("--landmarks", required=True, metavar="MAP.csv",
                     help="the landmark map: CSV with header id,x_m,y_m (world frame, metres)")
-    bg.add_argument("--truth", metavar="TOPIC", help="optional ground-truth topic: geometry_msgs/PoseStamped, PoseWithCovarianceStamped, "
-                    "TransformStamped or nav_msgs/Odometry (the log's pose, used only for scoring)")
-    bg.add_argument("--out", required=True, help="log file to write (.npz)")
+    bg.add_argument("--truth", metavar="TOPIC",
+                    help="optional ground-truth topic: geometry_msgs/PoseStamped, PoseWithCovarianceStamped, TransformStamped "
+                    "or nav_msgs/Odometry (the log's pose, used only for scoring)")
+    bg.add_argument("--out", required=True, metavar="LOG.npz", help="log file to write")
     bg.add_argument("--dt", type=finite(1e-3), default=0.1, help="seconds per frame (default 0.1)")
     bg.add_argument("--id-field", help="name of the detections' id field (default: id or ids)")
     bg.add_argument("--range-field", help="name of the detections' range field, metres (default: range or ranges)")
@@ -218,7 +221,7 @@ def _add_import_csv(isub, commands) -> None:
                          "t,id,range_m,bearing_rad (bearing CCW from the heading); landmarks.csv id,x_m,y_m; optional "
                          "truth.csv t,x_m,y_m,theta_rad. See docs/real-logs.md.")
     cs.add_argument("folder", help="the folder holding the CSV files")
-    cs.add_argument("--out", required=True, help="log file to write (.npz)")
+    cs.add_argument("--out", required=True, metavar="LOG.npz", help="log file to write")
     cs.add_argument("--dt", type=finite(1e-3), default=0.1, help="seconds per frame (default 0.1)")
     cs.set_defaults(run=commands.run_import_csv)
 

@@ -75,7 +75,7 @@ def _ids(path: Path, column: np.ndarray) -> np.ndarray:
     bad = column != np.round(column)
     if bad.any():
         i = int(np.argmax(bad))
-        raise LogSourceError(f"{path}: row {i + 2}, column 'id': {column[i]!r} is not an integer")
+        raise LogSourceError(f"{path}: row {i + 2}, column 'id': {float(column[i])!r} is not an integer")
     return column.astype(np.int64)
 
 
@@ -101,8 +101,8 @@ def ordered(path: Path | str, t: np.ndarray, what: str = "row") -> None:
     i = first_backward(t)
     if i is not None:
         first = 2 if what == "row" else 0  # CSV rows counted from the header's 1
-        raise LogSourceError(f"{path}: {what} {i + first}: time {t[i]!r} s is earlier than the {what} before "
-                             f"({t[i - 1]!r} s): times must not go back")
+        raise LogSourceError(f"{path}: {what} {i + first}: time {float(t[i])!r} s is earlier than the {what} before "
+                             f"({float(t[i - 1])!r} s): times must not go back")
 
 
 def dedupe(t: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:

@@ -67,6 +67,9 @@ class _Bag:
                                  "(or pip install rosbags)") from None
         if not path.exists():
             raise LogSourceError(f"{path}: no such file or folder (give a ROS 1 .bag, a ROS 2 bag folder or a .mcap)")
+        if path.is_dir() and not (path / "metadata.yaml").exists():
+            raise LogSourceError(f"{path}: a folder without metadata.yaml is no ROS 2 bag (give the bag's folder, a .bag "
+                                 "or a .mcap file)")
         self.path = path
         self.default = get_typestore(Stores.ROS1_NOETIC if path.suffix == ".bag" else Stores.ROS2_HUMBLE)
         self.reader = self._call(lambda: AnyReader([path], default_typestore=self.default), "cannot open")

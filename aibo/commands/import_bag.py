@@ -34,5 +34,6 @@ def run(args) -> int:
     except LogSourceError as exc:
         raise CLIError(str(exc)) from None
     trajectory.save(tr, args.out)
-    print(summary(args.out, tr, time.perf_counter() - t0) + f"; commands from {tr.meta['command_source']}")
+    source = f"commands from {args.commands}" if args.commands else f"odometry {args.odometry} as the commands"
+    print(summary(args.out, tr, time.perf_counter() - t0) + f"; {source}")
     return 0
