@@ -163,9 +163,10 @@ def build_parser() -> argparse.ArgumentParser:
     tu = xsub.add_parser("tum", help="a fitted model's smoothed poses (and the log's truth) in TUM format, for evo")
     tu.add_argument("log", help="aibo-trajectory/2 log (.npz)")
     tu.add_argument("--model", required=True, metavar="MODEL.json", help="model file fitted to the log (aibo learn's MODEL.json)")
-    tu.add_argument("--out", required=True, metavar="EST.tum", help="TUM file of the smoothed poses: 't x y z qx qy qz qw' (s, m, quaternion)")
-    tu.add_argument("--truth", metavar="GT.tum", help="also write the log's ground truth ('pose') to this TUM file (poses in truth gaps "
-                    "left out); then 'evo_ape tum GT.tum EST.tum' scores the track")
+    tu.add_argument("--out", required=True, metavar="EST.tum",
+                    help="TUM file of the smoothed poses: 't x y z qx qy qz qw' (s, m, quaternion)")
+    tu.add_argument("--truth", metavar="GT.tum", help="also write the log's ground truth ('pose') to this TUM file (poses in "
+                    "truth gaps left out); then 'evo_ape tum GT.tum EST.tum' scores the track")
     tu.set_defaults(run=commands.run_export_tum)
 
     _add_experiment_commands(sub, commands)
