@@ -5,7 +5,13 @@ line, exit 2 and no output (small synthetic bags)."""
 from __future__ import annotations
 
 import json
+import re
+import shlex
+import shutil
 import sqlite3
+import subprocess
+import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -229,3 +235,45 @@ def test_commands_or_odometry_is_required(tmp_path, small, capsys):
     bag = write_bag(tmp_path, small, "ros1")
     assert "--commands" in _fails(tmp_path, capsys, bag, "--detections", "/landmarks")
     assert not bag_path(tmp_path, "ros1").with_suffix(".npz").exists()
+
+
+# ---------------------------------------------------------------------------------------- the walkthrough
+
+#: docs/real-logs.md's walkthrough, as a user types it (in the folder holding robot.bag and map.csv)
+WALKTHROUGH = """\
+aibo import bag robot.bag --commands /cmd_vel --detections /landmarks --landmarks map.csv --truth /vicon/pose --out robot.npz
+aibo learn robot.npz --out robot.json
+aibo diagnose robot.npz --out robot-diagnosis --candidates landmark_bias,actuation_lag --replicas 0
+aibo export tum robot.npz --model robot.json --out robot.tum --truth truth.tum
+evo_ape tum truth.tum robot.tum
+"""
+
+
+def test_the_docs_walkthrough_is_the_tested_one():
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "real-logs.md").read_text()
+    assert "```bash\n" + WALKTHROUGH + "```" in doc
+
+
+@pytest.mark.slow
+@pytest.mark.realdata
+@needs_data
+def test_the_walkthrough_runs(mrclam, tmp_path, monkeypatch, capsys):
+    """docs/real-logs.md's commands on a bag of MRCLAM robot 1's first 150 s (ROS 1, Twist, range/bearing arrays):
+    a log, a model, a diagnosis, TUM files; evo's APE (when evo_ape is installed) is the RMS learn printed."""
+    folder, rows, _ = mrclam
+    write_bag(tmp_path, rows, "ros1")
+    shutil.copy(folder / "map.csv", tmp_path / "map.csv")
+    monkeypatch.chdir(tmp_path)
+    start = time.perf_counter()
+    for line in WALKTHROUGH.splitlines():
+        argv = shlex.split(line)
+        if argv[0] == "aibo":
+            assert main(argv[1:]) == 0, line
+        elif shutil.which(argv[0]):
+            evo = subprocess.run(argv, capture_output=True, text=True, check=True).stdout
+    print(f"walkthrough: {time.perf_counter() - start:.1f} s")
+    learned = capsys.readouterr().out
+    rms = float(re.search(r"smoothed pose RMS \(mm\) +[\d.]+ +([\d.]+)", learned).group(1))  # the 'learned' column
+    assert (tmp_path / "robot-diagnosis" / "report.html").is_file()
+    if shutil.which("evo_ape"):
+        assert float(re.search(r"rmse\s+([\d.]+)", evo).group(1)) * 1000.0 == pytest.approx(rms, abs=0.06)
