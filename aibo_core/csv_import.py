@@ -100,7 +100,7 @@ def ordered(path: Path | str, t: np.ndarray, what: str = "row") -> None:
     """Refuse (LogSourceError) times that go back: ``what`` names the unit counted (row, message)."""
     i = first_backward(t)
     if i is not None:
-        first = 2 if what == "row" else 0  # CSV rows counted from the header's 1
+        first = 2 if what == "row" else 1  # CSV rows counted from the header's 1, messages from 1
         raise LogSourceError(f"{path}: {what} {i + first}: time {float(t[i])!r} s is earlier than the {what} before "
                              f"({float(t[i - 1])!r} s): times must not go back")
 

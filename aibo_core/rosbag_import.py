@@ -152,10 +152,12 @@ def _read_topic(bag: _Bag, topic: str, option: str, time: str,
     for log_ns, msg in bag.messages(topic):
         ns.append(_stamp_ns(msg, log_ns, time))
         values.append(extract(msg))
+    if not ns:
+        raise LogSourceError(f"{bag.path}: {option} {topic}: the topic has no messages")
     t = np.array([n / 10**9 for n in ns])  # Python's int / int: the nearest double to the exact time
     source = "header.stamp" if time == "header" and hasattr(msg, "header") else "log time"
     if source == "header.stamp" and min(ns) == 0:
-        raise LogSourceError(f"{bag.path}: {option} {topic}: message {ns.index(0)} has header.stamp 0 (not set by its "
+        raise LogSourceError(f"{bag.path}: {option} {topic}: message {ns.index(0) + 1} has header.stamp 0 (not set by its "
                              "publisher); use --time log for the bag's record times")
     ordered(f"{bag.path}: {option} {topic} ({source})", t, "message")
     return t, values

@@ -222,7 +222,7 @@ def test_timestamps_out_of_order(tmp_path, small, capsys):
     stamps[[10, 11]] = stamps[[11, 10]]  # recorded in order, stamped out of order
     bag = write_bag(tmp_path, small, "ros1", truth_stamps=stamps)
     err = _fails(tmp_path, capsys, bag, *TOPICS, "--truth", "/vicon/pose")
-    assert "--truth /vicon/pose (header.stamp): message 11: time" in err and "must not go back" in err
+    assert "--truth /vicon/pose (header.stamp): message 12: time" in err and "must not go back" in err
 
 
 def test_an_empty_topic(tmp_path, small, capsys):
@@ -277,3 +277,13 @@ def test_the_walkthrough_runs(mrclam, tmp_path, monkeypatch, capsys):
     assert (tmp_path / "robot-diagnosis" / "report.html").is_file()
     if shutil.which("evo_ape"):
         assert float(re.search(r"rmse\s+([\d.]+)", evo).group(1)) * 1000.0 == pytest.approx(rms, abs=0.06)
+
+
+def test_unset_header_stamps_point_to_time_log(tmp_path, small, capsys):
+    """Stamps a publisher never set (0) are refused with the fix named; --time log reads the record times."""
+    bag = write_bag(tmp_path, small, "mcap", truth_stamps=np.zeros(len(small.truth)))
+    err = _fails(tmp_path, capsys, bag, *TOPICS, "--truth", "/vicon/pose")
+    assert "--truth /vicon/pose: message 1 has header.stamp 0 (not set by its publisher); use --time log" in err
+    assert _import(tmp_path, bag, *TOPICS, "--truth", "/vicon/pose", "--time", "log")[0] == 0
+    log = trajectory.load(tmp_path / "out.npz")
+    assert log.pose is not None and log.meta["source"]["time"] == "log"
