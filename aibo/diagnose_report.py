@@ -51,7 +51,8 @@ def signature_panels(path: Path, before: list, after: list, n: int = 6) -> None:
 def gap_bars(path: Path, before: dict[str, float], after: dict[str, float]) -> None:
     """Held-out gap and innovation consistency before and after adding the named effects."""
     keys = [("gap", "held-out NLL per sighting (nats)"), ("nis_mean", "mean NIS (2 expected)"),
-            ("nis_outside", "share outside chi2 95% band (0.05)"), ("whiteness", "lag-1 autocorrelation (0)")]
+            ("nis_outside", "share outside chi2 95% band (0.05)"),
+            ("whiteness", "size-innovation autocorrelation,\nlag 1, per landmark (0)")]
     fig, axes = plt.subplots(1, len(keys), figsize=(3.2 * len(keys), 3.0))
     for ax, (k, label) in zip(axes, keys):
         ax.bar(["before", "after"], [before[k], after[k]], color=["tab:red", "tab:blue"])

@@ -172,7 +172,7 @@ def test_a_disagreement_left_after_the_search_names_the_effect_whose_signature_i
               "calibrated_simulation": {"after": {"disagreements": [
                   {"statistic": "forward motion (sigma) vs world heading (rad) (strength)", "z": 17.6},
                   {"statistic": "size (sigma) vs landmark (strength)", "z": 6.0},  # named: not unexplained
-                  {"statistic": "innovation whiteness", "z": 6.5}]}}}  # no effect's signature
+                  {"statistic": "size-innovation autocorrelation (lag 1, per landmark)", "z": 6.5}]}}}  # no effect's signature
     (u,) = unexplained(report)
     assert u["effect"] == "floor_drift" and u["z"] == 17.6 and "held-out gain -63.0 nats" in u["why_not_named"]
     assert unexplained({"calibrated_simulation": {"note": "not run"}}) == []

@@ -18,7 +18,7 @@ from aibo_core.atomic import atomic_folder, write_json
 from aibo_core.compat import check_compatible
 from learners.discrepancy.effect_sizes import base_shift, effect_intervals, holds_off
 from learners.discrepancy.profile import profile_where_wald_fails
-from learners.discrepancy.score import GAP_METRIC, MOTION_GAP_METRIC, motion_score, motion_trade, score
+from learners.discrepancy.score import GAP_METRIC, MOTION_GAP_METRIC, WHITENESS_METRIC, motion_score, motion_trade, score
 from learners.discrepancy.search import SEARCH_PATIENCE, search
 from learners.discrepancy.signatures import probe_signature, signatures
 from learners.em.learner import EMLearner, feature_map_for
@@ -300,6 +300,7 @@ def _report(found: dict, final, final_info: dict, before, after, sig_before) -> 
         "gap_metric": GAP_METRIC,
         "gap_before": before.gap,
         "gap_after": after.gap,
+        "whiteness_metric": WHITENESS_METRIC,  # consistency_*["whiteness"]
         "consistency_before": before.as_dict(),
         "consistency_after": after.as_dict(),
         "signatures": [s.as_dict() for s in sig_before[:12]],

@@ -15,11 +15,15 @@ from learners.em.options import DEFAULT_GATE
 from learners.inference.batch import make_batch
 from learners.inference.open_loop import open_loop_logdens
 from learners.inference.predictive import model_logdens, own_noise, predictive_logdens, sightings_logdens
+from learners.inference.whiteness import consecutive_pairs, lag1, normalized_size_innovations
 from learners.model.model import Model
 
 from .split import heldout_mask
 
 GAP_METRIC = "heldout_nll_per_sighting"
+#: ``Score.whiteness``, the one autocorrelation the report, the README and ``aibo learn``'s warning quote
+#: (``learners.inference.whiteness``): consecutive sightings of one landmark at most 2 s apart.
+WHITENESS_METRIC = "lag-1 autocorrelation of the normalized size innovations, per landmark"
 #: The motion gap: each held-out sighting predicted open loop from the filtered pose k seconds before it
 #: (``learners.inference.open_loop``), negative log density per sighting, at each horizon k (s).
 MOTION_GAP_METRIC = "heldout_open_loop_nll_per_sighting"
@@ -27,7 +31,7 @@ MOTION_HORIZONS_S = (1.0, 2.0, 5.0)
 #: Time blocks (s) over which a motion gap's paired difference is summed before its standard error: open-loop
 #: errors of sightings a few seconds apart share the same stretch of motion, so they are not independent.
 MOTION_BLOCK_S = 30.0
-__all__ = ["GAP_METRIC", "MOTION_GAP_METRIC", "MOTION_HORIZONS_S", "MotionScore", "Score", "motion_score",
+__all__ = ["GAP_METRIC", "WHITENESS_METRIC", "MOTION_GAP_METRIC", "MOTION_HORIZONS_S", "MotionScore", "Score", "motion_score",
            "motion_trade", "predictive_logdens", "score"]
 
 
@@ -40,7 +44,7 @@ class Score:
     gap: float  # GAP_METRIC: -heldout_loglik / n_heldout (nats per sighting; lower is better)
     nis_mean: float  # mean normalized innovation squared (2 expected: 2-d sightings)
     nis_outside: float  # share outside the chi-square(2) 95% band (0.05 expected)
-    whiteness: float  # lag-1 autocorrelation of the normalized size innovations (0 expected)
+    whiteness: float  # WHITENESS_METRIC (0 expected)
     nis: np.ndarray  # (S,) per sighting, NaN where gated
 
     def as_dict(self) -> dict[str, float]:
@@ -62,10 +66,9 @@ def score(model: Model, logs: list[Trajectory], gate: float | None = None) -> Sc
     ok = np.isfinite(nis) & (nis <= DEFAULT_GATE)
     lo, hi = stats.chi2.ppf([0.025, 0.975], 2)
     z = nis[ok]
-    seq = np.sqrt(z) - np.mean(np.sqrt(z))
-    white = float(np.sum(seq[1:] * seq[:-1]) / np.sum(seq * seq)) if len(seq) > 2 else 0.0
+    white = lag1(consecutive_pairs(batch, normalized_size_innovations(model, batch)))
     return Score(heldout, n, -heldout / max(n, 1), float(np.mean(z)),
-                 float(np.mean((z < lo) | (z > hi))), white, nis)
+                 float(np.mean((z < lo) | (z > hi))), white if np.isfinite(white) else 0.0, nis)
 
 
 def horizon_key(seconds: float) -> str:

@@ -45,7 +45,7 @@ def check_statistics(model: Model, logs: list[Trajectory]) -> dict[str, float]:
         "held-out NLL per sighting (nats)": s.gap,
         "mean NIS": s.nis_mean,
         "share of NIS outside the 95% band": s.nis_outside,
-        "innovation whiteness": s.whiteness,
+        "size-innovation autocorrelation (lag 1, per landmark)": s.whiteness,
     }
     for sig in signatures(model, logs):
         out[signature_key(sig.residual, sig.variable) + " (strength)"] = strength(sig.p_value)
