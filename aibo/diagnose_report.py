@@ -154,8 +154,11 @@ def _calibrated(cal: dict[str, Any] | None, unexplained: list[dict[str, Any]]) -
             f"log differs in <b>{len(cal['before']['disagreements'])}</b> statistics from the base model's simulation "
             f"({worst(cal['before'])}), and in <b>{len(cal['after']['disagreements'])}</b> from the simulation with the "
             f"named effects ({worst(cal['after'])}).</p>" + "".join(
-                f"<p><b>Still unlike its simulation:</b> {html.escape(u['statistic'])} ({z_text(u['z'])}), the residual "
-                f"signature of <b>{html.escape(u['effect'])}</b>, which was not named ({html.escape(u['why_not_named'])}).</p>"
+                f"<p><b>Still unlike its simulation:</b> {html.escape(u['statistic'])} ({z_text(u['z'])}): "
+                f"{html.escape(u.get('reading', ''))}; "
+                + (f"the residual signature of <b>{html.escape(u['effect'])}</b>, which was not named"
+                   if u.get("effect") else "unexplained")
+                + f" ({html.escape(u['why_not_named'])}).</p>"
                 for u in unexplained if "probe" not in u))
 
 

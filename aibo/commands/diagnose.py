@@ -21,6 +21,7 @@ from learners.discrepancy.profile import profile_where_wald_fails
 from learners.discrepancy.score import GAP_METRIC, MOTION_GAP_METRIC, WHITENESS_METRIC, motion_score, motion_trade, score
 from learners.discrepancy.search import SEARCH_PATIENCE, search
 from learners.discrepancy.signatures import probe_signature, signatures
+from learners.discrepancy.statistics import plain_reading
 from learners.em.learner import EMLearner, feature_map_for
 from learners.em.options import EMOptions
 from learners.inference.batch import make_batch
@@ -118,8 +119,9 @@ def run(args) -> int:
     seconds["calibrated check"] = time.perf_counter() - t1
     report["unexplained"] = unexplained(report)
     for u in report["unexplained"]:
-        say(f"  still unlike its simulation: {u['statistic']} ({fig.z_text(u['z'])}), the signature of {u['effect']}, "
-            f"not named ({u['why_not_named']})")
+        of = f"the signature of {u['effect']}, not named" if u["effect"] else "unexplained"
+        say(f"  still unlike its simulation: {u['statistic']} ({fig.z_text(u['z'])}): {u['reading']}; {of} "
+            f"({u['why_not_named']})")
     report["unexplained"] += none_of_the_above(found, logs)
     for u in (u for u in report["unexplained"] if u["effect"] == NONE_OF_THE_ABOVE):
         say(f"none of the above: {u['describes']} (train +{u['gain_train']:.1f} nats, held-out {u['gain_heldout']:+.1f} "
@@ -237,9 +239,11 @@ def off_held(effects: list[dict], logs: list) -> list[str]:
 
 
 def unexplained(report: dict) -> list[dict]:
-    """Disagreements of the final model's calibrated simulation that are the residual signature
-    (``EffectModel.SIGNATURE``) of an effect that was not named, with why it was not: where the
-    search and the simulator part ways, the user should look."""
+    """Every disagreement of the final model's calibrated simulation with the log, with its z and a plain reading
+    (``plain_reading``) of what the log does that the twin does not. One that is the residual signature
+    (``EffectModel.SIGNATURE``) of an effect that was not named names it, with why it was not: where the search
+    and the simulator part ways, the user should look; one that no effect's signature matches has ``effect`` None
+    (the catalogue holds nothing that makes it)."""
     after = report["calibrated_simulation"].get("after")
     if not after:
         return []
@@ -247,13 +251,17 @@ def unexplained(report: dict) -> list[dict]:
     tried = {c["name"]: c for c in report["candidates"]}  # the last round's try of each
     out = []
     for d in after["disagreements"]:
-        for name, cls in sorted(EFFECT_MODELS.items()):
-            if not cls.SIGNATURE or cls.SIGNATURE not in d["statistic"] or name in named:
-                continue
+        reading = plain_reading(d["statistic"], d["z"])
+        matches = [name for name, cls in sorted(EFFECT_MODELS.items()) if cls.SIGNATURE and cls.SIGNATURE in d["statistic"]]
+        for name in (n for n in matches if n not in named):
             c = tried.get(name)
             why = ("not among the candidates" if c is None else c["note"] or
                    f"training gain {c['gain_train']:.1f} nats, p = {c['p_value']:.2g}; held-out gain {c['gain_heldout']:+.1f} nats")
-            out.append({"statistic": d["statistic"], "z": d["z"], "effect": name, "why_not_named": why})
+            out.append({"statistic": d["statistic"], "z": d["z"], "effect": name, "why_not_named": why, "reading": reading})
+        if not matches or all(n in named for n in matches):
+            why = ("the named effects " + ", ".join(matches) + " do not remove it" if matches
+                   else "no effect of the catalogue leaves this signature")
+            out.append({"statistic": d["statistic"], "z": d["z"], "effect": None, "why_not_named": why, "reading": reading})
     return out
 
 
