@@ -74,9 +74,10 @@ def starts_report(info: dict) -> list[str]:
         return []
     win = next(r for r in rows if r.get("chosen"))
     lines = [f"{len(rows)} starts screened for {win['iterations']} iterations each (sensor curve with distances "
-             f"x scale); kept start {win['start']}:"]
+             f"x scale), scored on the same sightings; kept start {win['start']}:"]
     for r in rows:
-        what = r["error"] if "error" in r else f"loglik {r['loglik']:.1f}, {r['behind_nats']:,.1f} nats behind"
+        what = r["error"] if "error" in r else (f"loglik {r['loglik']:.1f}, {r['behind_nats']:,.1f} nats behind"
+                                                 + (f", {r['pruned']:,d} sightings pruned" if "pruned" in r else ""))
         lines.append(f"  start {r['start']} (x{r['distance_scale']:.2g}): {what}{'  <- kept' if r.get('chosen') else ''}")
     return lines
 

@@ -20,7 +20,7 @@ from learners.em.fit import EMState, initial_state, options_json, run
 from learners.em.info import FitInfo, FitTimings
 from learners.em.options import COMPARABLE_IMPROVEMENT, EARLY_STOP, STRICT_PATIENCE, EMOptions
 from learners.em.start import initial_state_for
-from learners.em.starts import disagreement, screen
+from learners.em.starts import disagreement, pruned_warning, screen
 from learners.em.support import (
     StartModelError,
     check_support,
@@ -217,6 +217,7 @@ class EMLearner:
         is safely written (``discard_checkpoint``), so a failed final write loses nothing. ``initial``: the
         logs' start-pose beliefs for the paper's start (``start_params``; ignored with ``init``)."""
         batch = make_batch(logs)
+        sightings = int(np.count_nonzero(batch.used))
         start = self.start_params(logs, init, batch, action_model, initial)
         given = self.options
         try:
@@ -227,6 +228,9 @@ class EMLearner:
         if face_pruned is not None:
             result.pruned_observations += face_pruned
             result.info.face_value_gate_pruned = face_pruned
+        heavy = pruned_warning(result.pruned_observations, sightings)
+        if heavy:
+            result.info.warnings = [heavy] + list(result.info.warnings or [])
         return result
 
     def _fit(self, logs: list[Trajectory], batch: Batch, start: Model, progress: ProgressFn | None) -> LearnResult:
