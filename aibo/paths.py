@@ -59,7 +59,8 @@ INPUT_OPTIONS = (("log", "logs"), ("--init", "init"), ("--model", "model"), ("--
 
 def declared_inputs(args, extra: Sequence[Named] = ()) -> list[Named]:
     """Every file a command reads, from its parsed options: logs, ``--init``, ``--model``, ``--replay``,
-    JSON options given as a file (``aibo.options.JSONFile``), agent files of ``sb3:PATH`` policies;
+    JSON options given as a file (``aibo.options.JSONFile``), agent files of ``sb3:PATH`` policies and of
+    ``--policy-params`` naming one (``AGENT_PARAMS``);
     then ``extra`` (e.g. a dataset's files). Every command passes these to ``check_files``."""
     found: list[Named] = []
     for label, attr in INPUT_OPTIONS:
@@ -73,10 +74,25 @@ def declared_inputs(args, extra: Sequence[Named] = ()) -> list[Named]:
     for attr in ("policy", "policies"):
         for name in str(getattr(args, attr, "") or "").split(","):
             if name.strip().startswith("sb3:"):
-                agent = name.strip()[4:]
-                root = agent[:-4] if agent.endswith(".zip") else agent
-                found += [("agent", agent), ("agent", agent + ".zip"), ("agent", root + ".json")]
+                found += agent_files("agent", name.strip()[4:])
+    params = getattr(args, "policy_params", None) or {}
+    # collect: {param: value}; experiment: {policy: {param: value}}
+    for group in [params] + [v for v in params.values() if isinstance(v, dict)]:
+        for key in AGENT_PARAMS:
+            if isinstance(group.get(key), str) and group[key]:
+                found += agent_files(f"--policy-params '{key}'", group[key])
     return found + list(extra)
+
+
+#: Policy parameters that name an agent file the policy reads (``explorer``'s and ``sb3``'s ``path``).
+AGENT_PARAMS = ("path",)
+
+
+def agent_files(label: str, agent: str) -> list[Named]:
+    """The files an agent named ``agent`` may be read from: as given, with ``.zip`` added (SB3 adds it) and its
+    ``.json`` description."""
+    root = agent[:-4] if agent.endswith(".zip") else agent
+    return [(label, agent), (label, agent + ".zip"), (label, root + ".json")]
 
 
 def check_files(inputs: Sequence[Named], outputs: Sequence[Named], folders: Sequence[Named] = ()) -> None:

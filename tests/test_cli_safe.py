@@ -621,3 +621,26 @@ def test_atomic_folder_through_a_symlink_keeps_the_link(tmp_path):
         (tmp / "b.txt").write_text("new")
     assert link.is_symlink() and sorted(p.name for p in real.iterdir()) == ["b.txt"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["link", "real"]
+
+
+@pytest.mark.parametrize("out", ["agent.zip", "agent.json"])
+def test_an_agent_named_in_policy_params_is_an_input_of_collect(out, tmp_path, capsys):
+    """``--policy-params '{"path": AGENT}'`` names a file the policy reads: no output may replace it (or its .json)."""
+    agent = tmp_path / "agent.zip"
+    agent.write_bytes(b"PK agent")
+    (tmp_path / "agent.json").write_text("{}")
+    assert main(["collect", "--steps", "30", "--policy", "explorer", "--policy-params", f'{{"path": "{agent}"}}',
+                 "--out", str(tmp_path / out)]) == 2
+    _one_line_error(capsys, f"--out {tmp_path / out}", "--policy-params 'path'", "never overwritten")
+    assert agent.read_bytes() == b"PK agent" and (tmp_path / "agent.json").read_text() == "{}"
+
+
+def test_an_agent_named_in_policy_params_is_an_input_of_experiment(tmp_path, capsys):
+    """The sweep's ``{policy: {"path": AGENT}}`` too: an agent named like one of its outputs is refused."""
+    agent = tmp_path / "sweep" / "summary.json"
+    agent.parent.mkdir()
+    agent.write_text("{}")
+    assert main(["experiment", "policies", "--policies", "explorer", "--seeds", "1", "--out", str(agent.parent),
+                 "--policy-params", f'{{"explorer": {{"path": "{agent}"}}}}']) == 2
+    _one_line_error(capsys, str(agent), "never overwritten")
+    assert agent.read_text() == "{}"
