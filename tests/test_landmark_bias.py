@@ -266,3 +266,25 @@ def test_a_fit_without_bias_states_says_when_the_size_errors_drift_per_landmark(
         said[label + " lag1"] = size_error_lag1(res.params, make_batch([tr]))[0]
     assert len(said["bias"]) == 1 and "aibo diagnose" in said["bias"][0], said
     assert said["none"] == [] and abs(said["none lag1"]) < 0.15, said
+
+
+def test_learn_init_of_a_model_with_landmark_bias(tmp_path):
+    """A model holding landmark_bias (as diagnose's model.json may) is a valid --init: a stretched start's first
+    iteration prunes every sighting of some landmarks, and the bias states were allocated on the sightings before
+    it (IndexError in the M-step); they are allocated again on the kept ones."""
+    import json
+
+    from aibo.cli import main
+    from aibo_core import trajectory
+    from learners.model.io import load_model, save_model
+    from tests._logs import sim_log
+
+    log, fitted, init, out = (tmp_path / n for n in ("log.npz", "fit.json", "init.json", "m.json"))
+    trajectory.save(sim_log(6000, seed=3), log)
+    assert main(["learn", str(log), "--out", str(fitted)]) == 0  # a converged model
+    save_model(init, load_model(fitted).with_effect(LandmarkBias(0.05, 8.0)), {"learner": "em"})
+    assert main(["learn", str(log), "--init", str(init), "--out", str(out), "--max-iter", "16",
+                 "--no-alias-search"]) == 0
+    doc = json.loads(out.read_text())
+    assert [e["name"] for e in doc["effects"]] == ["landmark_bias"]
+    assert doc["info"]["starts"][2]["pruned"] > 0  # the case that failed

@@ -88,6 +88,12 @@ class _Loop:
             st.pruned = int(pruned.sum())
             self.batch = self.batch.with_used(self.batch.used & ~pruned)
             st.used = self.batch.used.copy()
+            if st.pruned and self.lowered[1].extra is not None:
+                # states allocated by the sightings (landmark_bias's slots): lowered again on the kept ones, so the
+                # M-step's schedule and the posterior's states agree
+                self.lowered = (params, params.lower(self.batch))
+                post = e_step(params, self.batch, opts.estep, lo=self.lowered[1])
+                self.spent = post
         ll = float(post.loglik)
         if not np.isfinite(ll):
             raise FloatingPointError(f"log-likelihood is {ll} at EM iteration {st.iteration + 1}")
