@@ -19,7 +19,7 @@ import argparse
 import sys
 
 from aibo.errors import CLIError
-from aibo.options import finite, integer, json_object, replica_count, steps
+from aibo.options import finite, integer, json_object, path, replica_count, steps
 from aibo_core.trajectory import TrajectoryError
 
 
@@ -51,32 +51,32 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--policy-params", type=json_object, default={}, metavar="JSON", help="the policy's parameters")
     c.add_argument("--localizer", default=None, choices=["truth", "ekf"],
                    help="pose estimate random-balanced steers with (default: the true pose); the others use the EKF")
-    c.add_argument("--out", required=True, help="log file to write (.npz)")
+    c.add_argument("--out", type=path, required=True, help="log file to write (.npz)")
     c.add_argument("--preset", choices=["paper-sim", "aibo"], help="sensor noise preset")
     c.add_argument("--config", type=json_object, default={}, help="JSON object of env config overrides")
     c.add_argument("--blind", action="store_true", help="leave out pose and truth, as a real robot's log")
-    c.add_argument("--plot", help="also draw the trajectory on the field to this PNG")
-    c.add_argument("--model", help="a calibrated simulator: the robot this model file describes (aibo-model/1: its "
+    c.add_argument("--plot", type=path, help="also draw the trajectory on the field to this PNG")
+    c.add_argument("--model", type=path, help="a calibrated simulator: the robot this model file describes (aibo-model/1: its "
                    "velocities, motion noise, sensor curve and noise, effects and start pose; --config still applies)")
-    c.add_argument("--replay", help="with --model: replay this log's commands and head pan in its world (landmarks, "
+    c.add_argument("--replay", type=path, help="with --model: replay this log's commands and head pan in its world (landmarks, "
                    "field, camera); --steps and --policy are then the log's")
     c.set_defaults(run=commands.run_collect)
 
     lr = sub.add_parser("learn", help="learn action and sensor models from logs")
-    lr.add_argument("logs", nargs="+", help="aibo-trajectory/2 logs (.npz; /1 files are converted on read) of one robot")
-    lr.add_argument("--out", required=True, help="model file to write (aibo-model/1 JSON)")
+    lr.add_argument("logs", nargs="+", type=path, help="aibo-trajectory/2 logs (.npz; /1 files are converted on read) of one robot")
+    lr.add_argument("--out", type=path, required=True, help="model file to write (aibo-model/1 JSON)")
     lr.add_argument("--learner", default="em", help="em (default), oracle, or an installed plugin")
     lr.add_argument("--max-iter", type=integer(1), default=3000)
     lr.add_argument("--patience", type=integer(1), default=None,
                     help="stop after N iterations without a new best likelihood (default 10; --paper-recipe 50)")
     lr.add_argument("--seed", type=integer(0), default=0)
-    lr.add_argument("--init", help="start from this model file instead of the paper's start")
+    lr.add_argument("--init", type=path, help="start from this model file instead of the paper's start")
     lr.add_argument("--action-model", choices=["table", "features", "unicycle"], default=None,
                     help="table: one velocity per discrete command (default for discrete logs); features: "
                          "velocity = features(command) x weights (diff_drive for two controls, else linear); unicycle (default "
                          "for (v_mm_s, omega_rad_s) commands): the diff_drive features with no lateral velocity and no "
                          "turn-rate term in the forward speed (a wheeled robot)")
-    lr.add_argument("--plots", help="write learning-curve and sensor-model PNGs to this folder")
+    lr.add_argument("--plots", type=path, help="write learning-curve and sensor-model PNGs to this folder")
     lr.add_argument("--paper-recipe", action="store_true",
                     help="the paper's recipe as written: fixed motion noise, one sample per sighting, plain EM")
     lr.add_argument("--sensor-method", choices=["sample", "cubature"],
@@ -111,7 +111,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     rp = sub.add_parser("reproduce", help="the paper's simulated experiment, end to end")
     rp.add_argument("--quick", action="store_true", help="a short log and fewer iterations, for a first look")
-    rp.add_argument("--out", default="runs/reproduce", help="folder for the log, models, report and figures")
+    rp.add_argument("--out", type=path, default="runs/reproduce", help="folder for the log, models, report and figures")
     rp.add_argument("--seed", type=integer(0), default=1)
     rp.add_argument("--paper-recipe", action="store_true",
                     help="use the paper's exact recipe (fixed motion noise, one sample per frame)")
@@ -120,8 +120,8 @@ def build_parser() -> argparse.ArgumentParser:
     rp.set_defaults(run=commands.run_reproduce)
 
     dg = sub.add_parser("diagnose", help="find where model and data disagree, name the missing effect, refit")
-    dg.add_argument("logs", nargs="+", help="aibo-trajectory/2 logs (.npz; /1 files are converted on read) of one robot")
-    dg.add_argument("--out", required=True, help="folder for report.html, report.json, model.json and figures")
+    dg.add_argument("logs", nargs="+", type=path, help="aibo-trajectory/2 logs (.npz; /1 files are converted on read) of one robot")
+    dg.add_argument("--out", type=path, required=True, help="folder for report.html, report.json, model.json and figures")
     dg.add_argument("--candidates", help="comma-separated effects to try (default: the whole catalogue)")
     dg.add_argument("--jobs", type=integer(1), default=2, help="worker processes for the candidates (default 2)")
     dg.add_argument("--seed", type=integer(0), default=0)
@@ -134,16 +134,16 @@ def build_parser() -> argparse.ArgumentParser:
     dg.set_defaults(run=commands.run_diagnose)
 
     b = sub.add_parser("bench", help="measure E-step and fit speed on this machine")
-    b.add_argument("--json", help="write all figures to this JSON file")
+    b.add_argument("--json", type=path, help="write all figures to this JSON file")
     b.add_argument("--quick", action="store_true", help="smaller sizes (for a smoke test)")
     b.set_defaults(run=commands.run_bench)
 
     im = sub.add_parser("import", help="convert a real robot's logs to an aibo-trajectory/2 log")
     isub = im.add_subparsers(dest="dataset", required=True, metavar="DATASET")
     mr = isub.add_parser("mrclam", help="one robot of the UTIAS MRCLAM dataset (Leung et al. 2011)")
-    mr.add_argument("folder", help="the dataset folder (Barcodes.dat, Landmark_Groundtruth.dat, RobotN_*.dat)")
+    mr.add_argument("folder", type=path, help="the dataset folder (Barcodes.dat, Landmark_Groundtruth.dat, RobotN_*.dat)")
     mr.add_argument("--robot", type=integer(1), required=True, help="robot number (1-5)")
-    mr.add_argument("--out", required=True, help="log file to write (.npz)")
+    mr.add_argument("--out", type=path, required=True, help="log file to write (.npz)")
     mr.add_argument("--dt", type=finite(1e-3), default=0.1, help="seconds per frame (default 0.1)")
     mr.add_argument("--start", type=finite(0), default=0.0, help="skip this many seconds after the first command")
     mr.add_argument("--seconds", type=finite(1e-3), help="keep at most this many seconds")
@@ -153,9 +153,9 @@ def build_parser() -> argparse.ArgumentParser:
     ex = sub.add_parser("export", help="logs as an offline-RL dataset")
     xsub = ex.add_subparsers(dest="format", required=True, metavar="FORMAT")
     mi = xsub.add_parser("minari", help="a Minari dataset, one AiboBeacons-v0 episode per log ('minari' extra)")
-    mi.add_argument("logs", nargs="+", help="aibo-trajectory/2 logs (.npz) of discrete commands")
+    mi.add_argument("logs", nargs="+", type=path, help="aibo-trajectory/2 logs (.npz) of discrete commands")
     mi.add_argument("--dataset-id", required=True, help="Minari dataset id, (namespace/)name-vN")
-    mi.add_argument("--out", help="datasets folder (default: MINARI_DATASETS_PATH, else ~/.minari/datasets)")
+    mi.add_argument("--out", type=path, help="datasets folder (default: MINARI_DATASETS_PATH, else ~/.minari/datasets)")
     mi.add_argument("--force", action="store_true", help="replace a dataset of that id in the folder")
     mi.set_defaults(run=commands.run_export)
 
@@ -175,7 +175,7 @@ def _add_experiment_commands(sub, commands) -> None:
     ep.add_argument("--seed-base", type=integer(0), default=1, help="first seed (default 1)")
     ep.add_argument("--robot-seed-base", type=integer(0), default=100,
                     help="seed s walks the robot robot_seed = this + s (default 100), unless --config sets robot_seed")
-    ep.add_argument("--out", required=True, help="sweep folder: results.jsonl, summary.json, PNG, runs/")
+    ep.add_argument("--out", type=path, required=True, help="sweep folder: results.jsonl, summary.json, PNG, runs/")
     ep.add_argument("--config", type=json_object, default={}, help="JSON object of env config overrides")
     ep.add_argument("--policy-params", type=json_object, default={},
                     help='JSON object {policy: {param: value}} (random-balanced gets {"localizer": "ekf"} by default)')
@@ -196,7 +196,7 @@ def _add_experiment_commands(sub, commands) -> None:
     te.add_argument("--steps", type=integer(1), default=None,
                     help="agent steps (command holds) to train (default 60000 for explorer, 20000 for sb3)")
     te.add_argument("--seed", type=integer(0), default=0)
-    te.add_argument("--out", required=True, help="agent file to write (.zip; AGENT.json beside it)")
+    te.add_argument("--out", type=path, required=True, help="agent file to write (.zip; AGENT.json beside it)")
     te.add_argument("--config", type=json_object, default={},
                     help='JSON object of env config overrides (sb3: default reward "explore"; episode = max_steps frames)')
     te.add_argument("--hold-s", type=finite(0.001), default=5.0, help="seconds per command hold = one agent step (default 5)")
@@ -205,7 +205,7 @@ def _add_experiment_commands(sub, commands) -> None:
     te.add_argument("--episode-minutes", type=finite(0.001), default=15.0, help="explorer: minutes per episode (default 15)")
     te.add_argument("--n-envs", type=integer(1), default=2, help="sb3: vectorized envs (default 2)")
     te.add_argument("--vec", choices=["subproc", "dummy"], default="subproc", help="sb3: subprocess (default) or in-process envs")
-    te.add_argument("--tensorboard", default=None, help="TensorBoard log folder (used when tensorboard is installed)")
+    te.add_argument("--tensorboard", type=path, default=None, help="TensorBoard log folder (used when tensorboard is installed)")
     te.set_defaults(run=commands.run_train_explorer)
 
 

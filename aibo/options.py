@@ -63,6 +63,14 @@ def finite(least: float) -> Callable[[str], float]:
     return parse
 
 
+def path(text: str) -> str:
+    """An option type: a file or folder name, not empty (an empty one was taken as the current folder, or
+    ignored, and some commands failed only after all their work)."""
+    if not text:
+        raise argparse.ArgumentTypeError("an empty name; give a file or folder")
+    return text
+
+
 def max_steps() -> int:
     """The largest ``--steps``: ``MAX_STEPS``, or fewer when half this machine's memory holds fewer."""
     try:

@@ -9,7 +9,9 @@ Every command calls ``check_files(inputs, outputs)`` before any work. It refuses
 - the same input given twice under one label (e.g. a log and a symlink to it): it would count twice.
 
 ``check_replaceable(label, folder, names)``: a folder of outputs replaced whole
-(``aibo_core.atomic.atomic_folder``) may hold only those outputs, so nothing else in it is lost.
+(``aibo_core.atomic.atomic_folder``) may hold only those outputs, so nothing else in it is lost; nor may it be
+the current folder, one holding it, or a mount point (``--out .`` or ``--out ""``), which cannot be replaced:
+refused before any work, not after it.
 
 ``checkpoint_path(out)`` derives the checkpoint file name beside a model file so that it never
 exceeds the file system's NAME_MAX, however long the model's name is.
@@ -123,6 +125,12 @@ def check_replaceable(label: str, folder: str | os.PathLike, names: Sequence[str
     the folder is about to be replaced whole, and nothing else a user keeps there may be lost."""
     from aibo_core.atomic import is_stale
 
+    where = os.path.realpath(folder)
+    if os.path.commonpath([where, os.getcwd()]) == where or os.path.ismount(where):
+        what = "a mount point" if os.path.ismount(where) else "the current folder" if where == os.getcwd() else \
+            "a folder holding the current one"
+        raise CLIError(f"{label} {str(folder) or repr('')}: is {what}; the output folder is replaced whole, which "
+                       "cannot be done to it; give a new folder (e.g. --out runs/NAME)")
     try:
         entries = sorted(os.listdir(folder))
     except (FileNotFoundError, NotADirectoryError):
@@ -135,6 +143,8 @@ def check_replaceable(label: str, folder: str | os.PathLike, names: Sequence[str
 
 
 def _check_output_name(label: str, path: str | os.PathLike) -> None:
+    if not str(path):
+        raise CLIError(f"{label}: an empty file name; give the file to write")
     if os.path.isdir(path):
         raise CLIError(f"{label} {path}: is a folder; give a file name")
     name = os.fsencode(Path(path).name)

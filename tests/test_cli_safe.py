@@ -644,3 +644,36 @@ def test_an_agent_named_in_policy_params_is_an_input_of_experiment(tmp_path, cap
                  "--policy-params", f'{{"explorer": {{"path": "{agent}"}}}}']) == 2
     _one_line_error(capsys, str(agent), "never overwritten")
     assert agent.read_text() == "{}"
+
+
+def _exit_code(argv: list[str]) -> int:
+    """``main(argv)``'s exit status, also when argparse refuses an option (SystemExit)."""
+    try:
+        return main(argv)
+    except SystemExit as stop:
+        return stop.code
+
+
+@pytest.mark.parametrize("command", ["diagnose", "reproduce"])
+@pytest.mark.parametrize("out", [".", "", "..", "sub/.."])
+def test_an_output_folder_that_cannot_be_replaced_is_refused_first(command, out, tmp_path, monkeypatch, capsys):
+    """The folder is replaced whole at the end: the current folder (or one holding it) cannot be, and the run's
+    results were lost ('Device or resource busy' after the whole run)."""
+    work = tmp_path / "work"
+    (work / "sub").mkdir(parents=True)
+    monkeypatch.chdir(work)
+    log = work / "log.npz"
+    log.write_bytes(b"")  # never read: refused before
+    args = ["diagnose", str(log), "--out", out] if command == "diagnose" else ["reproduce", "--quick", "--out", out]
+    assert _exit_code(args) == 2
+    _one_line_error(capsys, "an empty name" if out == "" else "the output folder is replaced whole")
+    assert sorted(p.name for p in work.iterdir()) == ["log.npz", "sub"]
+
+
+@pytest.mark.parametrize("args", [["collect", "--steps", "30", "--out", ""], ["bench", "--quick", "--json", ""],
+                                  ["collect", "--steps", "30", "--out", "x.npz", "--plot", ""],
+                                  ["import", "mrclam", "", "--robot", "1", "--out", "x.npz"]])
+def test_an_empty_file_name_is_refused_first(args, capsys):
+    """An empty name was the current folder or ignored: bench --json '' ran to the end, then failed."""
+    assert _exit_code(args) == 2
+    _one_line_error(capsys, "an empty name")
