@@ -677,3 +677,12 @@ def test_an_empty_file_name_is_refused_first(args, capsys):
     """An empty name was the current folder or ignored: bench --json '' ran to the end, then failed."""
     assert _exit_code(args) == 2
     _one_line_error(capsys, "an empty name")
+
+
+@pytest.mark.parametrize("option, value", [("--holdout-minutes", "1e5"), ("--minutes", "5,1e9")])
+def test_a_sweep_log_longer_than_collect_may_simulate_is_refused(option, value, tmp_path, capsys):
+    """--holdout-minutes had no upper limit (1e5: hours and ~29 GB before any error)."""
+    out = tmp_path / "sweep"
+    assert main(["experiment", "policies", "--seeds", "1", "--out", str(out), option, value]) == 2
+    _one_line_error(capsys, f"{option} {value if option == '--minutes' else '100000'}: ", "what aibo collect may simulate")
+    assert not out.exists()
