@@ -6,7 +6,8 @@ Every command calls ``check_files(inputs, outputs)`` before any work. It refuses
   (``os.path.samefile``: same device and inode), so an input is never overwritten;
 - two outputs that are the same file (one would clobber the other);
 - an output that is an existing folder, or whose name is longer than the file system allows;
-- the same input given twice under one label (e.g. a log and a symlink to it): it would count twice.
+- the same input given twice under one label (e.g. a log and a symlink to it), or two logs with the same
+  bytes (a copy): it would count twice.
 
 ``check_replaceable(label, folder, names)``: a folder of outputs replaced whole
 (``aibo_core.atomic.atomic_folder``) may hold only those outputs, so nothing else in it is lost; nor may it be
@@ -42,6 +43,24 @@ def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
         return os.path.samefile(a, b)
     except OSError:
         return os.path.realpath(a) == os.path.realpath(b)
+
+
+def same_bytes(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    """True when the regular files ``a`` and ``b`` hold the same bytes (sizes compared first, then SHA-256)."""
+    try:
+        if not (os.path.isfile(a) and os.path.isfile(b)) or os.path.getsize(a) != os.path.getsize(b):
+            return False
+        return _sha256(a) == _sha256(b)
+    except OSError:
+        return False  # unreadable: the command's own read reports it
+
+
+def _sha256(path: str | os.PathLike) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(2**20), b""):
+            digest.update(block)
+    return digest.hexdigest()
 
 
 def name_max(folder: str | os.PathLike) -> int:
@@ -109,6 +128,9 @@ def check_files(inputs: Sequence[Named], outputs: Sequence[Named], folders: Sequ
         for other_label, other in inputs[:i]:
             if label == other_label and same_file(path, other):
                 raise CLIError(f"{label} {path} is the same file as {other_label} {other}: give each {label} once")
+            if label == other_label and label == "log" and same_bytes(path, other):
+                raise CLIError(f"{label} {path} holds the same bytes as {other_label} {other} (a copy): its data would "
+                               f"count twice; give each {label} once")
     for i, (label, path) in enumerate(outputs):
         _check_output_name(label, path)
         for in_label, in_path in inputs:

@@ -161,6 +161,19 @@ def test_diagnose_and_learn_refuse_the_same_log_twice(blind_log, tmp_path, capsy
     _one_line_error(capsys, "same file", "once")
 
 
+@pytest.mark.parametrize("command", ["learn", "diagnose"])
+def test_a_byte_identical_copy_of_a_log_is_refused(command, blind_log, tmp_path, capsys):
+    """Links were refused, copies were not: the copy's sightings counted twice."""
+    import shutil
+
+    copy = tmp_path / "copy.npz"
+    shutil.copyfile(blind_log, copy)
+    out = tmp_path / ("m.json" if command == "learn" else "D")
+    assert main([command, str(blind_log), str(copy), "--out", str(out)]) == 2
+    _one_line_error(capsys, f"log {copy} holds the same bytes as log {blind_log}", "once")
+    assert not out.exists()
+
+
 def test_diagnose_action_model_is_checked_against_the_log(blind_log, tmp_path, capsys):
     assert main(["diagnose", str(blind_log), "--out", str(tmp_path / "D"), "--action-model", "unicycle"]) == 2
     _one_line_error(capsys, "--action-model unicycle", str(blind_log), "discrete")
