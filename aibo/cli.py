@@ -10,7 +10,8 @@
     aibo train-explorer  train an SB3 agent that chooses the held commands
     aibo export          logs as an offline-RL dataset (Minari)
 
-Bad input ends with one line ``aibo: error: ...`` and exit status 2 (``--debug`` shows the traceback).
+Bad input ends with one line ``aibo: error: ...`` and exit status 2 (``--debug`` shows the traceback); a run
+whose result misses its bar (``aibo reproduce``) ends with exit status 1; an interrupt with 130.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ class _Parser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     from aibo import commands
+    from learners.em.options import EMOptions
 
     p = _Parser(prog="aibo", description=__doc__.split("\n\n")[0])
     p.add_argument("--debug", action="store_true", help="show tracebacks of errors")
@@ -44,9 +46,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="aibo: AiboBeacons-v0 (40 walk commands, height camera); wheeled: WheeledRobot-v0 ((v, omega) "
                    "commands, range/bearing camera, random-waypoint driver). Default: the --model's (wheeled for "
                    "continuous-command models), else aibo")
-    c.add_argument("--seed", type=integer(0), default=0)
+    c.add_argument("--seed", type=integer(0), default=0, help="seed of the simulation: its noise and the policy's choices (default 0)")
     c.add_argument("--policy", default=None, metavar="NAME|sb3:PATH",
-                   help="random-balanced (default), uniform, informed, greedy, explorer, or sb3:AGENT.zip (see aibo_gym.policies); "
+                   help="random-balanced (default), uniform, informed, greedy, explorer (the shipped learned agent; needs "
+                   "the 'agents' extra, Stable-Baselines3), or sb3:AGENT.zip (also 'agents'; see aibo_gym.policies); "
                    "--env wheeled: waypoints (the only one, its parameters in aibo_gym.policies.waypoints)")
     c.add_argument("--policy-params", type=json_object, default={}, metavar="JSON", help="the policy's parameters")
     c.add_argument("--localizer", default=None, choices=["truth", "ekf"],
@@ -66,10 +69,13 @@ def build_parser() -> argparse.ArgumentParser:
     lr.add_argument("logs", nargs="+", type=path, help="aibo-trajectory/2 logs (.npz; /1 files are converted on read) of one robot")
     lr.add_argument("--out", type=path, required=True, help="model file to write (aibo-model/1 JSON)")
     lr.add_argument("--learner", default="em", help="em (default), oracle, or an installed plugin")
-    lr.add_argument("--max-iter", type=integer(1), default=3000)
+    lr.add_argument("--max-iter", type=integer(1), default=3000,
+                    help="most EM iterations (default 3000; EM usually stops long before, see --patience)")
     lr.add_argument("--patience", type=integer(1), default=None,
                     help="stop after N iterations without a new best likelihood (default 10; --paper-recipe 50)")
-    lr.add_argument("--seed", type=integer(0), default=0)
+    lr.add_argument("--seed", type=integer(0), default=0,
+                    help="seed of EM's random draws: the sensor M-step's samples (--sensor-method sample) and the "
+                         "starts beyond the fifth (default 0)")
     lr.add_argument("--init", type=path, help="start from this model file instead of the paper's start")
     lr.add_argument("--action-model", choices=["table", "features", "unicycle"], default=None,
                     help="table: one velocity per discrete command (default for discrete logs); features: "
@@ -85,10 +91,11 @@ def build_parser() -> argparse.ArgumentParser:
                     help="re-estimate Sigma_A in the M-step (default on; off in the paper)")
     lr.add_argument("--accel", choices=["none", "squarem"], help="EM acceleration (default squarem; paper: none)")
     lr.add_argument("--gate", type=finite(0), help="first-iteration outlier gate on Mahalanobis^2 (default 50; 0 = off)")
-    lr.add_argument("--starts", type=integer(1), help="starts screened, the most likely continued (default "
-                    "EMOptions.starts; paper: 1)")
+    lr.add_argument("--starts", type=integer(1), help="starts screened (the given one and its sensor curve with "
+                    f"distances x0.5, x0.25, ...), the most likely continued (default {EMOptions().starts}; "
+                    "--paper-recipe 1; range sensors 1)")
     lr.add_argument("--sensor-basis", choices=["power", "inverse"], help="sensor curve: power (the paper's cubic "
-                    "in d) or inverse (c0 + c1/d + c2/d^2); default: --init's, else EMOptions' default")
+                    "in d) or inverse (c0 + c1/d + c2/d^2); default: --init's, else inverse for heights, power for ranges")
     lr.add_argument("--range-curve", choices=["held", "free"], help="range sensors (mm): held keeps the curve at "
                     "range = distance (or --init's) and screens no stretched starts (default); free fits the cubic "
                     "(paper)")
@@ -110,9 +117,12 @@ def build_parser() -> argparse.ArgumentParser:
     lr.set_defaults(run=commands.run_learn)
 
     rp = sub.add_parser("reproduce", help="the paper's simulated experiment, end to end")
-    rp.add_argument("--quick", action="store_true", help="a short log and fewer iterations, for a first look")
-    rp.add_argument("--out", type=path, default="runs/reproduce", help="folder for the log, models, report and figures")
-    rp.add_argument("--seed", type=integer(0), default=1)
+    rp.add_argument("--quick", action="store_true", help="a 5-minute log and at most 300 iterations, a first look (not "
+                    "held to the paper's bar; exit status 1 is only for a full run that misses it)")
+    rp.add_argument("--out", type=path, default=None, help="folder for the log, models, report and figures (default "
+                    "runs/reproduce; --quick: runs/reproduce-quick); replaced whole")
+    rp.add_argument("--seed", type=integer(0), default=1, help="seed of the simulated log (default 1, the one the "
+                    "README's table shows)")
     rp.add_argument("--paper-recipe", action="store_true",
                     help="use the paper's exact recipe (fixed motion noise, one sample per frame)")
     rp.add_argument("--no-resume", action="store_true",
@@ -124,7 +134,7 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument("--out", type=path, required=True, help="folder for report.html, report.json, model.json and figures")
     dg.add_argument("--candidates", help="comma-separated effects to try (default: the whole catalogue)")
     dg.add_argument("--jobs", type=integer(1), default=2, help="worker processes for the candidates (default 2)")
-    dg.add_argument("--seed", type=integer(0), default=0)
+    dg.add_argument("--seed", type=integer(0), default=0, help="seed of the fits and of the replicas (default 0)")
     dg.add_argument("--action-model", choices=["table", "features", "unicycle"], default=None,
                     help="the base fit's action model, as in 'aibo learn' (default: table for discrete logs, unicycle "
                          "for (v_mm_s, omega_rad_s) commands, features otherwise)")
@@ -181,7 +191,8 @@ def _add_experiment_commands(sub, commands) -> None:
                     help='JSON object {policy: {param: value}} (random-balanced gets {"localizer": "ekf"} by default)')
     ep.add_argument("--holdout-minutes", type=finite(0), default=5.0,
                     help="length of each seed's held-out log (default 5; 0: none)")
-    ep.add_argument("--max-iter", type=integer(1), default=None, help="EM iteration cap (default: EM's)")
+    ep.add_argument("--max-iter", type=integer(1), default=None,
+                    help="most EM iterations per run (default 3000, as aibo learn)")
     ep.add_argument("--jobs", type=integer(1), default=None, help="parallel runs (default: the CPU count)")
     ep.add_argument("--backend", choices=["serial", "pool", "ray"], default="pool",
                     help="serial, a local process pool (default) or Ray (optional extra 'ray')")
@@ -195,7 +206,8 @@ def _add_experiment_commands(sub, commands) -> None:
     te.add_argument("--algo", choices=["ppo", "dqn"], default=None, help="sb3 only (default ppo); explorer: always ppo")
     te.add_argument("--steps", type=integer(1), default=None,
                     help="agent steps (command holds) to train (default 60000 for explorer, 20000 for sb3)")
-    te.add_argument("--seed", type=integer(0), default=0)
+    te.add_argument("--seed", type=integer(0), default=0,
+                    help="seed of the training (robots, PPO/DQN, warm start): the same seed gives the same agent (default 0)")
     te.add_argument("--out", type=path, required=True, help="agent file to write (.zip; AGENT.json beside it)")
     te.add_argument("--config", type=json_object, default={},
                     help='JSON object of env config overrides (sb3: default reward "explore"; episode = max_steps frames)')

@@ -79,3 +79,38 @@ def test_collect_gives_the_frames_asked_for_past_the_episode_limit(tmp_path):
     assert trajectory.load(out).n_frames == 27300
     assert main(["collect", "--steps", "300", "--out", str(out), "--config", '{"max_steps": 100}']) == 0
     assert trajectory.load(out).n_frames == 100  # an explicit episode limit still ends the episode
+
+
+def _options(parser, where="aibo"):
+    """(command, argparse action) of every option and positional of every subcommand."""
+    import argparse
+
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from _options(sub, f"{where} {name}")
+        elif not isinstance(action, argparse._HelpAction):
+            yield where, action
+
+
+def test_every_option_says_what_it_does_and_its_default():
+    """--seed and --max-iter had no description; learn --starts named a class attribute; reproduce --out hid it."""
+    import argparse
+
+    from aibo.cli import build_parser
+
+    for where, action in _options(build_parser()):
+        name = f"{where} {action.option_strings[-1] if action.option_strings else action.dest}"
+        assert action.help, f"{name}: no help text"
+        assert "EMOptions" not in action.help, f"{name}: names a class, not a value"
+        valued = action.option_strings and not isinstance(action, (argparse._StoreTrueAction,
+                                                                   argparse.BooleanOptionalAction))
+        if valued and action.default not in (None, {}, False):
+            assert "default" in action.help, f"{name}: default {action.default!r} not in its help"
+
+
+def test_the_agents_extra_is_named_with_the_cpu_torch_advice(tmp_path, monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "stable_baselines3", None)  # import stable_baselines3 raises ImportError
+    assert main(["collect", "--steps", "30", "--policy", "explorer", "--out", str(tmp_path / "x.npz")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "'.[agents]'" in err and "CPU-only torch first" in err

@@ -33,6 +33,11 @@ def sidecar_path(path: str) -> str:
     return root + ".json"
 
 
+#: How to install Stable-Baselines3 (the ``agents`` extra): a CPU-only torch first, or pip pulls gigabytes of CUDA wheels.
+AGENTS_HINT = ("install a CPU-only torch first (pip install torch --index-url https://download.pytorch.org/whl/cpu), "
+               "then pip install -e '.[agents]' (docs/environments.md)")
+
+
 def _sha256(path: str) -> str:
     with open(path, "rb") as f:
         return hashlib.sha256(f.read()).hexdigest()
@@ -62,7 +67,7 @@ def load_agent(path: str, features: str = FEATURES_VERSION, n_features: int = N_
     try:
         import stable_baselines3 as sb3
     except ImportError:
-        raise ValueError(f"policy '{policy}' needs Stable-Baselines3 (pip install -e '.[agents]')") from None
+        raise ValueError(f"policy '{policy}' needs Stable-Baselines3: {AGENTS_HINT}") from None
     algos = [meta["algo"]] if meta.get("algo") in ALGOS else list(ALGOS)
     model, errors = None, []
     for algo in algos:
