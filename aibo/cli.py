@@ -23,6 +23,9 @@ from aibo.errors import CLIError
 from aibo.options import finite, integer, json_object, path, replica_count, steps
 from aibo_core.trajectory import TrajectoryError
 
+#: What an interrupt leaves, for commands that do not resume: every output is written whole, at the end.
+NOTHING_WRITTEN = "no output was written or changed (each is written whole, at the end)"
+
 
 class _Parser(argparse.ArgumentParser):
     """argparse, with its usage errors as one line ``aibo: error: ...`` (exit status 2) like all others."""
@@ -114,7 +117,8 @@ def build_parser() -> argparse.ArgumentParser:
     lr.add_argument("--estep", choices=["compiled", "numpy"], default="compiled",
                     help="numba kernels (default) or the plain NumPy reference")
     lr.add_argument("--no-resume", action="store_true", help="ignore a checkpoint left by an interrupted run")
-    lr.set_defaults(run=commands.run_learn)
+    lr.set_defaults(run=commands.run_learn, interrupted="the same command resumes from the checkpoint beside --out "
+                    "(--no-resume starts over)")
 
     rp = sub.add_parser("reproduce", help="the paper's simulated experiment, end to end")
     rp.add_argument("--quick", action="store_true", help="a 5-minute log and at most 300 iterations, a first look (not "
@@ -127,7 +131,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="use the paper's exact recipe (fixed motion noise, one sample per frame)")
     rp.add_argument("--no-resume", action="store_true",
                     help="ignore the checkpoint an interrupted identical run left in --out")
-    rp.set_defaults(run=commands.run_reproduce)
+    rp.set_defaults(run=commands.run_reproduce, interrupted="the same command resumes EM from its checkpoint in --out "
+                    "(--no-resume starts over)")
 
     dg = sub.add_parser("diagnose", help="find where model and data disagree, name the missing effect, refit")
     dg.add_argument("logs", nargs="+", type=path, help="aibo-trajectory/2 logs (.npz; /1 files are converted on read) of one robot")
@@ -197,7 +202,8 @@ def _add_experiment_commands(sub, commands) -> None:
     ep.add_argument("--backend", choices=["serial", "pool", "ray"], default="pool",
                     help="serial, a local process pool (default) or Ray (optional extra 'ray')")
     ep.add_argument("--address", default=None, help="Ray cluster address (default: a local Ray instance)")
-    ep.set_defaults(run=commands.run_experiment)
+    ep.set_defaults(run=commands.run_experiment, interrupted="the same command resumes: the finished runs are kept "
+                    "in --out's results.jsonl")
 
     te = sub.add_parser("train-explorer", help="train an SB3 agent choosing each held command (needs the 'agents' extra)")
     te.add_argument("--policy", choices=["explorer", "sb3"], default="explorer",
@@ -240,7 +246,7 @@ def main(argv: list[str] | None = None) -> int:
         print("aibo: error: out of memory (use a shorter log or fewer logs)", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("aibo: interrupted (a learn run resumes from its checkpoint)", file=sys.stderr)
+        print(f"aibo: interrupted; {getattr(args, 'interrupted', NOTHING_WRITTEN)}", file=sys.stderr)
         return 130
 
 

@@ -114,3 +114,22 @@ def test_the_agents_extra_is_named_with_the_cpu_torch_advice(tmp_path, monkeypat
     assert main(["collect", "--steps", "30", "--policy", "explorer", "--out", str(tmp_path / "x.npz")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "'.[agents]'" in err and "CPU-only torch first" in err
+
+
+@pytest.mark.parametrize("command, says", [
+    (["collect", "--steps", "30", "--out", "x.npz"], "no output was written"),
+    (["learn", "log.npz", "--out", "m.json"], "resumes from the checkpoint"),
+    (["experiment", "policies", "--out", "sweep"], "results.jsonl"),
+])
+def test_an_interrupt_says_what_it_left(command, says, monkeypatch, capsys):
+    """Every interrupt said 'a learn run resumes from its checkpoint', whatever the command."""
+    from aibo import commands
+
+    def interrupt(args):
+        raise KeyboardInterrupt
+
+    for name in ("run_collect", "run_learn", "run_experiment"):
+        monkeypatch.setattr(commands, name, interrupt)
+    assert main(command) == 130
+    err = capsys.readouterr().err
+    assert err.startswith("aibo: interrupted; ") and says in err and err.count("\n") == 1

@@ -699,3 +699,32 @@ def test_a_sweep_log_longer_than_collect_may_simulate_is_refused(option, value, 
     assert main(["experiment", "policies", "--seeds", "1", "--out", str(out), option, value]) == 2
     _one_line_error(capsys, f"{option} {value if option == '--minutes' else '100000'}: ", "what aibo collect may simulate")
     assert not out.exists()
+
+
+def test_an_action_model_other_than_the_inits_is_refused(tmp_path, capsys):
+    """--action-model was silently overruled by --init's action model."""
+    from aibo_core import trajectory
+    from tests._diffdrive import diff_drive_log
+
+    log, init = tmp_path / "log.npz", tmp_path / "init.json"
+    trajectory.save(diff_drive_log(seconds=60.0), log)
+    assert main(["learn", str(log), "--out", str(init), "--max-iter", "2", "--action-model", "unicycle"]) == 0
+    capsys.readouterr()
+    out = tmp_path / "m.json"
+    assert main(["learn", str(log), "--init", str(init), "--action-model", "features", "--out", str(out)]) == 2
+    _one_line_error(capsys, "--action-model features: --init", "'unicycle' action model")
+    assert not out.exists()
+    assert main(["learn", str(log), "--init", str(init), "--action-model", "unicycle", "--out", str(out),
+                 "--max-iter", "2"]) == 0  # the same one: fine
+
+
+def test_an_open_profile_interval_is_printed_as_open():
+    """The profile interval's 'open' flags were dropped from the printed line (an end the profile never left
+    read as a closed bound)."""
+    from aibo.diagnose_report import interval_text
+
+    iv = {"value": 0.3, "interval_95": [0.1, 0.5], "method": "profile likelihood, whole logs"}
+    assert interval_text({"lag_s": {**iv, "open": [False, False]}}) == "95%: lag_s [0.1, 0.5] (profile)"
+    assert interval_text({"lag_s": {**iv, "open": [False, True]}}) == "95%: lag_s [0.1, >=0.5] (profile, open above)"
+    assert interval_text({"tau_s": {"value": 8.0, "interval_95": [6.9, 11.2], "open": [True, False]}}) == \
+        "95%: tau_s [<=6.9, 11.2] (open below)"
