@@ -20,7 +20,7 @@ import argparse
 import sys
 
 from aibo.errors import CLIError
-from aibo.options import finite, integer, json_object, path, replica_count, steps
+from aibo.options import finite, integer, json_object, path, replica_count, steps, workers
 from aibo_core.trajectory import TrajectoryError
 
 #: What an interrupt leaves, for commands that do not resume: every output is written whole, at the end.
@@ -138,7 +138,7 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument("logs", nargs="+", type=path, help="aibo-trajectory/2 logs (.npz; /1 files are converted on read) of one robot")
     dg.add_argument("--out", type=path, required=True, help="folder for report.html, report.json, model.json and figures")
     dg.add_argument("--candidates", help="comma-separated effects to try (default: the whole catalogue)")
-    dg.add_argument("--jobs", type=integer(1), default=2, help="worker processes for the candidates (default 2)")
+    dg.add_argument("--jobs", type=workers, default=2, help="worker processes for the candidates (default 2)")
     dg.add_argument("--seed", type=integer(0), default=0, help="seed of the fits and of the replicas (default 0)")
     dg.add_argument("--action-model", choices=["table", "features", "unicycle"], default=None,
                     help="the base fit's action model, as in 'aibo learn' (default: table for discrete logs, unicycle "
@@ -198,7 +198,7 @@ def _add_experiment_commands(sub, commands) -> None:
                     help="length of each seed's held-out log (default 5; 0: none)")
     ep.add_argument("--max-iter", type=integer(1), default=None,
                     help="most EM iterations per run (default 3000, as aibo learn)")
-    ep.add_argument("--jobs", type=integer(1), default=None, help="parallel runs (default: the CPU count)")
+    ep.add_argument("--jobs", type=workers, default=None, help="parallel runs (default: the CPU count)")
     ep.add_argument("--backend", choices=["serial", "pool", "ray"], default="pool",
                     help="serial, a local process pool (default) or Ray (optional extra 'ray')")
     ep.add_argument("--address", default=None, help="Ray cluster address (default: a local Ray instance)")
@@ -221,7 +221,7 @@ def _add_experiment_commands(sub, commands) -> None:
     te.add_argument("--warm-holds", type=integer(0), default=None,
                     help="explorer: holds of greedy imitated before PPO (default 1800)")
     te.add_argument("--episode-minutes", type=finite(0.001), default=15.0, help="explorer: minutes per episode (default 15)")
-    te.add_argument("--n-envs", type=integer(1), default=2, help="sb3: vectorized envs (default 2)")
+    te.add_argument("--n-envs", type=workers, default=2, help="sb3: vectorized envs (default 2)")
     te.add_argument("--vec", choices=["subproc", "dummy"], default="subproc", help="sb3: subprocess (default) or in-process envs")
     te.add_argument("--tensorboard", type=path, default=None, help="TensorBoard log folder (used when tensorboard is installed)")
     te.set_defaults(run=commands.run_train_explorer)

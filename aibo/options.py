@@ -48,6 +48,21 @@ def integer(least: int) -> Callable[[str], int]:
     return parse
 
 
+#: Most worker processes per CPU an option may ask for: each worker is a Python process with NumPy and the
+#: compiled kernels loaded (~200 MB), so a thousand of them exhaust memory before any work.
+MAX_WORKERS_PER_CPU = 4
+
+
+def workers(text: str) -> int:
+    """An option type: a number of worker processes, 1 .. ``MAX_WORKERS_PER_CPU`` x this machine's CPUs."""
+    value = integer(1)(text)
+    limit = MAX_WORKERS_PER_CPU * (os.cpu_count() or 1)
+    if value > limit:
+        raise argparse.ArgumentTypeError(f"{value} worker processes on {os.cpu_count() or 1} CPUs: at most {limit} "
+                                         f"({MAX_WORKERS_PER_CPU} per CPU; each holds its own NumPy and kernels)")
+    return value
+
+
 def finite(least: float) -> Callable[[str], float]:
     """An option type: a finite number >= ``least`` (no nan, no inf)."""
 

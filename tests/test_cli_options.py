@@ -32,6 +32,9 @@ BAD = [
     (COLLECT + ["--config", '{"slip_std": [1, Infinity, 0.1]}'], "--config", "non-finite number Infinity"),
     (COLLECT + ["--config", "[1]"], "--config", "JSON object"),
     (["reproduce", "--seed", "-1", "--out", "r"], "--seed", ">= 0"),
+    (["diagnose", "log.npz", "--out", "d", "--jobs", "100000"], "--jobs", "worker processes on"),
+    (["experiment", "policies", "--out", "d", "--jobs", "100000"], "--jobs", "worker processes on"),
+    (["train-explorer", "--policy", "sb3", "--out", "a.zip", "--n-envs", "100000"], "--n-envs", "worker processes on"),
 ]
 
 
