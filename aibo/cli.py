@@ -21,7 +21,6 @@ import sys
 
 from aibo.errors import CLIError
 from aibo.options import finite, integer, json_object, path, replica_count, steps, workers
-from aibo_core.trajectory import TrajectoryError
 
 #: What an interrupt leaves, for commands that do not resume: every output is written whole, at the end.
 NOTHING_WRITTEN = "no output was written or changed (each is written whole, at the end)"
@@ -230,6 +229,7 @@ def _add_experiment_commands(sub, commands) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    from aibo_core.trajectory import TrajectoryError
     from learners.em.learner import EMDivergedError
     from learners.model.io import ModelFileError
 

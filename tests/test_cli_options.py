@@ -136,3 +136,20 @@ def test_an_interrupt_says_what_it_left(command, says, monkeypatch, capsys):
     assert main(command) == 130
     err = capsys.readouterr().err
     assert err.startswith("aibo: interrupted; ") and says in err and err.count("\n") == 1
+
+
+def _modules_after(code: str) -> set[str]:
+    """The modules a fresh interpreter holds after running ``code``."""
+    r = subprocess.run([sys.executable, "-c", code + "\nimport sys; print(' '.join(sys.modules))"], capture_output=True,
+                       text=True, timeout=120, check=True)
+    return set(r.stdout.split())
+
+
+def test_help_and_the_learn_command_import_only_what_they_need():
+    """Start-up: 'aibo --help' loads no NumPy (it took 3 s when the parser's option defaults pulled in the model's
+    SciPy); 'aibo learn' loads neither scipy.stats (lag.py, only for continuous commands) nor scipy.optimize
+    (landmark_bias, only with that effect) until they are used."""
+    helped = _modules_after("from aibo.cli import main\ntry:\n    main(['learn', '--help'])\nexcept SystemExit:\n    pass")
+    assert not {"numpy", "scipy", "learners.model"} & helped
+    learn = _modules_after("import aibo.commands.learn")
+    assert "numpy" in learn and not {"scipy.stats", "scipy.optimize", "scipy.special"} & learn

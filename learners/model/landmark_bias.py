@@ -31,7 +31,6 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
-from scipy.optimize import minimize_scalar
 
 from learners.inference.batch import Batch
 from learners.inference.lowered import ExtraStates, Lowered
@@ -216,6 +215,8 @@ class LandmarkBias(EffectModel):
         def negative_profile(log_tau: float) -> float:
             phi = math.exp(-batch.dt / math.exp(log_tau))
             return 0.5 * (n * math.log(sigma2(phi)) + n_tr * math.log(1.0 - phi * phi))
+
+        from scipy.optimize import minimize_scalar  # here, not at import (SciPy's load costs every command)
 
         best = minimize_scalar(negative_profile, bounds=tuple(math.log(t) for t in TAU_BOUNDS_S), method="bounded",
                                options={"xatol": 1e-4})
