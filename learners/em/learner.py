@@ -123,7 +123,8 @@ def face_value_gate(batch: Batch, start: Model, gate: float) -> np.ndarray | Non
     robot standing still cannot follow the sightings of one that drives: the gate pruned 1585 of robot 3's 2204
     sightings (robots 1, 2, 4, 5: 1-14) and every start then fitted the sightings a wrong world explains. Under the
     face value robot 3 loses 87 (the others 0-2). The stretched starts of ``learners.em.starts`` gated themselves
-    (30-75% pruned) and were compared on the sightings no start pruned, a subset chosen by the wrong worlds."""
+    (30-75% pruned) and, at the time, were compared on the sightings no start pruned, a subset chosen by the wrong
+    worlds (now they are scored on the same sightings: ``learners.em.starts.gated_score``)."""
     from learners.scoring import face_value_model
 
     try:
