@@ -20,7 +20,7 @@ import argparse
 import sys
 
 from aibo.errors import CLIError
-from aibo.options import finite, integer, json_object, path, replica_count, steps, workers
+from aibo.options import MAX_SEEDS, MAX_STARTS, finite, integer, json_object, path, replica_count, steps, workers
 
 #: What an interrupt leaves, for commands that do not resume: every output is written whole, at the end.
 NOTHING_WRITTEN = "no output was written or changed (each is written whole, at the end)"
@@ -93,7 +93,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="re-estimate Sigma_A in the M-step (default on; off in the paper)")
     lr.add_argument("--accel", choices=["none", "squarem"], help="EM acceleration (default squarem; paper: none)")
     lr.add_argument("--gate", type=finite(0), help="first-iteration outlier gate on Mahalanobis^2 (default 50; 0 = off)")
-    lr.add_argument("--starts", type=integer(1), help="starts screened (the given one and its sensor curve with "
+    lr.add_argument("--starts", type=integer(1, MAX_STARTS, "more starts repeat the same range of distance factors"),
+                    help="starts screened (the given one and its sensor curve with "
                     f"distances x0.5, x0.25, ...), the most likely continued (default {EMOptions().starts}; "
                     "--paper-recipe 1; range sensors 1)")
     lr.add_argument("--sensor-basis", choices=["power", "inverse"], help="sensor curve: power (the paper's cubic "
@@ -185,7 +186,8 @@ def _add_experiment_commands(sub, commands) -> None:
     ep.add_argument("--policies", default="uniform,random-balanced,informed",
                     help="comma-separated policy names or sb3:AGENT.zip (default uniform,random-balanced,informed)")
     ep.add_argument("--minutes", default="5,10,15", help="comma-separated log lengths in minutes (default 5,10,15)")
-    ep.add_argument("--seeds", type=integer(1), default=5, help="seeds per policy and length (default 5)")
+    ep.add_argument("--seeds", type=integer(1, MAX_SEEDS, "each is a collect, learn and score run"), default=5,
+                    help="seeds per policy and length (default 5)")
     ep.add_argument("--seed-base", type=integer(0), default=1, help="first seed (default 1)")
     ep.add_argument("--robot-seed-base", type=integer(0), default=100,
                     help="seed s walks the robot robot_seed = this + s (default 100), unless --config sets robot_seed")

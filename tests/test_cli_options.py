@@ -33,6 +33,9 @@ BAD = [
     (COLLECT + ["--config", "[1]"], "--config", "JSON object"),
     (["reproduce", "--seed", "-1", "--out", "r"], "--seed", ">= 0"),
     (["diagnose", "log.npz", "--out", "d", "--jobs", "100000"], "--jobs", "worker processes on"),
+    (["diagnose", "log.npz", "--out", "d", "--replicas", "1000000000"], "--replicas", "must be <= 1,000"),
+    (LEARN + ["--starts", "1000000"], "--starts", "must be <= 64"),
+    (["experiment", "policies", "--out", "d", "--seeds", "1000000000"], "--seeds", "must be <= 10,000"),
     (["experiment", "policies", "--out", "d", "--jobs", "100000"], "--jobs", "worker processes on"),
     (["train-explorer", "--policy", "sb3", "--out", "a.zip", "--n-envs", "100000"], "--n-envs", "worker processes on"),
 ]
