@@ -37,9 +37,9 @@ import numpy as np
 
 from aibo_core.geometry import wrap
 from aibo_core.trajectory import VELOCITY_CONTROLS, Trajectory
+from learners.arrays.batch import make_batch
+from learners.arrays.lowered import fit_polynomial
 from learners.em.options import DEFAULT_GATE
-from learners.inference.batch import make_batch
-from learners.inference.sensor_stats import fit_polynomial
 from learners.model.model import Model
 
 COLUMNS = ("face value", "learned", "fit to Vicon")
@@ -187,8 +187,8 @@ def sensor_scores(model: Model, logs: list[Trajectory]) -> dict[str, float]:
 def pose_scores(model: Model, logs: list[Trajectory], gate: float | None = DEFAULT_GATE) -> dict[str, float]:
     """RMS position (mm) and heading (rad) error of the smoothed poses against ``pose``; sightings beyond ``gate``
     (Mahalanobis^2; by default the fit's gate; None: every sighting applied) are not (module docstring)."""
+    from learners.arrays.batch import make_batch
     from learners.em.estep import e_step
-    from learners.inference.batch import make_batch
 
     batch = make_batch(logs)
     post = e_step(model, batch, "compiled", gate)

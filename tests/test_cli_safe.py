@@ -412,7 +412,7 @@ def test_an_init_model_the_log_cannot_use_is_one_line(entry, field, what, learne
 def test_an_init_model_with_other_control_names_is_refused(tmp_path, capsys):
     from aibo_core import trajectory
     from aibo_core.mrclam import import_robot
-    from learners.inference.batch import make_batch
+    from learners.arrays.batch import make_batch
     from learners.model.io import save_model
     from learners.model.model import start_model
 

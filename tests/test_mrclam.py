@@ -211,10 +211,10 @@ def test_real_robot3_the_gate_judged_at_the_face_value_keeps_the_right_world():
     speed and turn rate."""
     from dataclasses import replace
 
+    from learners.arrays.batch import make_batch
     from learners.discrepancy.split import training_log
     from learners.em.learner import EMLearner, face_value_gate
     from learners.em.options import EMOptions
-    from learners.inference.batch import make_batch
     from learners.scoring import face_value_model, velocity_scores
 
     tr = import_robot(DATA, 3, dt=0.1)
@@ -244,9 +244,9 @@ def test_the_pose_score_leaves_gross_outliers_out_by_default():
     log's."""
     from dataclasses import replace
 
+    from learners.arrays.batch import make_batch
     from learners.em.learner import EMLearner
     from learners.em.options import EMOptions
-    from learners.inference.batch import make_batch
     from learners.scoring import face_value_model, pose_scores
     from tests._diffdrive import diff_drive_log
 

@@ -9,6 +9,7 @@ import pytest
 
 from aibo.cli import main
 from aibo_core import trajectory
+from learners.arrays.posterior import Posterior
 from learners.em.learner import EMLearner
 from learners.em.options import EMOptions
 from learners.em.starts import (
@@ -21,7 +22,6 @@ from learners.em.starts import (
     pruned_warning,
     stretched,
 )
-from learners.inference.posterior import Posterior
 from learners.metrics import model_errors
 from learners.model.model import paper_start
 from learners.model.sensor import SensorModel

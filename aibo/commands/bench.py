@@ -57,7 +57,7 @@ def machine() -> dict:
 
 def estep_speed(tr) -> dict:
     """Compiled vs NumPy reference E-step on the same log, after warm-up."""
-    from learners.inference.batch import make_batch
+    from learners.arrays.batch import make_batch
     from learners.inference.kernels import smooth_compiled
     from learners.inference.reference import smooth
     from learners.model.model import start_model
@@ -76,10 +76,10 @@ def estep_speed(tr) -> dict:
 
 def mstep_speed(tr) -> dict:
     """Compiled vs NumPy reference M-step (default options) on the same E-step output."""
+    from learners.arrays.batch import make_batch
     from learners.em.estep import e_step
     from learners.em.fit import m_step
     from learners.em.options import EMOptions
-    from learners.inference.batch import make_batch
     from learners.model.model import start_model
 
     batch = make_batch([tr])
@@ -139,9 +139,9 @@ def bias_states_speed(frames: int) -> dict:
     """The augmented E-step (pose + 4 bias states) and its action statistics on a simulated log with a landmark
     bias, compiled vs the NumPy reference, in the same run (the E-step's reference once: it is slow)."""
     from experiments.loop import simulate
+    from learners.arrays.batch import make_batch
     from learners.em.estep import e_step
     from learners.inference.augmented import displacement_statistics, smooth_augmented
-    from learners.inference.batch import make_batch
     from learners.inference.kernels.augmented_stats import displacement_statistics_compiled
     from learners.model.landmark_bias import LandmarkBias
     from learners.model.model import start_model

@@ -21,9 +21,9 @@ from aibo.paths import CHECKPOINT_SUFFIX, check_files, check_replaceable, checkp
 from aibo.report import Progress, error_table
 from aibo_core import trajectory
 from aibo_core.atomic import atomic_folder, write_json
+from learners.arrays.batch import make_batch
 from learners.em.learner import EMLearner
 from learners.em.options import EMOptions
-from learners.inference.batch import make_batch
 from learners.metrics import PAPER_SIM, observed_distance_range, sensor_rms, velocity_bound
 from learners.model import io as model_io
 from learners.oracle import OracleLearner

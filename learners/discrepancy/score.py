@@ -9,10 +9,10 @@ import numpy as np
 from scipy import stats
 
 from aibo_core.trajectory import Trajectory
+from learners.arrays.batch import make_batch
 from learners.em.estep import e_step
 from learners.em.options import DEFAULT_GATE
-from learners.inference.batch import make_batch
-from learners.inference.predictive import predictive_logdens, sightings_logdens
+from learners.em.predictive import predictive_logdens, sightings_logdens
 from learners.model.model import Model
 
 from .split import heldout_mask

@@ -14,13 +14,13 @@ from typing import Callable
 
 import numpy as np
 
+from learners.arrays.batch import Batch
+from learners.arrays.lowered import Lowered
+from learners.arrays.posterior import Posterior
 from learners.em.accel import Packer, squarem_step
 from learners.em.estep import e_step
 from learners.em.mstep import maximize
 from learners.em.options import DEFAULT_GATE, SWITCH_MIN_ITER, SWITCH_WINDOW, EMOptions
-from learners.inference.batch import Batch
-from learners.inference.lowered import Lowered
-from learners.inference.posterior import Posterior
 from learners.model.model import Model
 
 # re-exported: scripts written against the earlier layout import these from here (their home: ``options``, ``estep``)

@@ -20,9 +20,9 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, replace
 
+from learners.arrays.batch import Batch
 from learners.em.fit import EMState, initial_state, run
 from learners.em.options import EMOptions
-from learners.inference.batch import Batch
 from learners.model.catalogue import ActuationLag
 from learners.model.model import Model
 

@@ -9,6 +9,7 @@ from dataclasses import replace
 import numpy as np
 
 from aibo_core.trajectory import Trajectory
+from learners.arrays.batch import Batch, make_batch
 from learners.base import IterationRecord, LearnResult, ProgressFn
 from learners.em import checkpoint
 from learners.em import lag as lag_search
@@ -19,6 +20,7 @@ from learners.em.finish import fisher_scoring
 from learners.em.fit import EMState, initial_state, options_json, run
 from learners.em.info import FitInfo, FitTimings
 from learners.em.options import COMPARABLE_IMPROVEMENT, EARLY_STOP, STRICT_PATIENCE, EMOptions
+from learners.em.predictive import has_mixture
 from learners.em.start import initial_state_for
 from learners.em.starts import disagreement, pruned_warning, screen
 from learners.em.support import (
@@ -30,8 +32,6 @@ from learners.em.support import (
     mirror_warnings,
     weak_command_warnings,
 )
-from learners.inference.batch import Batch, make_batch
-from learners.inference.predictive import has_mixture
 from learners.model.initial import DEFAULT_INITIAL, InitialState
 from learners.model.model import Model, start_model
 

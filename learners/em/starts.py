@@ -31,11 +31,11 @@ from typing import Any
 
 import numpy as np
 
+from learners.arrays.batch import Batch
+from learners.arrays.posterior import Posterior
 from learners.em.estep import e_step
 from learners.em.fit import EMState, initial_state, run
 from learners.em.options import EMOptions
-from learners.inference.batch import Batch
-from learners.inference.posterior import Posterior
 from learners.model.model import Model
 from learners.model.sensor import SensorModel
 

@@ -51,10 +51,9 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 
 from aibo_core.geometry import wrap
-from learners.inference.batch import Batch
-from learners.inference.lowered import Lowered
-from learners.inference.posterior import Posterior
-from learners.inference.reference import sighting_model
+from learners.arrays.batch import Batch
+from learners.arrays.lowered import Lowered, sighting_model
+from learners.arrays.posterior import Posterior
 from learners.model.effects import EffectModel, register_effect
 from learners.model.parameters import Param
 
