@@ -24,7 +24,7 @@ def compile_cmd() -> dict:
     """Seconds to import and run the compiled E-step and M-step once (numba compiles them)."""
     from aibo_core.actions import attempted_velocities
     from aibo_core.trajectory import Trajectory
-    from learners.inference.batch import make_batch
+    from learners.arrays.batch import make_batch
     from learners.model.model import start_model
 
     n = 100
@@ -50,10 +50,10 @@ def scale_cmd(path: str, n: int) -> dict:
     import tracemalloc
 
     from aibo_core import trajectory
+    from learners.arrays.batch import make_batch
     from learners.em.estep import e_step
     from learners.em.fit import m_step
     from learners.em.options import EMOptions
-    from learners.inference.batch import make_batch
     from learners.model.model import start_model
 
     full = trajectory.load(path)

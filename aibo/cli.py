@@ -10,7 +10,8 @@
     aibo train-explorer  train an SB3 agent that chooses the held commands
     aibo export          logs as an offline-RL dataset (Minari); smoothed poses for evo (TUM)
 
-Bad input ends with one line ``aibo: error: ...`` and exit status 2 (``--debug`` shows the traceback).
+Bad input ends with one line ``aibo: error: ...`` and exit status 2 (``--debug`` shows the traceback); a run
+whose result misses its bar (``aibo reproduce``) ends with exit status 1; an interrupt with 130.
 """
 
 from __future__ import annotations
@@ -19,8 +20,10 @@ import argparse
 import sys
 
 from aibo.errors import CLIError
-from aibo.options import finite, integer, json_object, replica_count, steps
-from aibo_core.trajectory import TrajectoryError
+from aibo.options import MAX_SEEDS, MAX_STARTS, finite, integer, json_object, path, replica_count, steps, workers
+
+#: What an interrupt leaves, for commands that do not resume: every output is written whole, at the end.
+NOTHING_WRITTEN = "no output was written or changed (each is written whole, at the end)"
 
 
 class _Parser(argparse.ArgumentParser):
@@ -32,6 +35,7 @@ class _Parser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     from aibo import commands
+    from learners.em.options import EMOptions
 
     p = _Parser(prog="aibo", description=__doc__.split("\n\n")[0])
     p.add_argument("--debug", action="store_true", help="show tracebacks of errors")
@@ -44,39 +48,43 @@ def build_parser() -> argparse.ArgumentParser:
                    help="aibo: AiboBeacons-v0 (40 walk commands, height camera); wheeled: WheeledRobot-v0 ((v, omega) "
                    "commands, range/bearing camera, random-waypoint driver). Default: the --model's (wheeled for "
                    "continuous-command models), else aibo")
-    c.add_argument("--seed", type=integer(0), default=0)
+    c.add_argument("--seed", type=integer(0), default=0, help="seed of the simulation: its noise and the policy's choices (default 0)")
     c.add_argument("--policy", default=None, metavar="NAME|sb3:PATH",
-                   help="random-balanced (default), uniform, informed, greedy, explorer, or sb3:AGENT.zip (see aibo_gym.policies); "
+                   help="random-balanced (default), uniform, informed, greedy, explorer (the shipped learned agent; needs "
+                   "the 'agents' extra, Stable-Baselines3), or sb3:AGENT.zip (also 'agents'; see aibo_gym.policies); "
                    "--env wheeled: waypoints (the only one, its parameters in aibo_gym.policies.waypoints)")
     c.add_argument("--policy-params", type=json_object, default={}, metavar="JSON", help="the policy's parameters")
     c.add_argument("--localizer", default=None, choices=["truth", "ekf"],
                    help="pose estimate random-balanced steers with (default: the true pose); the others use the EKF")
-    c.add_argument("--out", required=True, help="log file to write (.npz)")
+    c.add_argument("--out", type=path, required=True, help="log file to write (.npz)")
     c.add_argument("--preset", choices=["paper-sim", "aibo"], help="sensor noise preset")
     c.add_argument("--config", type=json_object, default={}, help="JSON object of env config overrides")
     c.add_argument("--blind", action="store_true", help="leave out pose and truth, as a real robot's log")
-    c.add_argument("--plot", help="also draw the trajectory on the field to this PNG")
-    c.add_argument("--model", help="a calibrated simulator: the robot this model file describes (aibo-model/1: its "
+    c.add_argument("--plot", type=path, help="also draw the trajectory on the field to this PNG")
+    c.add_argument("--model", type=path, help="a calibrated simulator: the robot this model file describes (aibo-model/1: its "
                    "velocities, motion noise, sensor curve and noise, effects and start pose; --config still applies)")
-    c.add_argument("--replay", help="with --model: replay this log's commands and head pan in its world (landmarks, "
+    c.add_argument("--replay", type=path, help="with --model: replay this log's commands and head pan in its world (landmarks, "
                    "field, camera); --steps and --policy are then the log's")
     c.set_defaults(run=commands.run_collect)
 
     lr = sub.add_parser("learn", help="learn action and sensor models from logs")
-    lr.add_argument("logs", nargs="+", help="aibo-trajectory/2 logs (.npz; /1 files are converted on read) of one robot")
-    lr.add_argument("--out", required=True, help="model file to write (aibo-model/1 JSON)")
+    lr.add_argument("logs", nargs="+", type=path, help="aibo-trajectory/2 logs (.npz; /1 files are converted on read) of one robot")
+    lr.add_argument("--out", type=path, required=True, help="model file to write (aibo-model/1 JSON)")
     lr.add_argument("--learner", default="em", help="em (default), oracle, or an installed plugin")
-    lr.add_argument("--max-iter", type=integer(1), default=3000)
+    lr.add_argument("--max-iter", type=integer(1), default=3000,
+                    help="most EM iterations (default 3000; EM usually stops long before, see --patience)")
     lr.add_argument("--patience", type=integer(1), default=None,
                     help="stop after N iterations without a new best likelihood (default 10; --paper-recipe 50)")
-    lr.add_argument("--seed", type=integer(0), default=0)
-    lr.add_argument("--init", help="start from this model file instead of the paper's start")
+    lr.add_argument("--seed", type=integer(0), default=0,
+                    help="seed of EM's random draws: the sensor M-step's samples (--sensor-method sample) and the "
+                         "starts beyond the fifth (default 0)")
+    lr.add_argument("--init", type=path, help="start from this model file instead of the paper's start")
     lr.add_argument("--action-model", choices=["table", "features", "unicycle"], default=None,
                     help="table: one velocity per discrete command (default for discrete logs); features: "
                          "velocity = features(command) x weights (diff_drive for two controls, else linear); unicycle (default "
                          "for (v_mm_s, omega_rad_s) commands): the diff_drive features with no lateral velocity and no "
                          "turn-rate term in the forward speed (a wheeled robot)")
-    lr.add_argument("--plots", help="write learning-curve and sensor-model PNGs to this folder")
+    lr.add_argument("--plots", type=path, help="write learning-curve and sensor-model PNGs to this folder")
     lr.add_argument("--paper-recipe", action="store_true",
                     help="the paper's recipe as written: fixed motion noise, one sample per sighting, plain EM")
     lr.add_argument("--sensor-method", choices=["sample", "cubature"],
@@ -85,10 +93,12 @@ def build_parser() -> argparse.ArgumentParser:
                     help="re-estimate Sigma_A in the M-step (default on; off in the paper)")
     lr.add_argument("--accel", choices=["none", "squarem"], help="EM acceleration (default squarem; paper: none)")
     lr.add_argument("--gate", type=finite(0), help="first-iteration outlier gate on Mahalanobis^2 (default 50; 0 = off)")
-    lr.add_argument("--starts", type=integer(1), help="starts screened, the most likely continued (default "
-                    "EMOptions.starts; paper: 1)")
+    lr.add_argument("--starts", type=integer(1, MAX_STARTS, "more starts repeat the same range of distance factors"),
+                    help="starts screened (the given one and its sensor curve with "
+                    f"distances x0.5, x0.25, ...), the most likely continued (default {EMOptions().starts}; "
+                    "--paper-recipe 1; range sensors 1)")
     lr.add_argument("--sensor-basis", choices=["power", "inverse"], help="sensor curve: power (the paper's cubic "
-                    "in d) or inverse (c0 + c1/d + c2/d^2); default: --init's, else EMOptions' default")
+                    "in d) or inverse (c0 + c1/d + c2/d^2); default: --init's, else inverse for heights, power for ranges")
     lr.add_argument("--range-curve", choices=["held", "free"], help="range sensors (mm): held keeps the curve at "
                     "range = distance (or --init's) and screens no stretched starts (default); free fits the cubic "
                     "(paper)")
@@ -107,24 +117,29 @@ def build_parser() -> argparse.ArgumentParser:
     lr.add_argument("--estep", choices=["compiled", "numpy"], default="compiled",
                     help="numba kernels (default) or the plain NumPy reference")
     lr.add_argument("--no-resume", action="store_true", help="ignore a checkpoint left by an interrupted run")
-    lr.set_defaults(run=commands.run_learn)
+    lr.set_defaults(run=commands.run_learn, interrupted="the same command resumes from the checkpoint beside --out "
+                    "(--no-resume starts over)")
 
     rp = sub.add_parser("reproduce", help="the paper's simulated experiment, end to end")
-    rp.add_argument("--quick", action="store_true", help="a short log and fewer iterations, for a first look")
-    rp.add_argument("--out", default="runs/reproduce", help="folder for the log, models, report and figures")
-    rp.add_argument("--seed", type=integer(0), default=1)
+    rp.add_argument("--quick", action="store_true", help="a 5-minute log and at most 300 iterations, a first look (not "
+                    "held to the paper's bar; exit status 1 is only for a full run that misses it)")
+    rp.add_argument("--out", type=path, default=None, help="folder for the log, models, report and figures (default "
+                    "runs/reproduce; --quick: runs/reproduce-quick); replaced whole")
+    rp.add_argument("--seed", type=integer(0), default=1, help="seed of the simulated log (default 1, the one the "
+                    "README's table shows)")
     rp.add_argument("--paper-recipe", action="store_true",
                     help="use the paper's exact recipe (fixed motion noise, one sample per frame)")
     rp.add_argument("--no-resume", action="store_true",
                     help="ignore the checkpoint an interrupted identical run left in --out")
-    rp.set_defaults(run=commands.run_reproduce)
+    rp.set_defaults(run=commands.run_reproduce, interrupted="the same command resumes EM from its checkpoint in --out "
+                    "(--no-resume starts over)")
 
     dg = sub.add_parser("diagnose", help="find where model and data disagree, name the missing effect, refit")
-    dg.add_argument("logs", nargs="+", help="aibo-trajectory/2 logs (.npz; /1 files are converted on read) of one robot")
-    dg.add_argument("--out", required=True, help="folder for report.html, report.json, model.json and figures")
+    dg.add_argument("logs", nargs="+", type=path, help="aibo-trajectory/2 logs (.npz; /1 files are converted on read) of one robot")
+    dg.add_argument("--out", type=path, required=True, help="folder for report.html, report.json, model.json and figures")
     dg.add_argument("--candidates", help="comma-separated effects to try (default: the whole catalogue)")
-    dg.add_argument("--jobs", type=integer(1), default=2, help="worker processes for the candidates (default 2)")
-    dg.add_argument("--seed", type=integer(0), default=0)
+    dg.add_argument("--jobs", type=workers, default=2, help="worker processes for the candidates (default 2)")
+    dg.add_argument("--seed", type=integer(0), default=0, help="seed of the fits and of the replicas (default 0)")
     dg.add_argument("--action-model", choices=["table", "features", "unicycle"], default=None,
                     help="the base fit's action model, as in 'aibo learn' (default: table for discrete logs, unicycle "
                          "for (v_mm_s, omega_rad_s) commands, features otherwise)")
@@ -134,16 +149,16 @@ def build_parser() -> argparse.ArgumentParser:
     dg.set_defaults(run=commands.run_diagnose)
 
     b = sub.add_parser("bench", help="measure E-step and fit speed on this machine")
-    b.add_argument("--json", help="write all figures to this JSON file")
+    b.add_argument("--json", type=path, help="write all figures to this JSON file")
     b.add_argument("--quick", action="store_true", help="smaller sizes (for a smoke test)")
     b.set_defaults(run=commands.run_bench)
 
     im = sub.add_parser("import", help="convert a real robot's logs to an aibo-trajectory/2 log")
     isub = im.add_subparsers(dest="dataset", required=True, metavar="DATASET")
     mr = isub.add_parser("mrclam", help="one robot of the UTIAS MRCLAM dataset (Leung et al. 2011)")
-    mr.add_argument("folder", help="the dataset folder (Barcodes.dat, Landmark_Groundtruth.dat, RobotN_*.dat)")
+    mr.add_argument("folder", type=path, help="the dataset folder (Barcodes.dat, Landmark_Groundtruth.dat, RobotN_*.dat)")
     mr.add_argument("--robot", type=integer(1), required=True, help="robot number (1-5)")
-    mr.add_argument("--out", required=True, help="log file to write (.npz)")
+    mr.add_argument("--out", type=path, required=True, help="log file to write (.npz)")
     mr.add_argument("--dt", type=finite(1e-3), default=0.1, help="seconds per frame (default 0.1)")
     mr.add_argument("--start", type=finite(0), default=0.0, help="skip this many seconds after the first command")
     mr.add_argument("--seconds", type=finite(1e-3), help="keep at most this many seconds")
@@ -155,9 +170,9 @@ def build_parser() -> argparse.ArgumentParser:
     ex = sub.add_parser("export", help="logs as an offline-RL dataset")
     xsub = ex.add_subparsers(dest="format", required=True, metavar="FORMAT")
     mi = xsub.add_parser("minari", help="a Minari dataset, one AiboBeacons-v0 episode per log ('minari' extra)")
-    mi.add_argument("logs", nargs="+", help="aibo-trajectory/2 logs (.npz) of discrete commands")
+    mi.add_argument("logs", nargs="+", type=path, help="aibo-trajectory/2 logs (.npz) of discrete commands")
     mi.add_argument("--dataset-id", required=True, help="Minari dataset id, (namespace/)name-vN")
-    mi.add_argument("--out", help="datasets folder (default: MINARI_DATASETS_PATH, else ~/.minari/datasets)")
+    mi.add_argument("--out", type=path, help="datasets folder (default: MINARI_DATASETS_PATH, else ~/.minari/datasets)")
     mi.add_argument("--force", action="store_true", help="replace a dataset of that id in the folder")
     mi.set_defaults(run=commands.run_export)
     tu = xsub.add_parser("tum", help="a fitted model's smoothed poses (and the log's truth) in TUM format, for evo")
@@ -235,22 +250,25 @@ def _add_experiment_commands(sub, commands) -> None:
     ep.add_argument("--policies", default="uniform,random-balanced,informed",
                     help="comma-separated policy names or sb3:AGENT.zip (default uniform,random-balanced,informed)")
     ep.add_argument("--minutes", default="5,10,15", help="comma-separated log lengths in minutes (default 5,10,15)")
-    ep.add_argument("--seeds", type=integer(1), default=5, help="seeds per policy and length (default 5)")
+    ep.add_argument("--seeds", type=integer(1, MAX_SEEDS, "each is a collect, learn and score run"), default=5,
+                    help="seeds per policy and length (default 5)")
     ep.add_argument("--seed-base", type=integer(0), default=1, help="first seed (default 1)")
     ep.add_argument("--robot-seed-base", type=integer(0), default=100,
                     help="seed s walks the robot robot_seed = this + s (default 100), unless --config sets robot_seed")
-    ep.add_argument("--out", required=True, help="sweep folder: results.jsonl, summary.json, PNG, runs/")
+    ep.add_argument("--out", type=path, required=True, help="sweep folder: results.jsonl, summary.json, PNG, runs/")
     ep.add_argument("--config", type=json_object, default={}, help="JSON object of env config overrides")
     ep.add_argument("--policy-params", type=json_object, default={},
                     help='JSON object {policy: {param: value}} (random-balanced gets {"localizer": "ekf"} by default)')
     ep.add_argument("--holdout-minutes", type=finite(0), default=5.0,
                     help="length of each seed's held-out log (default 5; 0: none)")
-    ep.add_argument("--max-iter", type=integer(1), default=None, help="EM iteration cap (default: EM's)")
-    ep.add_argument("--jobs", type=integer(1), default=None, help="parallel runs (default: the CPU count)")
+    ep.add_argument("--max-iter", type=integer(1), default=None,
+                    help="most EM iterations per run (default 3000, as aibo learn)")
+    ep.add_argument("--jobs", type=workers, default=None, help="parallel runs (default: the CPU count)")
     ep.add_argument("--backend", choices=["serial", "pool", "ray"], default="pool",
                     help="serial, a local process pool (default) or Ray (optional extra 'ray')")
     ep.add_argument("--address", default=None, help="Ray cluster address (default: a local Ray instance)")
-    ep.set_defaults(run=commands.run_experiment)
+    ep.set_defaults(run=commands.run_experiment, interrupted="the same command resumes: the finished runs are kept "
+                    "in --out's results.jsonl")
 
     te = sub.add_parser("train-explorer", help="train an SB3 agent choosing each held command (needs the 'agents' extra)")
     te.add_argument("--policy", choices=["explorer", "sb3"], default="explorer",
@@ -259,23 +277,25 @@ def _add_experiment_commands(sub, commands) -> None:
     te.add_argument("--algo", choices=["ppo", "dqn"], default=None, help="sb3 only (default ppo); explorer: always ppo")
     te.add_argument("--steps", type=integer(1), default=None,
                     help="agent steps (command holds) to train (default 60000 for explorer, 20000 for sb3)")
-    te.add_argument("--seed", type=integer(0), default=0)
-    te.add_argument("--out", required=True, help="agent file to write (.zip; AGENT.json beside it)")
+    te.add_argument("--seed", type=integer(0), default=0,
+                    help="seed of the training (robots, PPO/DQN, warm start): the same seed gives the same agent (default 0)")
+    te.add_argument("--out", type=path, required=True, help="agent file to write (.zip; AGENT.json beside it)")
     te.add_argument("--config", type=json_object, default={},
                     help='JSON object of env config overrides (sb3: default reward "explore"; episode = max_steps frames)')
     te.add_argument("--hold-s", type=finite(0.001), default=5.0, help="seconds per command hold = one agent step (default 5)")
     te.add_argument("--warm-holds", type=integer(0), default=None,
                     help="explorer: holds of greedy imitated before PPO (default 1800)")
     te.add_argument("--episode-minutes", type=finite(0.001), default=15.0, help="explorer: minutes per episode (default 15)")
-    te.add_argument("--n-envs", type=integer(1), default=2, help="sb3: vectorized envs (default 2)")
+    te.add_argument("--n-envs", type=workers, default=2, help="sb3: vectorized envs (default 2)")
     te.add_argument("--vec", choices=["subproc", "dummy"], default="subproc", help="sb3: subprocess (default) or in-process envs")
-    te.add_argument("--tensorboard", default=None, help="TensorBoard log folder (used when tensorboard is installed)")
+    te.add_argument("--tensorboard", type=path, default=None, help="TensorBoard log folder (used when tensorboard is installed)")
     te.set_defaults(run=commands.run_train_explorer)
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    from aibo_core.trajectory import TrajectoryError
     from learners.em.learner import EMDivergedError
     from learners.model.io import ModelFileError
 
@@ -292,7 +312,7 @@ def main(argv: list[str] | None = None) -> int:
         print("aibo: error: out of memory (use a shorter log or fewer logs)", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("aibo: interrupted (a learn run resumes from its checkpoint)", file=sys.stderr)
+        print(f"aibo: interrupted; {getattr(args, 'interrupted', NOTHING_WRITTEN)}", file=sys.stderr)
         return 130
 
 

@@ -113,15 +113,24 @@ def short(params: dict[str, Any]) -> str:
 
 def interval_text(intervals: dict[str, Any]) -> str:
     """``95%: sigma_rel [0.041, 0.049], tau_s [6.9, 11.2]`` (scalars; ``lag_s [0.1, 0.3] (profile)`` for a grid
-    parameter), ``SE scale [0.003, ...]`` (arrays); the parameters without an interval are left out; "" when none
+    parameter, ``lag_s [0.1, >=0.5] (profile, open above)`` for an open one), ``SE scale [0.003, ...]`` (arrays);
+    the parameters without an interval are left out; "" when none
     has one."""
     def num(v: Any) -> str:
         return "[" + ", ".join(num(x) for x in v) + "]" if isinstance(v, (list, tuple)) else f"{v:.3g}"
-    parts = [f"{k} [{num(iv['interval_95'][0])}, {num(iv['interval_95'][1])}]"
-             + (" (profile)" if str(iv.get("method", "")).startswith("profile") else "")
-             if np.ndim(iv["value"]) == 0 else f"{k} SE {num(iv['se'])}"
+    parts = [_scalar_interval(k, iv, num) if np.ndim(iv["value"]) == 0 else f"{k} SE {num(iv['se'])}"
              for k, iv in intervals.items() if iv["interval_95"] is not None]
     return "95%: " + ", ".join(parts) if parts else ""
+
+
+def _scalar_interval(name: str, iv: dict[str, Any], num) -> str:
+    """``lag_s [0.1, 0.3] (profile)``; an open end (the profile never fell 1.92 nats below its best up to it: the
+    interval reaches at least that far) as ``<=`` / ``>=`` with ``open below`` / ``open above``."""
+    (lo, hi), (open_lo, open_hi) = iv["interval_95"], iv.get("open") or (False, False)
+    notes = (["profile"] if str(iv.get("method", "")).startswith("profile") else []) + \
+        [f"open {side}" for side, is_open in (("below", open_lo), ("above", open_hi)) if is_open]
+    return (f"{name} [{'<=' if open_lo else ''}{num(lo)}, {'>=' if open_hi else ''}{num(hi)}]"
+            + (f" ({', '.join(notes)})" if notes else ""))
 
 
 def shift_text(shift: dict[str, Any]) -> str:

@@ -26,15 +26,15 @@ def replica_count(text: str) -> int:
     (fewer replicas cannot reject anything: their threshold is infinite)."""
     from experiments.calibrated import MIN_REPLICAS
 
-    value = integer(0)(text)
+    value = integer(0, MAX_REPLICAS, "each replica simulates the whole log and fits it")(text)
     if 0 < value < MIN_REPLICAS:
         raise argparse.ArgumentTypeError(f"must be 0 (no check) or at least {MIN_REPLICAS} (with fewer the replicas' "
                                          f"spread cannot reject any statistic), got {value}")
     return value
 
 
-def integer(least: int) -> Callable[[str], int]:
-    """An option type: an integer >= ``least``."""
+def integer(least: int, most: int | None = None, why: str = "") -> Callable[[str], int]:
+    """An option type: an integer >= ``least`` (and <= ``most``, ``why`` saying why)."""
 
     def parse(text: str) -> int:
         try:
@@ -43,9 +43,35 @@ def integer(least: int) -> Callable[[str], int]:
             raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
         if value < least:
             raise argparse.ArgumentTypeError(f"must be >= {least}, got {value}")
+        if most is not None and value > most:
+            raise argparse.ArgumentTypeError(f"must be <= {most:,d} ({why}), got {value:,d}")
         return value
 
     return parse
+
+
+#: Most EM starts one fit screens: each runs 15 EM iterations, and beyond the five fixed distance factors the
+#: rest are seeded draws from the same range [0.1, 3]; 64 of them already cost more than the fit.
+MAX_STARTS = 64
+#: Most calibrated-simulator replicas: each is a simulation of the whole log and a fit.
+MAX_REPLICAS = 1000
+#: Most seeds per policy and length in a sweep (each is a collect -> learn -> score run).
+MAX_SEEDS = 10_000
+
+
+#: Most worker processes per CPU an option may ask for: each worker is a Python process with NumPy and the
+#: compiled kernels loaded (~200 MB), so a thousand of them exhaust memory before any work.
+MAX_WORKERS_PER_CPU = 4
+
+
+def workers(text: str) -> int:
+    """An option type: a number of worker processes, 1 .. ``MAX_WORKERS_PER_CPU`` x this machine's CPUs."""
+    value = integer(1)(text)
+    limit = MAX_WORKERS_PER_CPU * (os.cpu_count() or 1)
+    if value > limit:
+        raise argparse.ArgumentTypeError(f"{value} worker processes on {os.cpu_count() or 1} CPUs: at most {limit} "
+                                         f"({MAX_WORKERS_PER_CPU} per CPU; each holds its own NumPy and kernels)")
+    return value
 
 
 def finite(least: float) -> Callable[[str], float]:
@@ -61,6 +87,14 @@ def finite(least: float) -> Callable[[str], float]:
         return value
 
     return parse
+
+
+def path(text: str) -> str:
+    """An option type: a file or folder name, not empty (an empty one was taken as the current folder, or
+    ignored, and some commands failed only after all their work)."""
+    if not text:
+        raise argparse.ArgumentTypeError("an empty name; give a file or folder")
+    return text
 
 
 def max_steps() -> int:

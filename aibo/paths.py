@@ -6,10 +6,13 @@ Every command calls ``check_files(inputs, outputs)`` before any work. It refuses
   (``os.path.samefile``: same device and inode), so an input is never overwritten;
 - two outputs that are the same file (one would clobber the other);
 - an output that is an existing folder, or whose name is longer than the file system allows;
-- the same input given twice under one label (e.g. a log and a symlink to it): it would count twice.
+- the same input given twice under one label (e.g. a log and a symlink to it), or two logs with the same
+  bytes (a copy): it would count twice.
 
 ``check_replaceable(label, folder, names)``: a folder of outputs replaced whole
-(``aibo_core.atomic.atomic_folder``) may hold only those outputs, so nothing else in it is lost.
+(``aibo_core.atomic.atomic_folder``) may hold only those outputs, so nothing else in it is lost; nor may it be
+the current folder, one holding it, or a mount point (``--out .`` or ``--out ""``), which cannot be replaced:
+refused before any work, not after it.
 
 ``checkpoint_path(out)`` derives the checkpoint file name beside a model file so that it never
 exceeds the file system's NAME_MAX, however long the model's name is.
@@ -42,6 +45,24 @@ def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
         return os.path.realpath(a) == os.path.realpath(b)
 
 
+def same_bytes(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    """True when the regular files ``a`` and ``b`` hold the same bytes (sizes compared first, then SHA-256)."""
+    try:
+        if not (os.path.isfile(a) and os.path.isfile(b)) or os.path.getsize(a) != os.path.getsize(b):
+            return False
+        return _sha256(a) == _sha256(b)
+    except OSError:
+        return False  # unreadable: the command's own read reports it
+
+
+def _sha256(path: str | os.PathLike) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(2**20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
 def name_max(folder: str | os.PathLike) -> int:
     """Longest file name (bytes) allowed in ``folder`` (or its nearest existing ancestor)."""
     folder = Path(os.path.abspath(folder))
@@ -59,7 +80,8 @@ INPUT_OPTIONS = (("log", "logs"), ("--init", "init"), ("--model", "model"), ("--
 
 def declared_inputs(args, extra: Sequence[Named] = ()) -> list[Named]:
     """Every file a command reads, from its parsed options: logs, ``--init``, ``--model``, ``--replay``,
-    JSON options given as a file (``aibo.options.JSONFile``), agent files of ``sb3:PATH`` policies;
+    JSON options given as a file (``aibo.options.JSONFile``), agent files of ``sb3:PATH`` policies and of
+    ``--policy-params`` naming one (``AGENT_PARAMS``);
     then ``extra`` (e.g. a dataset's files). Every command passes these to ``check_files``."""
     found: list[Named] = []
     for label, attr in INPUT_OPTIONS:
@@ -73,10 +95,25 @@ def declared_inputs(args, extra: Sequence[Named] = ()) -> list[Named]:
     for attr in ("policy", "policies"):
         for name in str(getattr(args, attr, "") or "").split(","):
             if name.strip().startswith("sb3:"):
-                agent = name.strip()[4:]
-                root = agent[:-4] if agent.endswith(".zip") else agent
-                found += [("agent", agent), ("agent", agent + ".zip"), ("agent", root + ".json")]
+                found += agent_files("agent", name.strip()[4:])
+    params = getattr(args, "policy_params", None) or {}
+    # collect: {param: value}; experiment: {policy: {param: value}}
+    for group in [params] + [v for v in params.values() if isinstance(v, dict)]:
+        for key in AGENT_PARAMS:
+            if isinstance(group.get(key), str) and group[key]:
+                found += agent_files(f"--policy-params '{key}'", group[key])
     return found + list(extra)
+
+
+#: Policy parameters that name an agent file the policy reads (``explorer``'s and ``sb3``'s ``path``).
+AGENT_PARAMS = ("path",)
+
+
+def agent_files(label: str, agent: str) -> list[Named]:
+    """The files an agent named ``agent`` may be read from: as given, with ``.zip`` added (SB3 adds it) and its
+    ``.json`` description."""
+    root = agent[:-4] if agent.endswith(".zip") else agent
+    return [(label, agent), (label, agent + ".zip"), (label, root + ".json")]
 
 
 def check_files(inputs: Sequence[Named], outputs: Sequence[Named], folders: Sequence[Named] = ()) -> None:
@@ -91,6 +128,9 @@ def check_files(inputs: Sequence[Named], outputs: Sequence[Named], folders: Sequ
         for other_label, other in inputs[:i]:
             if label == other_label and same_file(path, other):
                 raise CLIError(f"{label} {path} is the same file as {other_label} {other}: give each {label} once")
+            if label == other_label and label == "log" and same_bytes(path, other):
+                raise CLIError(f"{label} {path} holds the same bytes as {other_label} {other} (a copy): its data would "
+                               f"count twice; give each {label} once")
     for i, (label, path) in enumerate(outputs):
         _check_output_name(label, path)
         for in_label, in_path in inputs:
@@ -107,6 +147,12 @@ def check_replaceable(label: str, folder: str | os.PathLike, names: Sequence[str
     the folder is about to be replaced whole, and nothing else a user keeps there may be lost."""
     from aibo_core.atomic import is_stale
 
+    where = os.path.realpath(folder)
+    if os.path.commonpath([where, os.getcwd()]) == where or os.path.ismount(where):
+        what = "a mount point" if os.path.ismount(where) else "the current folder" if where == os.getcwd() else \
+            "a folder holding the current one"
+        raise CLIError(f"{label} {str(folder) or repr('')}: is {what}; the output folder is replaced whole, which "
+                       "cannot be done to it; give a new folder (e.g. --out runs/NAME)")
     try:
         entries = sorted(os.listdir(folder))
     except (FileNotFoundError, NotADirectoryError):
@@ -119,6 +165,8 @@ def check_replaceable(label: str, folder: str | os.PathLike, names: Sequence[str
 
 
 def _check_output_name(label: str, path: str | os.PathLike) -> None:
+    if not str(path):
+        raise CLIError(f"{label}: an empty file name; give the file to write")
     if os.path.isdir(path):
         raise CLIError(f"{label} {path}: is a folder; give a file name")
     name = os.fsencode(Path(path).name)

@@ -34,7 +34,7 @@ import time
 import zipfile
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
@@ -52,24 +52,37 @@ def atomic_write(path: str | os.PathLike, write: Callable[[Any], None]) -> None:
     Stale temp files of earlier, killed writes in that folder are removed first (see the module
     docstring). The file gets the usual mode (0666 less the umask), not mkstemp's 0600.
     """
-    path = Path(path)
-    with _naming(path):
-        path.parent.mkdir(parents=True, exist_ok=True)
-        remove_stale_temps(path.parent)
-        fd, tmp = tempfile.mkstemp(prefix=f".aibo-{os.getpid()}-", suffix=".tmp", dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as f:
-                write(f)
-                f.flush()
-                os.fsync(f.fileno())
-            os.chmod(tmp, 0o666 & ~_umask())
-            os.replace(tmp, path)
-        except BaseException:
+    atomic_write_all([(path, write)])
+
+
+def atomic_write_all(items: Sequence[tuple[str | os.PathLike, Callable[[Any], None]]]) -> None:
+    """``atomic_write`` for files that belong together (an agent and its description): every ``write(fileobj)``
+    runs on its own temp file first, and only when all have succeeded are they renamed into place, one right
+    after another (microseconds apart). A failed or interrupted write leaves every target as it was."""
+    temps: list[tuple[Path, str]] = []
+    try:
+        for path, write in items:
+            path = Path(path)
+            with _naming(path):
+                path.parent.mkdir(parents=True, exist_ok=True)
+                remove_stale_temps(path.parent)
+                fd, tmp = tempfile.mkstemp(prefix=f".aibo-{os.getpid()}-", suffix=".tmp", dir=path.parent)
+                temps.append((path, tmp))
+                with os.fdopen(fd, "wb") as f:
+                    write(f)
+                    f.flush()
+                    os.fsync(f.fileno())
+                os.chmod(tmp, 0o666 & ~_umask())
+        for path, tmp in temps:
+            with _naming(path):
+                os.replace(tmp, path)
+    except BaseException:
+        for _, tmp in temps:
             try:
                 os.unlink(tmp)
             except FileNotFoundError:
                 pass
-            raise
+        raise
 
 
 @contextmanager

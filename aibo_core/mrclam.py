@@ -15,16 +15,18 @@ What the log gets (frames of ``dt`` seconds from the first command, ``t0``):
   (range m -> mm), bearing wrapped to [-pi, pi]; ``landmarks`` (15, 2) in mm;
 - ``pose`` (T+1, 3): Vicon ground truth interpolated at the frame boundaries (x, y linear, theta
   unwrapped); poses inside a ground-truth dropout longer than ``GAP_S`` are flagged in
-  ``meta["pose_gaps"]``;
+  ``meta["pose_gaps"]``, as are poses before the first or after the last ground-truth row (held at it);
 - ``meta``: the source (dataset, robot, files, ``t0``), every count of what was dropped (sightings of
-  other robots, unknown barcodes, non-positive ranges, sightings outside the log span, repeated or
-  backward odometry/ground-truth rows) and the ground-truth gaps. It carries neither the start pose
+  other robots, unknown barcodes, non-positive ranges, sightings outside the log span, measurement rows
+  repeated exactly, repeated or backward odometry/ground-truth rows) and the ground-truth gaps. A barcode
+  or landmark listed twice with different meanings is refused. It carries neither the start pose
   nor any ``field``: the learner must find its start from the sightings, as on any real robot.
 """
 
 from __future__ import annotations
 
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -52,10 +54,14 @@ def _read(path: Path, ncols: int) -> np.ndarray:
         raise MRCLAMError(f"{path}: file not found (an MRCLAM dataset folder holds Barcodes.dat, "
                           "Landmark_Groundtruth.dat and RobotN_{Odometry,Measurement,Groundtruth}.dat)")
     try:
-        a = np.loadtxt(path, comments="#", ndmin=2)
+        with warnings.catch_warnings():  # numpy warns of an empty file; the error below says it in one line
+            warnings.simplefilter("ignore", UserWarning)
+            a = np.loadtxt(path, comments="#", ndmin=2)
     except ValueError as exc:
         raise MRCLAMError(f"{path}: not a table of numbers ({exc})") from None
-    if a.shape[1] < ncols or len(a) == 0:
+    if len(a) == 0:
+        raise MRCLAMError(f"{path}: no data rows (expected rows of {ncols} numbers)")
+    if a.shape[1] < ncols:
         raise MRCLAMError(f"{path}: expected rows of {ncols} numbers, got shape {a.shape}")
     bad = ~(np.abs(a[:, :ncols]) <= MAX_ABS)  # also NaN
     if bad.any():
@@ -63,6 +69,25 @@ def _read(path: Path, ncols: int) -> np.ndarray:
         raise MRCLAMError(f"{path}: row {row + 1} of the data, column {col + 1}: {a[row, col]!r} is not a finite "
                           f"number of magnitude <= {MAX_ABS:g}")
     return a[:, :ncols]
+
+
+def _unique_rows(a: np.ndarray) -> tuple[np.ndarray, int]:
+    """(``a`` without rows that repeat an earlier row exactly, in the original order; how many were dropped)."""
+    _, first = np.unique(a, axis=0, return_index=True)
+    keep = np.sort(first)
+    return a[keep], len(a) - len(keep)
+
+
+def _one_to_one(keys: np.ndarray, values: np.ndarray, path: Path, key: str, value: str) -> dict[int, int]:
+    """{key: value} of a table's two columns; MRCLAMError naming the file when a key is listed with two values (its
+    sightings would go to one of them silently). A row repeated exactly is harmless."""
+    out: dict[int, int] = {}
+    for k, v in zip(keys.tolist(), values.tolist()):
+        k, v = int(k), int(v)
+        if out.setdefault(k, v) != v:
+            raise MRCLAMError(f"{path}: {key} {k} is listed for {value} {out[k]} and for {value} {v}; each {key} "
+                              "must name one")
+    return out
 
 
 def file_names(robot: int) -> dict[str, str]:
@@ -103,8 +128,11 @@ def import_robot(folder: str | os.PathLike, robot: int, dt: float = DEFAULT_DT, 
     odo = odo[keep]
     keep, gt_rep, gt_back = increasing(gt[:, 0])
     gt = gt[keep]
-    if len(odo) < 2:
-        raise MRCLAMError(f"{folder / names['odometry']}: fewer than 2 usable command rows")
+    for role, rows, rep, back in (("odometry", odo, odo_rep, odo_back), ("groundtruth", gt, gt_rep, gt_back)):
+        if len(rows) < 2:
+            raise MRCLAMError(f"{folder / names[role]}: fewer than 2 usable rows (times must increase: {rep} "
+                              f"repeated and {back} backward in time were dropped)")
+    meas, meas_dup = _unique_rows(meas)
 
     t0 = float(odo[0, 0]) + float(start_s)
     t_end = min(float(odo[-1, 0]), float(gt[-1, 0]))
@@ -119,7 +147,8 @@ def import_robot(folder: str | os.PathLike, robot: int, dt: float = DEFAULT_DT, 
     # landmarks: subjects 6-20 in the order of Landmark_Groundtruth.dat
     subjects = lm_table[:, 0].astype(np.int64)
     landmarks = lm_table[:, 1:3] * 1000.0
-    subject_of = dict(zip(barcodes[:, 1].tolist(), barcodes[:, 0].tolist()))
+    subject_of = _one_to_one(barcodes[:, 1], barcodes[:, 0], folder / names["barcodes"], "barcode", "subject")
+    _one_to_one(subjects, np.arange(len(subjects)), folder / names["landmarks"], "subject", "row")
     lm_index = {int(s): i for i, s in enumerate(subjects)}
     subj = np.array([subject_of.get(int(b), -1) for b in meas[:, 1]], dtype=np.int64)
     is_robot = np.isin(subj, ROBOTS)
@@ -150,6 +179,7 @@ def import_robot(folder: str | os.PathLike, robot: int, dt: float = DEFAULT_DT, 
             "sightings_outside_span": int((~is_robot & ~unknown & ~bad_range & ~inside).sum()),
             "odometry_rows_repeated": odo_rep, "odometry_rows_backward": odo_back,
             "groundtruth_rows_repeated": gt_rep, "groundtruth_rows_backward": gt_back,
+            "measurement_rows_duplicated": meas_dup,
         },
         "pose_gaps": pose_gaps,
     }

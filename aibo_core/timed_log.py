@@ -86,16 +86,18 @@ def truth_at(t: np.ndarray, x_m: np.ndarray, y_m: np.ndarray, theta: np.ndarray,
              edges: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
     """((T+1, 3) pose [x mm, y mm, theta rad] at the frame boundaries ``edges`` (s), ``pose_gaps``): the truth
     rows (strictly increasing times ``t``, s) interpolated, x and y linearly, theta unwrapped; gaps longer than
-    ``GAP_S`` inside the span and the poses inside them counted and flagged."""
+    ``GAP_S`` inside the span and the poses inside them counted and flagged, as are poses before the first or after
+    the last truth row (held at it)."""
     pose = np.stack([np.interp(edges, t, x_m) * 1000.0, np.interp(edges, t, y_m) * 1000.0,
                      wrap(np.interp(edges, t, np.unwrap(theta)))], axis=1)
     gdt = np.diff(t)
     in_span = (t[1:] > edges[0]) & (t[:-1] < edges[-1])
     gaps = np.flatnonzero((gdt > GAP_S) & in_span)
     j = np.searchsorted(t, edges, side="right") - 1
-    flagged = np.flatnonzero((j >= 0) & (j < len(gdt)) & (gdt[np.clip(j, 0, len(gdt) - 1)] > GAP_S)
-                             & (edges > t[np.clip(j, 0, len(t) - 1)]))
-    outside = int(np.sum((edges < t[0]) | (edges > t[-1])))
+    out_of_span = (edges < t[0]) | (edges > t[-1])  # held at the first or last truth row: no truth there
+    flagged = np.flatnonzero(out_of_span | ((j >= 0) & (j < len(gdt)) & (gdt[np.clip(j, 0, len(gdt) - 1)] > GAP_S)
+                                            & (edges > t[np.clip(j, 0, len(t) - 1)])))
+    outside = int(out_of_span.sum())
     gaps_meta = {"threshold_s": GAP_S, "count": int(len(gaps)),
                  "longest_s": float(gdt[gaps].max()) if len(gaps) else 0.0,
                  "total_s": float(gdt[gaps].sum()) if len(gaps) else 0.0,

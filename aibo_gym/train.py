@@ -1,19 +1,21 @@
 """Training an SB3 explorer (``aibo train-explorer``): PPO or DQN on :class:`~aibo_gym.explorer.HoldWrapper`.
 
-Stable-Baselines3 and torch are imported only here. The agent is written atomically to
-``AGENT.zip`` with ``AGENT.json`` beside it (algorithm, hold, the observation's version, the
+Stable-Baselines3 and torch are imported only here. The agent is written to
+``AGENT.zip`` with ``AGENT.json`` beside it, the pair all or nothing (algorithm, hold, the observation's version, the
 training config), which the ``sb3`` policy reads.
 """
 
 from __future__ import annotations
 
+import hashlib
 import importlib.util
+import io
 import json
 import os
 from pathlib import Path
 from typing import Any
 
-from aibo_core.atomic import atomic_write
+from aibo_core.atomic import atomic_write_all
 
 from .policies.onboard import FEATURES_VERSION, N_FEATURES
 
@@ -57,13 +59,13 @@ WARM_BATCH = 256
 
 
 def _save(model, out: Path, meta: dict[str, Any]) -> None:
-    """Write the agent atomically to ``out`` and its metadata to ``out``'s ``.json``."""
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.stem}-{os.getpid()}.tmp.zip")
-    model.save(tmp)
-    os.replace(tmp, out)
-    text = json.dumps(meta, indent=1)
-    atomic_write(out.with_suffix(".json"), lambda f: f.write(text.encode()))
+    """Write the agent to ``out`` and its metadata (with the agent's SHA-256, ``agent_sha256``) to ``out``'s
+    ``.json``, all or nothing (``atomic_write_all``): a failure leaves the old pair as it was."""
+    buffer = io.BytesIO()
+    model.save(buffer)
+    data = buffer.getvalue()
+    text = json.dumps({**meta, "agent_sha256": hashlib.sha256(data).hexdigest()}, indent=1)
+    atomic_write_all([(out, lambda f: f.write(data)), (out.with_suffix(".json"), lambda f: f.write(text.encode()))])
 
 
 def teacher_rollouts(env, holds: int, gamma: float) -> tuple[Any, Any, Any]:

@@ -8,11 +8,11 @@ from typing import Any
 import numpy as np
 
 from aibo_core.trajectory import Trajectory
+from learners.arrays.batch import make_batch
 from learners.base import LearnResult, ProgressFn
 from learners.em.estep import e_step
 from learners.em.learner import EMLearner
 from learners.em.options import EMOptions
-from learners.inference.batch import make_batch
 from learners.metrics import model_errors
 from learners.model.model import Model
 

@@ -6,7 +6,22 @@ continuous commands (N, k); ``model.sensor.mean(distances_mm)`` the mean size me
 and ``model.sensor.std(distances_mm)`` the (N, 2) standard deviations [size, bearing rad].
 """
 
-from learners.model.io import load_model
-from learners.model.model import Model
+from __future__ import annotations
+
+from typing import Any
 
 __all__ = ["load_model", "Model"]
+
+
+def __getattr__(name: str) -> Any:
+    """``load_model`` and ``Model`` imported on first use: importing any ``learners`` module (e.g. the light
+    ``learners.em.options`` the command line reads) does not load the model's SciPy dependencies."""
+    if name == "load_model":
+        from learners.model.io import load_model
+
+        return load_model
+    if name == "Model":
+        from learners.model.model import Model
+
+        return Model
+    raise AttributeError(f"module 'learners' has no attribute {name!r}")

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from aibo_core.features import features
-from learners.inference.lowered import curve
+from learners.arrays.lowered import curve
 from learners.model.model import Model
 from learners.model.sensor import BASES, SensorModel
 

@@ -14,9 +14,9 @@ import numpy as np
 
 from aibo_core.geometry import rel_disp, wrap
 from aibo_core.trajectory import Trajectory
+from learners.arrays.batch import make_batch
+from learners.arrays.lowered import fit_polynomial
 from learners.base import LearnResult, ProgressFn
-from learners.inference.batch import make_batch
-from learners.inference.sensor_stats import fit_polynomial
 from learners.model.initial import InitialState
 from learners.model.model import Model, start_model
 

@@ -37,9 +37,9 @@ import numpy as np
 
 from aibo_core.geometry import wrap
 from aibo_core.trajectory import VELOCITY_CONTROLS, Trajectory
+from learners.arrays.batch import make_batch
+from learners.arrays.lowered import fit_polynomial
 from learners.em.options import DEFAULT_GATE
-from learners.inference.batch import make_batch
-from learners.inference.sensor_stats import fit_polynomial
 from learners.model.model import Model
 
 COLUMNS = ("face value", "learned", "fit to Vicon")
@@ -188,7 +188,6 @@ def smoothed_poses(model: Model, logs: list[Trajectory], gate: float | None = DE
     """(the E-step's smoothed poses per log, (T+1, 3) [x mm, y mm, theta rad]; the log-likelihood), sightings beyond
     ``gate`` (Mahalanobis^2; by default the fit's gate; None: every sighting applied) not applied."""
     from learners.em.estep import e_step
-    from learners.inference.batch import make_batch
 
     batch = make_batch(logs)
     post = e_step(model, batch, "compiled", gate)

@@ -37,12 +37,13 @@ from aibo.cli import build_parser  # noqa: E402
 from aibo.commands.learn import em_options  # noqa: E402
 from aibo_core.atomic import atomic_write, write_json  # noqa: E402
 from aibo_core.mrclam import import_robot  # noqa: E402
+from learners.arrays.batch import make_batch  # noqa: E402
 from learners.discrepancy.score import score as heldout_score  # noqa: E402
 from learners.discrepancy.split import training_log  # noqa: E402
+from learners.em.estep import forward_loglik  # noqa: E402
 from learners.em.learner import EMLearner  # noqa: E402
 from learners.em.start import initial_state_for  # noqa: E402
-from learners.inference.batch import make_batch  # noqa: E402
-from learners.inference.whiteness import normalized_size_innovations, size_error_lag1  # noqa: E402
+from learners.em.whiteness import normalized_size_innovations, size_error_lag1  # noqa: E402
 from learners.model.landmark_bias import LandmarkBias  # noqa: E402
 from learners.scoring import face_value_model, pose_scores, velocity_scores  # noqa: E402
 
@@ -82,7 +83,7 @@ def fit_pair(train, initial) -> tuple[object, object, dict]:
     t0 = time.perf_counter()
     batch = make_batch([train])
     m = res0.params.with_effect(LandmarkBias.start(batch))
-    m = m.with_effect(m.effect("landmark_bias").warm_start(m, batch))
+    m = m.with_effect(m.effect("landmark_bias").warm_start(m, batch, forward_loglik(batch)))
     res1 = EMLearner(replace(opts, alias_search=False, starts=1)).fit([train], init=m, action_model="unicycle")
     rec["bias_s"], rec["bias_iterations"] = time.perf_counter() - t0, int(res1.iterations)
     rec["bias_warnings"] = list(res1.info.get("warnings", []))

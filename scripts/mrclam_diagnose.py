@@ -6,7 +6,7 @@ face value (with the diagnosed model's noise) and ``aibo learn``'s model (``scri
 
 DATA defaults to ../shared/data/mrclam7 (never copied into the repository). Per robot: forward speed and turn rate
 RMS against Vicon over 1 s windows, the gated smoothed pose RMS (``learners.scoring``), the lag-1 autocorrelation
-of the normalized range innovations (``learners.inference.whiteness``), the gap (held-out NLL per sighting) of diagnose's
+of the normalized range innovations (``learners.em.whiteness``), the gap (held-out NLL per sighting) of diagnose's
 base model and of its model (``report.json``), the named effects, any "none of the above", the warnings, and the
 wall time with its stages. Finished robots are kept in OUT/robots.jsonl (a rerun skips them); OUT/table.md is
 rewritten after each.

@@ -16,8 +16,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from learners.inference.batch import Batch
-from learners.inference.lowered import BASIS_INVERSE, BASIS_POWER, Lowered
+from learners.arrays.batch import Batch
+from learners.arrays.lowered import BASIS_INVERSE, BASIS_POWER, Lowered
 
 DT = 1.0 / 30.0
 N_ACTIONS = 40

@@ -186,7 +186,7 @@ def test_a_disagreement_left_after_the_search_names_the_effect_whose_signature_i
 def test_every_learned_effect_drives_its_simulator_twin(fitted):
     """A model with every effect of the catalogue (the registry, at each class's EXAMPLE): its simulator
     has their twins with the same parameters, walls (the model has wall_contact), and the spurious sightings it asks for."""
-    from learners.inference.batch import make_batch
+    from learners.arrays.batch import make_batch
     from learners.model.effects import EFFECT_MODELS
 
     tr, result = fitted

@@ -137,8 +137,13 @@ def test_collect_bad_config_is_one_line(tmp_path):
 
 @pytest.mark.slow
 def test_reproduce_quick_end_to_end(tmp_path):
-    r = aibo("reproduce", "--quick", "--out", str(tmp_path))
+    """--quick writes to its own folder by default (runs/reproduce-quick) and says it is not held to the bar."""
+    r = subprocess.run([sys.executable, "-m", "aibo.cli", "reproduce", "--quick"], capture_output=True, text=True,
+                       timeout=600, cwd=tmp_path)
     assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["runs"]
+    assert "not held to the paper's bar" in r.stdout
+    tmp_path = tmp_path / "runs" / "reproduce-quick"
     assert "vx RMS / range" in r.stdout and "oracle" in r.stdout
     report = json.loads((tmp_path / "report.json").read_text())
     assert report["quick"] and report["iterations"] >= 1
@@ -149,6 +154,27 @@ def test_reproduce_quick_end_to_end(tmp_path):
     assert {"vx_rel<=1.5xbound", "vy_rel<=1.5xbound", "vtheta_rel<=1.5xbound"} <= set(report["bar"])
     for name in report["figures"]:
         assert (tmp_path / name).read_bytes()[:4] == b"\x89PNG"
+
+
+def test_reproduce_quick_never_replaces_a_full_run(tmp_path, capsys):
+    (tmp_path / "report.json").write_text('{"quick": false}')
+    assert main(["reproduce", "--quick", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert f"--out {tmp_path}: holds a full run's results" in err and err.count("\n") == 1
+    assert (tmp_path / "report.json").read_text() == '{"quick": false}'
+
+
+def test_reproduce_exits_1_when_the_bar_is_missed(tmp_path, monkeypatch, capsys):
+    """A full run (a 5-minute log here, to be short) held to a bar no fit meets: exit status 1, the missed items
+    named; its results are still written."""
+    from aibo.commands import reproduce
+
+    monkeypatch.setattr(reproduce, "FULL_STEPS", reproduce.QUICK_STEPS)
+    monkeypatch.setattr(reproduce, "BAR", {**reproduce.BAR, "vx_rel": 1e-9})
+    assert main(["reproduce", "--out", str(tmp_path / "R")]) == 1
+    captured = capsys.readouterr()
+    assert "the bar is missed (vx_rel<=paper" in captured.err and "exit status 1" in captured.err
+    assert "MISS vx_rel" in captured.out and json.loads((tmp_path / "R" / "report.json").read_text())["quick"] is False
 
 
 @pytest.mark.slow
@@ -166,7 +192,8 @@ def test_bench_quick_writes_every_figure(tmp_path):
     b = rep["bias_states"]
     assert b["states"] == 4 and b["action_stats_speedup"] == pytest.approx(b["action_stats_numpy_s"] / b["action_stats_compiled_s"])
     w = rep["workflows"]
-    assert w["learn"]["wall_s"] > 0 and w["diagnose"]["wall_s"] > 0 and w["diagnose"]["named"] == ["actuation_lag"]
+    assert w["learn"]["wall_s"] > 0 and w["learn"]["command_wall_s"] > 0
+    assert w["diagnose"]["wall_s"] > 0 and w["diagnose"]["named"] == ["actuation_lag"]
     assert all(row["peak_mb"] >= 0 and row["estep_s"] > 0 for row in rep["scaling"])
 
 

@@ -32,6 +32,12 @@ BAD = [
     (COLLECT + ["--config", '{"slip_std": [1, Infinity, 0.1]}'], "--config", "non-finite number Infinity"),
     (COLLECT + ["--config", "[1]"], "--config", "JSON object"),
     (["reproduce", "--seed", "-1", "--out", "r"], "--seed", ">= 0"),
+    (["diagnose", "log.npz", "--out", "d", "--jobs", "100000"], "--jobs", "worker processes on"),
+    (["diagnose", "log.npz", "--out", "d", "--replicas", "1000000000"], "--replicas", "must be <= 1,000"),
+    (LEARN + ["--starts", "1000000"], "--starts", "must be <= 64"),
+    (["experiment", "policies", "--out", "d", "--seeds", "1000000000"], "--seeds", "must be <= 10,000"),
+    (["experiment", "policies", "--out", "d", "--jobs", "100000"], "--jobs", "worker processes on"),
+    (["train-explorer", "--policy", "sb3", "--out", "a.zip", "--n-envs", "100000"], "--n-envs", "worker processes on"),
 ]
 
 
@@ -79,3 +85,74 @@ def test_collect_gives_the_frames_asked_for_past_the_episode_limit(tmp_path):
     assert trajectory.load(out).n_frames == 27300
     assert main(["collect", "--steps", "300", "--out", str(out), "--config", '{"max_steps": 100}']) == 0
     assert trajectory.load(out).n_frames == 100  # an explicit episode limit still ends the episode
+
+
+def _options(parser, where="aibo"):
+    """(command, argparse action) of every option and positional of every subcommand."""
+    import argparse
+
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from _options(sub, f"{where} {name}")
+        elif not isinstance(action, argparse._HelpAction):
+            yield where, action
+
+
+def test_every_option_says_what_it_does_and_its_default():
+    """--seed and --max-iter had no description; learn --starts named a class attribute; reproduce --out hid it."""
+    import argparse
+
+    from aibo.cli import build_parser
+
+    for where, action in _options(build_parser()):
+        name = f"{where} {action.option_strings[-1] if action.option_strings else action.dest}"
+        assert action.help, f"{name}: no help text"
+        assert "EMOptions" not in action.help, f"{name}: names a class, not a value"
+        valued = action.option_strings and not isinstance(action, (argparse._StoreTrueAction,
+                                                                   argparse.BooleanOptionalAction))
+        if valued and action.default not in (None, {}, False):
+            assert "default" in action.help, f"{name}: default {action.default!r} not in its help"
+
+
+def test_the_agents_extra_is_named_with_the_cpu_torch_advice(tmp_path, monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "stable_baselines3", None)  # import stable_baselines3 raises ImportError
+    assert main(["collect", "--steps", "30", "--policy", "explorer", "--out", str(tmp_path / "x.npz")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "'.[agents]'" in err and "CPU-only torch first" in err
+
+
+@pytest.mark.parametrize("command, says", [
+    (["collect", "--steps", "30", "--out", "x.npz"], "no output was written"),
+    (["learn", "log.npz", "--out", "m.json"], "resumes from the checkpoint"),
+    (["experiment", "policies", "--out", "sweep"], "results.jsonl"),
+])
+def test_an_interrupt_says_what_it_left(command, says, monkeypatch, capsys):
+    """Every interrupt said 'a learn run resumes from its checkpoint', whatever the command."""
+    from aibo import commands
+
+    def interrupt(args):
+        raise KeyboardInterrupt
+
+    for name in ("run_collect", "run_learn", "run_experiment"):
+        monkeypatch.setattr(commands, name, interrupt)
+    assert main(command) == 130
+    err = capsys.readouterr().err
+    assert err.startswith("aibo: interrupted; ") and says in err and err.count("\n") == 1
+
+
+def _modules_after(code: str) -> set[str]:
+    """The modules a fresh interpreter holds after running ``code``."""
+    r = subprocess.run([sys.executable, "-c", code + "\nimport sys; print(' '.join(sys.modules))"], capture_output=True,
+                       text=True, timeout=120, check=True)
+    return set(r.stdout.split())
+
+
+def test_help_and_the_learn_command_import_only_what_they_need():
+    """Start-up: 'aibo --help' loads no NumPy (it took 3 s when the parser's option defaults pulled in the model's
+    SciPy); 'aibo learn' loads neither scipy.stats (lag.py, only for continuous commands) nor scipy.optimize
+    (landmark_bias, only with that effect) until they are used."""
+    helped = _modules_after("from aibo.cli import main\ntry:\n    main(['learn', '--help'])\nexcept SystemExit:\n    pass")
+    assert not {"numpy", "scipy", "learners.model"} & helped
+    learn = _modules_after("import aibo.commands.learn")
+    assert "numpy" in learn and not {"scipy.stats", "scipy.optimize", "scipy.special"} & learn

@@ -161,6 +161,19 @@ def test_diagnose_and_learn_refuse_the_same_log_twice(blind_log, tmp_path, capsy
     _one_line_error(capsys, "same file", "once")
 
 
+@pytest.mark.parametrize("command", ["learn", "diagnose"])
+def test_a_byte_identical_copy_of_a_log_is_refused(command, blind_log, tmp_path, capsys):
+    """Links were refused, copies were not: the copy's sightings counted twice."""
+    import shutil
+
+    copy = tmp_path / "copy.npz"
+    shutil.copyfile(blind_log, copy)
+    out = tmp_path / ("m.json" if command == "learn" else "D")
+    assert main([command, str(blind_log), str(copy), "--out", str(out)]) == 2
+    _one_line_error(capsys, f"log {copy} holds the same bytes as log {blind_log}", "once")
+    assert not out.exists()
+
+
 def test_diagnose_action_model_is_checked_against_the_log(blind_log, tmp_path, capsys):
     assert main(["diagnose", str(blind_log), "--out", str(tmp_path / "D"), "--action-model", "unicycle"]) == 2
     _one_line_error(capsys, "--action-model unicycle", str(blind_log), "discrete")
@@ -399,7 +412,7 @@ def test_an_init_model_the_log_cannot_use_is_one_line(entry, field, what, learne
 def test_an_init_model_with_other_control_names_is_refused(tmp_path, capsys):
     from aibo_core import trajectory
     from aibo_core.mrclam import import_robot
-    from learners.inference.batch import make_batch
+    from learners.arrays.batch import make_batch
     from learners.model.io import save_model
     from learners.model.model import start_model
 
@@ -621,3 +634,97 @@ def test_atomic_folder_through_a_symlink_keeps_the_link(tmp_path):
         (tmp / "b.txt").write_text("new")
     assert link.is_symlink() and sorted(p.name for p in real.iterdir()) == ["b.txt"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["link", "real"]
+
+
+@pytest.mark.parametrize("out", ["agent.zip", "agent.json"])
+def test_an_agent_named_in_policy_params_is_an_input_of_collect(out, tmp_path, capsys):
+    """``--policy-params '{"path": AGENT}'`` names a file the policy reads: no output may replace it (or its .json)."""
+    agent = tmp_path / "agent.zip"
+    agent.write_bytes(b"PK agent")
+    (tmp_path / "agent.json").write_text("{}")
+    assert main(["collect", "--steps", "30", "--policy", "explorer", "--policy-params", f'{{"path": "{agent}"}}',
+                 "--out", str(tmp_path / out)]) == 2
+    _one_line_error(capsys, f"--out {tmp_path / out}", "--policy-params 'path'", "never overwritten")
+    assert agent.read_bytes() == b"PK agent" and (tmp_path / "agent.json").read_text() == "{}"
+
+
+def test_an_agent_named_in_policy_params_is_an_input_of_experiment(tmp_path, capsys):
+    """The sweep's ``{policy: {"path": AGENT}}`` too: an agent named like one of its outputs is refused."""
+    agent = tmp_path / "sweep" / "summary.json"
+    agent.parent.mkdir()
+    agent.write_text("{}")
+    assert main(["experiment", "policies", "--policies", "explorer", "--seeds", "1", "--out", str(agent.parent),
+                 "--policy-params", f'{{"explorer": {{"path": "{agent}"}}}}']) == 2
+    _one_line_error(capsys, str(agent), "never overwritten")
+    assert agent.read_text() == "{}"
+
+
+def _exit_code(argv: list[str]) -> int:
+    """``main(argv)``'s exit status, also when argparse refuses an option (SystemExit)."""
+    try:
+        return main(argv)
+    except SystemExit as stop:
+        return stop.code
+
+
+@pytest.mark.parametrize("command", ["diagnose", "reproduce"])
+@pytest.mark.parametrize("out", [".", "", "..", "sub/.."])
+def test_an_output_folder_that_cannot_be_replaced_is_refused_first(command, out, tmp_path, monkeypatch, capsys):
+    """The folder is replaced whole at the end: the current folder (or one holding it) cannot be, and the run's
+    results were lost ('Device or resource busy' after the whole run)."""
+    work = tmp_path / "work"
+    (work / "sub").mkdir(parents=True)
+    monkeypatch.chdir(work)
+    log = work / "log.npz"
+    log.write_bytes(b"")  # never read: refused before
+    args = ["diagnose", str(log), "--out", out] if command == "diagnose" else ["reproduce", "--quick", "--out", out]
+    assert _exit_code(args) == 2
+    _one_line_error(capsys, "an empty name" if out == "" else "the output folder is replaced whole")
+    assert sorted(p.name for p in work.iterdir()) == ["log.npz", "sub"]
+
+
+@pytest.mark.parametrize("args", [["collect", "--steps", "30", "--out", ""], ["bench", "--quick", "--json", ""],
+                                  ["collect", "--steps", "30", "--out", "x.npz", "--plot", ""],
+                                  ["import", "mrclam", "", "--robot", "1", "--out", "x.npz"]])
+def test_an_empty_file_name_is_refused_first(args, capsys):
+    """An empty name was the current folder or ignored: bench --json '' ran to the end, then failed."""
+    assert _exit_code(args) == 2
+    _one_line_error(capsys, "an empty name")
+
+
+@pytest.mark.parametrize("option, value", [("--holdout-minutes", "1e5"), ("--minutes", "5,1e9")])
+def test_a_sweep_log_longer_than_collect_may_simulate_is_refused(option, value, tmp_path, capsys):
+    """--holdout-minutes had no upper limit (1e5: hours and ~29 GB before any error)."""
+    out = tmp_path / "sweep"
+    assert main(["experiment", "policies", "--seeds", "1", "--out", str(out), option, value]) == 2
+    _one_line_error(capsys, f"{option} {value if option == '--minutes' else '100000'}: ", "what aibo collect may simulate")
+    assert not out.exists()
+
+
+def test_an_action_model_other_than_the_inits_is_refused(tmp_path, capsys):
+    """--action-model was silently overruled by --init's action model."""
+    from aibo_core import trajectory
+    from tests._diffdrive import diff_drive_log
+
+    log, init = tmp_path / "log.npz", tmp_path / "init.json"
+    trajectory.save(diff_drive_log(seconds=60.0), log)
+    assert main(["learn", str(log), "--out", str(init), "--max-iter", "2", "--action-model", "unicycle"]) == 0
+    capsys.readouterr()
+    out = tmp_path / "m.json"
+    assert main(["learn", str(log), "--init", str(init), "--action-model", "features", "--out", str(out)]) == 2
+    _one_line_error(capsys, "--action-model features: --init", "'unicycle' action model")
+    assert not out.exists()
+    assert main(["learn", str(log), "--init", str(init), "--action-model", "unicycle", "--out", str(out),
+                 "--max-iter", "2"]) == 0  # the same one: fine
+
+
+def test_an_open_profile_interval_is_printed_as_open():
+    """The profile interval's 'open' flags were dropped from the printed line (an end the profile never left
+    read as a closed bound)."""
+    from aibo.diagnose_report import interval_text
+
+    iv = {"value": 0.3, "interval_95": [0.1, 0.5], "method": "profile likelihood, whole logs"}
+    assert interval_text({"lag_s": {**iv, "open": [False, False]}}) == "95%: lag_s [0.1, 0.5] (profile)"
+    assert interval_text({"lag_s": {**iv, "open": [False, True]}}) == "95%: lag_s [0.1, >=0.5] (profile, open above)"
+    assert interval_text({"tau_s": {"value": 8.0, "interval_95": [6.9, 11.2], "open": [True, False]}}) == \
+        "95%: tau_s [<=6.9, 11.2] (open below)"

@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 
 from aibo_gym.collect import collect
+from learners.arrays.batch import make_batch
 from learners.em.finish import fisher_scoring
 from learners.em.learner import EMLearner
 from learners.em.options import EMOptions
 from learners.em.uncertainty import parameter_uncertainty
-from learners.inference.batch import make_batch
 from learners.model.effects import BeaconHeightScale
 from learners.model.model import paper_start
 from learners.model.parameters import Param, helmert, pack_logcontrast, unpack_logcontrast

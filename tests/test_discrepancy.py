@@ -11,13 +11,13 @@ import pytest
 from aibo.cli import main
 from aibo_core.trajectory import blind, save
 from aibo_gym.collect import collect
+from learners.arrays.batch import make_batch
 from learners.discrepancy.score import predictive_logdens
 from learners.discrepancy.signatures import signatures
 from learners.discrepancy.split import heldout_mask, training_log
 from learners.em.estep import e_step
 from learners.em.learner import EMLearner
 from learners.em.options import EMOptions
-from learners.inference.batch import make_batch
 from tests._logs import diagnose, sim_log
 
 

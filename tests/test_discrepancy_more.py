@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 from aibo_gym.collect import collect
+from learners.arrays.batch import make_batch
 from learners.discrepancy.search import ZERO_DOF_NATS
 from learners.em.estep import e_step
 from learners.em.learner import EMLearner
 from learners.em.options import EMOptions
-from learners.inference.batch import make_batch
-from learners.inference.predictive import predictive_logdens, sightings_logdens
+from learners.em.predictive import predictive_logdens, sightings_logdens
 from learners.model.catalogue_more import FalseSightings, WallContact
 from learners.model.effects import EFFECT_MODELS
 from tests._logs import diagnose, sim_log

@@ -11,7 +11,7 @@ import pytest
 from aibo_gym.collect import collect
 from aibo_gym.effects import EFFECTS
 from aibo_gym.envs import AiboBeaconsEnv
-from learners.inference.batch import make_batch
+from learners.arrays.batch import make_batch
 from learners.model.effects import EFFECT_MODELS, EffectModel, effect_from_json
 from learners.model.model import start_model
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 
 import gymnasium as gym
 import numpy as np
@@ -116,3 +117,42 @@ def test_train_explorer_cli_refuses_a_bad_out(tmp_path, capsys):
     pytest.importorskip("stable_baselines3", reason="SB3 is in the 'agents' extra")
     assert main(["train-explorer", "--steps", "10", "--out", str(tmp_path / "agent.pkl")]) == 2
     assert ".zip" in capsys.readouterr().err
+
+
+class _FakeAgent:
+    """Stands in for an SB3 model: ``save`` writes its bytes (SB3 accepts a file object)."""
+
+    def __init__(self, data: bytes):
+        self.data = data
+
+    def save(self, f) -> None:
+        f.write(self.data)
+
+
+def test_an_agent_and_its_description_are_written_all_or_nothing(tmp_path, monkeypatch):
+    """A failure while writing the description leaves the old agent AND the old description (the agent was
+    replaced first, leaving a new agent beside the old description), and no temp file."""
+    import aibo_core.atomic as atomic
+    from aibo_gym.policies.sb3 import load_agent
+    from aibo_gym.train import _save
+
+    out = tmp_path / "agent.zip"
+    _save(_FakeAgent(b"old agent"), out, {"algo": "ppo"})
+    old_json = (tmp_path / "agent.json").read_text()
+    real_fsync, calls = os.fsync, []
+
+    def full_disk_on_the_second_file(fd):
+        calls.append(fd)
+        if len(calls) == 2:
+            raise OSError(28, "No space left on device")
+        real_fsync(fd)
+
+    monkeypatch.setattr(atomic.os, "fsync", full_disk_on_the_second_file)
+    with pytest.raises(OSError, match="No space left"):
+        _save(_FakeAgent(b"new agent"), out, {"algo": "ppo"})
+    monkeypatch.undo()
+    assert out.read_bytes() == b"old agent" and (tmp_path / "agent.json").read_text() == old_json
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["agent.json", "agent.zip"]
+    out.write_bytes(b"another agent")  # a pair that does not belong together is refused by name
+    with pytest.raises(ValueError, match="belongs to another agent"):
+        load_agent(str(out))

@@ -151,3 +151,55 @@ def test_blind_logs_export_without_pose(minari, tmp_path, monkeypatch):
     assert main(["export", "minari", str(log), "--dataset-id", "blind-v0"]) == 0
     episode = next(minari.load_dataset("blind-v0").iterate_episodes())
     assert "pose" not in episode.infos and episode.observations.shape == (301, 11)
+
+
+def test_a_dataset_another_export_finished_meanwhile_is_kept(minari, logs, tmp_path, monkeypatch, capsys):
+    """Two exports of one id without --force: the existence check before the episodes are built passes for both;
+    the second to finish is refused (it replaced the first's dataset) and leaves no temp folder."""
+    from aibo.commands import export
+
+    out = tmp_path / "datasets"
+    real, raced = export._create, []
+
+    def racing(*args, **kwargs):
+        if not raced:  # the other export runs to the end while this one builds its dataset
+            raced.append(None)
+            raced[0] = main(["export", "minari", str(logs[1]), "--dataset-id", "race-v0", "--out", str(out)])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(export, "_create", racing)
+    assert main(["export", "minari", str(logs[0]), "--dataset-id", "race-v0", "--out", str(out)]) == 2
+    assert raced == [0]
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--dataset-id race-v0: a dataset appeared at" in err[0] and "--force" in err[0]
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(out))
+    assert minari.load_dataset("race-v0").storage.metadata["source_logs"] == [str(logs[1])]
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]
+
+
+def test_export_refuses_a_disk_too_full_and_cleans_killed_exports(minari, logs, tmp_path, monkeypatch, capsys):
+    """h5py on a full disk can crash the process (exit 139): the free space is checked first. A killed export's
+    temp folder (its process gone) is removed by the next export."""
+    import os
+    import shutil
+    import time
+
+    from aibo.commands import export
+
+    out = tmp_path / "datasets"
+    stale = out / ".aibo-999999999-abcdefgh.tmp"
+    (stale / "x-v0").mkdir(parents=True)
+    os.utime(stale, (time.time() - 3600, time.time() - 3600))
+    usage = shutil.disk_usage(tmp_path)
+    monkeypatch.setattr(export.shutil, "disk_usage", lambda path: usage._replace(free=2**20))
+    assert main(["export", "minari", str(logs[0]), "--dataset-id", "x-v0", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"--out {out}: 1.0 MiB free, the dataset needs about" in err and err.count("\n") == 1
+    assert sorted(p.name for p in out.iterdir()) == []  # nothing written, the killed export's folder removed
+
+
+@pytest.mark.parametrize("dataset_id", ["noversion", "name-vx", "-v0"])
+def test_export_a_dataset_id_without_a_version_is_one_line(minari, logs, tmp_path, capsys, dataset_id):
+    assert main(["export", "minari", str(logs[0]), f"--dataset-id={dataset_id}", "--out", str(tmp_path / "d")]) == 2
+    err = capsys.readouterr().err
+    assert f"--dataset-id {dataset_id!r}: malformed" in err and err.count("\n") == 1

@@ -7,13 +7,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from learners.arrays.batch import make_batch
+from learners.arrays.lowered import BASIS_INVERSE
 from learners.em.accel import Packer
 from learners.em.finish import _bfgs, fisher_scoring, loglik_at
 from learners.em.learner import EMLearner
 from learners.em.options import EMOptions
 from learners.em.uncertainty import packed, parameter_uncertainty, unpacked
-from learners.inference.batch import make_batch
-from learners.inference.lowered import BASIS_INVERSE
 from tests._logs import sim_log
 from tests.test_uncertainty import SENSOR_ONLY, known_poses_case
 

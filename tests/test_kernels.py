@@ -15,6 +15,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from learners.arrays.lowered import BASIS_POWER, curve
 from learners.inference import action_stats, sensor_stats
 from learners.inference.kernels import (
     action_statistics_compiled,
@@ -22,7 +23,6 @@ from learners.inference.kernels import (
     sensor_update_compiled,
     smooth_compiled,
 )
-from learners.inference.lowered import BASIS_POWER, curve
 from learners.inference.reference import smooth
 from tests._synth import CASES, GATE, case, pinhole_coef, rot3, wrap
 

@@ -10,14 +10,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from learners.arrays.batch import Batch
+from learners.arrays.posterior import ExtraMoments, Posterior
 from learners.em.estep import e_step
 from learners.em.options import EMOptions
 from learners.inference.action_stats import action_statistics
 from learners.inference.augmented import displacement_statistics, rts_pass, smooth_augmented
-from learners.inference.batch import Batch
 from learners.inference.kernels import innovations_compiled, smooth_compiled
 from learners.inference.kernels.augmented_stats import displacement_statistics_compiled
-from learners.inference.posterior import ExtraMoments, Posterior
 from learners.inference.reference import forward_pass, two_filter_smooth
 from learners.model.landmark_bias import LandmarkBias, slot_schedule
 from tests._synth import CASES, case
@@ -168,8 +168,9 @@ def test_em_recovers_the_bias_and_the_velocities():
     bias, 2.35 / 1.46 %: the bias takes information away; the information bound itself rises from 1.70 / 1.52 %
     to 2.36 / 2.24 %, measured with the standard errors.)"""
     from aibo_gym.collect import collect
+    from learners.arrays.batch import make_batch
+    from learners.em.estep import forward_loglik
     from learners.em.learner import EMLearner
-    from learners.inference.batch import make_batch
 
     tr = collect({"noise": "aibo", "effects": {"landmark_bias": {"sigma_rel": 0.05, "tau_s": 8.0}}}, steps=18000, seed=3)
     truth = np.array(tr.meta["truth"]["velocities"])
@@ -182,7 +183,7 @@ def test_em_recovers_the_bias_and_the_velocities():
     base = EMLearner(opts).fit([tr]).params
     batch = make_batch([tr])
     start = base.with_effect(LandmarkBias.start(batch))
-    start = start.with_effect(start.effect("landmark_bias").warm_start(start, batch))
+    start = start.with_effect(start.effect("landmark_bias").warm_start(start, batch, forward_loglik(batch)))
     fit = EMLearner(replace(opts, alias_search=False, starts=1)).fit([tr], init=start).params
     e = fit.effect("landmark_bias")
     assert e.sigma_rel == pytest.approx(0.05, rel=0.2)
@@ -195,7 +196,7 @@ def test_the_held_out_score_of_a_model_with_bias_states_reads_the_augmented_filt
     """The one-step predictive densities of every sighting sum to the filter's likelihood, and with a vanishing
     bias they are the base model's (the score must see the states: read off the pose alone, a fit with the
     bias scored 21 nats per sighting on MRCLAM robot 2 against the base model's 3.4)."""
-    from learners.inference.predictive import predictive_logdens
+    from learners.em.predictive import predictive_logdens
 
     lo, batch, _ = case("several")
     aug = _with_bias(lo, batch, sigma=0.05)
@@ -253,9 +254,9 @@ def test_a_fit_without_bias_states_says_when_the_size_errors_drift_per_landmark(
     from dataclasses import replace as _replace
 
     from aibo_gym.collect import collect
+    from learners.arrays.batch import make_batch
     from learners.em.learner import EMLearner
-    from learners.inference.batch import make_batch
-    from learners.inference.whiteness import size_error_lag1
+    from learners.em.whiteness import size_error_lag1
 
     opts = _replace(EMOptions(), uncertainty=False, alias_search=False, starts=1)
     said = {}
@@ -266,3 +267,25 @@ def test_a_fit_without_bias_states_says_when_the_size_errors_drift_per_landmark(
         said[label + " lag1"] = size_error_lag1(res.params, make_batch([tr]))[0]
     assert len(said["bias"]) == 1 and "aibo diagnose" in said["bias"][0], said
     assert said["none"] == [] and abs(said["none lag1"]) < 0.15, said
+
+
+def test_learn_init_of_a_model_with_landmark_bias(tmp_path):
+    """A model holding landmark_bias (as diagnose's model.json may) is a valid --init: a stretched start's first
+    iteration prunes every sighting of some landmarks, and the bias states were allocated on the sightings before
+    it (IndexError in the M-step); they are allocated again on the kept ones."""
+    import json
+
+    from aibo.cli import main
+    from aibo_core import trajectory
+    from learners.model.io import load_model, save_model
+    from tests._logs import sim_log
+
+    log, fitted, init, out = (tmp_path / n for n in ("log.npz", "fit.json", "init.json", "m.json"))
+    trajectory.save(sim_log(6000, seed=3), log)
+    assert main(["learn", str(log), "--out", str(fitted)]) == 0  # a converged model
+    save_model(init, load_model(fitted).with_effect(LandmarkBias(0.05, 8.0)), {"learner": "em"})
+    assert main(["learn", str(log), "--init", str(init), "--out", str(out), "--max-iter", "16",
+                 "--no-alias-search"]) == 0
+    doc = json.loads(out.read_text())
+    assert [e["name"] for e in doc["effects"]] == ["landmark_bias"]
+    assert doc["info"]["starts"][2]["pruned"] > 0  # the case that failed

@@ -157,3 +157,27 @@ def test_the_cycle_check_finds_a_lazy_cycle(tmp_path):
     (pkg / "b.py").write_text("def f():\n    from learners.em.a import y\n")
     (pkg / "c.py").write_text("from learners.em import a\n")
     assert import_cycles(tmp_path, "learners") == [["learners.em.a", "learners.em.b", "learners.em.a"]]
+
+
+def _imports_of(package: str) -> list[tuple[str, str]]:
+    """(module, imported name) of every import statement in ``package`` (lazy ones included)."""
+    found = []
+    for path in sorted((ROOT / Path(*package.split("."))).rglob("*.py")):
+        module = module_name(path, ROOT)
+        found += [(module, n) for _, n in imported_modules(path.read_text(encoding="utf-8"), module,
+                                                           path.name == "__init__.py")]
+    return found
+
+
+def _inside(name: str, package: str) -> bool:
+    return name == package or name.startswith(package + ".")
+
+
+def test_the_model_and_inference_import_only_the_arrays_they_exchange():
+    """``learners.model`` writes the lowered arrays and reads posteriors, ``learners.inference`` the other way round:
+    both import ``learners.arrays`` and neither imports the other (the components once imported the E-step's types
+    from inference, and inference the model)."""
+    model = [(m, n) for m, n in _imports_of("learners.model") if _inside(n, "learners.inference")]
+    inference = [(m, n) for m, n in _imports_of("learners.inference") if _inside(n, "learners.model")]
+    arrays = [(m, n) for m, n in _imports_of("learners.arrays") if _inside(n, "learners") and not _inside(n, "learners.arrays")]
+    assert (model, inference, arrays) == ([], [], [])

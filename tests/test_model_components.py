@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from learners import load_model
+from learners.arrays.batch import make_batch
 from learners.em.learner import EMLearner
 from learners.em.options import EMOptions
-from learners.inference.batch import make_batch
 from learners.model.action import ActionModel
 from learners.model.effects import EFFECT_MODELS, BeaconHeightScale
 from learners.model.io import save_result

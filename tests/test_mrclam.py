@@ -3,6 +3,7 @@ start-pose estimate from sightings, and the scoring against ground truth."""
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -210,10 +211,10 @@ def test_real_robot3_the_gate_judged_at_the_face_value_keeps_the_right_world():
     speed and turn rate."""
     from dataclasses import replace
 
+    from learners.arrays.batch import make_batch
     from learners.discrepancy.split import training_log
     from learners.em.learner import EMLearner, face_value_gate
     from learners.em.options import EMOptions
-    from learners.inference.batch import make_batch
     from learners.scoring import face_value_model, velocity_scores
 
     tr = import_robot(DATA, 3, dt=0.1)
@@ -243,9 +244,9 @@ def test_the_pose_score_leaves_gross_outliers_out_by_default():
     log's."""
     from dataclasses import replace
 
+    from learners.arrays.batch import make_batch
     from learners.em.learner import EMLearner
     from learners.em.options import EMOptions
-    from learners.inference.batch import make_batch
     from learners.scoring import face_value_model, pose_scores
     from tests._diffdrive import diff_drive_log
 
@@ -287,3 +288,65 @@ def test_real_robot3_diagnose_starts_from_the_whole_logs_first_sightings():
     was = _fit([training_log(tr)], None, opts)
     assert np.hypot(*(was.init[0].mean[:2] - tr.pose[0, :2])) > 3000.0, was.init[0].mean
     assert pose_scores(was, [tr])["pose_rms"] > 2.0 * pose_scores(model, [tr])["pose_rms"]
+
+
+def _import_error(tmp_path, capsys) -> str:
+    """``aibo import mrclam`` of robot 1 in ``tmp_path``: exit 2 and its one line of stderr (no warning before it)."""
+    assert main(["import", "mrclam", str(tmp_path), "--robot", "1", "--out", str(tmp_path / "x.npz")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("aibo: error: ") and err.count("\n") == 1, err
+    return err
+
+
+@pytest.mark.parametrize("order", ["reversed", "one time"])
+def test_ground_truth_without_two_increasing_times_is_one_line(tmp_path, capsys, order):
+    tiny_dataset(tmp_path)
+    gt = [(100.0 + 0.02 * k, 0.0, 0.0, 0.0) for k in range(600)]
+    _write(tmp_path, "Robot1_Groundtruth.dat", gt[::-1] if order == "reversed" else [(100.0, *r[1:]) for r in gt])
+    err = _import_error(tmp_path, capsys)
+    assert "Robot1_Groundtruth.dat: fewer than 2 usable rows" in err and ("599 backward" in err or "599 repeated" in err)
+
+
+def test_an_empty_file_is_one_line_without_numpys_warning(tmp_path, capsys):
+    tiny_dataset(tmp_path)
+    (tmp_path / "Robot1_Measurement.dat").write_text(HEADER)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # numpy's UserWarning would be raised here
+        assert "Robot1_Measurement.dat: no data rows" in _import_error(tmp_path, capsys)
+
+
+@pytest.mark.parametrize("name, rows, text", [
+    ("Barcodes.dat", [(1, 5), (2, 14), (6, 63), (7, 81), (8, 7), (9, 63)], "barcode 63 is listed for subject 6 and for "
+                                                                          "subject 9"),
+    ("Landmark_Groundtruth.dat", [(6, 2.0, 1.0), (7, 4.0, -1.0), (6, 6.0, 1.0)], "subject 6 is listed for row 0 and "
+                                                                                 "for row 2"),
+])
+def test_a_barcode_or_landmark_listed_twice_is_refused(tmp_path, capsys, name, rows, text):
+    tiny_dataset(tmp_path)
+    _write(tmp_path, name, rows)
+    assert f"{name}: {text}" in _import_error(tmp_path, capsys)
+
+
+def test_repeated_measurement_rows_count_once_and_are_reported(tmp_path):
+    tiny_dataset(tmp_path)
+    once = import_robot(tmp_path, 1, dt=0.1)
+    rows = [(100.3, 63, 2.2, 0.46), (100.3, 81, 4.1, -0.25), (100.3, 63, 2.2, 0.46), (102.04, 7, 5.9, 0.2),
+            (100.3, 81, 4.1, -0.25)]
+    _write(tmp_path, "Robot1_Measurement.dat", rows)
+    tr = import_robot(tmp_path, 1, dt=0.1)
+    np.testing.assert_array_equal(tr.sighting_landmark, once.sighting_landmark)
+    np.testing.assert_allclose(tr.sighting_value, once.sighting_value)
+    assert tr.meta["dropped"]["measurement_rows_duplicated"] == 2
+
+
+def test_poses_before_the_ground_truth_starts_are_flagged(tmp_path, capsys):
+    """Ground truth starting 2 s after the first command: the first 20 poses were the first Vicon pose, unflagged,
+    and the pose score counted them."""
+    tiny_dataset(tmp_path)
+    _write(tmp_path, "Robot1_Groundtruth.dat", [(102.0 + 0.02 * k, 0.2 + 0.002 * k, 0.0, 0.0) for k in range(500)])
+    tr = import_robot(tmp_path, 1, dt=0.1)
+    valid = pose_valid(tr)
+    assert not valid[:20].any() and valid[21:].all()
+    assert tr.meta["pose_gaps"]["poses_outside_groundtruth"] == 20
+    assert main(["import", "mrclam", str(tmp_path), "--robot", "1", "--out", str(tmp_path / "x.npz")]) == 0
+    assert "20 poses outside the ground truth's span flagged" in capsys.readouterr().out

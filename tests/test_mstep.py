@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from aibo_core import geometry as geo
+from learners.arrays.lowered import BASIS_INVERSE, BASIS_POWER, curve
+from learners.arrays.posterior import Posterior
 from learners.inference import action_stats as ast
 from learners.inference import sensor_stats as sst
-from learners.inference.lowered import BASIS_INVERSE, BASIS_POWER, curve
-from learners.inference.posterior import Posterior
 from learners.inference.reference import smooth
 from tests._synth import pinhole_coef, simulate, true_table
 

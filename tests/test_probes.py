@@ -14,11 +14,11 @@ import pytest
 from aibo_core.trajectory import blind
 from aibo_gym.collect import collect
 from experiments.outside_catalogue import SlopedFloor, registered
+from learners.arrays.batch import make_batch
 from learners.discrepancy.search import search
 from learners.em.estep import e_step
 from learners.em.learner import EMLearner
 from learners.em.options import EMOptions
-from learners.inference.batch import make_batch
 from learners.model.effects import EFFECT_MODELS
 from learners.model.probes import PROBES, SpeedVsHeading
 from tests._logs import diagnose, sim_log

@@ -51,10 +51,10 @@ def test_only_effects_with_one_scalar_parameter_and_no_batch_state_are_profiled(
 
 def test_on_a_simulated_fade_the_profile_interval_agrees_with_the_wald_one():
     from experiments.loop import simulate
+    from learners.arrays.batch import make_batch
     from learners.discrepancy.effect_sizes import effect_intervals
     from learners.em.learner import EMLearner
     from learners.em.options import EMOptions
-    from learners.inference.batch import make_batch
     from learners.model.catalogue import VelocityFade
 
     log = simulate({"noise": "aibo", "effects": {"velocity_fade": {"fade_per_min": 0.03}}}, 9000, 1)

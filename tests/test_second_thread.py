@@ -9,13 +9,13 @@ import threading
 import numpy as np
 import pytest
 
+from learners.arrays.batch import make_batch
 from learners.em import second_thread
 from learners.em.estep import e_step
 from learners.em.learner import EMLearner
 from learners.em.mstep import maximize
 from learners.em.options import EMOptions
 from learners.em.uncertainty import file_values
-from learners.inference.batch import make_batch
 from tests._logs import sim_log
 
 

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from aibo_core import geometry as geo
+from learners.arrays.lowered import BASIS_POWER
 from learners.inference import reference as sm
-from learners.inference.lowered import BASIS_POWER
 from tests._synth import LANDMARKS as BEACONS
 from tests._synth import pinhole_coef, simulate, true_table
 
@@ -265,7 +265,7 @@ def test_aibo_smoothed_closer_to_truth(aibo_run):
 def test_effects_consistent_model():
     """With offsets, cov scales, per-sighting effects and the inverse basis, the TRUE lowered model
     is consistent (E[mahal2] = 2, NEES ~ 3); the plain model is not."""
-    from learners.inference.lowered import BASIS_INVERSE
+    from learners.arrays.lowered import BASIS_INVERSE
 
     batch, lo, pose, post = truth_run(4, [1500], effects=True, basis=BASIS_INVERSE, max_per_frame=3)
     assert 1.7 < post.mahal2.mean() < 2.3

@@ -9,9 +9,19 @@ import pytest
 
 from aibo.cli import main
 from aibo_core import trajectory
+from learners.arrays.posterior import Posterior
 from learners.em.learner import EMLearner
 from learners.em.options import EMOptions
-from learners.em.starts import DISAGREE_NATS, DISTANCE_SCALES, disagreement, distance_scales, stretched
+from learners.em.starts import (
+    DISAGREE_NATS,
+    DISTANCE_SCALES,
+    PRUNED_SHARE_WARN,
+    disagreement,
+    distance_scales,
+    gated_score,
+    pruned_warning,
+    stretched,
+)
 from learners.metrics import model_errors
 from learners.model.model import paper_start
 from learners.model.sensor import SensorModel
@@ -100,3 +110,39 @@ def test_learn_with_starts_and_inverse_basis_reports_both(tmp_path, capsys):
     assert doc["info"]["options"]["starts"] == 2
     text = capsys.readouterr().out
     assert "2 starts screened" in text and "<- kept" in text and "standard errors" in text
+
+
+def test_learn_init_with_its_own_converged_model_keeps_the_data(tmp_path, capsys):
+    """A converged model as --init: the stretched starts gate away most sightings and, scored only on the
+    sightings none of them pruned, won (5 minutes: a wrong world refused by the field check; 15 minutes: 8,408 of
+    13,397 sightings pruned, exit 0). Scored on the same sightings, the given start wins and nothing is pruned."""
+    log, first, again = tmp_path / "log.npz", tmp_path / "m.json", tmp_path / "again.json"
+    tr = sim_log(6000, seed=3)
+    trajectory.save(tr, log)
+    assert main(["learn", str(log), "--out", str(first)]) == 0
+    capsys.readouterr()
+    assert main(["learn", str(log), "--init", str(first), "--out", str(again)]) == 0
+    doc = json.loads(again.read_text())
+    kept = next(r for r in doc["info"]["starts"] if r.get("chosen"))
+    assert kept["start"] == 0 and kept["pruned"] <= PRUNED_SHARE_WARN * tr.n_sightings
+    assert max(r["pruned"] for r in doc["info"]["starts"]) > 0.1 * tr.n_sightings  # the stretched starts did prune
+    assert "outlier gate pruned" not in capsys.readouterr().err
+
+
+def _posterior(mahal2, loglik):
+    return Posterior(*(None,) * 6, loglik=loglik, mahal2=np.asarray(mahal2, float))
+
+
+def test_gated_score_counts_a_gated_sighting_at_the_gate():
+    used = np.ones(4, bool)
+    # applied sightings: d2 = 1, 3 with log-normaliser -2 each: loglik = -2 - 0.5 - 2 - 1.5 = -6
+    post = _posterior([1.0, 3.0, 80.0, 200.0], -6.0)
+    assert gated_score(post, used, 50.0) == pytest.approx(-6.0 + 2 * (-2.0 - 25.0))
+    assert gated_score(post, used, None) == -6.0  # no gate: the likelihood itself
+    assert gated_score(post, np.array([True, True, False, False]), 50.0) == -6.0  # sightings not compared: ignored
+
+
+def test_pruned_warning_beyond_the_bounded_share():
+    assert pruned_warning(16, 13397) == "" and pruned_warning(0, 0) == ""
+    text = pruned_warning(8408, 13397)
+    assert "8,408 of 13,397 sightings (63%" in text and f"{PRUNED_SHARE_WARN:.0%}" in text

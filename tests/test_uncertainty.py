@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from learners.arrays.lowered import BASIS_INVERSE, BASIS_POWER
 from learners.em.uncertainty import file_values, parameter_uncertainty
-from learners.inference.lowered import BASIS_INVERSE, BASIS_POWER
 from learners.model.action import ActionModel
 from learners.model.initial import InitialState
 from learners.model.model import Model

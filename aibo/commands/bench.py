@@ -12,7 +12,8 @@ Figures (all also in ``--json``):
 - bias states (``landmark_bias``, 4 states): the augmented E-step and its action statistics, compiled vs the
   NumPy reference on the same log in the same run;
 - workflows, wall time as a user meets them: ``aibo learn`` with its defaults (starts, alias search, standard
-  errors) on a 15-minute log (``--quick``: 5), and ``aibo diagnose`` with every candidate and 8 replays on a
+  errors) on a 15-minute log (``--quick``: 5), in this process and as a command (a fresh process), and
+  ``aibo diagnose`` with every candidate and 8 replays on a
   10-minute log with a hidden 0.2 s actuation lag (``--quick``: 2 candidates, no replays).
 """
 
@@ -56,7 +57,7 @@ def machine() -> dict:
 
 def estep_speed(tr) -> dict:
     """Compiled vs NumPy reference E-step on the same log, after warm-up."""
-    from learners.inference.batch import make_batch
+    from learners.arrays.batch import make_batch
     from learners.inference.kernels import smooth_compiled
     from learners.inference.reference import smooth
     from learners.model.model import start_model
@@ -75,10 +76,10 @@ def estep_speed(tr) -> dict:
 
 def mstep_speed(tr) -> dict:
     """Compiled vs NumPy reference M-step (default options) on the same E-step output."""
+    from learners.arrays.batch import make_batch
     from learners.em.estep import e_step
     from learners.em.fit import m_step
     from learners.em.options import EMOptions
-    from learners.inference.batch import make_batch
     from learners.model.model import start_model
 
     batch = make_batch([tr])
@@ -138,9 +139,9 @@ def bias_states_speed(frames: int) -> dict:
     """The augmented E-step (pose + 4 bias states) and its action statistics on a simulated log with a landmark
     bias, compiled vs the NumPy reference, in the same run (the E-step's reference once: it is slow)."""
     from experiments.loop import simulate
+    from learners.arrays.batch import make_batch
     from learners.em.estep import e_step
     from learners.inference.augmented import displacement_statistics, smooth_augmented
-    from learners.inference.batch import make_batch
     from learners.inference.kernels.augmented_stats import displacement_statistics_compiled
     from learners.model.landmark_bias import LandmarkBias
     from learners.model.model import start_model
@@ -166,9 +167,17 @@ def _silenced():
         yield
 
 
+def _command_seconds(argv: list[str]) -> float:
+    """Wall time (s) of ``python -m aibo.cli ARGV`` in a fresh process: imports, the kernels' cache load and all."""
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "aibo.cli", *argv], check=True, capture_output=True)
+    return time.perf_counter() - t0
+
+
 def workflows(quick: bool) -> dict:
     """Wall time of ``aibo learn`` and ``aibo diagnose`` run as a user runs them (in this process, compiled
-    kernels warm), with what they found."""
+    kernels warm), with what they found; ``aibo learn`` also as a command (a fresh process: what its start-up
+    costs, the imports and the compiled kernels' cache load)."""
     from aibo.cli import main
     from aibo_core.trajectory import blind
     from experiments.loop import simulate
@@ -181,7 +190,8 @@ def workflows(quick: bool) -> dict:
         t0 = time.perf_counter()
         with _silenced():  # their own reports and progress: the bench prints its figures
             main(["learn", str(log), "--out", str(Path(tmp) / "m.json")])
-        out["learn"] = {"minutes": minutes, "wall_s": time.perf_counter() - t0}
+        out["learn"] = {"minutes": minutes, "wall_s": time.perf_counter() - t0,
+                        "command_wall_s": _command_seconds(["learn", str(log), "--out", str(Path(tmp) / "c.json")])}
         minutes = 10  # as the tests of the search (tests/test_discrepancy.py): a 0.2 s lag, seed 11
         cfg = {"noise": "aibo", "effects": {"actuation_lag": {"lag_s": 0.2}}}
         trajectory.save(blind(simulate(cfg, minutes * 1800, 11)), lag_log)
@@ -247,7 +257,9 @@ def run(args) -> int:
           f"{1000 * b['action_stats_numpy_s']:.0f} ms ({b['action_stats_speedup']:.1f}x)", flush=True)
     print("workflows (as a user runs them) ...", flush=True)
     report["workflows"] = w = workflows(args.quick)
-    print(f"  aibo learn, {w['learn']['minutes']}-minute log, defaults: {w['learn']['wall_s']:.1f} s; aibo diagnose, "
+    print(f"  aibo learn, {w['learn']['minutes']}-minute log, defaults: {w['learn']['wall_s']:.1f} s in process, "
+          f"{w['learn']['command_wall_s']:.1f} s as a command ({w['learn']['command_wall_s'] / w['learn']['wall_s']:.1f}x: "
+          f"imports and the kernels' cache load); aibo diagnose, "
           f"{w['diagnose']['minutes']}-minute log: {w['diagnose']['wall_s']:.1f} s (named: "
           f"{', '.join(w['diagnose']['named']) or 'none'})", flush=True)
 

@@ -16,6 +16,7 @@ from aibo.paths import check_files, check_replaceable, declared_inputs
 from aibo_core import trajectory
 from aibo_core.atomic import atomic_folder, write_json
 from aibo_core.compat import check_compatible
+from learners.arrays.batch import make_batch
 from learners.discrepancy.effect_sizes import base_shift, effect_intervals, holds_off
 from learners.discrepancy.profile import profile_where_wald_fails
 from learners.discrepancy.score import GAP_METRIC, MOTION_GAP_METRIC, WHITENESS_METRIC, motion_score, motion_trade, score
@@ -24,7 +25,6 @@ from learners.discrepancy.signatures import probe_signature, signatures
 from learners.discrepancy.statistics import plain_reading
 from learners.em.learner import EMLearner, feature_map_for
 from learners.em.options import EMOptions
-from learners.inference.batch import make_batch
 from learners.model.effects import EFFECT_MODELS
 from learners.model.io import save_result
 

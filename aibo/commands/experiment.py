@@ -20,8 +20,27 @@ def _list(text: str, kind, what: str) -> list:
 
 #: The files a sweep writes into --out (besides runs/).
 OUTPUTS = ("results.jsonl", "summary.json", "errors_vs_minutes.png")
-#: Longest log of one run (minutes): 10^8 frames at 30 Hz, the cap of ``aibo collect --steps``.
-MAX_MINUTES = 1e8 / 30 / 60
+FRAMES_PER_MINUTE = 30 * 60  # AiboBeacons-v0 steps at 30 Hz
+
+
+def max_minutes() -> float:
+    """Longest log of one run, training or held out (minutes): what ``aibo collect --steps`` may simulate
+    (``aibo.options.max_steps``: 10^8 frames, or what half of this machine's memory holds)."""
+    from aibo.options import max_steps
+
+    return max_steps() / FRAMES_PER_MINUTE
+
+
+def check_minutes(minutes: list[float], text: str, holdout: float) -> None:
+    """Refuse (CLIError) a log length (``minutes`` parsed from ``text``; ``holdout``) no run could simulate
+    (``--holdout-minutes`` 1e5 ran for hours, ~29 GB)."""
+    limit = max_minutes()
+    if any(not 0 < m <= limit for m in minutes):
+        raise CLIError(f"--minutes {text}: every length must be a number of minutes in "
+                       f"(0, {limit:,.0f}] (what aibo collect may simulate on this machine)")
+    if holdout > limit:
+        raise CLIError(f"--holdout-minutes {holdout:g}: at most {limit:,.0f} minutes (what aibo collect may simulate "
+                       "on this machine)")
 
 
 def validate_configs(specs) -> None:
@@ -43,8 +62,7 @@ def run(args) -> int:
     out = Path(args.out)
     check_files(declared_inputs(args), [("--out file", out / name) for name in OUTPUTS], folders=[("--out", out)])
     minutes = _list(args.minutes, float, "--minutes")
-    if any(not 0 < m <= MAX_MINUTES for m in minutes):
-        raise CLIError(f"--minutes {args.minutes}: every length must be a number of minutes in (0, {MAX_MINUTES:g}]")
+    check_minutes(minutes, args.minutes, args.holdout_minutes)
     names = [n.strip() for n in args.policies.split(",") if n.strip()]
     if not names:
         raise CLIError("--policies: empty list")

@@ -4,7 +4,9 @@ The episodes are rebuilt from the logs by :func:`aibo_gym.offline.episode_from_l
 the env's observation space, actions, rewards, terminations, truncations, infos with the true pose
 when the log has it). The dataset is written to ``--out`` (default: Minari's own folder,
 ``MINARI_DATASETS_PATH`` or ``~/.minari/datasets``) as ``OUT/DATASET_ID``, built in a temp folder
-beside it and renamed into place, so an interrupted export leaves no half-written dataset. Its
+beside it (``.aibo-PID-XXXXXXXX.tmp``: a killed export's is removed by the next one, ``aibo_core.atomic``) and
+renamed into place, so an interrupted export leaves no half-written dataset; without ``--force`` the rename
+refuses a dataset of the id that another export finished meanwhile. Its
 metadata names the env spec (id ``AiboBeacons-v0``, with the logs' config when they share one) and
 the source logs (``source_logs``); each episode's metadata names its log, policy and config.
 """
@@ -13,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
 import json
 import os
 import shutil
@@ -24,6 +27,7 @@ from typing import Any, Iterator
 from aibo.errors import CLIError
 from aibo.paths import check_files
 from aibo_core import trajectory
+from aibo_core.atomic import remove_stale_temps
 
 MINARI_HINT = "pip install 'aibo-gym[minari]' (Python >= 3.11)"
 
@@ -33,8 +37,10 @@ def run(args) -> int:
     from minari.dataset.minari_dataset import parse_dataset_id
 
     try:
-        namespace, _, _ = parse_dataset_id(args.dataset_id)
-    except ValueError:
+        namespace, _, version = parse_dataset_id(args.dataset_id)
+        if version is None:
+            raise ValueError("no version")
+    except (ValueError, TypeError):  # minari raises TypeError for an id without '-vN'
         raise CLIError(f"--dataset-id {args.dataset_id!r}: malformed; expected (namespace/)name-vN, e.g. "
                        "aibo/random-balanced-v0") from None
     root = Path(os.path.abspath(args.out or _default_root()))
@@ -44,14 +50,45 @@ def run(args) -> int:
     episodes = [_episode(path) for path in args.logs]
     _check_same_spaces(episodes, args.logs)
     root.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(prefix=".aibo-export-", dir=root) as tmp:
+    remove_stale_temps(root)  # the temp folders of killed exports
+    _check_free_space(root, episodes)
+    with tempfile.TemporaryDirectory(prefix=f".aibo-{os.getpid()}-", suffix=".tmp", dir=root) as tmp:
         with _datasets_path(tmp):
             dataset = _create(minari, args.dataset_id, episodes, args.logs)
             steps = dataset.total_steps
-        _move_into_place(Path(tmp), root, args.dataset_id, namespace)
+        _move_into_place(Path(tmp), root, args.dataset_id, namespace, args.force)
     print(f"wrote Minari dataset {args.dataset_id} to {target}: {len(episodes)} episode(s), {steps} steps; "
           f"read it with MINARI_DATASETS_PATH={root} and minari.load_dataset({args.dataset_id!r})")
     return 0
+
+
+#: Free space an export needs: this many times its episodes' arrays, plus HEADROOM_BYTES (HDF5's chunks,
+#: metadata and the infos' copies; measured: a 300-frame log holds 38 kB of arrays, its dataset 92 kB on disk).
+SPACE_FACTOR = 3.0
+HEADROOM_BYTES = 16 * 2**20
+
+
+def _check_free_space(root: Path, episodes: list) -> None:
+    """Refuse (CLIError) an export the folder's free space cannot hold: h5py on a full disk can crash the process
+    (exit 139, after an HDF5 message) instead of raising."""
+    arrays = sum(_nbytes([ep.observations, ep.actions, ep.rewards, ep.terminations, ep.truncations, ep.infos])
+                 for _, ep in episodes)
+    need = int(SPACE_FACTOR * arrays) + HEADROOM_BYTES
+    free = shutil.disk_usage(root).free
+    if free < need:
+        raise CLIError(f"--out {root}: {free / 2**20:,.1f} MiB free, the dataset needs about {need / 2**20:,.1f} MiB; "
+                       "free some space or export to another folder")
+
+
+def _nbytes(value) -> int:
+    """Bytes of the arrays in ``value`` (an array, or dicts and lists of them)."""
+    import numpy as np
+
+    if isinstance(value, dict):
+        return sum(_nbytes(v) for v in value.values())
+    if isinstance(value, (list, tuple)):
+        return sum(_nbytes(v) for v in value)
+    return int(np.asarray(value).nbytes)
 
 
 def _import_minari():
@@ -161,15 +198,23 @@ def _episode_metadata(path: str, tr, ep) -> dict[str, Any]:
             "robot_seed": int(ep.config["robot_seed"]), "config": json.dumps(ep.config)}
 
 
-def _move_into_place(tmp: Path, root: Path, dataset_id: str, namespace: str | None) -> None:
-    """Rename ``tmp/ID`` to ``root/ID`` (an old one removed only after), with new namespaces' metadata."""
+def _move_into_place(tmp: Path, root: Path, dataset_id: str, namespace: str | None, force: bool) -> None:
+    """Rename ``tmp/ID`` to ``root/ID``, with new namespaces' metadata. Without ``force`` a dataset that appeared
+    meanwhile (another export of the id) is kept and this one refused (the rename onto a folder that is not empty
+    fails in one step); with ``force`` an old one is moved aside and removed only after."""
     target = root / dataset_id
     target.parent.mkdir(parents=True, exist_ok=True)
     old = None
-    if target.exists():
-        old = Path(tempfile.mkdtemp(prefix=".aibo-replaced-", dir=root)) / "dataset"
+    if force and target.exists():
+        old = Path(tempfile.mkdtemp(prefix=f".aibo-{os.getpid()}-", suffix=".tmp", dir=root)) / "dataset"
         os.replace(target, old)
-    os.replace(tmp / dataset_id, target)
+    try:
+        os.rename(tmp / dataset_id, target)
+    except OSError as exc:
+        if exc.errno not in (errno.ENOTEMPTY, errno.EEXIST, errno.ENOTDIR, errno.EISDIR):
+            raise
+        raise CLIError(f"--dataset-id {dataset_id}: a dataset appeared at {target} while this export ran (another "
+                       "export of the id?); it is kept and nothing was written; choose another id or pass --force") from None
     if old is not None:
         shutil.rmtree(old.parent)
     parts = namespace.split("/") if namespace else []

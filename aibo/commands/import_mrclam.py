@@ -24,5 +24,6 @@ def run(args) -> int:
     print(f"wrote {args.out}: robot {args.robot}, {tr.n_frames} frames of {tr.dt:g} s ({tr.n_frames * tr.dt / 60:.1f} min), "
           f"{tr.n_sightings} landmark sightings; dropped: {dropped or 'nothing'}; ground-truth gaps > "
           f"{gaps['threshold_s']:g} s: {gaps['count']} (longest {gaps['longest_s']:.2f} s, {gaps['poses_flagged']} poses "
-          f"flagged); {time.perf_counter() - t0:.1f} s")
+          f"flagged)" + (f"; {gaps['poses_outside_groundtruth']} poses outside the ground truth's span flagged"
+                         if gaps["poses_outside_groundtruth"] else "") + f"; {time.perf_counter() - t0:.1f} s")
     return 0

@@ -15,7 +15,7 @@ from aibo_core import trajectory
 from aibo_core.compat import check_compatible
 from learners.base import LearnResult, get_learner
 from learners.em.alias import fixed_line
-from learners.em.learner import check_model_fits
+from learners.em.learner import check_model_fits, feature_map_for
 from learners.em.options import EMOptions
 from learners.metrics import model_errors, observed_distance_range, true_height, truth_problem, velocity_errors
 from learners.model import io as model_io
@@ -74,9 +74,10 @@ def starts_report(info: dict) -> list[str]:
         return []
     win = next(r for r in rows if r.get("chosen"))
     lines = [f"{len(rows)} starts screened for {win['iterations']} iterations each (sensor curve with distances "
-             f"x scale); kept start {win['start']}:"]
+             f"x scale), scored on the same sightings; kept start {win['start']}:"]
     for r in rows:
-        what = r["error"] if "error" in r else f"loglik {r['loglik']:.1f}, {r['behind_nats']:,.1f} nats behind"
+        what = r["error"] if "error" in r else (f"loglik {r['loglik']:.1f}, {r['behind_nats']:,.1f} nats behind"
+                                                 + (f", {r['pruned']:,d} sightings pruned" if "pruned" in r else ""))
         lines.append(f"  start {r['start']} (x{r['distance_scale']:.2g}): {what}{'  <- kept' if r.get('chosen') else ''}")
     return lines
 
@@ -126,6 +127,20 @@ def check_learn_files(args) -> None:
     check_files(inputs, outputs, folders=[("--plots", args.plots)] if args.plots else [])
 
 
+def check_action_model(action_model: str | None, init, init_path: str, tr) -> None:
+    """Refuse (CLIError) an ``--action-model`` other than the one ``--init`` holds: the fit starts from, and keeps,
+    the init's (it was overruled without a word)."""
+    if action_model is None:
+        return
+    try:
+        wanted = feature_map_for(action_model, tr.discrete, tuple(tr.control_names or ())) or "table"
+    except ValueError:
+        return  # an action model the log cannot take: the fit says so
+    if wanted != init.action.feature_map:
+        raise CLIError(f"--action-model {action_model}: --init {init_path} holds a '{init.action.feature_map}' action "
+                       "model, which the fit starts from and keeps; leave --action-model out, or start without --init")
+
+
 def run(args) -> int:
     check_learn_files(args)
     logs = [trajectory.load(p) for p in args.logs]
@@ -137,6 +152,7 @@ def run(args) -> int:
             check_model_fits(init, logs)
         except ValueError as err:
             raise CLIError(f"--init {args.init}: {err}") from None
+        check_action_model(args.action_model, init, args.init, logs[0])
     learner = make_learner(args)
     progress = Progress(args.learner)
     with naming_files(args.logs, args.init):

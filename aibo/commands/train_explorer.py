@@ -14,8 +14,9 @@ def run(args) -> int:
     from aibo.paths import check_files, declared_inputs
 
     if importlib.util.find_spec("stable_baselines3") is None:
-        raise CLIError("train-explorer needs Stable-Baselines3: pip install -e '.[agents]' "
-                       "(CPU torch first, see docs/environments.md)")
+        from aibo_gym.policies.sb3 import AGENTS_HINT
+
+        raise CLIError(f"train-explorer needs Stable-Baselines3: {AGENTS_HINT}")
     check_files(declared_inputs(args), [("--out", args.out), ("--out's description", args.out[:-4] + ".json")])
     t0 = time.perf_counter()
     meta = _train_explorer(args) if args.policy == "explorer" else _train_sb3(args)

@@ -13,6 +13,7 @@ a missing file or an agent for another observation or action space is one ValueE
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from typing import Any
@@ -32,6 +33,16 @@ def sidecar_path(path: str) -> str:
     return root + ".json"
 
 
+#: How to install Stable-Baselines3 (the ``agents`` extra): a CPU-only torch first, or pip pulls gigabytes of CUDA wheels.
+AGENTS_HINT = ("install a CPU-only torch first (pip install torch --index-url https://download.pytorch.org/whl/cpu), "
+               "then pip install -e '.[agents]' (docs/environments.md)")
+
+
+def _sha256(path: str) -> str:
+    with open(path, "rb") as f:
+        return hashlib.sha256(f.read()).hexdigest()
+
+
 def load_agent(path: str, features: str = FEATURES_VERSION, n_features: int = N_FEATURES, policy: str = "sb3"):
     """(SB3 model, its metadata dict) of an agent file for the observation ``features`` (its version,
     ``n_features`` long) of ``policy``; ValueError naming the file otherwise."""
@@ -47,13 +58,16 @@ def load_agent(path: str, features: str = FEATURES_VERSION, n_features: int = N_
                 meta = json.load(f)
         except (OSError, ValueError) as exc:
             raise ValueError(f"{policy} agent {side!r}: unreadable metadata ({exc})") from None
+    if "agent_sha256" in meta and meta["agent_sha256"] != _sha256(path):
+        raise ValueError(f"{policy} agent {path!r}: its description {side!r} belongs to another agent (SHA-256 "
+                         "differs); retrain it or restore the pair")
     if meta.get("features", features) != features:
         raise ValueError(f"{policy} agent {path!r}: trained on observation '{meta.get('features')}', this policy builds "
                          f"'{features}' (retrain it, or use the policy it was trained for)")
     try:
         import stable_baselines3 as sb3
     except ImportError:
-        raise ValueError(f"policy '{policy}' needs Stable-Baselines3 (pip install -e '.[agents]')") from None
+        raise ValueError(f"policy '{policy}' needs Stable-Baselines3: {AGENTS_HINT}") from None
     algos = [meta["algo"]] if meta.get("algo") in ALGOS else list(ALGOS)
     model, errors = None, []
     for algo in algos:

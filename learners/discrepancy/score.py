@@ -10,19 +10,19 @@ import numpy as np
 from scipy import stats
 
 from aibo_core.trajectory import Trajectory
+from learners.arrays.batch import make_batch
 from learners.em.estep import e_step
 from learners.em.options import DEFAULT_GATE
-from learners.inference.batch import make_batch
+from learners.em.predictive import model_logdens, own_noise, predictive_logdens, sightings_logdens
+from learners.em.whiteness import consecutive_pairs, lag1, normalized_size_innovations
 from learners.inference.open_loop import open_loop_logdens
-from learners.inference.predictive import model_logdens, own_noise, predictive_logdens, sightings_logdens
-from learners.inference.whiteness import consecutive_pairs, lag1, normalized_size_innovations
 from learners.model.model import Model
 
 from .split import heldout_mask
 
 GAP_METRIC = "heldout_nll_per_sighting"
 #: ``Score.whiteness``, the one autocorrelation the report, the README and ``aibo learn``'s warning quote
-#: (``learners.inference.whiteness``): consecutive sightings of one landmark at most 2 s apart.
+#: (``learners.em.whiteness``): consecutive sightings of one landmark at most 2 s apart.
 WHITENESS_METRIC = "lag-1 autocorrelation of the normalized size innovations, per landmark"
 #: The motion gap: each held-out sighting predicted open loop from the filtered pose k seconds before it
 #: (``learners.inference.open_loop``), negative log density per sighting, at each horizon k (s).

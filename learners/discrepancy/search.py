@@ -79,12 +79,12 @@ from scipy import stats
 
 from aibo_core.trajectory import Trajectory
 from aibo_core.workers import process_pool
-from learners.em.estep import e_step
+from learners.arrays.batch import make_batch
+from learners.arrays.posterior import Posterior
+from learners.em.estep import e_step, forward_loglik
 from learners.em.learner import EMLearner
 from learners.em.options import DEFAULT_GATE, EMOptions
 from learners.em.start import initial_state_for
-from learners.inference.batch import make_batch
-from learners.inference.posterior import Posterior
 from learners.model.catalogue_more import WallSlowdown
 from learners.model.effects import EFFECT_MODELS, EffectModel
 from learners.model.model import Model
@@ -209,7 +209,7 @@ def try_candidate(name: str, base: Model, base_ll: float, base_heldout: float, t
     cls = EFFECT_MODELS[name]
     batch = make_batch(train)
     start = base.with_effect(cls.start(batch))
-    start = start.with_effect(start.effect(name).warm_start(start, batch))
+    start = start.with_effect(start.effect(name).warm_start(start, batch, forward_loglik(batch)))
     if cls.GRID:  # profile likelihood over the grid, the effect frozen at each value
         (pname, grid), = cls.GRID.items()
         frozen = held(opts, name)

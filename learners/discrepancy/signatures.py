@@ -16,11 +16,11 @@ from scipy import stats
 
 from aibo_core.geometry import rel_disp, wrap
 from aibo_core.trajectory import Trajectory
+from learners.arrays.batch import Batch, make_batch
+from learners.arrays.posterior import Posterior
 from learners.em.estep import e_step
 from learners.em.options import DEFAULT_GATE
 from learners.inference.augmented import size_factor_moments
-from learners.inference.batch import Batch, make_batch
-from learners.inference.posterior import Posterior
 from learners.model.model import Model
 
 if TYPE_CHECKING:

@@ -34,10 +34,10 @@ from typing import Any
 
 import numpy as np
 
+from learners.arrays.batch import Batch
 from learners.em.estep import e_step
 from learners.em.fit import EMState, initial_state, run
 from learners.em.options import EMOptions
-from learners.inference.batch import Batch
 from learners.model.model import Model
 
 #: Commands held more often than this are not candidates: an alias must fool every hold at once.

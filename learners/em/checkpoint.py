@@ -15,8 +15,8 @@ import numpy as np
 
 from aibo_core.atomic import save_npz
 from aibo_core.npzfile import FileFormatError, read_npz
+from learners.arrays.batch import Batch
 from learners.em.fit import EMState
-from learners.inference.batch import Batch
 from learners.model.initial import InitialState
 from learners.model.io import model_from_json, model_to_json
 from learners.model.model import Model

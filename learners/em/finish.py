@@ -33,8 +33,8 @@ from typing import Any
 
 import numpy as np
 
+from learners.arrays.batch import Batch
 from learners.em.uncertainty import Uncertainty, packed, parameter_uncertainty, unpacked
-from learners.inference.batch import Batch
 from learners.inference.kernels.estep import innovations_compiled
 from learners.model.model import Model
 

@@ -14,13 +14,13 @@ from typing import Callable
 
 import numpy as np
 
+from learners.arrays.batch import Batch
+from learners.arrays.lowered import Lowered
+from learners.arrays.posterior import Posterior
 from learners.em.accel import Packer, squarem_step
 from learners.em.estep import e_step
 from learners.em.mstep import maximize
 from learners.em.options import DEFAULT_GATE, SWITCH_MIN_ITER, SWITCH_WINDOW, EMOptions
-from learners.inference.batch import Batch
-from learners.inference.lowered import Lowered
-from learners.inference.posterior import Posterior
 from learners.model.model import Model
 
 # re-exported: scripts written against the earlier layout import these from here (their home: ``options``, ``estep``)
@@ -88,6 +88,12 @@ class _Loop:
             st.pruned = int(pruned.sum())
             self.batch = self.batch.with_used(self.batch.used & ~pruned)
             st.used = self.batch.used.copy()
+            if st.pruned and self.lowered[1].extra is not None:
+                # states allocated by the sightings (landmark_bias's slots): lowered again on the kept ones, so the
+                # M-step's schedule and the posterior's states agree
+                self.lowered = (params, params.lower(self.batch))
+                post = e_step(params, self.batch, opts.estep, lo=self.lowered[1])
+                self.spent = post
         ll = float(post.loglik)
         if not np.isfinite(ll):
             raise FloatingPointError(f"log-likelihood is {ll} at EM iteration {st.iteration + 1}")

@@ -20,11 +20,9 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, replace
 
-from scipy import stats
-
+from learners.arrays.batch import Batch
 from learners.em.fit import EMState, initial_state, run
 from learners.em.options import EMOptions
-from learners.inference.batch import Batch
 from learners.model.catalogue import ActuationLag
 from learners.model.model import Model
 
@@ -60,6 +58,8 @@ def search(batch: Batch, model: Model, loglik: float, opts: EMOptions) -> LagSea
     (null_ll, *_), tried = tried[0], tried[1:]
     best_ll, best_lag, best_model, _ = max(tried, key=lambda t: t[0])
     gain = best_ll - max(loglik, null_ll)
+    from scipy import stats  # here, not at import: scipy.stats costs every command ~1 s to load
+
     keep = 2.0 * gain > stats.chi2.ppf(1.0 - ALPHA, 1)
     record = {"grid_s": grid, "loglik": [t[0] for t in tried], "base_loglik": loglik, "null_loglik": null_ll,
               "lag_s": best_lag if keep else 0.0, "gain_nats": gain if keep else 0.0,

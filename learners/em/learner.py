@@ -9,6 +9,7 @@ from dataclasses import replace
 import numpy as np
 
 from aibo_core.trajectory import Trajectory
+from learners.arrays.batch import Batch, make_batch
 from learners.base import IterationRecord, LearnResult, ProgressFn
 from learners.em import checkpoint
 from learners.em import lag as lag_search
@@ -19,8 +20,9 @@ from learners.em.finish import fisher_scoring
 from learners.em.fit import EMState, initial_state, options_json, run
 from learners.em.info import FitInfo, FitTimings
 from learners.em.options import COMPARABLE_IMPROVEMENT, EARLY_STOP, STRICT_PATIENCE, EMOptions
+from learners.em.predictive import has_mixture
 from learners.em.start import initial_state_for
-from learners.em.starts import disagreement, screen
+from learners.em.starts import disagreement, pruned_warning, screen
 from learners.em.support import (
     StartModelError,
     check_support,
@@ -30,8 +32,6 @@ from learners.em.support import (
     mirror_warnings,
     weak_command_warnings,
 )
-from learners.inference.batch import Batch, make_batch
-from learners.inference.predictive import has_mixture
 from learners.model.initial import DEFAULT_INITIAL, InitialState
 from learners.model.model import Model, start_model
 
@@ -123,7 +123,8 @@ def face_value_gate(batch: Batch, start: Model, gate: float) -> np.ndarray | Non
     robot standing still cannot follow the sightings of one that drives: the gate pruned 1585 of robot 3's 2204
     sightings (robots 1, 2, 4, 5: 1-14) and every start then fitted the sightings a wrong world explains. Under the
     face value robot 3 loses 87 (the others 0-2). The stretched starts of ``learners.em.starts`` gated themselves
-    (30-75% pruned) and were compared on the sightings no start pruned, a subset chosen by the wrong worlds."""
+    (30-75% pruned) and, at the time, were compared on the sightings no start pruned, a subset chosen by the wrong
+    worlds (now they are scored on the same sightings: ``learners.em.starts.gated_score``)."""
     from learners.scoring import face_value_model
 
     try:
@@ -217,6 +218,7 @@ class EMLearner:
         is safely written (``discard_checkpoint``), so a failed final write loses nothing. ``initial``: the
         logs' start-pose beliefs for the paper's start (``start_params``; ignored with ``init``)."""
         batch = make_batch(logs)
+        sightings = int(np.count_nonzero(batch.used))
         start = self.start_params(logs, init, batch, action_model, initial)
         given = self.options
         try:
@@ -227,6 +229,9 @@ class EMLearner:
         if face_pruned is not None:
             result.pruned_observations += face_pruned
             result.info.face_value_gate_pruned = face_pruned
+        heavy = pruned_warning(result.pruned_observations, sightings)
+        if heavy:
+            result.info.warnings = [heavy] + list(result.info.warnings or [])
         return result
 
     def _fit(self, logs: list[Trajectory], batch: Batch, start: Model, progress: ProgressFn | None) -> LearnResult:

@@ -17,12 +17,12 @@ from dataclasses import replace
 
 import numpy as np
 
+from learners.arrays.batch import Batch
+from learners.arrays.lowered import Lowered
+from learners.arrays.posterior import Posterior
 from learners.em import second_thread
 from learners.em.options import EMOptions
 from learners.inference.augmented import displacement_statistics, sensor_update_augmented
-from learners.inference.batch import Batch
-from learners.inference.lowered import Lowered
-from learners.inference.posterior import Posterior
 from learners.model.initial import InitialState
 from learners.model.model import Model
 

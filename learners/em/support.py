@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from aibo_core.trajectory import VELOCITY_CONTROLS
-from learners.inference.batch import Batch
+from learners.arrays.batch import Batch
 from learners.model.model import Model
 
 #: Fewest sightings per sensor parameter (curve coefficients + 2 sigmas) for a fit to be attempted.
@@ -191,7 +191,7 @@ def weak_command_warnings(model: Model, se_velocities: np.ndarray | None) -> lis
 
 
 #: Lag-1 autocorrelation of the normalized size innovations above which a model without bias states is told that its
-#: size errors drift per landmark (``learners.inference.whiteness``), and at least 3 standard errors (3 / sqrt(pairs))
+#: size errors drift per landmark (``learners.em.whiteness``), and at least 3 standard errors (3 / sqrt(pairs))
 #: above 0. Measured on fits without bias states: MRCLAM robots 0.71-0.89; simulated 5-minute logs (seed 21) with
 #: ``landmark_bias`` sigma_rel 0.1 / 0.15 / 0.2 and tau_s 8 / 20 / 20 s: 0.19 / 0.21 / 0.24 (the filter follows the
 #: heights with the pose and takes part of the bias out of the innovations); without a bias -0.03 to 0.003, and
@@ -204,7 +204,7 @@ def correlated_size_warnings(model: Model, batch: Batch) -> list[str]:
     """A warning when the size (height or range) errors of one landmark correlate from sighting to sighting and the
     model holds no bias states: the fit then absorbs the drifting errors as motion noise and pose error, and
     ``aibo diagnose`` tests ``landmark_bias`` (module docstring of ``learners.model.landmark_bias``)."""
-    from learners.inference.whiteness import size_error_lag1
+    from learners.em.whiteness import size_error_lag1
 
     if model.effect("landmark_bias") is not None:
         return []

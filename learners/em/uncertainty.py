@@ -57,7 +57,7 @@ from typing import Any
 
 import numpy as np
 
-from learners.inference.batch import Batch
+from learners.arrays.batch import Batch
 from learners.inference.kernels import innovations_compiled
 from learners.model.io import model_to_json
 from learners.model.model import Model

@@ -24,11 +24,11 @@ from __future__ import annotations
 import numpy as np
 
 from aibo_core import geometry
+from learners.arrays.batch import Batch
+from learners.arrays.lowered import Lowered, sighting_model
+from learners.arrays.posterior import ExtraMoments, Posterior
 
-from .batch import Batch
-from .lowered import Lowered
-from .posterior import ExtraMoments, Posterior
-from .reference import AIBO_ANGLE_MASK, ForwardResult, forward_pass, sighting_model, sym
+from .reference import AIBO_ANGLE_MASK, ForwardResult, forward_pass, sym
 
 
 def rts_pass(fw: ForwardResult, where: str = "") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -213,7 +213,9 @@ def sensor_update_augmented(lo: Lowered, batch: Batch, post: Posterior, degree: 
     size_scale (1 + b) phi(x) at the points, weights 1 / size_var_factor; sigma_size^2, sigma_bearing^2 the
     weighted mean squared residuals. One NumPy implementation for both paths (the E-step is the compiled one).
     Returns (coef, sigma_size, sigma_bearing, (dmin, dmax) mm at the smoothed means)."""
-    from .sensor_stats import basis_variable, fit_polynomial
+    from learners.arrays.lowered import fit_polynomial
+
+    from .sensor_stats import basis_variable
 
     ex, slot = post.extra, lo.extra.slot
     idx = np.flatnonzero(batch.used)

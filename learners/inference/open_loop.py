@@ -30,10 +30,9 @@ from __future__ import annotations
 import numpy as np
 
 from aibo_core import geometry
-
-from .batch import Batch
-from .lowered import Lowered
-from .posterior import Posterior
+from learners.arrays.batch import Batch
+from learners.arrays.lowered import Lowered
+from learners.arrays.posterior import Posterior
 
 LOG_2PI = float(np.log(2.0 * np.pi))
 

@@ -33,10 +33,9 @@ from typing import Callable, Optional
 import numpy as np
 
 from aibo_core import geometry
-
-from .batch import Batch
-from .lowered import Lowered
-from .posterior import Posterior
+from learners.arrays.batch import Batch
+from learners.arrays.lowered import Lowered, sighting_model
+from learners.arrays.posterior import Posterior
 
 LOG_2PI = float(np.log(2.0 * np.pi))
 
@@ -305,36 +304,6 @@ def two_filter_smooth(mu0, P0, obs_start, motion: MotionFn, observe: ObserveFn,
 
 
 # --------------------------------------------------------------------------- the aibo model
-
-
-def sighting_model(lo: Lowered, mean, xy, idx):
-    """The lowered observation function of sightings ``idx`` (S' indices) at poses ``mean`` (S', 3).
-
-    h = (size_scale f(d) + size_offset, wrap(atan2(dy, dx) - theta + bearing_offset)) and its
-    Jacobian H (S', 2, 3): row 0 = size_scale f'(d) (-dx/d, -dy/d, 0), row 1 = (dy/q, -dx/q, -1),
-    with (dx, dy) = landmark - (x, y) in mm, q = dx^2 + dy^2, d = sqrt(q). Returns (h, H, R_diag)
-    with R_diag (S', 2) = (sigma_size^2 size_var_factor, sigma_bearing^2 bearing_var_factor).
-    """
-    mean = np.asarray(mean, dtype=float)
-    dx = xy[:, 0] - mean[:, 0]
-    dy = xy[:, 1] - mean[:, 1]
-    q = dx * dx + dy * dy
-    d = np.sqrt(q)
-    f, fp = lo.curve(d)
-    sc = lo.size_scale[idx]
-    h = np.empty((len(idx), 2))
-    h[:, 0] = sc * f + lo.size_offset[idx]
-    h[:, 1] = geometry.wrap(np.arctan2(dy, dx) - mean[:, 2] + lo.bearing_offset[idx])
-    H = np.zeros((len(idx), 2, 3))
-    H[:, 0, 0] = -sc * fp * dx / d
-    H[:, 0, 1] = -sc * fp * dy / d
-    H[:, 1, 0] = dy / q
-    H[:, 1, 1] = -dx / q
-    H[:, 1, 2] = -1.0
-    rd = np.empty((len(idx), 2))
-    rd[:, 0] = lo.sigma_size**2 * lo.size_var_factor[idx]
-    rd[:, 1] = lo.sigma_bearing**2 * lo.bearing_var_factor[idx]
-    return h, H, rd
 
 
 def aibo_model(lo: Lowered, batch: Batch, k: int):

@@ -15,10 +15,9 @@ from __future__ import annotations
 import numpy as np
 
 from aibo_core import geometry
-
-from .batch import Batch
-from .lowered import BASIS_INVERSE, BASIS_POWER, Lowered
-from .posterior import Posterior
+from learners.arrays.batch import Batch
+from learners.arrays.lowered import BASIS_INVERSE, BASIS_POWER, Lowered, fit_polynomial
+from learners.arrays.posterior import Posterior
 
 
 def used_sightings(batch: Batch) -> tuple[np.ndarray, np.ndarray]:
@@ -73,35 +72,6 @@ def basis_variable(basis: int, d):
     if basis == BASIS_INVERSE:
         return 1.0 / np.asarray(d, dtype=float)
     raise ValueError(f"unknown sensor basis {basis}")
-
-
-def fit_polynomial(x, h, w, degree: int = 3, scale=None) -> np.ndarray:
-    """Weighted least-squares polynomial f minimizing sum w (scale f(x) - h)^2 (scale 1 if None).
-
-    Well-conditioned: the fit is done in a Chebyshev basis of the scaled variable
-    u = (2x - (lo + hi)) / (hi - lo) in [-1, 1] (normal equations of a (degree+1)-square Gram
-    matrix, whose condition number stays small in that basis), then converted to ascending powers
-    of x. Returns ``degree + 1`` coefficients.
-    """
-    x = np.asarray(x, dtype=float)
-    h = np.asarray(h, dtype=float)
-    w = np.asarray(w, dtype=float)
-    if len(x) < degree + 1:
-        raise ValueError(f"need at least {degree + 1} points to fit a degree-{degree} polynomial, got {len(x)}")
-    if not (np.isfinite(x).all() and np.isfinite(h).all() and np.isfinite(w).all()):
-        raise FloatingPointError("fit_polynomial: non-finite input")
-    lo, hi = float(x.min()), float(x.max())
-    if hi <= lo:
-        raise ValueError(f"need at least two distinct distances to fit a polynomial, got all {lo}")
-    V = np.polynomial.chebyshev.chebvander((2.0 * x - (lo + hi)) / (hi - lo), degree)
-    if scale is not None:
-        V = V * np.asarray(scale, dtype=float)[:, None]
-    Vw = V * w[:, None]
-    cheb = np.linalg.solve(Vw.T @ V, Vw.T @ h)
-    coef = np.polynomial.Chebyshev(cheb, domain=[lo, hi]).convert(kind=np.polynomial.Polynomial).coef
-    out = np.zeros(degree + 1)
-    out[: len(coef)] = coef
-    return out
 
 
 def update_sensor_curve(lo: Lowered, batch: Batch, post: Posterior, rng: np.random.Generator,

@@ -27,9 +27,9 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 
 from aibo_core.geometry import rot, wrap
-from learners.inference.batch import Batch
-from learners.inference.lowered import Lowered
-from learners.inference.posterior import Posterior
+from learners.arrays.batch import Batch
+from learners.arrays.lowered import Lowered
+from learners.arrays.posterior import Posterior
 from learners.model.effects import EffectModel, register_effect
 from learners.model.parameters import Param
 

@@ -49,13 +49,11 @@ from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
-from scipy.special import ndtr
 
 from aibo_core.geometry import wrap
-from learners.inference.batch import Batch
-from learners.inference.lowered import Lowered
-from learners.inference.posterior import Posterior
-from learners.inference.reference import sighting_model
+from learners.arrays.batch import Batch
+from learners.arrays.lowered import Lowered, sighting_model
+from learners.arrays.posterior import Posterior
 from learners.model.effects import EffectModel, register_effect
 from learners.model.parameters import Param
 
@@ -255,6 +253,8 @@ def contact_probability(mean: np.ndarray, var: np.ndarray, field_mm: np.ndarray,
     """(N, 2) per axis: the probability that a coordinate distributed N(``mean``, ``var``) (mm, mm^2; (N, 2)) is
     within ``margin_mm`` of the field's wall on its side or beyond it, |x| > field / 2 - margin (taken on the side of
     the mean), the standard deviation floored at ``sd_floor_mm``."""
+    from scipy.special import ndtr  # here, not at import: SciPy costs every command ~0.7 s to load
+
     sd = np.sqrt(np.maximum(var, sd_floor_mm ** 2))
     return ndtr((np.abs(mean) - (field_mm / 2.0 - margin_mm)) / sd)
 

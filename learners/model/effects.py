@@ -2,7 +2,7 @@
 the simulator's ``aibo_gym.effects``, registered under the same names).
 
 An effect is a ``Component`` (walk-through: ``docs/adding-an-effect.md``) that
-- ``lower(lo, batch)``: writes itself into the lowered arrays (``learners.inference.lowered``),
+- ``lower(lo, batch)``: writes itself into the lowered arrays (``learners.arrays.lowered``),
   e.g. a per-sighting size scale, by replacing them (the neutral ones are shared, read-only); no
   kernel changes;
 - ``maximize(model, batch, post)``: its conditional M-step (ECM: the other parameters held at
@@ -19,13 +19,13 @@ Register one with ``@register_effect``; ``EFFECT_MODELS`` maps names to classes.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any, Callable, ClassVar
 
 import numpy as np
 
-from learners.inference.batch import Batch
-from learners.inference.lowered import Lowered
-from learners.inference.posterior import Posterior
+from learners.arrays.batch import Batch
+from learners.arrays.lowered import Lowered
+from learners.arrays.posterior import Posterior
 from learners.model.parameters import Component, Param, as_numbers
 
 if TYPE_CHECKING:
@@ -92,9 +92,11 @@ class EffectModel(Component):
         none."""
         return []
 
-    def warm_start(self, model: "Model", batch: Batch) -> "EffectModel":
+    def warm_start(self, model: "Model", batch: Batch, loglik: Callable[["Model"], float]) -> "EffectModel":
         """A start for EM given the rest of the model (``model`` holds this effect); default: itself.
-        An effect whose parameters EM moves slowly from ``start`` picks a better one here."""
+        An effect whose parameters EM moves slowly from ``start`` picks a better one here; ``loglik`` gives a
+        model's log-likelihood (nats) on ``batch`` (one forward pass: ``learners.em.estep.forward_loglik``; the
+        model's components never run inference themselves)."""
         return self
 
     def commands(self, commands: np.ndarray, batch: Batch) -> np.ndarray:
@@ -123,7 +125,7 @@ class EffectModel(Component):
 
     def predictive_logdens(self, base_logdens: np.ndarray, lo: Lowered, batch: Batch, idx: np.ndarray) -> np.ndarray:
         """The model's log density of sightings ``idx`` given their Gaussian one-step predictive log
-        densities ``base_logdens`` (``learners.inference.predictive``); default: the Gaussian itself.
+        densities ``base_logdens`` (``learners.em.predictive``); default: the Gaussian itself.
         A mixture (spurious sightings) overrides it; the E-step's likelihood and the score then use it."""
         return base_logdens
 

@@ -28,14 +28,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any, Callable, ClassVar
 
 import numpy as np
-from scipy.optimize import minimize_scalar
 
-from learners.inference.batch import Batch
-from learners.inference.lowered import ExtraStates, Lowered
-from learners.inference.posterior import Posterior
+from learners.arrays.batch import Batch
+from learners.arrays.lowered import ExtraStates, Lowered
+from learners.arrays.posterior import Posterior
 from learners.model.effects import EffectModel, register_effect
 from learners.model.parameters import Param
 
@@ -151,17 +150,13 @@ class LandmarkBias(EffectModel):
         """A weak bias to start EM from (at sigma_rel = 0 EM could not move it: its moments would be 0)."""
         return cls(0.01, 5.0)
 
-    def warm_start(self, model: "Model", batch: Batch) -> "LandmarkBias":
-        """The most likely point of ``WARM_GRID`` (forward passes, the rest of ``model`` fixed): EM moves
-        (sigma_rel, tau_s) slowly (the states carry most of the information about them), and from a
+    def warm_start(self, model: "Model", batch: Batch, loglik: Callable[["Model"], float]) -> "LandmarkBias":
+        """The most likely point of ``WARM_GRID`` (``loglik``: forward passes, the rest of ``model`` fixed): EM
+        moves (sigma_rel, tau_s) slowly (the states carry most of the information about them), and from a
         weak start it crawls along a ridge of long correlation times (measured: from 0.01 / 5 s it
         was at 0.025 / 44 s after 80 iterations, 70 nats below the optimum near the truth)."""
-        from learners.inference.kernels.estep import innovations_compiled
-
-        def loglik(e: "LandmarkBias") -> float:
-            return innovations_compiled(model.with_effect(e).lower(batch), batch)[0]
-
-        return max((LandmarkBias(s, t) for s in WARM_GRID[0] for t in WARM_GRID[1]), key=loglik)
+        return max((LandmarkBias(s, t) for s in WARM_GRID[0] for t in WARM_GRID[1]),
+                   key=lambda e: loglik(model.with_effect(e)))
 
     def implausible(self) -> str:
         """A 'bias' above ``MAX_PLAUSIBLE_SIGMA`` is not one: the base model's sizes are off by more than a
@@ -216,6 +211,8 @@ class LandmarkBias(EffectModel):
         def negative_profile(log_tau: float) -> float:
             phi = math.exp(-batch.dt / math.exp(log_tau))
             return 0.5 * (n * math.log(sigma2(phi)) + n_tr * math.log(1.0 - phi * phi))
+
+        from scipy.optimize import minimize_scalar  # here, not at import (SciPy's load costs every command)
 
         best = minimize_scalar(negative_profile, bounds=tuple(math.log(t) for t in TAU_BOUNDS_S), method="bounded",
                                options={"xatol": 1e-4})

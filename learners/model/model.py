@@ -12,8 +12,8 @@ from typing import Iterator
 import numpy as np
 
 from aibo_core.trajectory import VELOCITY_CONTROLS
-from learners.inference.batch import Batch
-from learners.inference.lowered import Lowered
+from learners.arrays.batch import Batch
+from learners.arrays.lowered import Lowered
 from learners.model.action import ActionModel, per_component
 from learners.model.effects import EffectModel
 from learners.model.initial import DEFAULT_INITIAL, InitialState
@@ -182,7 +182,7 @@ def start_model(batch: Batch, dt: float, sensor_kind: str = "height_px", n_comma
 
 def paper_start(logs: list, degree: int = 3) -> Model:
     """``start_model`` for a list of logs (aibo_core.trajectory.Trajectory): the paper's start."""
-    from learners.inference.batch import make_batch
+    from learners.arrays.batch import make_batch
 
     tr = logs[0]
     return start_model(make_batch(logs), tr.dt, tr.sensor_kind, len(tr.attempted) if tr.discrete else None,

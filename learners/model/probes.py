@@ -31,8 +31,8 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from learners.inference.batch import Batch
-from learners.inference.posterior import Posterior
+from learners.arrays.batch import Batch
+from learners.arrays.posterior import Posterior
 from learners.model.catalogue_more import _frame_key
 from learners.model.effects import EffectModel
 from learners.model.parameters import Param

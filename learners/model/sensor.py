@@ -20,7 +20,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from learners.inference.lowered import BASIS_INVERSE, BASIS_POWER, curve
+from learners.arrays.lowered import BASIS_INVERSE, BASIS_POWER, curve, fit_polynomial
 from learners.model.parameters import Component, Param
 
 BASES = {"power": BASIS_POWER, "inverse": BASIS_INVERSE}
@@ -90,8 +90,6 @@ class SensorModel(Component):
 
     def unpack_curve(self, values: np.ndarray, old: np.ndarray) -> np.ndarray:
         """Coefficients of the curve through ``values`` at the nodes (inverse of ``pack_curve``)."""
-        from learners.inference.sensor_stats import fit_polynomial
-
         nodes = curve_nodes(len(old))
         if self.basis == "power":
             return fit_polynomial(nodes, values, np.ones(len(nodes)), len(old) - 1)
@@ -118,8 +116,6 @@ class SensorModel(Component):
         its distance range (e.g. a cubic ``--init`` for an ``inverse`` fit)."""
         if basis == self.basis:
             return self.with_degree(degree)
-        from learners.inference.sensor_stats import fit_polynomial
-
         d = np.linspace(*self.distance_range_mm, 200)
         x = d if basis == "power" else 1.0 / d
         coef = fit_polynomial(x, self.mean(d), np.ones(len(d)), degree)

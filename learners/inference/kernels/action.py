@@ -19,7 +19,9 @@ import math
 import numpy as np
 from numba import njit
 
-from learners.inference.batch import Batch
+from learners.arrays.batch import Batch
+from learners.arrays.lowered import Lowered
+from learners.arrays.posterior import Posterior
 from learners.inference.kernels.algebra import (
     _BAD_ACTION,
     _OK,
@@ -40,8 +42,6 @@ from learners.inference.kernels.algebra import (
     _st3,
 )
 from learners.inference.kernels.fasttrig import _cos_sin_all
-from learners.inference.lowered import Lowered
-from learners.inference.posterior import Posterior
 
 
 @njit(cache=True)

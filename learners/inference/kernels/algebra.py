@@ -11,7 +11,7 @@ import threading
 import numpy as np
 from numba import njit
 
-from learners.inference.batch import Batch
+from learners.arrays.batch import Batch
 
 _TWO_PI = 2.0 * math.pi
 _LOG_2PI = math.log(2.0 * math.pi)

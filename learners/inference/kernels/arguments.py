@@ -10,9 +10,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from learners.inference.batch import Batch
+from learners.arrays.batch import Batch
+from learners.arrays.lowered import BASIS_INVERSE, BASIS_POWER, Lowered
 from learners.inference.kernels.algebra import _f64
-from learners.inference.lowered import BASIS_INVERSE, BASIS_POWER, Lowered
 
 
 class FrameInputs(NamedTuple):

@@ -17,8 +17,10 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from learners.arrays.batch import Batch
+from learners.arrays.lowered import Lowered
+from learners.arrays.posterior import ExtraMoments, Posterior
 from learners.inference.augmented import posterior
-from learners.inference.batch import Batch
 from learners.inference.kernels.algebra import (
     _BAD_BACKWARD,
     _BAD_FORWARD,
@@ -34,8 +36,6 @@ from learners.inference.kernels.algebra import (
 )
 from learners.inference.kernels.arguments import kernel_inputs
 from learners.inference.kernels.structured import _rot_sym, _scale_sym
-from learners.inference.lowered import Lowered
-from learners.inference.posterior import ExtraMoments, Posterior
 
 
 @njit(cache=True, error_model="numpy")

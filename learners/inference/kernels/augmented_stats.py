@@ -20,11 +20,11 @@ import math
 import numpy as np
 from numba import njit
 
-from learners.inference.batch import Batch
+from learners.arrays.batch import Batch
+from learners.arrays.lowered import Lowered
+from learners.arrays.posterior import Posterior
 from learners.inference.kernels.algebra import _f64
 from learners.inference.kernels.augmented import _cholesky
-from learners.inference.lowered import Lowered
-from learners.inference.posterior import Posterior
 
 
 @njit(cache=True, error_model="numpy")

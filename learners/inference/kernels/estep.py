@@ -20,7 +20,9 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from learners.inference.batch import Batch
+from learners.arrays.batch import Batch
+from learners.arrays.lowered import Lowered
+from learners.arrays.posterior import Posterior
 from learners.inference.kernels.algebra import (
     _BAD_BACKWARD,
     _BAD_FORWARD,
@@ -57,8 +59,6 @@ from learners.inference.kernels.structured import (
     _scale_sym,
     _symm,
 )
-from learners.inference.lowered import Lowered
-from learners.inference.posterior import Posterior
 
 # ----------------------------------------------------------------------------------------------
 # Speed notes (the equations are docs/em-math.md's; only rounding differs from the reference):

@@ -9,17 +9,17 @@ import math
 import numpy as np
 from numba import njit
 
-from learners.inference.batch import Batch
+from learners.arrays.batch import Batch
+from learners.arrays.lowered import BASIS_INVERSE, BASIS_POWER, Lowered
+from learners.arrays.posterior import Posterior
 from learners.inference.kernels.algebra import _TWO_PI, _f64, _scratch
 from learners.inference.kernels.fasttrig import _atan2
-from learners.inference.lowered import BASIS_INVERSE, BASIS_POWER, Lowered
-from learners.inference.posterior import Posterior
 
 # Pass 1 over the used sightings (Cholesky of Sigma_gamma, the 6 cubature points or mu + L z for the
 # given normals z, their distances (kept), the bearing residuals' sum of squares, min/max of the
 # smoothed-mean distances), then x = d or 1/d and its min/max; pass 2: the normal equations of the
 # weighted fit in the Chebyshev basis of u = (2x - (lo + hi)) / (hi - lo) (as
-# ``sensor_stats.fit_polynomial``), each point weighted by size_var_factor^-1 and its column by
+# ``learners.arrays.lowered.fit_polynomial``), each point weighted by size_var_factor^-1 and its column by
 # size_scale; the (degree+1)-square solve and the conversion to powers of x are NumPy's; pass 3: the
 # sum of squared normalized size residuals (Horner, as polyval).
 

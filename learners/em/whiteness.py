@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from learners.inference.batch import Batch
+from learners.arrays.batch import Batch
 from learners.model.model import Model
 
 PAIR_S = 2.0  # s: the longest gap between two sightings of one landmark that still make a pair

@@ -16,10 +16,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from aibo_core import geometry
-from learners.inference.batch import Batch
-from learners.inference.lowered import Lowered
-from learners.inference.posterior import Posterior
-from learners.inference.reference import AIBO_ANGLE_MASK, ekf_innovation, ekf_update, sighting_model
+from learners.arrays.batch import Batch
+from learners.arrays.lowered import Lowered, sighting_model
+from learners.arrays.posterior import Posterior
+from learners.inference.reference import AIBO_ANGLE_MASK, ekf_innovation, ekf_update
 
 if TYPE_CHECKING:
     from learners.model.model import Model

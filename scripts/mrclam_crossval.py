@@ -1,0 +1,138 @@
+"""Models on runs they were not fitted to: per MRCLAM Dataset 7 robot, ``aibo learn`` and ``aibo diagnose`` (both
+with their defaults, as a user runs them) fitted on one half of the log and scored against Vicon on the other half,
+in both directions, beside the commands at face value.
+
+    python scripts/mrclam_crossval.py [DATA] [--out /tmp/mrclam_crossval] [--robots 1,2,3,4,5] [--jobs 2]
+
+DATA defaults to ../shared/data/mrclam7 (never copied into the repository). A half is the first or the second
+half of the robot's time (``aibo import mrclam --seconds`` / ``--start``). Scores on the held-out half: forward speed
+and turn rate, RMS error over 1 s windows against Vicon (``learners.scoring.velocity_scores``), as multiples of the
+commands at face value on the same windows; and the motion gap of each model at 1, 2 and 5 s on the held-out half
+(``learners.discrepancy.score.motion_score`` over all its sightings: a model fitted on the other half). Finished
+(robot, direction) rows are kept in OUT/rows.jsonl (a rerun skips them); OUT/table.md is rewritten after each.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from aibo_core import trajectory  # noqa: E402
+from aibo_core.atomic import atomic_write, read_jsonl, write_jsonl  # noqa: E402
+from aibo_core.mrclam import import_robot  # noqa: E402
+from learners.em.predictive import model_logdens, own_noise  # noqa: E402
+from learners.inference.open_loop import open_loop_logdens  # noqa: E402
+from learners.model.io import load_model  # noqa: E402
+from learners.scoring import face_value_model, velocity_scores  # noqa: E402
+
+HORIZONS_S = (1.0, 2.0, 5.0)
+
+
+def halves(data: Path, robot: int) -> tuple:
+    """The robot's first and second half (0.1 s frames)."""
+    whole = import_robot(data, robot)
+    half = whole.n_frames * whole.dt / 2
+    return import_robot(data, robot, seconds=half), import_robot(data, robot, start_s=half)
+
+
+def motion_gap_all(model, tr) -> dict[str, float]:
+    """The open-loop NLL per sighting of every used sighting of ``tr`` at each horizon (the model was fitted on
+    another log, so none of them is training data)."""
+    from learners.em.estep import e_step
+    from learners.inference.batch import make_batch
+
+    batch = make_batch([tr])
+    post = e_step(model, batch, "compiled", None)
+    lo = model.lower(batch)
+    lo_own = own_noise(model, batch, lo)
+    idx = np.flatnonzero(batch.used)
+    out = {}
+    for h in HORIZONS_S:
+        ll = open_loop_logdens(lo, batch, post, idx, int(round(h / batch.dt)), lo_own)
+        ok = np.isfinite(ll)
+        out[f"{h:g}"] = float(-np.mean(model_logdens(model, ll[ok], lo_own, batch, idx[ok])))
+    return out
+
+
+def run(cmd: list[str]) -> float:
+    """Run an ``aibo`` command; its wall time (s). Raises on failure with its last line of stderr."""
+    t0 = time.perf_counter()
+    r = subprocess.run([sys.executable, "-m", "aibo.cli", *cmd], capture_output=True, text=True)
+    if r.returncode != 0:
+        raise RuntimeError((r.stderr.strip().splitlines() or ["?"])[-1])
+    return time.perf_counter() - t0
+
+
+def row(data: Path, robot: int, direction: str, out: Path, jobs: int) -> dict:
+    """Fit on one half, score on the other (module docstring)."""
+    h1, h2 = halves(data, robot)
+    fit, test = (h1, h2) if direction == "first->second" else (h2, h1)
+    log = out / f"r{robot}_{direction.split('->')[0]}.npz"
+    trajectory.save(fit, log)
+    learned, diag = out / f"{log.stem}_learn.json", out / f"{log.stem}_diagnose"
+    t_learn = run(["learn", str(log), "--out", str(learned), "--no-resume"])
+    t_diag = run(["diagnose", str(log), "--out", str(diag), "--jobs", str(jobs)])
+    models = {"learn": load_model(learned), "diagnose": load_model(diag / "model.json")}
+    face = face_value_model(models["learn"])
+    f = velocity_scores(face, [test])
+    rec = {"robot": robot, "direction": direction, "seconds": {"learn": t_learn, "diagnose": t_diag},
+           "face": {"vx_rms": f["vx_rms"], "vtheta_rms": f["vtheta_rms"]},
+           "named": [e["name"] for e in json.loads((diag / "report.json").read_text())["effects"]]}
+    for name, m in models.items():
+        s = velocity_scores(m, [test])
+        rec[name] = {"vx_rms": s["vx_rms"], "vtheta_rms": s["vtheta_rms"], "vx_x_face": s["vx_rms"] / f["vx_rms"],
+                     "vtheta_x_face": s["vtheta_rms"] / f["vtheta_rms"], "motion_gap": motion_gap_all(m, test)}
+    return rec
+
+
+def table(rows: list[dict]) -> str:
+    head = ("| robot | fitted on -> scored on | forward mm/s: face / learn / diagnose | x face: learn / diagnose | "
+            "turn rad/s: face / learn / diagnose | x face: learn / diagnose | motion gap 5 s: learn / diagnose | "
+            "named | s: learn / diagnose |\n|" + "---|" * 9)
+    lines = []
+    for r in rows:
+        f, a, d = r["face"], r["learn"], r["diagnose"]
+        lines.append(f"| {r['robot']} | {r['direction'].replace('->', ' -> ')} | {f['vx_rms']:.1f} / {a['vx_rms']:.1f} / "
+                     f"{d['vx_rms']:.1f} | {a['vx_x_face']:.2f} / {d['vx_x_face']:.2f} | {f['vtheta_rms']:.4f} / "
+                     f"{a['vtheta_rms']:.4f} / {d['vtheta_rms']:.4f} | {a['vtheta_x_face']:.2f} / {d['vtheta_x_face']:.2f} "
+                     f"| {a['motion_gap']['5']:.2f} / {d['motion_gap']['5']:.2f} | {', '.join(r['named']) or 'none'} | "
+                     f"{r['seconds']['learn']:.0f} / {r['seconds']['diagnose']:.0f} |")
+    return head + "\n" + "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("data", nargs="?", default=str(ROOT / ".." / "shared" / "data" / "mrclam7"))
+    ap.add_argument("--out", default="/tmp/mrclam_crossval")
+    ap.add_argument("--robots", default="1,2,3,4,5", help="comma-separated robot numbers (default 1,2,3,4,5)")
+    ap.add_argument("--jobs", type=int, default=2, help="aibo diagnose --jobs (default 2)")
+    args = ap.parse_args(argv)
+    data, out = Path(args.data), Path(args.out)
+    if not data.is_dir():
+        print(f"mrclam_crossval: no MRCLAM data at {data}", file=sys.stderr)
+        return 2
+    out.mkdir(parents=True, exist_ok=True)
+    done = read_jsonl(out / "rows.jsonl")
+    for robot in (int(x) for x in args.robots.split(",")):
+        for direction in ("first->second", "second->first"):
+            if any(r["robot"] == robot and r["direction"] == direction for r in done):
+                continue
+            done.append(row(data, robot, direction, out, args.jobs))
+            write_jsonl(out / "rows.jsonl", done)
+            md = table(sorted(done, key=lambda r: (r["robot"], r["direction"])))
+            atomic_write(out / "table.md", lambda f: f.write(md.encode()))
+            print(md.splitlines()[-1], flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
