@@ -82,3 +82,20 @@ def test_learn_recovers_a_sub_frame_lag_with_an_interval_that_holds_it():
     info = EMLearner(EMOptions(uncertainty=False)).fit([tr]).info["lag_search"]
     lo, hi = info["interval_95"]
     assert abs(info["lag_s"] - 0.25) < 0.02 and lo <= 0.25 <= hi and hi - lo < 0.1, info
+
+
+@pytest.mark.realdata
+def test_on_a_real_robot_a_known_shift_of_the_commands_is_recovered():
+    """MRCLAM robot 1's first 5 minutes, its commands stamped 0.15 s earlier (a shift between two grid values): the
+    lag learn finds grows by 0.15 s within 20 ms (``scripts/lag_recovery.py`` runs the five robots)."""
+    from aibo_core.mrclam import import_robot
+    from learners.em.learner import EMLearner
+    from learners.em.options import EMOptions
+    from tests.test_mrclam import DATA
+
+    if not (DATA / "Robot1_Odometry.dat").is_file():
+        pytest.skip(f"MRCLAM Dataset 7 not found at {DATA}")
+    lags = [EMLearner(EMOptions(uncertainty=False)).fit([import_robot(DATA, 1, seconds=300.0, lag_s=s)]).info["lag_search"]
+            for s in (0.0, -0.15)]
+    assert abs(lags[1]["lag_s"] - lags[0]["lag_s"] - 0.15) < 0.02, lags
+    assert lags[1]["interval_95"][0] <= lags[0]["lag_s"] + 0.15 <= lags[1]["interval_95"][1] + 0.02, lags
