@@ -97,6 +97,9 @@ def search(batch: Batch, model: Model, loglik: float, opts: EMOptions) -> LagSea
     if lag not in {t[1] for t in tried}:
         refit(lag)
     best_ll, best_lag, best_model, _ = max(tried, key=lambda t: t[0])
+    # the most likely refit may sit just off the parabola's interval (the profile has a kink at each whole frame,
+    # where the averaged commands change pairs): the interval is widened to hold the lag reported
+    interval = [min(interval[0], best_lag), max(interval[1], best_lag)]
     record.update(lag_s=best_lag, gain_nats=best_ll - max(loglik, null_ll), interval_95=interval,
                   interval_note=note, refits=[[t[1], t[0]] for t in sorted(tried, key=lambda t: t[1])],
                   iterations=sum(t[3] for t in tried))
