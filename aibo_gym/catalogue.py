@@ -44,10 +44,11 @@ REFERENCE_DISTANCE_MM = 2500.0  # distance_dependent_noise: the noise equals the
 class ActuationLag(Effect):
     """A new command takes effect only after ``lag_s`` (s); the previous one continues until then.
 
-    The executed command of frame t is the one commanded at frame t - n, n = ceil(lag_s / dt)
-    frames (the robot stands still for the first n frames after reset). Slip noise is unchanged.
-    Works for discrete commands (an index) and continuous ones (a tuple of k floats, its velocity
-    through ``Frame.velocity``).
+    The executed command of frame t is the one commanded at frame t - n, n = ceil(lag_s / dt) frames, for
+    discrete commands (an index); a continuous one (a tuple of k floats, its velocity through
+    ``Frame.velocity``) is the held command signal delayed by lag_s and averaged over the frame: with
+    lag_s = (n + a) dt, 0 <= a < 1, (1 - a) c[t - n] + a c[t - n - 1] (the learner's twin does the same). The
+    robot stands still until its first command takes effect. Slip noise is unchanged.
     Residual signature: time since the last command change.
     """
 
@@ -60,15 +61,28 @@ class ActuationLag(Effect):
         self.history: deque = deque()  # commands: indices or tuples of floats
 
     def motion(self, m: Motion, frame: Frame) -> Motion:
-        n = math.ceil(self.params["lag_s"] / frame.dt - 1e-9)
-        if n == 0:
+        frames = self.params["lag_s"] / frame.dt
+        continuous = isinstance(frame.command, tuple)
+        n = math.floor(frames + 1e-9) if continuous else math.ceil(frames - 1e-9)
+        a = frames - n if continuous and frames - n > 1e-9 else 0.0
+        if n == 0 and a == 0.0:
             return m
         self.history.append(frame.command)
-        executed = self.history.popleft() if len(self.history) > n else NO_COMMAND
+        while len(self.history) > n + 2:
+            self.history.popleft()
+        executed = self._delayed(n)
+        if a > 0.0 and not _no_command(executed):
+            earlier = self._delayed(n + 1)
+            earlier = executed if _no_command(earlier) else earlier
+            executed = tuple((1.0 - a) * x + a * y for x, y in zip(executed, earlier))
         if executed != frame.command:
             v = np.zeros(3) if _no_command(executed) else frame.velocity(executed)
             m.set_velocity(v, frame.dt)
         return m
+
+    def _delayed(self, n: int):
+        """The command given n frames before this one (``NO_COMMAND`` before the first)."""
+        return self.history[-1 - n] if len(self.history) > n else NO_COMMAND
 
 
 def _no_command(command) -> bool:

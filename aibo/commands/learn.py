@@ -46,8 +46,12 @@ def lag_report(info: dict) -> list[str]:
     if not lag:
         return []
     if lag["lag_s"] > 0:
-        return [f"actuation lag: {lag['lag_s']:g} s kept (+{lag['gain_nats']:.1f} nats over no lag; grid "
-                f"{', '.join(f'{g:g}' for g in lag['grid_s'])} s); the model carries it (--no-lag-search: without)"]
+        ci = lag.get("interval_95")
+        within = (f", 95% interval {ci[0]:.3f}-{ci[1]:.3f} s" + (f" ({lag['interval_note']})" if lag.get("interval_note")
+                                                               else "")) if ci else ""
+        return [f"actuation lag: {lag['lag_s']:.3f} s kept{within} (+{lag['gain_nats']:.1f} nats over no lag; grid "
+                f"{', '.join(f'{g:g}' for g in lag['grid_s'])} s, refined between them); the model carries it "
+                "(--no-lag-search: without)"]
     return [f"actuation lag: none significant (grid {', '.join(f'{g:g}' for g in lag['grid_s'])} s)"]
 
 

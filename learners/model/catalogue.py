@@ -8,7 +8,7 @@ name                       how the model carries it                     its M-st
 floor_drift                world-frame offset per frame                 generalized least squares of the
                                                                         smoothed world-frame residual motion
 velocity_fade              factor (1 - fade t) on every displacement    closed form given the action model
-actuation_lag              the commands delayed by ceil(lag / dt)       profile likelihood over ``GRID``
+actuation_lag              the commands delayed by lag (s)              profile likelihood over ``GRID``
 angle_bias                 offset of every predicted bearing            mean wrapped bearing residual
 off_center_shrink          size x (1 - k phi^2), phi = bearing - pan    closed form given the curve
 distance_dependent_noise   size variance x (d / 2500 mm)^(2 exponent)   1-d maximization over the exponent
@@ -125,9 +125,13 @@ class VelocityFade(EffectModel):
 @register_effect
 @dataclass(frozen=True)
 class ActuationLag(EffectModel):
-    """A new command takes effect only after ``lag_s`` (s): the command in force at frame t is the one
-    logged at t - ceil(lag_s / dt) (the first command before that). Residual signature: time since the
-    last command change. Estimated by profile likelihood over ``GRID`` (a shift of whole frames)."""
+    """A new command takes effect only after ``lag_s`` (s). Discrete commands (indices) move by whole frames: the
+    command in force at frame t is the one logged at t - ceil(lag_s / dt). Continuous commands are the held command
+    signal delayed by lag_s and averaged over the frame: with lag_s = (n + a) dt, 0 <= a < 1, the command of frame t
+    is (1 - a) c[t - n] + a c[t - n - 1] (the same as a shift of n frames when a = 0), so the lag is a continuous
+    parameter below the frame period. Before a log's first command, its first command. Residual signature: time
+    since the last command change. Estimated by profile likelihood over ``GRID`` (``aibo diagnose``) and, for
+    continuous commands, refined between the grid's values by ``aibo learn`` (``learners.em.lag``)."""
 
     lag_s: float  # s
 
@@ -139,15 +143,25 @@ class ActuationLag(EffectModel):
     EXAMPLE: ClassVar[dict[str, Any]] = {"lag_s": 0.2}  # no PROBE: the grid's profile shows a flat likelihood
 
     def commands(self, commands: np.ndarray, batch: Batch) -> np.ndarray:
-        n = math.ceil(self.lag_s / batch.dt - 1e-9)
-        if n <= 0:
-            return commands
-        out = np.array(commands, copy=True)
-        for a, b in zip(batch.frame_start[:-1], batch.frame_start[1:]):
-            if b - a > n:
-                out[a + n:b] = commands[a:b - n]
-                out[a:a + n] = commands[a]
-        return out
+        frames = self.lag_s / batch.dt
+        if np.asarray(commands).ndim == 1:  # discrete: whole frames
+            return _shifted(commands, math.ceil(frames - 1e-9), batch)
+        n = math.floor(frames + 1e-9)
+        a = frames - n if frames - n > 1e-9 else 0.0
+        out = _shifted(commands, n, batch)
+        return out if a == 0.0 else (1.0 - a) * out + a * _shifted(commands, n + 1, batch)
+
+
+def _shifted(commands: np.ndarray, n: int, batch: Batch) -> np.ndarray:
+    """``commands`` (N, ...) delayed by n frames within each log of ``batch`` (a log's first command before it)."""
+    if n <= 0:
+        return commands
+    out = np.array(commands, copy=True)
+    for a, b in zip(batch.frame_start[:-1], batch.frame_start[1:]):
+        if b - a > n:
+            out[a + n:b] = commands[a:b - n]
+            out[a:a + n] = commands[a]
+    return out
 
 
 @register_effect
