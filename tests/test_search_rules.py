@@ -180,13 +180,16 @@ def test_a_grid_parameter_gets_the_profile_likelihood_interval():
     from learners.model.model import Model
 
     grid = [0.0, 0.1, 0.2, 0.3, 0.4, 0.5]
-    # within 1.92 nats of the best (0.2): 0.1 (-1.9) and 0.3 (-0.5); 0.4 (-2.0) just outside; the walk stopped there
+    # within 1.92 nats of the best (0.2): 0.1 (-1.9) and 0.3 (-0.5); 0.4 (-2.0) just outside; the walk stopped there.
+    # The interval's ends lie between 0.0 and 0.1 and between 0.3 and 0.4: widened to those grid values
     lls = [-30.0, -1.9, 0.0, -0.5, -2.0]
-    assert profile_interval(grid, lls) == [0.1, 0.3]
-    assert profile_interval(grid, [0.0, -25.0]) == [0.0, 0.0]  # a sharp profile: the grid point itself
+    assert profile_interval(grid, lls) == [0.0, 0.4]
+    assert profile_interval(grid, [-25.0, 0.0, -25.0]) == [0.0, 0.2]  # a sharp profile: not [0.1, 0.1]
+    assert profile_interval(grid, [0.0, -25.0]) == [0.0, 0.1]  # at the grid's end: the end itself
     model = Model(action=None, sensor=None, init=(), effects=(ActuationLag(0.2),))
     iv = effect_intervals(model, "actuation_lag", {}, {"lag_s": [grid[:5], lls]})["lag_s"]
-    assert iv["interval_95"] == [0.1, 0.3] and iv["se"] is None and iv["method"].startswith("profile")
+    assert iv["interval_95"] == [0.0, 0.4] and iv["se"] is None and iv["method"].startswith("profile")
+    assert iv["grid_step"] == pytest.approx(0.1) and "step 0.1" in iv["method"]
     assert effect_intervals(model, "actuation_lag", {})["lag_s"]["interval_95"] is None  # no profile: no interval
 
 

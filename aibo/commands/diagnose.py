@@ -103,10 +103,11 @@ def run(args) -> int:
         say(f"  {name}: not tried, {why}")
     say(f"gap ({GAP_METRIC}): {before.gap:.4f} before, {after.gap:.4f} after; mean NIS {before.nis_mean:.2f} -> "
         f"{after.nis_mean:.2f} (2 expected)")
-    say("where the base model's residuals drift (strongest signatures; descriptive: many pairs are tried and "
-        "long logs make tiny drifts 'significant', the verdict rests on the candidates' tests above):")
-    for s in sig_before[:6]:
-        say(f"  {s.residual:24s} vs {s.variable:32s} p = {s.p_value:.1g}")
+    say(f"the base model's residual signatures (the named effects' first, then the strongest; p adjusted for the "
+        f"{len(sig_before)} pairs tried; the verdict rests on the candidates' tests above):")
+    for s, whose in fig.lead_signatures(sig_before, named_signatures(report)):
+        say(f"  {s.residual:24s} vs {s.variable:40s} adjusted p = {s.p_holm:.1g}"
+            + (f" (the signature of {whose})" if whose else ""))
     t1 = time.perf_counter()
     report["calibrated_simulation"] = calibrated(found, logs, args, say)
     seconds["calibrated check"] = time.perf_counter() - t1
@@ -142,7 +143,7 @@ def write_outputs(out: Path, final, report: dict, lines: list[str], sig_before, 
     or failed run leaves the earlier diagnosis as it was, never a mix. The names written."""
     with atomic_folder(out) as tmp:
         save_result(final, tmp / "model.json")
-        fig.signature_panels(tmp / FIGURES[0], sig_before, sig_after)
+        fig.signature_panels(tmp / FIGURES[0], sig_before, sig_after, named_signatures(report))
         fig.gap_bars(tmp / FIGURES[1], before.as_dict(), after.as_dict())
         cal = report["calibrated_simulation"]
         if "before" in cal and cal["before"]["disagree_z"] is not None:  # None: too few replicas ran to compare
@@ -151,6 +152,11 @@ def write_outputs(out: Path, final, report: dict, lines: list[str], sig_before, 
         fig.html_page(tmp / "report.html", report, "\n".join(lines), [tmp / f for f in FIGURES])
         written = [f for f in ("report.html", "report.json", "model.json", *FIGURES) if (tmp / f).exists()]
     return written
+
+
+def named_signatures(report: dict) -> dict[str, str]:
+    """Each named effect's residual signature (``EffectModel.SIGNATURE``; "" for an effect without one)."""
+    return {e["name"]: EFFECT_MODELS[e["name"]].SIGNATURE for e in report["effects"] if e["name"] in EFFECT_MODELS}
 
 
 def calibrated(found: dict, logs: list, args, say) -> dict:
@@ -251,7 +257,9 @@ def _report(found: dict, final, final_info: dict, before, after, sig_before) -> 
     effects = [{"name": c.name, "parameters": _values(final.effect(c.name)),
                 "intervals": effect_intervals(final, c.name, se, c.profile),
                 "parameters_when_named": c.as_dict()["parameters"]} for c in found["named"]]
-    tried = [dict(c.as_dict(), round=k + 1) for k, rnd in enumerate(found["rounds"]) for c in rnd]
+    # "named": this try is the one that named the effect, and the diagnosed model holds it (not pruned)
+    tried = [dict(c.as_dict(), round=k + 1, named=any(c is n for n in found["named"]))
+             for k, rnd in enumerate(found["rounds"]) for c in rnd]
     return {
         "effect": effects[0]["name"] if effects else "none",
         "effects": effects,
