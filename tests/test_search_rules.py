@@ -226,3 +226,17 @@ def test_a_grid_profile_stops_past_its_peak_and_walks_a_flat_one_whole():
     # within PAST_PEAK_NATS of the best it goes on: a flat or noisy profile is walked whole
     flat = [0.0, 0.5, -0.3, 0.2, PAST_PEAK_NATS / 2, 0.0]
     assert walk_profile(grid, lambda g: flat[grid.index(g)]) == flat
+
+
+def test_a_final_estimate_outside_its_interval_from_the_value_when_named_is_said():
+    """A rate named at 0.072 on the training half whose final fit says 0.0124 +- 0.004: the report warns (the two
+    fits disagree) and states the final value; within the interval, nothing is said."""
+    from learners.discrepancy.effect_sizes import moved_since_named
+
+    iv = {"rate": {"value": 0.0124, "se": 0.002, "interval_95": [0.0085, 0.0163], "method": "wald"}}
+    why = moved_since_named("false_sightings", iv, {"rate": 0.072})
+    assert why.startswith("false_sightings:") and "rate 0.072 when named, 0.0124 in the final fit" in why
+    assert moved_since_named("false_sightings", iv, {"rate": 0.013}) == ""
+    arr = {"scale": {"value": [1.0, 1.1], "se": [0.01, 0.01], "interval_95": [[0.98, 1.08], [1.02, 1.12]]}}
+    assert moved_since_named("beacon_height_scale", arr, {"scale": [1.0, 1.2]}) != ""  # one element outside
+    assert moved_since_named("x", {"a": {"value": 1.0, "interval_95": None}}, {"a": 5.0}) == ""  # no interval

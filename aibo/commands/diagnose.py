@@ -16,7 +16,7 @@ from aibo.paths import check_files, check_replaceable, declared_inputs
 from aibo_core import trajectory
 from aibo_core.atomic import atomic_folder, write_json
 from aibo_core.compat import check_compatible
-from learners.discrepancy.effect_sizes import base_shift, effect_intervals, holds_off
+from learners.discrepancy.effect_sizes import base_shift, effect_intervals, holds_off, moved_since_named
 from learners.discrepancy.profile import profile_where_wald_fails
 from learners.discrepancy.score import GAP_METRIC, score
 from learners.discrepancy.search import SEARCH_PATIENCE, search
@@ -123,6 +123,8 @@ def run(args) -> int:
     report["warnings"] = list(final.info.get("warnings", []))  # e.g. a fit that may be a wrong world: said loudly
     report["warnings"] += [f"{e.name}: {e.implausible()}" for e in final.params.effects if e.implausible()]
     report["warnings"] += off_held(report["effects"], logs)
+    report["warnings"] += [w for e in report["effects"]
+                           if (w := moved_since_named(e["name"], e["intervals"], e["parameters_when_named"]))]
     for w in report["warnings"]:
         print(f"aibo: warning: the diagnosed model: {w}", file=sys.stderr)
         lines.append(f"warning: {w}")

@@ -91,6 +91,26 @@ def holds_off(name: str, intervals: dict[str, dict[str, Any]], off: dict[str, An
             "named on the training half, it is not distinguishable from none on the whole log(s)")
 
 
+def moved_since_named(name: str, intervals: dict[str, dict[str, Any]], when_named: dict[str, Any]) -> str:
+    """Why the final estimate of named effect ``name`` should be read with care ("" when it need not): a parameter's
+    value when it was named (the candidate's fit on the training half, ``when_named``) lies outside the final fit's
+    95% interval (``effect_intervals``; whole logs, every kept effect): the two fits disagree by more than sampling
+    error, and the reported value is the final fit's (``model.json``'s)."""
+    moved = []
+    for pname, iv in intervals.items():
+        if iv["interval_95"] is None or pname not in when_named:
+            continue
+        lo, hi = (np.asarray(b, dtype=float) for b in iv["interval_95"])
+        before = np.broadcast_to(np.asarray(when_named[pname], dtype=float), lo.shape)
+        if np.any((before < lo) | (before > hi)):
+            moved.append(f"{pname} {_fmt(when_named[pname])} when named, {_fmt(iv['value'])} in the final fit "
+                         f"(95% [{_fmt(iv['interval_95'][0])}, {_fmt(iv['interval_95'][1])}])")
+    if not moved:
+        return ""
+    return (f"{name}: the final fit on the whole log(s) moved it outside its interval from the value it was named at "
+            f"({'; '.join(moved)}): the training-half and whole-log fits disagree; the value reported is the final fit's")
+
+
 def _fmt(v: Any) -> str:
     a = np.asarray(v, dtype=float)
     return f"{float(a):.3g}" if a.ndim == 0 else "[" + ", ".join(f"{x:.3g}" for x in a.ravel()) + "]"
