@@ -39,10 +39,9 @@ def bandwidth(e: np.ndarray) -> int:
     return int(np.clip(np.ceil(lags), 1, max(n // 4, 1)))
 
 
-def equal_means_p(r: np.ndarray, group: np.ndarray, n_groups: int) -> float:
-    """p-value of "every bin has the same mean" for the series ``r`` (in time order) binned by ``group`` (integers
-    0..n_groups-1, each bin non-empty), robust to serial correlation (module docstring). 1.0 when the covariance of
-    the bin means is singular."""
+def bin_means(r: np.ndarray, group: np.ndarray, n_groups: int) -> tuple[np.ndarray, np.ndarray]:
+    """(the bin means, their covariance robust to serial correlation: module docstring) of the series ``r`` (in time
+    order) binned by ``group`` (integers 0..n_groups-1, each bin non-empty)."""
     r = np.asarray(r, dtype=float)
     g = np.asarray(group, dtype=np.int64)
     n, G = len(r), n_groups
@@ -55,7 +54,21 @@ def equal_means_p(r: np.ndarray, group: np.ndarray, n_groups: int) -> float:
         gamma = np.dot(e[:-k], e[k:]) / n * (1.0 - k / (lags + 1.0))
         pairs = np.bincount(g[:-k] * G + g[k:], minlength=G * G).reshape(G, G)
         cov += gamma * (pairs + pairs.T)
-    cov /= np.outer(count, count)
+    return means, cov / np.outer(count, count)
+
+
+def equal_means_p(r: np.ndarray, group: np.ndarray, n_groups: int) -> float:
+    """p-value of "every bin has the same mean" for the series ``r`` (in time order) binned by ``group`` (integers
+    0..n_groups-1, each bin non-empty), robust to serial correlation (module docstring). 1.0 when the covariance of
+    the bin means is singular."""
+    means, cov = bin_means(r, group, n_groups)
+    return wald_p(means, cov)
+
+
+def wald_p(means: np.ndarray, cov: np.ndarray) -> float:
+    """p-value of the Wald test that every one of ``means`` (with covariance ``cov``) is the same; 1.0 when the
+    contrasts' covariance is singular."""
+    G = len(means)
     contrast = np.hstack([np.eye(G - 1), -np.ones((G - 1, 1))])
     d = contrast @ means
     try:

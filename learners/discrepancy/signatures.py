@@ -47,7 +47,7 @@ from learners.inference.kernels.estep import innovations_compiled
 from learners.inference.posterior import Posterior
 from learners.model.model import Model
 
-from .equal_means import equal_means_p
+from .equal_means import bin_means, wald_p
 
 if TYPE_CHECKING:
     from learners.model.probes import SpeedProbe
@@ -61,7 +61,7 @@ class Signature:
     variable: str  # e.g. "distance (mm)"
     centers: list[float]  # bin centres (or landmark index)
     means: list[float]  # mean residual per bin (sigma units)
-    errors: list[float]  # standard error per bin (as if the bin's residuals were independent)
+    errors: list[float]  # standard error per bin (serial correlation allowed for, ``equal_means.bin_means``)
     p_value: float  # "the same mean in every bin" (``equal_means``), serial correlation accounted for
     p_holm: float = 1.0  # p_value adjusted for every signature of the same call (Holm); set by ``signatures``
 
@@ -89,10 +89,10 @@ def _binned(name: str, variable: str, r: np.ndarray, x: np.ndarray, categorical:
         return None
     inside = keep[idx]  # bins with fewer than 2 residuals are left out, the others renumbered 0, 1, ...
     r, idx = r[inside], (np.cumsum(keep) - 1)[idx[inside]]
-    groups = [r[idx == k] for k in range(int(keep.sum()))]
-    p = equal_means_p(r, idx, len(groups))
-    return Signature(name, variable, [float(c) for c in centers[keep]], [float(np.mean(g)) for g in groups],
-                     [float(np.std(g) / np.sqrt(len(g))) for g in groups], p if np.isfinite(p) else 1.0)
+    means, cov = bin_means(r, idx, int(keep.sum()))
+    p = wald_p(means, cov)
+    return Signature(name, variable, [float(c) for c in centers[keep]], means.tolist(),
+                     np.sqrt(np.maximum(np.diag(cov), 0.0)).tolist(), p if np.isfinite(p) else 1.0)
 
 
 def holm(p: np.ndarray) -> np.ndarray:
