@@ -38,8 +38,8 @@ def profile_interval(grid: list[float], lls: list[float]) -> list[float]:
 
 
 def grid_step(grid: list[float]) -> float:
-    """The step of a parameter's grid (the smallest spacing)."""
-    return float(np.min(np.diff(np.asarray(grid, dtype=float))))
+    """The step of a parameter's grid (the smallest spacing, to 12 decimals: 0.1, not 0.09999999999999998)."""
+    return float(np.round(np.min(np.diff(np.asarray(grid, dtype=float))), 12))
 
 
 def effect_intervals(model: Model, name: str, standard_errors: dict[str, Any],
