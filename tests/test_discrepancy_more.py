@@ -291,7 +291,9 @@ def test_a_gain_that_the_base_keeps_without_the_effect_is_not_the_effects():
     """The effect-free log where ``actuation_lag`` was named (paper-sim noise, seed 1005, 5 min: 0.1 s, +28.7 nats,
     p = 4e-14): EM from the paper's start stopped at a poor optimum of the base model, and the lag's fit left it.
     Refitted without the lag, that fit keeps the whole gain: the lag is not named, and the better base becomes the
-    current model (``learners.discrepancy.search._given_its_own_base``)."""
+    current model (``learners.discrepancy.search._given_its_own_base``). Where EM from the paper's start is left at
+    the poor optimum depends on the CPU's rounding (on an AMD EPYC it found the better base itself): the lag is
+    never named, and when a candidate's fit finds the better base, the round is repeated from it."""
     from aibo_core.trajectory import blind
     from learners.discrepancy.search import search
 
@@ -299,5 +301,6 @@ def test_a_gain_that_the_base_keeps_without_the_effect_is_not_the_effects():
     tr = blind(collect({"noise": "paper-sim", "effects": {}}, 9000, seed=1005))
     found = search([tr], ["actuation_lag"], EMOptions(), jobs=1, progress=said.append)
     assert found["named"] == [], [c.as_dict() for c in found["rounds"][-1]]
-    assert any("better than the null: the round is repeated" in s for s in said), said
+    repeated = any("better than the null: the round is repeated" in s for s in said)
+    assert repeated == bool(found["escapes"]), said
 

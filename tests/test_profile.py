@@ -76,9 +76,16 @@ def test_on_a_simulated_fade_the_profile_interval_agrees_with_the_wald_one():
     assert lo < entry["value"] < hi and entry["open"] == [False, False] and entry["note"] == ""
     assert 0.8 < (hi - lo) / (whi - wlo) < 1.25
     assert abs((lo + hi) / 2 - (wlo + whi) / 2) < 0.2 * (whi - wlo)
-    lls = np.array([ll for _, ll in entry["profile"]])  # the held fits went past the 1.92-nat drop on both sides
+    # the held fits went past the 1.92-nat drop from the best (the free fit's, or a held fit's if one beat it) on
+    # both sides; the free fit is the peak, which no held point need come near (on one CPU the nearest were 0.3 and
+    # 0.5 nats below it)
+    from learners.discrepancy.search import _train_loglik
+
+    lls = np.array([ll for _, ll in entry["profile"]])
     vs = np.array([v for v, _ in entry["profile"]])
-    assert lls[vs < lo].max() < lls.max() - 1.92 + 0.05 and lls[vs > hi].max() < lls.max() - 1.92 + 0.05
+    best = max(lls.max(), _train_loglik(fit.params, [log]))
+    assert lls[vs < lo].max() < best - 1.92 + 0.05 and lls[vs > hi].max() < best - 1.92 + 0.05
+    assert lls[(vs >= lo) & (vs <= hi)].min() > best - 1.92 - 0.05
 
 
 def test_false_sightings_rate_gets_a_conditional_likelihood_interval_around_its_estimate():

@@ -40,6 +40,24 @@ def run_import_mrclam(args) -> int:
     return run(args)
 
 
+def run_import_bag(args) -> int:
+    from aibo.commands.import_bag import run
+
+    return run(args)
+
+
+def run_import_csv(args) -> int:
+    from aibo.commands.import_csv import run
+
+    return run(args)
+
+
+def run_export_tum(args) -> int:
+    from aibo.commands.export_tum import run
+
+    return run(args)
+
+
 def run_export(args) -> int:
     from aibo.commands.export import run
 

@@ -18,9 +18,10 @@ from aibo_core.atomic import atomic_folder, write_json
 from aibo_core.compat import check_compatible
 from learners.discrepancy.effect_sizes import base_shift, effect_intervals, holds_off, moved_since_named
 from learners.discrepancy.profile import profile_where_wald_fails
-from learners.discrepancy.score import GAP_METRIC, score
+from learners.discrepancy.score import GAP_METRIC, MOTION_GAP_METRIC, WHITENESS_METRIC, motion_score, motion_trade, score
 from learners.discrepancy.search import SEARCH_PATIENCE, search
 from learners.discrepancy.signatures import probe_signature, signatures
+from learners.discrepancy.statistics import plain_reading
 from learners.em.learner import EMLearner, feature_map_for
 from learners.em.options import EMOptions
 from learners.inference.batch import make_batch
@@ -75,6 +76,7 @@ def run(args) -> int:
     logs = found["logs"]  # outliers set aside, as in every score of the search
     seconds = {"search": time.perf_counter() - t0}
     before, after = score(found["base"], logs), score(found["model"], logs)
+    motion = motion_gaps(found["base"], found["model"], logs)
     sig_before, sig_after = signatures(found["base"], logs), signatures(found["model"], logs)
     # warm-started: one start (the screening of stretched sensor curves is the paper's-start rescue; from the
     # searched model it once kept a curve with distances x0.25 and a world 99% off the field) and no alias search
@@ -87,6 +89,7 @@ def run(args) -> int:
     final = EMLearner(final_opts, check_field=False).fit(logs, init=found["model"])
     seconds["final fit with standard errors"] = time.perf_counter() - t1
     report = _report(found, final.params, final.info, before, after, sig_before)
+    report.update(motion)
     t1 = time.perf_counter()
     if profile_where_wald_fails(report["effects"], final.params, logs, final_opts):  # a rate near its bound
         seconds["profile intervals"] = time.perf_counter() - t1
@@ -103,6 +106,10 @@ def run(args) -> int:
         say(f"  {name}: not tried, {why}")
     say(f"gap ({GAP_METRIC}): {before.gap:.4f} before, {after.gap:.4f} after; mean NIS {before.nis_mean:.2f} -> "
         f"{after.nis_mean:.2f} (2 expected)")
+    say(f"motion gap ({MOTION_GAP_METRIC}, each held-out sighting predicted from the pose k s earlier and the "
+        "commands alone; in brackets its excess over the one-step gap, the motion's share): "
+        + "; ".join(f"{k} s {motion['motion_gap_before'][k]:.4f} -> {v:.4f} ({motion['motion_excess_before'][k]:.4f} "
+                    f"-> {motion['motion_excess_after'][k]:.4f})" for k, v in motion["motion_gap_after"].items()))
     say(f"the base model's residual signatures (the named effects' first, then the strongest; p adjusted for the "
         f"{len(sig_before)} pairs tried; the verdict rests on the candidates' tests above):")
     for s, whose in fig.lead_signatures(sig_before, named_signatures(report)):
@@ -113,8 +120,9 @@ def run(args) -> int:
     seconds["calibrated check"] = time.perf_counter() - t1
     report["unexplained"] = unexplained(report)
     for u in report["unexplained"]:
-        say(f"  still unlike its simulation: {u['statistic']} ({fig.z_text(u['z'])}), the signature of {u['effect']}, "
-            f"not named ({u['why_not_named']})")
+        of = f"the signature of {u['effect']}, not named" if u["effect"] else "unexplained"
+        say(f"  still unlike its simulation: {u['statistic']} ({fig.z_text(u['z'])}): {u['reading']}; {of} "
+            f"({u['why_not_named']})")
     report["unexplained"] += none_of_the_above(found, logs)
     for u in (u for u in report["unexplained"] if u["effect"] == NONE_OF_THE_ABOVE):
         say(f"none of the above: {u['describes']} (train +{u['gain_train']:.1f} nats, held-out {u['gain_heldout']:+.1f} "
@@ -125,6 +133,7 @@ def run(args) -> int:
     report["warnings"] += off_held(report["effects"], logs)
     report["warnings"] += [w for e in report["effects"]
                            if (w := moved_since_named(e["name"], e["intervals"], e["parameters_when_named"]))]
+    report["warnings"] += motion_warning(report)
     for w in report["warnings"]:
         print(f"aibo: warning: the diagnosed model: {w}", file=sys.stderr)
         lines.append(f"warning: {w}")
@@ -191,6 +200,39 @@ def calibrated(found: dict, logs: list, args, say) -> dict:
     return checks
 
 
+#: z of the motion gap's paired change (after - before, block standard error) beyond which the named effects are
+#: said to make the motion worse: one-sided 2.3% if the change were noise alone.
+MOTION_WORSE_Z = 2.0
+
+
+def motion_gaps(base, model, logs: list) -> dict:
+    """report.json's motion-side scores of the base and the named effects' model (both fitted on the training
+    half): ``motion_gap_before`` / ``motion_gap_after`` (horizon in seconds -> MOTION_GAP_METRIC) and
+    ``motion_gap_change`` (per horizon: the paired change, its standard error over 30 s blocks, z, n)."""
+    mb, ma = motion_score(base, logs), motion_score(model, logs)
+    return {"motion_gap_metric": MOTION_GAP_METRIC, "motion_gap_before": mb.gap(), "motion_gap_after": ma.gap(),
+            "motion_excess_before": mb.excess(), "motion_excess_after": ma.excess(),
+            "motion_gap_change": motion_trade(mb, ma)}
+
+
+def motion_warning(report: dict) -> list[str]:
+    """A warning when the named effects make the motion worse beyond its noise at some horizon: the open-loop
+    gap, or its excess over the one-step gap (the motion's share: ``MotionScore.excess``), up by z >
+    MOTION_WORSE_Z. It names the trade: the model predicts the next sighting better and the robot's motion
+    over seconds worse."""
+    worse = {k: c for k, c in report.get("motion_gap_change", {}).items()
+             if max(np.nan_to_num(c["z"], nan=-np.inf), np.nan_to_num(c["excess_z"], nan=-np.inf)) > MOTION_WORSE_Z}
+    if not report["effects"] or not worse:
+        return []
+    names = ", ".join(e["name"] for e in report["effects"])
+    at = "; ".join(f"{k} s: gap {c['change']:+.3f} +- {c['se']:.3f}, excess {c['excess_change']:+.3f} +- "
+                   f"{c['excess_se']:.3f}" for k, c in worse.items())
+    return [f"the named effects ({names}) trade motion for sensing: the one-step gap changes by "
+            f"{report['gap_after'] - report['gap_before']:+.3f} nats per sighting, while the motion predicted open loop "
+            f"gets worse (nats per sighting, +- s.e.; {at}); for driving a simulator over seconds, the base model "
+            "(aibo learn's) may be the better motion model"]
+
+
 def off_held(effects: list[dict], logs: list) -> list[str]:
     """A warning per named effect whose every 95% interval holds the value that switches it off
     (``effect_sizes.holds_off``; effects whose start is that value, ``EffectModel.STARTS_OFF``)."""
@@ -205,9 +247,11 @@ def off_held(effects: list[dict], logs: list) -> list[str]:
 
 
 def unexplained(report: dict) -> list[dict]:
-    """Disagreements of the final model's calibrated simulation that are the residual signature
-    (``EffectModel.SIGNATURE``) of an effect that was not named, with why it was not: where the
-    search and the simulator part ways, the user should look."""
+    """Every disagreement of the final model's calibrated simulation with the log, with its z and a plain reading
+    (``plain_reading``) of what the log does that the twin does not. One that is the residual signature
+    (``EffectModel.SIGNATURE``) of an effect that was not named names it, with why it was not: where the search
+    and the simulator part ways, the user should look; one that no effect's signature matches has ``effect`` None
+    (the catalogue holds nothing that makes it)."""
     after = report["calibrated_simulation"].get("after")
     if not after:
         return []
@@ -215,13 +259,17 @@ def unexplained(report: dict) -> list[dict]:
     tried = {c["name"]: c for c in report["candidates"]}  # the last round's try of each
     out = []
     for d in after["disagreements"]:
-        for name, cls in sorted(EFFECT_MODELS.items()):
-            if not cls.SIGNATURE or cls.SIGNATURE not in d["statistic"] or name in named:
-                continue
+        reading = plain_reading(d["statistic"], d["z"])
+        matches = [name for name, cls in sorted(EFFECT_MODELS.items()) if cls.SIGNATURE and cls.SIGNATURE in d["statistic"]]
+        for name in (n for n in matches if n not in named):
             c = tried.get(name)
             why = ("not among the candidates" if c is None else c["note"] or
                    f"training gain {c['gain_train']:.1f} nats, p = {c['p_value']:.2g}; held-out gain {c['gain_heldout']:+.1f} nats")
-            out.append({"statistic": d["statistic"], "z": d["z"], "effect": name, "why_not_named": why})
+            out.append({"statistic": d["statistic"], "z": d["z"], "effect": name, "why_not_named": why, "reading": reading})
+        if not matches or all(n in named for n in matches):
+            why = ("the named effects " + ", ".join(matches) + " do not remove it" if matches
+                   else "no effect of the catalogue leaves this signature")
+            out.append({"statistic": d["statistic"], "z": d["z"], "effect": None, "why_not_named": why, "reading": reading})
     return out
 
 
@@ -270,6 +318,7 @@ def _report(found: dict, final, final_info: dict, before, after, sig_before) -> 
         "gap_metric": GAP_METRIC,
         "gap_before": before.gap,
         "gap_after": after.gap,
+        "whiteness_metric": WHITENESS_METRIC,  # consistency_*["whiteness"]
         "consistency_before": before.as_dict(),
         "consistency_after": after.as_dict(),
         "signatures": [s.as_dict() for s in sig_before[:12]],

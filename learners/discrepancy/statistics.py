@@ -45,7 +45,7 @@ def check_statistics(model: Model, logs: list[Trajectory]) -> dict[str, float]:
         "held-out NLL per sighting (nats)": s.gap,
         "mean NIS": s.nis_mean,
         "share of NIS outside the 95% band": s.nis_outside,
-        "innovation whiteness": s.whiteness,
+        "size-innovation autocorrelation (lag 1, per landmark)": s.whiteness,
     }
     for sig in signatures(model, logs):
         out[signature_key(sig.residual, sig.variable) + " (strength)"] = strength(sig.p_value)
@@ -66,3 +66,43 @@ def data_statistics(logs: list[Trajectory]) -> dict[str, float]:
         "size, 90% quantile": float(q90),
         "bearing spread (rad)": float(np.std(bearing)) if len(bearing) else np.nan,
     }
+
+
+#: What a residual signature's variable says about the log, for ``plain_reading``.
+_VARIABLE_READING = {
+    "landmark": "differ from landmark to landmark (per-landmark errors: a landmark's mapped position or size, or how "
+                "the camera sees it)",
+    "distance": "change with the distance to the landmark",
+    "world heading": "change with the robot's heading in the world (a floor, a slope or a wall that favours a "
+                     "direction)",
+    "elapsed time": "drift over the log",
+    "position": "change across the field",
+    "position in the image": "change across the image",
+    "turn rate": "change with the turn rate (timing: a sensor's time offset or the motion's lag)",
+}
+
+
+def plain_reading(statistic: str, z: float) -> str:
+    """A sentence on what the measured log does that its calibrated simulation does not, for a statistic of the
+    check (``check_statistics``) whose z = (measured - simulated mean) / simulated sd disagrees."""
+    more = z > 0
+    if " vs " in statistic:
+        residual, variable = statistic.split(" vs ", 1)
+        variable = variable.replace(" (strength)", "")
+        what = next((text for key, text in _VARIABLE_READING.items() if variable.startswith(key)),
+                    f"depend on {variable}")
+        how = "more strongly than" if more else "less than"
+        return f"the log's {residual} residuals {what} {how} in its simulation"
+    if statistic.startswith("size-innovation autocorrelation"):
+        return ("the log's size errors persist from one sighting of a landmark to the next "
+                + ("more" if more else "less") + " than in its simulation")
+    if statistic.startswith("share of NIS outside"):
+        return ("more" if more else "fewer") + (" of the log's sightings fall outside the model's 95% band than of its "
+                                                "simulation's (heavier tails: outliers or errors the model's noise does "
+                                                "not hold)" if more else " of the log's sightings fall outside the "
+                                                "model's 95% band than of its simulation's (the model's noise is too "
+                                                "wide)")
+    if statistic.startswith("mean NIS") or statistic.startswith("held-out NLL"):
+        return ("the model predicts the log's sightings " + ("worse" if more else "better")
+                + " than it predicts its own simulation's")
+    return f"the log's {statistic} is {'higher' if more else 'lower'} than its simulation's"

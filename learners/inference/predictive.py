@@ -91,9 +91,21 @@ def sightings_logdens(model: "Model", batch: Batch, post: Posterior, idx: np.nda
     Gaussian (``predictive_logdens``, each sighting's own noise from the effects' ``predictive()``
     versions), then every effect's ``predictive_logdens`` hook."""
     lo = model.lower(batch) if lo is None else lo
+    lo_own = own_noise(model, batch, lo)
+    return model_logdens(model, predictive_logdens(lo, batch, post, idx, lo_own), lo_own, batch, idx)
+
+
+def own_noise(model: "Model", batch: Batch, lo: Lowered) -> Lowered:
+    """The lowered arrays whose noise a sighting's OWN density uses: the effects' ``predictive()`` versions
+    (``lo`` itself when no effect has one)."""
     own = tuple(e.predictive() for e in model.effects)
-    lo_own = lo if all(a is b for a, b in zip(own, model.effects)) else replace(model, effects=own).lower(batch)
-    out = predictive_logdens(lo, batch, post, idx, lo_own)
+    return lo if all(a is b for a, b in zip(own, model.effects)) else replace(model, effects=own).lower(batch)
+
+
+def model_logdens(model: "Model", gaussian: np.ndarray, lo_own: Lowered, batch: Batch, idx: np.ndarray) -> np.ndarray:
+    """The model's log density of sightings ``idx`` from their Gaussian predictive log densities: every effect's
+    ``predictive_logdens`` hook applied in turn (a mixture's, e.g.)."""
+    out = gaussian
     for e in model.effects:
         out = e.predictive_logdens(out, lo_own, batch, idx)
     return out

@@ -14,9 +14,10 @@ name           command                features (F)
                                       and a constant offset
 ``unicycle``   (v mm/s, omega rad/s)  the ``diff_drive`` features with the lateral (dy) column of
                                       the weights held at exactly 0: a wheeled robot cannot move
-                                      sideways; and the forward (dx) column's omega and |omega| rows
-                                      held at 0 (``ZERO_CELLS``: no forward motion from turning in
-                                      place, which EM used to trade heading for speed). Sigma_A
+                                      sideways; and the forward (dx) column's omega, |omega| and
+                                      constant rows held at 0 (``ZERO_CELLS``: no forward motion
+                                      from turning in place, which EM used to trade heading for
+                                      speed, nor without a command). Sigma_A
                                       keeps its dy variance (slip, and the path curving within
                                       one frame)
 ``linear``     any k numbers          [c_1, ..., c_k, 1]

@@ -1,0 +1,150 @@
+"""Timestamped streams of one robot -> an aibo-trajectory/2 log in frames of ``dt`` seconds.
+
+NumPy only. Every importer of a real robot's log (MRCLAM's text files, a ROS bag, the CSV layout) reads its
+source into the same streams, all on one clock (s, any epoch):
+
+- commands: (N,) times and (N, 2) ``[v mm/s, omega rad/s]``, each held until the next;
+- sightings: (S,) times, (S,) landmark index (-1: an id the map does not hold), (S, 2) ``[range mm, bearing rad]``;
+- truth (optional): (M,) times, (M, 3) ``[x m, y m, theta rad]`` (e.g. motion capture).
+
+and ``build`` turns them into a log the way ``aibo import mrclam`` always has: frames from the first command
+(``t0``) to the end of the commands (and of the truth, when given); each frame's control the exact average of
+the held command over the frame; each sighting at the frame whose end is nearest its time; the truth
+interpolated at the frame boundaries (x, y linear, theta unwrapped), poses inside a gap longer than ``GAP_S``
+flagged in ``meta["pose_gaps"]``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .geometry import wrap
+from .trajectory import VELOCITY_CONTROLS, Trajectory
+
+#: A ground-truth interval longer than this (s) is a dropout: poses inside it are flagged.
+GAP_S = 0.1
+
+
+class LogSourceError(ValueError):
+    """A robot's log that cannot be imported: one line naming the file (or topic) and what is wrong."""
+
+
+@dataclass
+class Streams:
+    """One robot's measurements on one clock (module docstring for units)."""
+
+    command_t: np.ndarray
+    commands: np.ndarray
+    sighting_t: np.ndarray
+    sighting_landmark: np.ndarray
+    sighting_value: np.ndarray
+    landmarks: np.ndarray
+    truth_t: np.ndarray | None = None
+    truth: np.ndarray | None = None
+
+
+def increasing(t: np.ndarray) -> tuple[np.ndarray, int, int]:
+    """(mask of rows to keep: times strictly after every kept row before, repeated, backward)."""
+    prev = np.maximum.accumulate(np.concatenate([[-np.inf], t[:-1]]))
+    keep = t > prev
+    return keep, int(np.sum(t == prev)), int(np.sum(t < prev))
+
+
+def first_backward(t: np.ndarray) -> int | None:
+    """Index of the first time earlier than the one before it, or None when ``t`` is non-decreasing."""
+    back = np.flatnonzero(np.diff(t) < 0)
+    return int(back[0]) + 1 if len(back) else None
+
+
+def held_average(t: np.ndarray, c: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """Average over [edges[k], edges[k+1]) of the piecewise-constant command (c[j] from t[j] on)."""
+    cum = np.concatenate([np.zeros((1, c.shape[1])), np.cumsum(c[:-1] * np.diff(t)[:, None], axis=0)])
+    j = np.clip(np.searchsorted(t, edges, side="right") - 1, 0, len(t) - 1)
+    integral = cum[j] + c[j] * (edges - t[j])[:, None]
+    return np.diff(integral, axis=0) / np.diff(edges)[:, None]
+
+
+def nearest_frame_end(t: np.ndarray, t0: float, dt: float) -> np.ndarray:
+    """(S,) int: the frame whose end (``t0 + (k + 1) dt``) is nearest each time (may be outside the log)."""
+    return np.rint((t - t0) / dt).astype(np.int64) - 1
+
+
+def runs(idx: np.ndarray) -> list[list[int]]:
+    """Sorted indices as [first, last] runs of consecutive values."""
+    if len(idx) == 0:
+        return []
+    cut = np.flatnonzero(np.diff(idx) > 1)
+    starts = np.concatenate([[idx[0]], idx[cut + 1]])
+    ends = np.concatenate([idx[cut], [idx[-1]]])
+    return [[int(a), int(b)] for a, b in zip(starts, ends)]
+
+
+def truth_at(t: np.ndarray, x_m: np.ndarray, y_m: np.ndarray, theta: np.ndarray,
+             edges: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
+    """((T+1, 3) pose [x mm, y mm, theta rad] at the frame boundaries ``edges`` (s), ``pose_gaps``): the truth
+    rows (strictly increasing times ``t``, s) interpolated, x and y linearly, theta unwrapped; gaps longer than
+    ``GAP_S`` inside the span and the poses inside them counted and flagged."""
+    pose = np.stack([np.interp(edges, t, x_m) * 1000.0, np.interp(edges, t, y_m) * 1000.0,
+                     wrap(np.interp(edges, t, np.unwrap(theta)))], axis=1)
+    gdt = np.diff(t)
+    in_span = (t[1:] > edges[0]) & (t[:-1] < edges[-1])
+    gaps = np.flatnonzero((gdt > GAP_S) & in_span)
+    j = np.searchsorted(t, edges, side="right") - 1
+    flagged = np.flatnonzero((j >= 0) & (j < len(gdt)) & (gdt[np.clip(j, 0, len(gdt) - 1)] > GAP_S)
+                             & (edges > t[np.clip(j, 0, len(t) - 1)]))
+    outside = int(np.sum((edges < t[0]) | (edges > t[-1])))
+    gaps_meta = {"threshold_s": GAP_S, "count": int(len(gaps)),
+                 "longest_s": float(gdt[gaps].max()) if len(gaps) else 0.0,
+                 "total_s": float(gdt[gaps].sum()) if len(gaps) else 0.0,
+                 "poses_flagged": int(len(flagged)), "flagged_runs": runs(flagged),
+                 "poses_outside_groundtruth": outside}
+    return pose, gaps_meta
+
+
+def pose_valid(tr: Trajectory) -> np.ndarray:
+    """(T+1,) bool: poses not flagged as inside a ground-truth gap (``meta["pose_gaps"]``)."""
+    ok = np.ones(tr.n_frames + 1, bool)
+    for a, b in tr.meta.get("pose_gaps", {}).get("flagged_runs", []):
+        ok[a: b + 1] = False
+    return ok
+
+
+def frame_count(s: Streams, dt: float) -> int:
+    """Frames of ``dt`` from the first command to the last command (and the last truth row, when given)."""
+    t_end = float(s.command_t[-1]) if s.truth_t is None else min(float(s.command_t[-1]), float(s.truth_t[-1]))
+    return int(np.floor((t_end - float(s.command_t[0])) / dt + 1e-9))
+
+
+def build(s: Streams, dt: float, meta: dict[str, Any], source: str) -> Trajectory:
+    """The log of ``s`` in frames of ``dt`` s (module docstring). ``meta`` gets ``t0_s`` (the first command's
+    time), ``dropped`` counts (sightings of ids not in the map, with non-positive ranges, outside the span; the
+    caller's own counts kept) and, with truth, ``pose_gaps``. ``source`` names the input in validation errors.
+    Raises LogSourceError when the commands span no frame, TrajectoryError on a log that fails validation."""
+    t0 = float(s.command_t[0])
+    T = frame_count(s, dt)
+    if T < 1:
+        raise LogSourceError(f"{source}: the commands (and truth) span less than one frame of {dt:g} s")
+    edges = t0 + dt * np.arange(T + 1)
+    controls = held_average(s.command_t, s.commands, edges)
+    frame = nearest_frame_end(s.sighting_t, t0, dt)
+    unknown = s.sighting_landmark < 0
+    bad_range = ~unknown & ~(s.sighting_value[:, 0] > 0)
+    inside = (frame >= 0) & (frame < T)
+    use = ~unknown & ~bad_range & inside
+    order = np.flatnonzero(use)[np.argsort(frame[use], kind="stable")]
+    values = np.stack([s.sighting_value[order, 0], wrap(s.sighting_value[order, 1])], axis=1)
+    meta = dict(meta)
+    meta["t0_s"] = t0
+    meta["dropped"] = {**meta.get("dropped", {}), "sightings_unknown_id": int(unknown.sum()),
+                       "sightings_nonpositive_range": int(bad_range.sum()),
+                       "sightings_outside_span": int((~unknown & ~bad_range & ~inside).sum())}
+    pose = None
+    if s.truth_t is not None:
+        pose, meta["pose_gaps"] = truth_at(s.truth_t, s.truth[:, 0], s.truth[:, 1], s.truth[:, 2], edges)
+    tr = Trajectory(dt=float(dt), landmarks=np.asarray(s.landmarks, float), sighting_frame=frame[order],
+                    sighting_landmark=s.sighting_landmark[order].astype(np.int64), sighting_value=values,
+                    sensor_kind="range_mm", controls=controls, control_names=VELOCITY_CONTROLS, pose=pose, meta=meta)
+    return tr.validate(source)

@@ -1,0 +1,72 @@
+"""``aibo import csv``: the documented layout (commands.csv, detections.csv, landmarks.csv, truth.csv) on a small
+synthetic drive; its errors, one line each (the MRCLAM round trip: tests/test_import_bag.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from aibo.cli import main
+from aibo_core import trajectory
+from aibo_core.geometry import wrap
+from tests._bags import drive, write_csv
+
+
+def _import(folder, out) -> int:
+    return main(["import", "csv", str(folder), "--out", str(out), "--dt", "0.1"])
+
+
+def test_the_layout_gives_the_drive(tmp_path):
+    rows = drive(seconds=6.0)
+    assert _import(write_csv(tmp_path / "log", rows), tmp_path / "log.npz") == 0
+    log = trajectory.load(tmp_path / "log.npz")
+    assert log.n_frames == 59 and log.control_names == ("v_mm_s", "omega_rad_s") and log.sensor_kind == "range_mm"
+    np.testing.assert_allclose(log.controls, rows.commands[:59, 1:] * [1000.0, 1.0], atol=1e-9)  # held over whole frames
+    np.testing.assert_allclose(log.landmarks, rows.landmarks[:, 1:] * 1000.0)
+    # sightings at t = 1000 + 0.2 k: the frame whose end is nearest; the one at t0 itself is outside the log
+    assert log.meta["dropped"]["sightings_outside_span"] == 3 and log.n_sightings == len(rows.detections) - 3
+    np.testing.assert_array_equal(log.sighting_frame[:3], [1, 1, 1])
+    np.testing.assert_allclose(log.sighting_value[:, 0], rows.detections[3:, 2] * 1000.0, atol=1e-9)
+    i = np.searchsorted(rows.truth[:, 0], 1000.0 + 0.1 * np.arange(60) - 1e-9)
+    np.testing.assert_allclose(log.pose[:, :2], rows.truth[i, 1:3] * 1000.0, atol=1e-9)
+    np.testing.assert_allclose(wrap(log.pose[:, 2] - rows.truth[i, 3]), 0.0, atol=1e-9)
+    assert log.meta["t0_s"] == 1000.0 and log.meta["source"]["files"] == ["commands.csv", "detections.csv",
+                                                                          "landmarks.csv", "truth.csv"]
+
+
+def test_truth_is_optional_and_unknown_ids_are_counted(tmp_path, capsys):
+    rows = drive()
+    rows.detections[5, 1] = 42
+    assert _import(write_csv(tmp_path / "log", rows, truth=False), tmp_path / "log.npz") == 0
+    log = trajectory.load(tmp_path / "log.npz")
+    assert log.pose is None and log.meta["unknown_ids"] == [42] and log.meta["dropped"]["sightings_unknown_id"] == 1
+    assert "no truth; dropped: sightings unknown id 1" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("name,edit,expected", [
+    ("commands", lambda text: text.replace("omega_rad_s", "w"), "commands.csv: header 't,v_m_s,w' lacks column 'omega_rad_s'"),
+    ("detections", lambda text: text.replace(",11,", ",eleven,", 1), "detections.csv: row 2, column 'id': 'eleven' is not a finite"),
+    ("detections", lambda text: text.replace(",11,", ",11.5,", 1), "detections.csv: row 2, column 'id': 11.5 is not an integer"),
+    ("truth", lambda text: text.replace("1000.05,", "999.0,", 1), "truth.csv: row 3: time 999.0 s is earlier than the row before"),
+    ("landmarks", lambda text: text + "11,0.0,0.0\n", "landmarks.csv: column 'id': landmark 11 appears more than once"),
+    ("commands", lambda text: text.splitlines()[0] + "\n", "commands.csv: no data rows after the header"),
+    ("detections", lambda text: "", "detections.csv: empty"),
+    ("commands", lambda text: text.replace("1000.1,", "nan,", 1), "commands.csv: row 3, column 't': 'nan' is not a finite"),
+])
+def test_bad_files_are_one_line(tmp_path, capsys, name, edit, expected):
+    folder = write_csv(tmp_path / "log", drive())
+    path = folder / f"{name}.csv"
+    path.write_text(edit(path.read_text()))
+    assert _import(folder, tmp_path / "log.npz") == 2
+    err = capsys.readouterr().err
+    assert err.startswith("aibo: error: ") and err.count("\n") == 1 and expected in err, err
+    assert not (tmp_path / "log.npz").exists()
+
+
+def test_a_missing_folder_or_file(tmp_path, capsys):
+    assert _import(tmp_path / "nope", tmp_path / "log.npz") == 2
+    assert "no such folder" in capsys.readouterr().err
+    folder = write_csv(tmp_path / "log", drive())
+    (folder / "commands.csv").unlink()
+    assert _import(folder, tmp_path / "log.npz") == 2
+    assert "commands.csv: file not found" in capsys.readouterr().err
