@@ -111,3 +111,10 @@ def test_the_page_leads_with_the_named_effects_signatures():
     lead = lead_signatures(sigs, {"floor_drift": "motion (sigma) vs world heading"}, n=2)
     assert [(s.variable, who) for s, who in lead] == [("world heading (rad)", "floor_drift")] * 2
     assert [w for _, w in lead_signatures(sigs, {}, n=3)] == ["", "", ""]  # nothing named: by p-value
+
+
+def test_the_plain_reading_of_a_signature_against_the_image_position_is_about_the_image():
+    from learners.discrepancy.statistics import plain_reading
+
+    reading = plain_reading("size (sigma) vs position in the image, predicted (rad) (strength)", 5.0)
+    assert "across the image" in reading and "field" not in reading
