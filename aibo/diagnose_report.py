@@ -24,14 +24,26 @@ def _save(fig, path: Path) -> None:
     atomic_write(path, lambda f: f.write(buf.getvalue()))
 
 
-def signature_panels(path: Path, before: list, after: list, n: int = 6) -> None:
-    """The ``n`` strongest residual signatures of the base model, with the same pairs after the refit."""
-    top = before[:n]
+def lead_signatures(signatures: list, named: dict[str, str], n: int = 6) -> list[tuple[Any, str]]:
+    """The ``n`` signatures a reader sees first, each with the named effect it is the signature of ("" for none):
+    the named effects' signatures (``named``: effect -> its ``EffectModel.SIGNATURE``) first, then the rest by
+    p-value (``signatures`` sorted so). A drift the verdict does not name never comes before one it does."""
+    def whose(s: Any) -> str:
+        key = f"{s.residual} vs {s.variable}"
+        return next((name for name, sig in named.items() if sig and sig in key), "")
+    tagged = [(s, whose(s)) for s in signatures]
+    return ([t for t in tagged if t[1]] + [t for t in tagged if not t[1]])[:n]
+
+
+def signature_panels(path: Path, before: list, after: list, named: dict[str, str] | None = None, n: int = 6) -> None:
+    """The residual signatures of the base model a reader sees first (``lead_signatures``), with the same pairs after
+    the refit; each titled with its p-value adjusted for every pair tried (Holm, ``Signature.p_holm``)."""
+    top = lead_signatures(before, named or {}, n)
     after_by = {(s.residual, s.variable): s for s in after}
     cols = 3
     rows = (len(top) + cols - 1) // cols
     fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.0 * rows), squeeze=False)
-    for ax, s in zip(axes.ravel(), top):
+    for ax, (s, name) in zip(axes.ravel(), top):
         ax.errorbar(s.centers, s.means, yerr=s.errors, marker="o", color="tab:red", label="base model")
         a = after_by.get((s.residual, s.variable))
         if a is not None:
@@ -39,11 +51,13 @@ def signature_panels(path: Path, before: list, after: list, n: int = 6) -> None:
         ax.axhline(0.0, color="0.5", lw=0.8)
         ax.set_xlabel(s.variable)
         ax.set_ylabel(s.residual)
-        ax.set_title(f"p = {s.p_value:.1g}", fontsize=9)
+        ax.set_title(f"adjusted p = {s.p_holm:.1g}" + (f"; the signature of {name} (named)" if name else ""), fontsize=9)
     for ax in axes.ravel()[len(top):]:
         ax.axis("off")
-    axes.ravel()[0].legend(fontsize=8)
-    fig.suptitle("Residual signatures of the base model (mean residual per bin, +- 1 s.e.; p-values descriptive)")
+    if top:
+        axes.ravel()[0].legend(fontsize=8)
+    fig.suptitle(f"Residual signatures of the base model (mean residual per bin, +- 1 s.e.; p adjusted for the {len(before)}"
+                 " pairs tried and for serial correlation). The verdict rests on the candidates' tests", fontsize=10)
     fig.tight_layout()
     _save(fig, path)
 
@@ -112,10 +126,9 @@ def short(params: dict[str, Any]) -> str:
 
 
 def interval_text(intervals: dict[str, Any]) -> str:
-    """``95%: sigma_rel [0.041, 0.049], tau_s [6.9, 11.2]`` (scalars; ``lag_s [0.1, 0.3] (profile)`` for a grid
-    parameter, ``lag_s [0.1, >=0.5] (profile, open above)`` for an open one), ``SE scale [0.003, ...]`` (arrays);
-    the parameters without an interval are left out; "" when none
-    has one."""
+    """``95%: sigma_rel [0.041, 0.049], tau_s [6.9, 11.2]`` (scalars; ``lag_s [0.1, 0.3] (profile over a grid of step
+    0.1)`` for a grid parameter, ``lag_s [0.1, >=0.5] (profile, open above)`` for an open one), ``SE scale [0.003,
+    ...]`` (arrays); the parameters without an interval are left out; "" when none has one."""
     def num(v: Any) -> str:
         return "[" + ", ".join(num(x) for x in v) + "]" if isinstance(v, (list, tuple)) else f"{v:.3g}"
     parts = [_scalar_interval(k, iv, num) if np.ndim(iv["value"]) == 0 else f"{k} SE {num(iv['se'])}"
@@ -127,7 +140,9 @@ def _scalar_interval(name: str, iv: dict[str, Any], num) -> str:
     """``lag_s [0.1, 0.3] (profile)``; an open end (the profile never fell 1.92 nats below its best up to it: the
     interval reaches at least that far) as ``<=`` / ``>=`` with ``open below`` / ``open above``."""
     (lo, hi), (open_lo, open_hi) = iv["interval_95"], iv.get("open") or (False, False)
-    notes = (["profile"] if str(iv.get("method", "")).startswith("profile") else []) + \
+    how = (f"profile over a grid of step {iv['grid_step']:g}" if "grid_step" in iv
+           else "profile" if str(iv.get("method", "")).startswith("profile") else None)
+    notes = ([how] if how else []) + \
         [f"open {side}" for side, is_open in (("below", open_lo), ("above", open_hi)) if is_open]
     return (f"{name} [{'<=' if open_lo else ''}{num(lo)}, {'>=' if open_hi else ''}{num(hi)}]"
             + (f" ({', '.join(notes)})" if notes else ""))
@@ -136,9 +151,12 @@ def _scalar_interval(name: str, iv: dict[str, Any], num) -> str:
 def shift_text(shift: dict[str, Any]) -> str:
     """How far the named effects moved the base model, one phrase."""
     v, top = shift["velocities_rms"], shift["velocities_max_abs"]
-    what = "velocities" if shift["velocities_key"].endswith("velocities") else "command weights"
-    return (f"adding them moved the {what} by {v[0]:.3g}, {v[1]:.3g}, {v[2]:.3g} RMS (x, y, turn; at most {top[0]:.3g}, "
-            f"{top[1]:.3g}, {top[2]:.3g}) and the sensor "
+    if shift["velocities_key"].endswith("velocities"):
+        what, units = "velocities", (" mm/s", " mm/s", " rad/s")
+    else:  # a feature map's weights: per unit of its features
+        what, units = "command weights (forward, lateral, turn, per unit of the commands' features)", ("", "", "")
+    return (f"adding them moved the {what} by {v[0]:.3g}{units[0]}, {v[1]:.3g}{units[1]}, {v[2]:.3g}{units[2]} RMS over "
+            f"the commands (at most {top[0]:.3g}{units[0]}, {top[1]:.3g}{units[1]}, {top[2]:.3g}{units[2]}) and the sensor "
             f"curve by at most {shift['sensor_curve_max_abs']:.3g} {shift['sensor_unit']} over "
             f"{shift['sensor_distances_mm'][0]:.0f}-{shift['sensor_distances_mm'][1]:.0f} mm")
 
@@ -230,6 +248,7 @@ def html_page(path: Path, report: dict[str, Any], text: str, figures: list[Path]
     rows = "".join(
         f"<tr><td>{c['round']}</td><td>{html.escape(c['name'])}</td><td>{c['gain_train']:.1f}</td>"
         f"<td>{c['gain_heldout']:.1f}</td><td>{c['p_value']:.2g}</td><td>{'yes' if c['significant'] else ''}</td>"
+        f"<td>{'<b>named</b>' if c.get('named') else ''}</td>"
         f"<td>{'' if c['identifiable'] else 'no'}</td><td>{html.escape(c['note'])}</td></tr>"
         for c in report["candidates"])
     body = f"""<!doctype html><html><head><meta charset="utf-8"><title>aibo diagnose</title>
@@ -241,13 +260,14 @@ pre{{background:#f6f6f6;padding:1em;overflow:auto}}</style></head><body>
 sighting; lower is better): <b>{report['gap_before']:.4f}</b> before, <b>{report['gap_after']:.4f}</b> after
 {f"the named effects: {change} nats per sighting" if report["effects"] else "(nothing named: the same model)"}.</p>
 {_motion(report)}
-<p>The residual signatures below are descriptive: each p-value tests one residual against one variable, many pairs are
-tried, and a long log makes tiny drifts "significant". The verdict rests on the candidates' likelihood-ratio tests and
-held-out gains (table below).</p>
+<p>The residual signatures below show where the base model's residuals drift: sighting innovations against predicted
+quantities, motion residuals within each command. Each p-value allows for the residuals' serial correlation and is
+adjusted for every pair tried (Holm); the named effects' signatures come first. The verdict rests on the candidates'
+likelihood-ratio tests and held-out gains (table below: "named" marks the effects the diagnosed model holds).</p>
 {_calibrated(report.get("calibrated_simulation"), report.get("unexplained", []))}
 {_none_of_the_above(report.get("unexplained", []))}
 {''.join(_img(p) for p in figures if p.exists())}
 <h2>Candidates</h2><table><tr><th>round</th><th>effect</th><th>train gain (nats)</th><th>held-out gain (nats)</th>
-<th>p</th><th>significant</th><th>identifiable</th><th>note</th></tr>{rows}</table>
+<th>p</th><th>significant</th><th>named</th><th>identifiable</th><th>note</th></tr>{rows}</table>
 <h2>Full report</h2><pre>{html.escape(text)}</pre></body></html>"""
     atomic_write(path, lambda f: f.write(body.encode()))

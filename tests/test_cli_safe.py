@@ -597,9 +597,29 @@ def test_report_page_leads_with_the_verdict(tmp_path):
     html_page(tmp_path / "r.html", report, "text", [])
     page = (tmp_path / "r.html").read_text()
     verdict = page.index("Verdict: the base model misses <b>actuation_lag</b> (lag_s 0.2 (lag_s on a grid of step 0.1")
-    assert verdict < page.index("better by 0.5000 nats per sighting") < page.index("descriptive")
+    assert verdict < page.index("better by 0.5000 nats per sighting") < page.index("adjusted for every pair tried")
     html_page(tmp_path / "n.html", {**report, "effects": []}, "text", [])
     assert "Verdict: <b>no missing effect found</b>" in (tmp_path / "n.html").read_text()
+
+
+def test_report_page_states_units_the_grid_step_and_which_candidate_was_named(tmp_path):
+    """The base's shift in its units, a grid parameter's interval with the grid's step, and a "named" column."""
+    from aibo.diagnose_report import html_page
+
+    lag = {"value": 0.2, "se": None, "interval_95": [0.1, 0.3], "grid_step": 0.1, "method": "profile likelihood"}
+    shift = {"velocities_rms": [24.4, 19.7, 0.038], "velocities_max_abs": [50.0, 40.0, 0.1],
+             "velocities_key": "action_model.velocities", "sensor_curve_max_abs": 1.5, "sensor_unit": "px",
+             "sensor_distances_mm": [300.0, 3000.0]}
+    cand = {"round": 1, "gain_train": 90.0, "gain_heldout": 80.0, "p_value": 1e-39, "significant": True,
+            "identifiable": True, "note": ""}
+    report = {"effects": [{"name": "actuation_lag", "parameters": {"lag_s": 0.2}, "intervals": {"lag_s": lag}}],
+              "candidates": [dict(cand, name="actuation_lag", named=True), dict(cand, name="velocity_fade", named=False)],
+              "gap_metric": "heldout_nll_per_sighting", "gap_before": 3.0, "gap_after": 2.5, "base_change": shift}
+    html_page(tmp_path / "r.html", report, "text", [])
+    page = (tmp_path / "r.html").read_text()
+    assert "lag_s [0.1, 0.3] (profile over a grid of step 0.1)" in page
+    assert "by 24.4 mm/s, 19.7 mm/s, 0.038 rad/s RMS over the commands" in page
+    assert "<th>named</th>" in page and page.count("<b>named</b>") == 1
 
 
 @pytest.mark.parametrize("option", ["--config", "--policy-params", "--policy"])

@@ -63,9 +63,10 @@ def test_a_sloped_floor_is_reported_none_of_the_above_through_aibo_diagnose(tmp_
     # read off the smoothed path and the speed model absorbs part of it) but the downhill direction right
     assert abs(np.arctan2(c1, c0) - DOWNHILL) < 0.3 and 0.06 < np.hypot(c0, c1) < 0.2
     # the signature: the smoothed forward speed over the model's rises with the probe's factor (measured: -0.6% to
-    # +0.8% over factors -0.11 to +0.12, attenuated: one frame's smoothed displacement stays near the prediction)
+    # +0.8% over factors -0.11 to +0.12, attenuated: one frame's smoothed displacement stays near the prediction).
+    # Its p-value allows for the frames' serial correlation (``equal_means``): 0.0014 (the F-test's was below 1e-6)
     sig = u["signature"]
-    assert sig["p_value"] < 1e-6 and np.polyfit(sig["centers"], sig["means"], 1)[0] > 0.03
+    assert sig["p_value"] < 0.01 and np.polyfit(sig["centers"], sig["means"], 1)[0] > 0.03
     page = (tmp_path / "diag" / "report.html").read_text()
     assert "Verdict: <b>none of the above</b>" in page and "world heading" in page
     json.dumps(report)

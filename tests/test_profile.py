@@ -86,3 +86,34 @@ def test_on_a_simulated_fade_the_profile_interval_agrees_with_the_wald_one():
     best = max(lls.max(), _train_loglik(fit.params, [log]))
     assert lls[vs < lo].max() < best - 1.92 + 0.05 and lls[vs > hi].max() < best - 1.92 + 0.05
     assert lls[(vs >= lo) & (vs <= hi)].min() > best - 1.92 - 0.05
+
+
+def test_false_sightings_rate_gets_a_conditional_likelihood_interval_around_its_estimate():
+    """A parameter with batch state (the rate, with its responsibilities) cannot be held in a refit; its interval is
+    the conditional likelihood one on the whole log: it holds the estimate, is two-sided, and is as wide as the
+    binomial sampling error of a rate from this many sightings (known answer within a factor of 2)."""
+    from learners.discrepancy.profile import conditional_interval, conditional_parameter
+    from learners.em.estep import e_step
+    from learners.em.learner import EMLearner
+    from learners.em.options import EMOptions
+    from learners.inference.batch import make_batch
+    from learners.model.catalogue_more import FalseSightings
+    from tests._logs import sim_log
+
+    assert conditional_parameter("false_sightings") == "rate"
+    assert conditional_parameter("velocity_fade") is None  # profiled by refits instead
+    tr = sim_log(3000)
+    model = EMLearner(EMOptions(max_iter=20)).fit([tr]).params
+    batch = make_batch([tr])
+    start = model.with_effect(FalseSightings.start(batch))
+    fitted = start.effect("false_sightings").maximize(start, batch, e_step(model, batch, "compiled"), None)
+    rate = float(fitted.effect("false_sightings").rate)
+    out = conditional_interval(fitted, [tr], "false_sightings", None)
+    (lo, hi), n = out["interval_95"], int(batch.used.sum())
+    assert lo < rate < hi and out["open"] == [lo == 0.0, False]
+    binomial = 2 * Z95 * np.sqrt(max(rate, 5 / n) * (1 - rate) / n)
+    assert 0.5 * binomial < hi - lo < 2 * binomial + rate, (lo, rate, hi, binomial)
+    entry = [{"name": "false_sightings", "intervals": {"rate": {"value": rate, "se": None, "interval_95": None}}}]
+    assert profile_where_wald_fails(entry, fitted, [tr], EMOptions()) == ["false_sightings"]
+    assert entry[0]["intervals"]["rate"]["interval_95"] == out["interval_95"]
+    assert entry[0]["intervals"]["rate"]["method"].startswith("conditional likelihood")

@@ -180,13 +180,16 @@ def test_a_grid_parameter_gets_the_profile_likelihood_interval():
     from learners.model.model import Model
 
     grid = [0.0, 0.1, 0.2, 0.3, 0.4, 0.5]
-    # within 1.92 nats of the best (0.2): 0.1 (-1.9) and 0.3 (-0.5); 0.4 (-2.0) just outside; the walk stopped there
+    # within 1.92 nats of the best (0.2): 0.1 (-1.9) and 0.3 (-0.5); 0.4 (-2.0) just outside; the walk stopped there.
+    # The interval's ends lie between 0.0 and 0.1 and between 0.3 and 0.4: widened to those grid values
     lls = [-30.0, -1.9, 0.0, -0.5, -2.0]
-    assert profile_interval(grid, lls) == [0.1, 0.3]
-    assert profile_interval(grid, [0.0, -25.0]) == [0.0, 0.0]  # a sharp profile: the grid point itself
+    assert profile_interval(grid, lls) == [0.0, 0.4]
+    assert profile_interval(grid, [-25.0, 0.0, -25.0]) == [0.0, 0.2]  # a sharp profile: not [0.1, 0.1]
+    assert profile_interval(grid, [0.0, -25.0]) == [0.0, 0.1]  # at the grid's end: the end itself
     model = Model(action=None, sensor=None, init=(), effects=(ActuationLag(0.2),))
     iv = effect_intervals(model, "actuation_lag", {}, {"lag_s": [grid[:5], lls]})["lag_s"]
-    assert iv["interval_95"] == [0.1, 0.3] and iv["se"] is None and iv["method"].startswith("profile")
+    assert iv["interval_95"] == [0.0, 0.4] and iv["se"] is None and iv["method"].startswith("profile")
+    assert iv["grid_step"] == 0.1 and "step 0.1" in iv["method"]
     assert effect_intervals(model, "actuation_lag", {})["lag_s"]["interval_95"] is None  # no profile: no interval
 
 
@@ -223,3 +226,17 @@ def test_a_grid_profile_stops_past_its_peak_and_walks_a_flat_one_whole():
     # within PAST_PEAK_NATS of the best it goes on: a flat or noisy profile is walked whole
     flat = [0.0, 0.5, -0.3, 0.2, PAST_PEAK_NATS / 2, 0.0]
     assert walk_profile(grid, lambda g: flat[grid.index(g)]) == flat
+
+
+def test_a_final_estimate_outside_its_interval_from_the_value_when_named_is_said():
+    """A rate named at 0.072 on the training half whose final fit says 0.0124 +- 0.004: the report warns (the two
+    fits disagree) and states the final value; within the interval, nothing is said."""
+    from learners.discrepancy.effect_sizes import moved_since_named
+
+    iv = {"rate": {"value": 0.0124, "se": 0.002, "interval_95": [0.0085, 0.0163], "method": "wald"}}
+    why = moved_since_named("false_sightings", iv, {"rate": 0.072})
+    assert why.startswith("false_sightings:") and "rate 0.072 when named, 0.0124 in the final fit" in why
+    assert moved_since_named("false_sightings", iv, {"rate": 0.013}) == ""
+    arr = {"scale": {"value": [1.0, 1.1], "se": [0.01, 0.01], "interval_95": [[0.98, 1.08], [1.02, 1.12]]}}
+    assert moved_since_named("beacon_height_scale", arr, {"scale": [1.0, 1.2]}) != ""  # one element outside
+    assert moved_since_named("x", {"a": {"value": 1.0, "interval_95": None}}, {"a": 5.0}) == ""  # no interval

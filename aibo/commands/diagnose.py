@@ -17,7 +17,7 @@ from aibo_core import trajectory
 from aibo_core.atomic import atomic_folder, write_json
 from aibo_core.compat import check_compatible
 from learners.arrays.batch import make_batch
-from learners.discrepancy.effect_sizes import base_shift, effect_intervals, holds_off
+from learners.discrepancy.effect_sizes import base_shift, effect_intervals, holds_off, moved_since_named
 from learners.discrepancy.profile import profile_where_wald_fails
 from learners.discrepancy.score import GAP_METRIC, MOTION_GAP_METRIC, WHITENESS_METRIC, motion_score, motion_trade, score
 from learners.discrepancy.search import SEARCH_PATIENCE, search
@@ -110,10 +110,11 @@ def run(args) -> int:
         "commands alone; in brackets its excess over the one-step gap, the motion's share): "
         + "; ".join(f"{k} s {motion['motion_gap_before'][k]:.4f} -> {v:.4f} ({motion['motion_excess_before'][k]:.4f} "
                     f"-> {motion['motion_excess_after'][k]:.4f})" for k, v in motion["motion_gap_after"].items()))
-    say("where the base model's residuals drift (strongest signatures; descriptive: many pairs are tried and "
-        "long logs make tiny drifts 'significant', the verdict rests on the candidates' tests above):")
-    for s in sig_before[:6]:
-        say(f"  {s.residual:24s} vs {s.variable:32s} p = {s.p_value:.1g}")
+    say(f"the base model's residual signatures (the named effects' first, then the strongest; p adjusted for the "
+        f"{len(sig_before)} pairs tried; the verdict rests on the candidates' tests above):")
+    for s, whose in fig.lead_signatures(sig_before, named_signatures(report)):
+        say(f"  {s.residual:24s} vs {s.variable:40s} adjusted p = {s.p_holm:.1g}"
+            + (f" (the signature of {whose})" if whose else ""))
     t1 = time.perf_counter()
     report["calibrated_simulation"] = calibrated(found, logs, args, say)
     seconds["calibrated check"] = time.perf_counter() - t1
@@ -130,6 +131,8 @@ def run(args) -> int:
     report["warnings"] = list(final.info.get("warnings", []))  # e.g. a fit that may be a wrong world: said loudly
     report["warnings"] += [f"{e.name}: {e.implausible()}" for e in final.params.effects if e.implausible()]
     report["warnings"] += off_held(report["effects"], logs)
+    report["warnings"] += [w for e in report["effects"]
+                           if (w := moved_since_named(e["name"], e["intervals"], e["parameters_when_named"]))]
     report["warnings"] += motion_warning(report)
     for w in report["warnings"]:
         print(f"aibo: warning: the diagnosed model: {w}", file=sys.stderr)
@@ -151,7 +154,7 @@ def write_outputs(out: Path, final, report: dict, lines: list[str], sig_before, 
     or failed run leaves the earlier diagnosis as it was, never a mix. The names written."""
     with atomic_folder(out) as tmp:
         save_result(final, tmp / "model.json")
-        fig.signature_panels(tmp / FIGURES[0], sig_before, sig_after)
+        fig.signature_panels(tmp / FIGURES[0], sig_before, sig_after, named_signatures(report))
         fig.gap_bars(tmp / FIGURES[1], before.as_dict(), after.as_dict())
         cal = report["calibrated_simulation"]
         if "before" in cal and cal["before"]["disagree_z"] is not None:  # None: too few replicas ran to compare
@@ -160,6 +163,11 @@ def write_outputs(out: Path, final, report: dict, lines: list[str], sig_before, 
         fig.html_page(tmp / "report.html", report, "\n".join(lines), [tmp / f for f in FIGURES])
         written = [f for f in ("report.html", "report.json", "model.json", *FIGURES) if (tmp / f).exists()]
     return written
+
+
+def named_signatures(report: dict) -> dict[str, str]:
+    """Each named effect's residual signature (``EffectModel.SIGNATURE``; "" for an effect without one)."""
+    return {e["name"]: EFFECT_MODELS[e["name"]].SIGNATURE for e in report["effects"] if e["name"] in EFFECT_MODELS}
 
 
 def calibrated(found: dict, logs: list, args, say) -> dict:
@@ -299,7 +307,9 @@ def _report(found: dict, final, final_info: dict, before, after, sig_before) -> 
     effects = [{"name": c.name, "parameters": _values(final.effect(c.name)),
                 "intervals": effect_intervals(final, c.name, se, c.profile),
                 "parameters_when_named": c.as_dict()["parameters"]} for c in found["named"]]
-    tried = [dict(c.as_dict(), round=k + 1) for k, rnd in enumerate(found["rounds"]) for c in rnd]
+    # "named": this try is the one that named the effect, and the diagnosed model holds it (not pruned)
+    tried = [dict(c.as_dict(), round=k + 1, named=any(c is n for n in found["named"]))
+             for k, rnd in enumerate(found["rounds"]) for c in rnd]
     return {
         "effect": effects[0]["name"] if effects else "none",
         "effects": effects,

@@ -8,8 +8,9 @@ for a parameter near a bound (a rate near 0, a correlation time near its cap) it
 to the parameter's domain (``clipped``: true); ``aibo diagnose`` then replaces it by the profile-likelihood interval
 on the whole logs where the effect has one scalar parameter (``profile``). A parameter profiled over a grid
 (``EffectModel.GRID``, a lag) has no standard error; its interval is the profile-likelihood one, from the search's
-profile on the training half: the grid values within chi-square(1, 0.95) / 2 = 1.92 nats of the best
-(``profile_interval``), good to the grid's step and wider than the whole log's would be (half the sightings)."""
+profile on the training half: the grid values within chi-square(1, 0.95) / 2 = 1.92 nats of the best, widened to
+the neighbouring grid values (``profile_interval``; ``grid_step`` in the entry), so it holds the true profile interval
+to the grid's step, and is wider than the whole log's would be (half the sightings)."""
 
 from __future__ import annotations
 
@@ -25,11 +26,20 @@ CHI2_1_95 = 3.841458820694124  # 95% quantile of chi-square with 1 degree of fre
 
 
 def profile_interval(grid: list[float], lls: list[float]) -> list[float]:
-    """[lowest, highest] grid value whose profile log-likelihood ``lls`` (nats, over ``grid`` in order) is within
-    ``CHI2_1_95 / 2`` of the best: the 95% profile-likelihood interval, good to the grid's step."""
+    """The 95% profile-likelihood interval of a grid parameter, to the grid's step: from ``lls`` (nats, the profile
+    over ``grid`` in order, possibly stopped early), the grid values within ``CHI2_1_95 / 2`` of the best, widened on
+    each side to the neighbouring grid value (the first outside, or the grid's end): the interval's true ends lie
+    between a value inside and that one, so the widened interval holds it (a sharp profile at 0.2 on a grid of step
+    0.1 is [0.1, 0.3], not [0.2, 0.2])."""
     ll = np.asarray(lls, dtype=float)
-    inside = np.asarray(grid, dtype=float)[:len(ll)][ll >= ll.max() - CHI2_1_95 / 2.0]
-    return [float(inside.min()), float(inside.max())]
+    g = np.asarray(grid, dtype=float)
+    inside = np.flatnonzero(ll >= ll.max() - CHI2_1_95 / 2.0)
+    return [float(g[max(inside.min() - 1, 0)]), float(g[min(inside.max() + 1, len(g) - 1)])]
+
+
+def grid_step(grid: list[float]) -> float:
+    """The step of a parameter's grid (the smallest spacing, to 12 decimals: 0.1, not 0.09999999999999998)."""
+    return float(np.round(np.min(np.diff(np.asarray(grid, dtype=float))), 12))
 
 
 def effect_intervals(model: Model, name: str, standard_errors: dict[str, Any],
@@ -42,8 +52,10 @@ def effect_intervals(model: Model, name: str, standard_errors: dict[str, Any],
     for pname, value in effect.values().items():
         v = np.asarray(value, dtype=float)
         if profiles and pname in profiles:
+            step = grid_step(effect.GRID[pname]) if pname in effect.GRID else grid_step(profiles[pname][0])
             out[pname] = {"value": v.tolist(), "se": None, "interval_95": profile_interval(*profiles[pname]),
-                          "method": "profile likelihood over the grid, training half"}
+                          "grid_step": step, "method": f"profile likelihood over a grid of step {step:g}, training "
+                          "half, widened to the neighbouring grid values"}
             continue
         se = standard_errors.get(f"effects.{name}.{pname}")
         if se is None or np.any(np.asarray(se, dtype=object) == None):  # noqa: E711 (None entries: undetermined)
@@ -77,6 +89,26 @@ def holds_off(name: str, intervals: dict[str, dict[str, Any]], off: dict[str, An
         return ""
     return (f"{name}: the final fit's 95% intervals hold the value that switches it off ({'; '.join(held)}): "
             "named on the training half, it is not distinguishable from none on the whole log(s)")
+
+
+def moved_since_named(name: str, intervals: dict[str, dict[str, Any]], when_named: dict[str, Any]) -> str:
+    """Why the final estimate of named effect ``name`` should be read with care ("" when it need not): a parameter's
+    value when it was named (the candidate's fit on the training half, ``when_named``) lies outside the final fit's
+    95% interval (``effect_intervals``; whole logs, every kept effect): the two fits disagree by more than sampling
+    error, and the reported value is the final fit's (``model.json``'s)."""
+    moved = []
+    for pname, iv in intervals.items():
+        if iv["interval_95"] is None or pname not in when_named:
+            continue
+        lo, hi = (np.asarray(b, dtype=float) for b in iv["interval_95"])
+        before = np.broadcast_to(np.asarray(when_named[pname], dtype=float), lo.shape)
+        if np.any((before < lo) | (before > hi)):
+            moved.append(f"{pname} {_fmt(when_named[pname])} when named, {_fmt(iv['value'])} in the final fit "
+                         f"(95% [{_fmt(iv['interval_95'][0])}, {_fmt(iv['interval_95'][1])}])")
+    if not moved:
+        return ""
+    return (f"{name}: the final fit on the whole log(s) moved it outside its interval from the value it was named at "
+            f"({'; '.join(moved)}): the training-half and whole-log fits disagree; the value reported is the final fit's")
 
 
 def _fmt(v: Any) -> str:

@@ -15,6 +15,12 @@ the E-step's on the logs' sightings (``search._train_loglik``), the same for eve
 Only effects with exactly one scalar parameter and no per-batch state qualify (``profiled_parameter``): freezing is
 per effect (``EMOptions.frozen``), so holding one of several parameters would need per-parameter freezing. Grid
 parameters (a lag) have their grid profile already.
+
+An effect with one scalar parameter AND per-batch state (``false_sightings``' rate and its responsibilities: held, the
+state would go stale) gets the conditional likelihood interval instead (``conditional_interval``): the values v whose
+log-likelihood on the whole logs, everything else (its state included) held at the diagnosed model's values, is
+within 1.92 nats of the best. It is one E-step per point, and narrower than the profile one would be by what the
+other parameters could absorb (said in the entry's ``method``).
 """
 
 from __future__ import annotations
@@ -44,6 +50,16 @@ def profiled_parameter(name: str) -> str | None:
     ``false_sightings``' responsibilities): its own M-step recomputes that state, and held, it would go stale."""
     cls = EFFECT_MODELS[name]
     if len(cls.PARAMS) != 1 or cls.GRID or any(not f.compare for f in dataclasses.fields(cls)):
+        return None
+    (pname, param), = cls.PARAMS.items()
+    return pname if param.shape == () else None
+
+
+def conditional_parameter(name: str) -> str | None:
+    """The one scalar, non-grid parameter of effect ``name`` that carries per-batch state besides it (so that
+    ``profiled_parameter`` refuses it) and gets the conditional likelihood interval (module docstring), or None."""
+    cls = EFFECT_MODELS[name]
+    if profiled_parameter(name) is not None or len(cls.PARAMS) != 1 or cls.GRID:
         return None
     (pname, param), = cls.PARAMS.items()
     return pname if param.shape == () else None
@@ -139,18 +155,48 @@ def profile_interval(final: Model, logs: list[Trajectory], name: str, se: float 
             "points": [[float(v), float(ll)] for v, ll in sorted(points)], "note": "; ".join(notes)}
 
 
+def conditional_interval(final: Model, logs: list[Trajectory], name: str, se: float | None) -> dict:
+    """The 95% conditional likelihood interval of effect ``name``'s one scalar parameter (``conditional_parameter``) in
+    the diagnosed model ``final`` on ``logs``: everything else held at ``final``'s values, the log-likelihood (the
+    E-step's, mixtures included) walked and bisected as ``profile_bounds`` does. Same keys as ``profile_interval``."""
+    from learners.discrepancy.search import _train_loglik, _with
+
+    pname = conditional_parameter(name)
+    if pname is None:
+        raise ValueError(f"{name}: no single scalar parameter with batch state")
+    param = EFFECT_MODELS[name].PARAMS[pname]
+    effect = final.effect(name)
+    value = float(np.asarray(effect.values()[pname]))
+    scale = float(np.max(np.atleast_1d(param.scale)))
+    step = se if se is not None and math.isfinite(se) and se > 0 else 0.1 * max(abs(value), scale)
+
+    def loglik(v: float) -> float:
+        try:
+            return _train_loglik(final.with_effect(_with(effect, {pname: v})), logs)
+        except (FloatingPointError, np.linalg.LinAlgError, ValueError):  # beyond the interval
+            return -math.inf
+
+    ends, open_ends, points, _ = profile_bounds(loglik, value, _train_loglik(final, logs), step, param.low, param.high)
+    notes = [f"the likelihood stays within {HALF_CHI2_1_95:.2f} nats of its best up to "
+             f"{'the domain bound ' if e in (param.low, param.high) else ''}{e:.3g}" for e, o in zip(ends, open_ends) if o]
+    return {"interval_95": ends, "open": open_ends,
+            "method": "conditional likelihood, whole logs (the other parameters held at the final fit's values)",
+            "points": [[float(v), float(ll)] for v, ll in sorted(points)], "note": "; ".join(notes)}
+
+
 def profile_where_wald_fails(effects: list[dict], final: Model, logs: list[Trajectory], opts: EMOptions) -> list[str]:
     """For each named effect of ``report.json["effects"]`` (each with its ``intervals``) whose one scalar parameter's
     Wald interval is clipped at its domain or missing (``wants_profile``): its interval replaced, in place, by the
-    profile-likelihood one (the Wald one kept as ``wald_interval_95``; ``profile``: the points, ``note``). Returns
-    the names profiled."""
+    profile-likelihood one (for a parameter with batch state the conditional likelihood one, ``conditional_interval``;
+    the Wald one kept as ``wald_interval_95``; ``profile``: the points, ``note``). Returns the names profiled."""
     done = []
     for e in effects:
-        pname = profiled_parameter(e["name"])
+        pname = profiled_parameter(e["name"]) or conditional_parameter(e["name"])
         if pname is None or not wants_profile(e["intervals"][pname]):
             continue
         entry = e["intervals"][pname]
-        p = profile_interval(final, logs, e["name"], entry["se"], opts)
+        p = (profile_interval(final, logs, e["name"], entry["se"], opts) if profiled_parameter(e["name"])
+             else conditional_interval(final, logs, e["name"], entry["se"]))
         entry.update(wald_interval_95=entry["interval_95"], interval_95=p["interval_95"], open=p["open"],
                      method=p["method"], profile=p["points"], note=p["note"])
         done.append(e["name"])

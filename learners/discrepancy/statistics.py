@@ -76,8 +76,8 @@ _VARIABLE_READING = {
     "world heading": "change with the robot's heading in the world (a floor, a slope or a wall that favours a "
                      "direction)",
     "elapsed time": "drift over the log",
+    "position in the image": "change across the image",  # before "position": the first key a variable starts with
     "position": "change across the field",
-    "position in the image": "change across the image",
     "turn rate": "change with the turn rate (timing: a sensor's time offset or the motion's lag)",
 }
 

@@ -1,0 +1,66 @@
+"""The calibrated check can see each effect of the catalogue (registry-driven: a new effect gets the test for free).
+
+For every learner effect (``EFFECT_MODELS``) at its ``EXAMPLE`` strength in the simulator twin of the same name: on a
+blind 5-minute log, the check of the model fitted WITHOUT it (``experiments.calibrated.predictive_check``) has at least
+one statistic that disagrees with the log, and at least one of those no longer disagrees once the effect is fitted
+too. The effects the check cannot see by construction are listed with why (``UNSEEN``); those it does not see yet at
+that strength are expected failures with what was measured (``NOT_YET``).
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from aibo_core import trajectory
+from aibo_gym.collect import collect
+from experiments.calibrated import predictive_check
+from learners.discrepancy.search import held
+from learners.em.learner import EMLearner
+from learners.em.options import EMOptions
+from learners.inference.batch import make_batch
+from learners.model.effects import EFFECT_MODELS
+
+#: effect -> why the check cannot see it (not a statistic's failure)
+UNSEEN = {
+    "angle_bias": "not identifiable: a heading offset and rotated velocities explain it exactly (AngleBias.equivalent)",
+    "wall_contact": "its statistics (distance to the walls) are left out of the open-loop replay (calibrated.EXCLUDED)",
+}
+
+
+#: effect -> what was measured where the check does not yet see it at the EXAMPLE strength (5-minute logs, 8 replicas;
+#: a strict xfail: the day a statistic sees it, the test says so)
+NOT_YET = {
+    "floor_drift": "5 mm/s: no statistic disagrees (nor with 20 replicas); the search names it from 6 mm/s on 10-min logs",
+    "velocity_fade": "0.02/min: no statistic disagrees; the smoothed forward residual vs elapsed time is attenuated",
+    "landmark_bias": "sigma_rel 0.03, tau 10 s: no statistic disagrees (innovation whiteness is within the replicas')",
+}
+
+
+def _separating(name: str, seed: int = 4, replicas: int = 8) -> tuple[list[str], list[str]]:
+    """(the statistics that disagree without effect ``name``, those that still disagree with it fitted)."""
+    cls = EFFECT_MODELS[name]
+    params = {k: (v.tolist() if hasattr(v, "tolist") else v) for k, v in cls.EXAMPLE.items()}
+    log = trajectory.blind(collect({"noise": "aibo", "effects": {name: params}}, 9000, seed=seed))
+    opts = EMOptions(starts=1, uncertainty=False)
+    base = EMLearner(opts, check_field=False).fit([log]).params
+    before = predictive_check(base, [log], replicas=replicas, seed=0, jobs=2).disagreements()
+    effect = cls.start(make_batch([log]))
+    if cls.GRID:  # profiled over a grid, not fitted by EM: added at the simulated value, the rest refitted
+        effect, opts = effect.with_values(**cls.EXAMPLE), held(opts, name)
+    fitted = EMLearner(opts, check_field=False).fit([log], init=base.with_effect(effect)).params
+    after = predictive_check(fitted, [log], replicas=replicas, seed=0, jobs=2).disagreements()
+    return [n for n, _ in before], [n for n, _ in after]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.xfail(reason=NOT_YET[n], strict=True))
+                                  if n in NOT_YET else n for n in sorted(set(EFFECT_MODELS) - set(UNSEEN))])
+def test_the_calibrated_check_sees_each_effect_and_stops_once_it_is_fitted(name):
+    before, after = _separating(name)
+    assert before, f"{name}: no statistic of the check separates the model without it from the log"
+    assert set(before) - set(after), f"{name}: every statistic that disagreed still does with it fitted: {after}"
+
+
+def test_every_unseen_effect_is_in_the_catalogue():
+    """The exemptions name real effects (a renamed effect would otherwise escape the test silently)."""
+    assert set(UNSEEN) <= set(EFFECT_MODELS) and set(NOT_YET) <= set(EFFECT_MODELS) - set(UNSEEN)
