@@ -234,7 +234,8 @@ def _motion(report: dict[str, Any]) -> str:
     return (f"<p>Motion gap ({html.escape(report['motion_gap_metric'])}): each held-out sighting predicted from the "
             "filtered pose k seconds before it and the commands alone, in nats per sighting; lower is better. The "
             "one-step gap above is mostly the sensor model; the excess (motion gap less the one-step gap of the same "
-            "sightings) is what the model loses when its motion has to carry the pose for k seconds.</p>"
+            "sightings) is what the model loses when its motion has to carry the pose for k seconds (descriptive: it also grows "
+            "when the sensor model gets sharper).</p>"
             "<table><tr><th>horizon</th><th>gap before</th><th>gap after</th><th>change (&plusmn; s.e., 30 s blocks)</th>"
             "<th>excess before</th><th>excess after</th><th>change</th>"
             f"<th>sightings</th></tr>{rows}</table>")

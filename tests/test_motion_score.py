@@ -129,13 +129,14 @@ def test_on_a_real_robot_the_learned_motion_predicts_better_than_the_commands_at
 def test_the_diagnosis_warns_of_a_trade_only_when_the_motion_gets_worse_beyond_its_noise():
     from aibo.commands.diagnose import motion_warning
 
-    def report(z, excess_z, effects=({"name": "landmark_bias"},)):
-        change = {"change": 0.1, "se": 0.1 / z, "z": z, "excess_change": 0.2, "excess_se": 0.2 / excess_z,
+    def report(z, excess_z=0.0, effects=({"name": "landmark_bias"},)):
+        change = {"change": 0.1, "se": 0.1 / z, "z": z, "excess_change": 0.2, "excess_se": 0.2 / (excess_z or 1.0),
                   "excess_z": excess_z, "n": 100}
         return {"effects": list(effects), "gap_before": 3.2, "gap_after": 2.1, "motion_gap_change": {"5": change}}
 
-    assert motion_warning(report(1.0, 1.5)) == []
-    assert motion_warning(report(3.0, 3.0, effects=())) == []
-    (w,) = motion_warning(report(1.0, 2.5))
-    assert "landmark_bias" in w and "-1.100" in w and "5 s" in w and "excess +0.200" in w
-    assert len(motion_warning(report(float("nan"), 2.5))) == 1
+    assert motion_warning(report(1.0)) == []
+    assert motion_warning(report(1.0, excess_z=5.0)) == []  # the excess alone does not decide
+    assert motion_warning(report(3.0, effects=())) == []
+    (w,) = motion_warning(report(2.5))
+    assert "landmark_bias" in w and "-1.100" in w and "5 s +0.100 +- 0.040" in w
+    assert motion_warning(report(float("nan"))) == []

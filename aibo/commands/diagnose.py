@@ -107,7 +107,7 @@ def run(args) -> int:
     say(f"gap ({GAP_METRIC}): {before.gap:.4f} before, {after.gap:.4f} after; mean NIS {before.nis_mean:.2f} -> "
         f"{after.nis_mean:.2f} (2 expected)")
     say(f"motion gap ({MOTION_GAP_METRIC}, each held-out sighting predicted from the pose k s earlier and the "
-        "commands alone; in brackets its excess over the one-step gap, the motion's share): "
+        "commands alone; in brackets its excess over the one-step gap): "
         + "; ".join(f"{k} s {motion['motion_gap_before'][k]:.4f} -> {v:.4f} ({motion['motion_excess_before'][k]:.4f} "
                     f"-> {motion['motion_excess_after'][k]:.4f})" for k, v in motion["motion_gap_after"].items()))
     say(f"the base model's residual signatures (the named effects' first, then the strongest; p adjusted for the "
@@ -216,22 +216,22 @@ def motion_gaps(base, model, logs: list) -> dict:
 
 
 def motion_warning(report: dict) -> list[str]:
-    """A warning when the named effects make the motion worse beyond its noise at some horizon: the open-loop
-    gap, or its excess over the one-step gap (the motion's share: ``MotionScore.excess``), up by z >
-    MOTION_WORSE_Z. It names the trade: the model predicts the next sighting better and the robot's motion
-    over seconds worse."""
+    """A warning when the named effects make the held-out sightings predicted open loop worse beyond their noise at
+    some horizon (the motion gap's paired change, z > MOTION_WORSE_Z): the model predicts the next sighting better and
+    the robot's motion over seconds worse, a trade the user should see. Only the motion gap decides: its excess over
+    the one-step gap grows with a tighter sensor model too (a pose error costs more nats where the sensor is sharper),
+    and on the MRCLAM half-log fits it grew with the bias states where the diagnosed model's forward speed was better
+    against Vicon (docs/results.md, "Models on runs they were not fitted to")."""
     worse = {k: c for k, c in report.get("motion_gap_change", {}).items()
-             if max(np.nan_to_num(c["z"], nan=-np.inf), np.nan_to_num(c["excess_z"], nan=-np.inf)) > MOTION_WORSE_Z}
+             if np.isfinite(c["z"]) and c["z"] > MOTION_WORSE_Z}
     if not report["effects"] or not worse:
         return []
     names = ", ".join(e["name"] for e in report["effects"])
-    at = "; ".join(f"{k} s: gap {c['change']:+.3f} +- {c['se']:.3f}, excess {c['excess_change']:+.3f} +- "
-                   f"{c['excess_se']:.3f}" for k, c in worse.items())
+    at = "; ".join(f"{k} s {c['change']:+.3f} +- {c['se']:.3f}" for k, c in worse.items())
     return [f"the named effects ({names}) trade motion for sensing: the one-step gap changes by "
-            f"{report['gap_after'] - report['gap_before']:+.3f} nats per sighting, while the motion predicted open loop "
-            f"gets worse (nats per sighting, +- s.e.; {at}); for driving a simulator over seconds, the base model "
-            "(aibo learn's) may be the better motion model"]
-
+            f"{report['gap_after'] - report['gap_before']:+.3f} nats per sighting, while the held-out sightings "
+            f"predicted open loop get worse ({at} nats per sighting, +- s.e.); for driving a simulator over seconds, "
+            "the base model (aibo learn's) may be the better motion model"]
 
 def off_held(effects: list[dict], logs: list) -> list[str]:
     """A warning per named effect whose every 95% interval holds the value that switches it off

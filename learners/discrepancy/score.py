@@ -92,8 +92,8 @@ class MotionScore:
 
     def excess(self) -> dict[str, float]:
         """Per horizon key: the motion gap less the one-step gap of the same sightings (nats per sighting): what
-        the model loses when its motion, not the last sighting, has to carry the pose for that long. The sensor
-        model's share of both cancels to first order, so a tighter sensor model does not hide a worse motion."""
+        the model loses when its motion, not the last sighting, has to carry the pose for that long. Descriptive: a
+        tighter sensor model makes the same pose error cost more nats, so the excess grows with it too."""
         return {k: float(np.nanmean(self.one_step - v)) if np.isfinite(v).any() else float("nan")
                 for k, v in self.logdens.items()}
 
