@@ -122,6 +122,25 @@ def test_environment_snippets_run(doc, capsys):
     assert capsys.readouterr().out.count("\n") >= len(blocks)
 
 
+def test_model_vocabulary_snippet_runs(tmp_path, monkeypatch, capsys):
+    """architecture.md's "from Python" snippet on a 2-minute simulated log (and an oracle model file as
+    ``model.json``): it runs and prints the velocity, the mean size and the standard deviations it names."""
+    from aibo_core import trajectory
+    from aibo_gym.collect import collect
+    from learners.model import io
+    from learners.oracle import OracleLearner
+
+    monkeypatch.chdir(tmp_path)
+    tr = collect({"noise": "aibo"}, 3600, 3)
+    trajectory.save(tr, "log.npz")
+    io.save_result(OracleLearner().fit([tr]), "model.json")
+    blocks = [b for b in FENCE.findall((ROOT / "docs" / "architecture.md").read_text()) if "load_model" in b]
+    assert len(blocks) == 1 and blocks[0].rstrip().splitlines()[-1].startswith("print(")
+    exec(compile(blocks[0], "architecture.md", "exec"), {})
+    out = capsys.readouterr().out
+    assert out.count("[") >= 3, out
+
+
 @pytest.mark.slow
 def test_reproduce_still_gives_the_recorded_numbers(tmp_path, numbers):
     """``aibo reproduce`` now against numbers.json (the same machine gives the same table; another CPU differs in
