@@ -107,8 +107,10 @@ def test_headline_numbers_in_results(numbers):
     n = numbers["reproduce"]["numbers"]
     text = (ROOT / "docs" / "results.md").read_text()
     ratios = f"{n['vx_error_over_bound']:.2f} / {n['vy_error_over_bound']:.2f} / {n['vtheta_error_over_bound']:.2f}"
-    assert ratios in text
-    assert f"{n['iterations']} iterations" in text
+    bounds = f"{n['vx_bound_pct']:.2f}% / {n['vy_bound_pct']:.2f}% / {n['vtheta_bound_pct']:.2f}%"
+    over_oracle = f"{n['vx_bound_over_oracle']:.1f}x / {n['vy_bound_over_oracle']:.1f}x / {n['vtheta_bound_over_oracle']:.1f}x"
+    for quoted in (ratios, bounds, over_oracle, f"{n['iterations']} iterations"):
+        assert quoted in text, quoted
 
 
 @pytest.mark.parametrize("doc", ["environments.md"])
