@@ -128,8 +128,12 @@ def test_em_recovers_offsets_of_medium_strength_within_their_standard_errors():
 def test_diagnose_names_landmark_bearing_offsets(tmp_path):
     report = diagnose(tmp_path, collect({"noise": "aibo", "effects": {
         "landmark_bearing_offset": {"offset_rad": TRUE_OFFSET.tolist()}}}, 18000, seed=11), CANDIDATES)
+    """Measured (seed 11, 10 minutes): training gain 23.4 nats, held-out 32.2, p = 4e-10; the whole log's offsets
+    (11.8, -10.7, 10.7, -11.8) mrad, standard errors 2.3-2.6 mrad."""
     assert [e["name"] for e in report["effects"]] == ["landmark_bearing_offset"], report["effects"]
-    np.testing.assert_allclose(report["parameters"]["offset_rad"], TRUE_OFFSET, atol=0.003)
+    est = np.array(report["parameters"]["offset_rad"])
+    se = np.array(report["effects"][0]["intervals"]["offset_rad"]["se"], dtype=float)
+    assert np.all(se < 0.005) and np.all(np.abs(est - TRUE_OFFSET) < 3 * se), (est, se)
 
 
 @pytest.mark.slow
