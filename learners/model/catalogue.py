@@ -11,7 +11,7 @@ velocity_fade              factor (1 - fade t) on every displacement    closed f
 actuation_lag              the commands delayed by ceil(lag / dt)       profile likelihood over ``GRID``
 angle_bias                 offset of every predicted bearing            mean wrapped bearing residual
 landmark_bearing_offset    offset of the bearing, one per landmark,     mean wrapped bearing residual per
-                           summing to 0                                 landmark, less their mean
+                           summing to 0                                 landmark, given the sum (weighted)
 off_center_shrink          size x (1 - k phi^2), phi = bearing - pan    closed form given the curve
 distance_dependent_noise   size variance x (d / 2500 mm)^(2 exponent)   1-d maximization over the exponent
 =========================  ===========================================  ======================================
@@ -248,10 +248,12 @@ class LandmarkBearingOffset(EffectModel):
 
     def maximize(self, model: "Model", batch: Batch, post: Posterior, mu_star: np.ndarray) -> "Model":
         """Closed form at the smoothed means: per landmark b, the mean wrapped bearing residual r[b] without this
-        effect (weights 1 / bearing_var_factor), then its plain mean over the sighted landmarks removed (the
-        sum-0 projection: the common part is the heading's; the weighted projection would load it onto the
-        rarely sighted landmarks). A landmark never sighted keeps its offset (its start, 0), and the sighted
-        ones keep the sum they had, so the group stays at sum 0."""
+        effect over its W[b] (the sum of the weights 1 / bearing_var_factor of its sightings), then the sum-0
+        constraint: offset[b] = r[b] - lam / W[b], lam = (sum r - sum of the old offsets) / sum 1 / W, the maximum of
+        sum_b W[b] (offset[b] - r[b])^2 given the sum (ECM: the exact conditional maximum, so EM's fixed point is a
+        stationary point of the likelihood). A common part of the residuals is left to the heading when it can take it
+        up (then lam is 0). A landmark never sighted keeps its offset (its start, 0), and the sighted ones keep the
+        sum they had, so the group stays at sum 0."""
         lo = model.lower(batch)
         idx, _, bearing = _sight_geometry(model, batch, post)
         lm = batch.sight_landmark[idx]
@@ -262,9 +264,11 @@ class LandmarkBearingOffset(EffectModel):
         seen = den > 0
         if not seen.any():
             return model
-        mean = np.bincount(lm, weights=w * r, minlength=B)[seen] / den[seen]
+        W = den[seen]
+        mean = np.bincount(lm, weights=w * r, minlength=B)[seen] / W
         offset = np.array(self.offset_rad, dtype=float)
-        offset[seen] = mean - np.mean(mean) + np.mean(offset[seen])
+        lam = (np.sum(mean) - np.sum(offset[seen])) / np.sum(1.0 / W)
+        offset[seen] = mean - lam / W
         return model.with_effect(LandmarkBearingOffset(offset))
 
 
