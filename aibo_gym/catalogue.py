@@ -13,6 +13,7 @@ velocity_fade              fade_per_min (fraction of speed lost per minute)  ela
 wall_contact               (none)                                            distance to the walls
 angle_bias                 bias_rad (rad)                                    none: a constant bearing offset
 beacon_height_scale        scale (one factor per beacon)                     beacon identity
+landmark_bearing_offset    offset_rad (rad, one per beacon)                  beacon identity (the bearings)
 off_center_shrink          k (height x (1 - k phi^2), phi rad in the image)  position in the image
 distance_dependent_noise   exponent (sigma ~ (d / 2500 mm)^exponent)         distance (the height variance)
 false_sightings            rate (fraction of sightings, <= 0.5)              none: outliers anywhere in the image
@@ -185,6 +186,28 @@ class BeaconHeightScale(Effect):
             if f != 1.0 and not s.spurious:
                 s.height = s.height + (f - 1.0) * s.true_height
                 s.true_height = f * s.true_height
+        return sightings
+
+
+@register_effect
+class LandmarkBearingOffset(Effect):
+    """Each beacon is seen at a bearing offset of its own: ``offset_rad[i]`` (rad) is added to every observed
+    bearing of beacon i (a marker's visible centre off its surveyed position).
+
+    ``offset_rad``: one offset per beacon (default all 0). Spurious sightings are left alone.
+    Residual signature: beacon identity (of the bearing residuals).
+    """
+
+    name = "landmark_bearing_offset"
+    defaults = {"offset_rad": []}
+    per_beacon = {"offset_rad": 0.0}
+    bounds = {"offset_rad": (-math.pi, math.pi)}
+
+    def sense(self, sightings: list[Sighting], frame: Frame) -> list[Sighting]:
+        for s in sightings:
+            offset = self.params["offset_rad"][s.beacon]
+            if offset and not s.spurious:
+                s.angle = wrap_angle(s.angle + offset)
         return sightings
 
 

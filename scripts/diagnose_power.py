@@ -47,6 +47,7 @@ STRENGTHS = {
     "off_center_shrink": [{"k": k} for k in (0.05, 0.1, 0.2)],
     "distance_dependent_noise": [{"exponent": e} for e in (0.25, 0.5, 1.0)],
     "beacon_height_scale": [{"scale": [1 + s, 1 - s, 1 + s / 2, 1 - s / 2]} for s in (0.01, 0.02, 0.04)],
+    "landmark_bearing_offset": [{"offset_rad": [s, -s, s / 2, -s / 2]} for s in (0.005, 0.01, 0.02)],  # rad
     "landmark_bias": [{"sigma_rel": s, "tau_s": 8.0} for s in (0.02, 0.05, 0.1)],
     "false_sightings": [{"rate": r} for r in (0.02, 0.05, 0.1)],
     "angle_bias": [{"bias_rad": b} for b in (0.02, 0.05, 0.1)],  # not identifiable: "none" is the right answer

@@ -82,6 +82,8 @@ def test_unknown_parameter_names_the_valid_ones(name):
     ({"beacon_height_scale": {"scale": [1.0, 2.0]}}, ["'scale'", "4 beacons"]),
     ({"beacon_height_scale": {"scale": [1.0, 0.0, 1.0, 1.0]}}, ["'scale'"]),
     ({"off_center_shrink": {"k": 5.0}}, ["'k'", "fov"]),
+    ({"landmark_bearing_offset": {"offset_rad": [0.01, -0.01]}}, ["'offset_rad'", "4 beacons"]),
+    ({"landmark_bearing_offset": {"offset_rad": [0.01, 4.0, 0.0, 0.0]}}, ["'offset_rad'", "[-3.14159, 3.14159]"]),
     ({"floor_drift": {"drift_mm_s": [1.0]}}, ["'drift_mm_s'", "2 numbers"]),
 ])
 def test_bad_parameters_give_one_clear_line(effects, words):
@@ -189,6 +191,26 @@ def test_angle_bias_shifts_every_bearing_by_exactly_the_bias():
     biased = collect({**EXACT_SENSING, "effects": {"angle_bias": {"bias_rad": 0.2}}}, 3000, seed=2)
     np.testing.assert_array_equal(biased.sighting_value[:, 0], base.sighting_value[:, 0])
     np.testing.assert_allclose(wrapped(biased.sighting_value[:, 1] - base.sighting_value[:, 1]), 0.2, atol=1e-12)
+
+
+@pytest.mark.parametrize("wheeled", [False, True])
+def test_landmark_bearing_offset_shifts_each_beacons_bearings_by_its_offset(wheeled):
+    """Both envs: the same seed with and without the offsets, every bearing moved by its beacon's offset exactly."""
+    from aibo_gym.collect_wheeled import collect_wheeled
+
+    if wheeled:
+        offset = [0.03, -0.02, 0.01, 0.0, -0.01, 0.02, -0.03, 0.005]  # the wheeled env's default field: 8 landmarks
+        base = collect_wheeled({}, 1500, seed=2)
+        shifted = collect_wheeled({"effects": {"landmark_bearing_offset": {"offset_rad": offset}}}, 1500, seed=2)
+    else:
+        offset = [0.03, -0.02, 0.01, 0.0]
+        base = collect(EXACT_SENSING, 3000, seed=2)
+        shifted = collect({**EXACT_SENSING, "effects": {"landmark_bearing_offset": {"offset_rad": offset}}}, 3000, seed=2)
+    np.testing.assert_array_equal(shifted.sighting_landmark, base.sighting_landmark)
+    np.testing.assert_array_equal(shifted.sighting_value[:, 0], base.sighting_value[:, 0])
+    moved = wrapped(shifted.sighting_value[:, 1] - base.sighting_value[:, 1])
+    np.testing.assert_allclose(moved, np.array(offset)[base.sighting_landmark], atol=1e-12)
+    assert len(set(base.sighting_landmark)) >= 4
 
 
 def test_beacon_height_scale_multiplies_each_beacons_heights():

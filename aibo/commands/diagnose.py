@@ -34,9 +34,10 @@ OUTPUTS = ("report.json", "model.json", "report.html", *FIGURES)
 
 
 def candidates(arg: str | None) -> list[str]:
-    """The effects to try: all of the catalogue, or the comma-separated names given."""
+    """The effects to try: the catalogue's default candidates (``EffectModel.DEFAULT_CANDIDATE``), or the
+    comma-separated names given."""
     if arg is None:
-        return sorted(EFFECT_MODELS)
+        return sorted(n for n, cls in EFFECT_MODELS.items() if cls.DEFAULT_CANDIDATE)
     names = [n.strip() for n in arg.split(",") if n.strip()]
     if not names:
         raise CLIError(f"--candidates {arg!r}: no effect named (give comma-separated names, or leave the option out "

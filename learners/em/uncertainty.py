@@ -145,8 +145,8 @@ def _coordinate_names(model: Model, fixed: frozenset[str]) -> list[str]:
             names.append("sensor_model.sigma_angle")
         elif key == "action.cov":
             names += [f"action_model.motion_cov.logchol[{i}]" for i in range(n)]
-        elif dict(model.components())[cname].PARAMS[pname].transform == "logcontrast":
-            names += [f"{key}.log_contrast[{i}]" for i in range(n)]  # Helmert contrasts of the logs
+        elif (param := dict(model.components())[cname].PARAMS[pname]).group:  # Helmert contrasts (of the logs)
+            names += [f"{key}.{'log_' if param.transform == 'logcontrast' else ''}contrast[{i}]" for i in range(n)]
         else:
             names += [f"{key}[{i}]" for i in range(n)]
     for k in range(_n_init(model, fixed)):
@@ -405,14 +405,14 @@ def _spectrum(info: np.ndarray, names: list[str], basis: np.ndarray | None = Non
 
 
 def _silent_members(diff: _Differences, model: Model) -> list[tuple[int, int, str, list[int]]]:
-    """Per normalized group (a ``"logcontrast"`` block a:b of the packed coordinates): (a, b, its dotted
+    """Per normalized group (a ``"logcontrast"`` or ``"contrast"`` block a:b of the packed coordinates): (a, b, its dotted
     name, the members no applied sighting depends on), as the component reports them for this batch
     (``EffectModel.undetermined``, which ``learners.em.support.check_support`` lists too: a landmark never
     sighted), so that this report and the fit's warning say the same."""
     out = []
     comps = dict(model.components())
     for cname, pname, a, b in diff.perturb.blocks:
-        if cname == "init" or comps[cname].PARAMS[pname].transform != "logcontrast":
+        if cname == "init" or not comps[cname].PARAMS[pname].group:
             continue
         entries = getattr(comps[cname], "undetermined", lambda batch: [])(diff.batch)
         silent = [int(e[len(pname) + 1 : -1]) for e in entries if e.startswith(pname + "[")]

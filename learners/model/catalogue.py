@@ -10,6 +10,8 @@ floor_drift                world-frame offset per frame                 generali
 velocity_fade              factor (1 - fade t) on every displacement    closed form given the action model
 actuation_lag              the commands delayed by lag (s)              profile likelihood over ``GRID``
 angle_bias                 offset of every predicted bearing            mean wrapped bearing residual
+landmark_bearing_offset    offset of the bearing, one per landmark,     mean wrapped bearing residual per
+                           summing to 0                                 landmark, given the sum (weighted)
 off_center_shrink          size x (1 - k phi^2), phi = bearing - pan    closed form given the curve
 distance_dependent_noise   size variance x (d / 2500 mm)^(2 exponent)   1-d maximization over the exponent
 =========================  ===========================================  ======================================
@@ -208,6 +210,84 @@ class AngleBias(EffectModel):
         other = lo.bearing_offset[idx] - self.bias_rad
         bias = float(np.mean(wrap(batch.sight_value[idx, 1] - bearing - other)))
         return model.with_effect(AngleBias(bias))
+
+
+@register_effect
+@dataclass(frozen=True)
+class LandmarkBearingOffset(EffectModel):
+    """Each landmark is seen at a bearing offset of its own (rad): measured bearing = true bearing +
+    ``offset_rad[b]`` for landmark b (a marker's visible centre off its surveyed position, a barcode read
+    off-centre). Residual signature: the bearing residuals depend on the landmark's identity.
+
+    The offsets are contrasts: held to sum 0 and packed (SQUAREM, standard errors) as their B - 1 Helmert
+    contrasts (transform ``"contrast"``). Their common part is a constant bearing offset, ``angle_bias``'s,
+    which a start heading offset and rotated velocities explain (exactly for a free action model): it is the
+    heading's, not this effect's."""
+
+    offset_rad: np.ndarray  # (B,) rad, summing to 0
+
+    name: ClassVar[str] = "landmark_bearing_offset"
+    #: Tried only when asked for: on MRCLAM robots 1 and 4 it was named and cleared "bearing vs landmark", but its
+    #: offsets correlate +0.32-0.37 with Vicon's (a south-north contrast trades with the heading), robot 1's pose got
+    #: worse (221 vs 177 mm) and two other statistics disagreed more (docs/results.md, "Per-landmark bearing offsets")
+    DEFAULT_CANDIDATE: ClassVar[bool] = False
+    SIGNATURE: ClassVar[str] = "bearing (sigma) vs landmark"
+    PARAMS: ClassVar[dict[str, Param]] = {  # summing to 0: B - 1 free numbers
+        "offset_rad": Param("rad per landmark", "contrast", 0.01, low=-math.pi, high=math.pi, shape=(-1,))}
+    EXAMPLE: ClassVar[dict[str, Any]] = {"offset_rad": np.array([0.01, -0.01, 0.005, -0.005])}
+    #: Below this (rad) on every landmark the offsets are too small to matter (0.06 degrees: a tenth of one
+    #: pixel's bearing on a camera of 60 degrees over 100 pixels).
+    NEGLIGIBLE_RAD: ClassVar[float] = 0.001
+    #: Above this (rad) on any landmark the "offset" is not a marker's: 0.1 rad is 250 mm at 2.5 m, a map error.
+    IMPLAUSIBLE_RAD: ClassVar[float] = 0.1
+
+    @classmethod
+    def start(cls, batch: Batch) -> "LandmarkBearingOffset":
+        return cls(np.zeros(len(batch.landmarks)))
+
+    def lower(self, lo: Lowered, batch: Batch) -> None:
+        if np.any(self.offset_rad):
+            lo.bearing_offset = lo.bearing_offset + self.offset_rad[batch.sight_landmark]
+
+    def undetermined(self, batch: Batch) -> list[str]:
+        """The offsets of the landmarks never sighted (among the applied sightings)."""
+        seen = np.bincount(batch.sight_landmark[batch.used], minlength=len(self.offset_rad)) > 0
+        return [f"offset_rad[{b}]" for b in np.flatnonzero(~seen)]
+
+    def negligible(self, n_sightings: int) -> str:
+        big = float(np.max(np.abs(self.offset_rad), initial=0.0))
+        return (f"negligible: the largest offset is {1e3 * big:.2f} mrad, below {1e3 * self.NEGLIGIBLE_RAD:g} mrad"
+                if big < self.NEGLIGIBLE_RAD else "")
+
+    def implausible(self) -> str:
+        big = float(np.max(np.abs(self.offset_rad), initial=0.0))
+        return (f"an offset of {1e3 * big:.0f} mrad is above {1e3 * self.IMPLAUSIBLE_RAD:g} mrad: a wrong landmark "
+                "position, not a marker's offset" if big > self.IMPLAUSIBLE_RAD else "")
+
+    def maximize(self, model: "Model", batch: Batch, post: Posterior, mu_star: np.ndarray) -> "Model":
+        """Closed form at the smoothed means: per landmark b, the mean wrapped bearing residual r[b] without this
+        effect over its W[b] (the sum of the weights 1 / bearing_var_factor of its sightings), then the sum-0
+        constraint: offset[b] = r[b] - lam / W[b], lam = (sum r - sum of the old offsets) / sum 1 / W, the maximum of
+        sum_b W[b] (offset[b] - r[b])^2 given the sum (ECM: the exact conditional maximum, so EM's fixed point is a
+        stationary point of the likelihood). A common part of the residuals is left to the heading when it can take it
+        up (then lam is 0). A landmark never sighted keeps its offset (its start, 0), and the sighted ones keep the
+        sum they had, so the group stays at sum 0."""
+        lo = model.lower(batch)
+        idx, _, bearing = _sight_geometry(model, batch, post)
+        lm = batch.sight_landmark[idx]
+        r = wrap(batch.sight_value[idx, 1] - bearing - (lo.bearing_offset[idx] - self.offset_rad[lm]))
+        w = 1.0 / lo.bearing_var_factor[idx]
+        B = len(self.offset_rad)
+        den = np.bincount(lm, weights=w, minlength=B)
+        seen = den > 0
+        if not seen.any():
+            return model
+        W = den[seen]
+        mean = np.bincount(lm, weights=w * r, minlength=B)[seen] / W
+        offset = np.array(self.offset_rad, dtype=float)
+        lam = (np.sum(mean) - np.sum(offset[seen])) / np.sum(1.0 / W)
+        offset[seen] = mean - lam / W
+        return model.with_effect(LandmarkBearingOffset(offset))
 
 
 def implied_distance(lo: Lowered, batch: Batch) -> np.ndarray:

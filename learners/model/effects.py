@@ -59,6 +59,9 @@ class EffectModel(Component):
     #: Whether ``start`` switches the effect off (its values the neutral ones: a rate 0, a scale 1); False where EM
     #: needs a weak effect to start from (a bias of 1%, a few spurious sightings).
     STARTS_OFF: ClassVar[bool] = True
+    #: Whether ``aibo diagnose`` tries the effect by default (False: only when ``--candidates`` names it, for an
+    #: effect whose evidence on real logs is not yet good enough to be named without being asked for).
+    DEFAULT_CANDIDATE: ClassVar[bool] = True
 
     def negligible(self, n_sightings: int) -> str:
         """Why the fitted effect is too small to name ("" when it is not), on data of ``n_sightings``

@@ -8,7 +8,9 @@ comparison are generic loops over components:
 - ``transform``: how the parameter is mapped to the unconstrained, scaled vector SQUAREM
   extrapolates: ``"scaled"`` (value / scale), ``"log"`` (positive), ``"logchol"`` (symmetric
   positive definite: log-Cholesky), ``"logcontrast"`` (a normalized group: K positive factors at
-  geometric mean 1, packed as the K - 1 orthonormal contrasts of their logs, ``helmert``), or a
+  geometric mean 1, packed as the K - 1 orthonormal contrasts of their logs, ``helmert``),
+  ``"contrast"`` (an additive normalized group: K numbers summing to 0, packed as their K - 1
+  orthonormal contrasts divided by ``scale``), or a
   component's own (``pack_<name>`` / ``unpack_<name>``);
 - ``scale``: the typical size of one unit of the parameter (a "noise width");
 - ``trainable``: estimated by EM (False: kept fixed);
@@ -41,11 +43,16 @@ class Param:
     shape: tuple[int, ...] | None = None
 
     @property
+    def group(self) -> bool:
+        """Whether the parameter is a normalized group (``"logcontrast"``: geometric mean 1; ``"contrast"``: sum 0)."""
+        return self.transform in GROUP_TRANSFORMS
+
+    @property
     def constraints(self) -> int:
         """Constraints among the entries that the transform removes (a normalized group: 1, its geometric
-        mean): the packed vector has that many fewer entries, and a likelihood-ratio test that many fewer
-        degrees of freedom."""
-        return 1 if self.transform == "logcontrast" else 0
+        mean or its sum): the packed vector has that many fewer entries, and a likelihood-ratio test that
+        many fewer degrees of freedom."""
+        return 1 if self.group else 0
 
     def packed_size(self, value: np.ndarray) -> int:
         """Number of entries ``value`` takes in the packed vector."""
@@ -66,6 +73,10 @@ class Param:
             bad = value[(value < self.low) | (value > self.high)].ravel()[0]
             return f"must be in [{self.low:g}, {self.high:g}] ({self.unit or 'no unit'}), got {bad:g}"
         return ""
+
+
+#: The transforms of a normalized group (``Param.group``): packed as contrasts, one number fewer.
+GROUP_TRANSFORMS = ("logcontrast", "contrast")
 
 
 #: Largest magnitude of any number a model file may hold: no quantity of a model comes near it, and
@@ -145,6 +156,21 @@ def unpack_logcontrast(x: np.ndarray, old: np.ndarray) -> np.ndarray:
     return safe_exp(mean + helmert(len(logs)) @ x).reshape(np.shape(old))
 
 
+def pack_contrast(value: np.ndarray, scale: float) -> np.ndarray:
+    """K numbers as their K - 1 orthonormal contrasts in units of ``scale``, H^T value / scale: their mean
+    (the direction a sum-zero normalization removes) is not in the vector."""
+    v = np.ravel(value)
+    return helmert(len(v)).T @ v / scale
+
+
+def unpack_contrast(x: np.ndarray, old: np.ndarray, scale: float) -> np.ndarray:
+    """Inverse of ``pack_contrast``: H x scale plus the mean of ``old`` (0 for a normalized group, kept
+    exactly)."""
+    v = np.ravel(old)
+    mean = float(np.mean(v)) if len(v) else 0.0
+    return (mean + helmert(len(v)) @ x * scale).reshape(np.shape(old))
+
+
 class Component:
     """Base of every model component: generic access to the declared parameters."""
 
@@ -173,6 +199,8 @@ class Component:
             return np.log(np.ravel(value))
         if p.transform == "logcontrast":
             return pack_logcontrast(value)
+        if p.transform == "contrast":
+            return pack_contrast(value, float(p.scale))
         if p.transform == "logchol":
             return chol_vec(value)
         return np.ravel(value / np.asarray(p.scale, dtype=float))
@@ -190,6 +218,8 @@ class Component:
             value = safe_exp(chunk).reshape(old.shape)
         elif p.transform == "logcontrast":
             value = unpack_logcontrast(chunk, old)
+        elif p.transform == "contrast":
+            value = unpack_contrast(chunk, old, float(p.scale))
         elif p.transform == "logchol":
             value = chol_mat(chunk)
         else:
