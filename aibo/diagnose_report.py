@@ -211,7 +211,8 @@ def _verdict(report: dict[str, Any]) -> str:
     named = []
     for e in report["effects"]:
         interval = interval_text(e.get("intervals", {}))
-        named.append(f"<b>{html.escape(e['name'])}</b> ({html.escape(short(e['parameters']) + grid_note(e['name']))}"
+        step = "" if interval else grid_note(e["name"])  # an interval states the grid's step itself
+        named.append(f"<b>{html.escape(e['name'])}</b> ({html.escape(short(e['parameters']) + step)}"
                      f"{html.escape('; ' + interval) if interval else ''})")
     shift = f"; {html.escape(shift_text(report['base_change']))}" if report.get("base_change") else ""
     rest = "; and something outside the catalogue (none of the above, below)" if odd else ""

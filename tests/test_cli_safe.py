@@ -618,6 +618,7 @@ def test_report_page_states_units_the_grid_step_and_which_candidate_was_named(tm
     html_page(tmp_path / "r.html", report, "text", [])
     page = (tmp_path / "r.html").read_text()
     assert "lag_s [0.1, 0.3] (profile over a grid of step 0.1)" in page
+    assert page.count("grid of step") == 1  # said once, by the interval (not again beside the value)
     assert "by 24.4 mm/s, 19.7 mm/s, 0.038 rad/s RMS over the commands" in page
     assert "<th>named</th>" in page and page.count("<b>named</b>") == 1
 

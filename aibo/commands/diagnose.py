@@ -98,7 +98,8 @@ def run(args) -> int:
     say(f"named effects, in order: {', '.join(e['name'] for e in report['effects']) or 'none'}")
     for e in report["effects"]:
         interval = fig.interval_text(e["intervals"])
-        say(f"  {e['name']}: {fig.short(e['parameters'])}{fig.grid_note(e['name'])}{'; ' + interval if interval else ''}")
+        step = "" if interval else fig.grid_note(e["name"])  # an interval states the grid's step itself
+        say(f"  {e['name']}: {fig.short(e['parameters'])}{step}{'; ' + interval if interval else ''}")
     if report["base_change"]:
         say(f"  {fig.shift_text(report['base_change'])}")
     for name, note in {c["name"]: c["note"] for c in report["candidates"] if not c["identifiable"]}.items():
