@@ -98,15 +98,17 @@ class MotionScore:
                 for k, v in self.logdens.items()}
 
 
-def motion_score(model: Model, logs: list[Trajectory], horizons_s: tuple[float, ...] = MOTION_HORIZONS_S) -> MotionScore:
-    """The held-out sightings (``heldout_mask``, the used ones) predicted open loop from the filtered belief
-    k seconds before each (the forward filter run over all sightings with ``model``, as ``score`` does) and the
-    commands alone, for each horizon k; the model's own density of each (a mixture's where an effect says so)."""
+def motion_score(model: Model, logs: list[Trajectory], horizons_s: tuple[float, ...] = MOTION_HORIZONS_S,
+                 heldout_only: bool = True) -> MotionScore:
+    """The held-out sightings (``heldout_mask``, the used ones; every used one with ``heldout_only`` False, for
+    logs the model was not fitted to) predicted open loop from the filtered belief k seconds before each (the
+    forward filter run over all sightings with ``model``, as ``score`` does) and the commands alone, for each
+    horizon k; the model's own density of each (a mixture's where an effect says so)."""
     batch = make_batch(logs)
-    held = np.concatenate([heldout_mask(tr) for tr in logs])
     post = e_step(model, batch, "compiled", None)
     lo = model.lower(batch)
     lo_own = own_noise(model, batch, lo)
+    held = np.concatenate([heldout_mask(tr) for tr in logs]) if heldout_only else True
     idx = np.flatnonzero(held & batch.used)
     frame = batch.sight_frame[idx]
     log = np.searchsorted(batch.frame_start, frame, side="right") - 1
