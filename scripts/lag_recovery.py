@@ -14,16 +14,14 @@ skips them); OUT/table.md is rewritten after each, with the mean error, the mean
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from study import data_folder, mrclam_parser, resume, robots  # noqa: E402
 
-from aibo_core.atomic import atomic_write, read_jsonl, write_jsonl  # noqa: E402
 from aibo_core.mrclam import import_robot  # noqa: E402
 from learners.em.learner import EMLearner  # noqa: E402
 from learners.em.options import EMOptions  # noqa: E402
@@ -65,29 +63,18 @@ def _ci(r: dict) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("data", nargs="?", default=str(ROOT / ".." / "shared" / "data" / "mrclam7"))
-    ap.add_argument("--out", default="/tmp/lag_recovery")
-    ap.add_argument("--robots", default="1,2,3,4,5", help="comma-separated robot numbers (default 1,2,3,4,5)")
+    ap = mrclam_parser(__doc__, "/tmp/lag_recovery")
     ap.add_argument("--shifts", default="-0.3,-0.2,-0.1,-0.05,0.05,0.1,0.15",
                     help="comma-separated command time shifts, s (default -0.3,-0.2,-0.1,-0.05,0.05,0.1,0.15)")
     args = ap.parse_args(argv)
-    data, out = Path(args.data), Path(args.out)
-    if not data.is_dir():
-        print(f"lag_recovery: no MRCLAM data at {data}", file=sys.stderr)
+    data = data_folder("lag_recovery", args.data)
+    if data is None:
         return 2
-    out.mkdir(parents=True, exist_ok=True)
-    rows = read_jsonl(out / "rows.jsonl")
     shifts = [0.0] + [float(s) for s in args.shifts.split(",")]
-    for robot in (int(x) for x in args.robots.split(",")):
-        for shift in shifts:
-            if any(r["robot"] == robot and r["shift_s"] == shift for r in rows):
-                continue
-            rows.append(estimate(data, robot, shift))
-            write_jsonl(out / "rows.jsonl", rows)
-            md = table(rows)
-            atomic_write(out / "table.md", lambda f: f.write(md.encode()))
-            print(f"robot {robot} shift {shift:+.2f} s: lag {rows[-1]['lag_s']:.3f} s {_ci(rows[-1])}", flush=True)
+    keys = [{"robot": r, "shift_s": s} for r in robots(args.robots) for s in shifts]
+    rows = resume(Path(args.out), "rows.jsonl", keys, lambda k: estimate(data, k["robot"], k["shift_s"]), table,
+                  lambda r, _: print(f"robot {r['robot']} shift {r['shift_s']:+.2f} s: lag {r['lag_s']:.3f} s {_ci(r)}",
+                                     flush=True))
     print(table(rows))
     return 0
 

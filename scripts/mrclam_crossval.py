@@ -14,18 +14,14 @@ commands at face value on the same windows; and the motion gap of each model at 
 
 from __future__ import annotations
 
-import argparse
 import json
-import subprocess
 import sys
-import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from study import data_folder, mrclam_parser, resume, robots, run_aibo  # noqa: E402
 
 from aibo_core import trajectory  # noqa: E402
-from aibo_core.atomic import atomic_write, read_jsonl, write_jsonl  # noqa: E402
 from aibo_core.mrclam import import_robot  # noqa: E402
 from learners.discrepancy.score import motion_score  # noqa: E402
 from learners.model.io import load_model  # noqa: E402
@@ -39,13 +35,12 @@ def halves(data: Path, robot: int) -> tuple:
     return import_robot(data, robot, seconds=half), import_robot(data, robot, start_s=half)
 
 
-def run(cmd: list[str]) -> float:
+def run(args: list[str]) -> float:
     """Run an ``aibo`` command; its wall time (s). Raises on failure with its last line of stderr."""
-    t0 = time.perf_counter()
-    r = subprocess.run([sys.executable, "-m", "aibo.cli", *cmd], capture_output=True, text=True)
-    if r.returncode != 0:
-        raise RuntimeError((r.stderr.strip().splitlines() or ["?"])[-1])
-    return time.perf_counter() - t0
+    seconds, done = run_aibo(args)
+    if done.returncode != 0:
+        raise RuntimeError((done.stderr.strip().splitlines() or ["?"])[-1])
+    return seconds
 
 
 def row(data: Path, robot: int, direction: str, out: Path, jobs: int) -> dict:
@@ -87,27 +82,16 @@ def table(rows: list[dict]) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("data", nargs="?", default=str(ROOT / ".." / "shared" / "data" / "mrclam7"))
-    ap.add_argument("--out", default="/tmp/mrclam_crossval")
-    ap.add_argument("--robots", default="1,2,3,4,5", help="comma-separated robot numbers (default 1,2,3,4,5)")
+    ap = mrclam_parser(__doc__, "/tmp/mrclam_crossval")
     ap.add_argument("--jobs", type=int, default=2, help="aibo diagnose --jobs (default 2)")
     args = ap.parse_args(argv)
-    data, out = Path(args.data), Path(args.out)
-    if not data.is_dir():
-        print(f"mrclam_crossval: no MRCLAM data at {data}", file=sys.stderr)
+    data = data_folder("mrclam_crossval", args.data)
+    if data is None:
         return 2
-    out.mkdir(parents=True, exist_ok=True)
-    done = read_jsonl(out / "rows.jsonl")
-    for robot in (int(x) for x in args.robots.split(",")):
-        for direction in ("first->second", "second->first"):
-            if any(r["robot"] == robot and r["direction"] == direction for r in done):
-                continue
-            done.append(row(data, robot, direction, out, args.jobs))
-            write_jsonl(out / "rows.jsonl", done)
-            md = table(sorted(done, key=lambda r: (r["robot"], r["direction"])))
-            atomic_write(out / "table.md", lambda f: f.write(md.encode()))
-            print(md.splitlines()[-1], flush=True)
+    keys = [{"robot": r, "direction": d} for r in robots(args.robots) for d in ("first->second", "second->first")]
+    resume(Path(args.out), "rows.jsonl", keys, lambda k: row(data, k["robot"], k["direction"], Path(args.out), args.jobs),
+           lambda rows: table(sorted(rows, key=lambda r: (r["robot"], r["direction"]))),
+           lambda _, md: print(md.splitlines()[-1], flush=True))
     return 0
 
 

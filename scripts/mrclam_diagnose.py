@@ -14,23 +14,20 @@ rewritten after each.
 
 from __future__ import annotations
 
-import argparse
 import json
-import subprocess
 import sys
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from aibo_core import trajectory  # noqa: E402
-from aibo_core.atomic import atomic_write, read_jsonl, write_jsonl  # noqa: E402
 from aibo_core.mrclam import import_robot  # noqa: E402
 from learners.model.io import load_model  # noqa: E402
 from learners.scoring import face_value_model  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from mrclam_bias import ROOT, model_row  # noqa: E402
+from mrclam_bias import model_row  # noqa: E402
+from study import data_folder, mrclam_parser, resume, robots, run_aibo  # noqa: E402
 
 
 def diagnose_robot(data: Path, robot: int, out: Path) -> dict:
@@ -39,10 +36,7 @@ def diagnose_robot(data: Path, robot: int, out: Path) -> dict:
     log = out / f"r{robot}.npz"
     trajectory.save(tr, log)
     folder = out / f"diagnose_r{robot}"
-    t0 = time.perf_counter()
-    run = subprocess.run([sys.executable, "-m", "aibo.cli", "diagnose", str(log), "--out", str(folder)],
-                         capture_output=True, text=True)
-    wall = time.perf_counter() - t0
+    wall, run = run_aibo(["diagnose", str(log), "--out", str(folder)])
     if run.returncode != 0:
         return {"robot": robot, "error": run.stderr.strip().splitlines()[-1:], "wall_s": wall}
     report = json.loads((folder / "report.json").read_text())
@@ -80,25 +74,13 @@ def table(records: list[dict]) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("data", nargs="?", default=str(ROOT / ".." / "shared" / "data" / "mrclam7"))
-    ap.add_argument("--out", default="/tmp/mrclam_diagnose")
-    ap.add_argument("--robots", default="1,2,3,4,5", help="comma-separated robot numbers (default 1,2,3,4,5)")
-    args = ap.parse_args(argv)
-    data, out = Path(args.data), Path(args.out)
-    if not data.is_dir():
-        print(f"mrclam_diagnose: no MRCLAM data at {data}", file=sys.stderr)
+    args = mrclam_parser(__doc__, "/tmp/mrclam_diagnose").parse_args(argv)
+    data = data_folder("mrclam_diagnose", args.data)
+    if data is None:
         return 2
-    out.mkdir(parents=True, exist_ok=True)
-    done = read_jsonl(out / "robots.jsonl")
-    for robot in (int(x) for x in args.robots.split(",")):
-        if any(r["robot"] == robot for r in done):
-            continue
-        done.append(diagnose_robot(data, robot, out))
-        write_jsonl(out / "robots.jsonl", done)
-        md = table(sorted(done, key=lambda r: r["robot"]))
-        atomic_write(out / "table.md", lambda f: f.write(md.encode()))
-        print(md.splitlines()[-1], flush=True)
+    resume(Path(args.out), "robots.jsonl", [{"robot": r} for r in robots(args.robots)],
+           lambda k: diagnose_robot(data, k["robot"], Path(args.out)),
+           lambda rows: table(sorted(rows, key=lambda r: r["robot"])), lambda _, md: print(md.splitlines()[-1], flush=True))
     return 0
 
 
