@@ -124,7 +124,6 @@ def _propagate(lo: Lowered, idx: np.ndarray, f0: np.ndarray, k_frames: int, m: n
             m[:, :3] = g
             F4[:, :3, :3] = F
             P = F4 @ P @ np.swapaxes(F4, 1, 2)
-            F4[:, :3, :3] = np.eye(3)
         m[:, :3] += lo.offset[fr]
         if lo.extra is not None:
             phi = np.where(has, lo.extra.phi[fr, s], 0.0)
