@@ -242,6 +242,17 @@ def _motion(report: dict[str, Any]) -> str:
             f"<th>sightings</th></tr>{rows}</table>")
 
 
+def _trail(checks: list[dict[str, Any]]) -> str:
+    """A candidate's checks in the order they ran: the name, with a cross where a deciding check refused and a
+    circle where an annotating one found something to say."""
+    def mark(v: dict[str, Any]) -> str:
+        if v["passed"]:
+            return ""
+        return " &#10007;" if v["decides"] else " &#9675;"
+
+    return ", ".join(f"{html.escape(v['name'])}{mark(v)}" for v in checks)
+
+
 def html_page(path: Path, report: dict[str, Any], text: str, figures: list[Path]) -> None:
     """One self-contained page: the verdict first, then the figures, the candidates and the full text."""
     verdict = _verdict(report)
@@ -251,7 +262,8 @@ def html_page(path: Path, report: dict[str, Any], text: str, figures: list[Path]
         f"<tr><td>{c['round']}</td><td>{html.escape(c['name'])}</td><td>{c['gain_train']:.1f}</td>"
         f"<td>{c['gain_heldout']:.1f}</td><td>{c['p_value']:.2g}</td><td>{'yes' if c['significant'] else ''}</td>"
         f"<td>{'<b>named</b>' if c.get('named') else ''}</td>"
-        f"<td>{'' if c['identifiable'] else 'no'}</td><td>{html.escape(c['note'])}</td></tr>"
+        f"<td>{'' if c['identifiable'] else 'no'}</td><td>{_trail(c.get('checks', []))}</td>"
+        f"<td>{html.escape(c['note'])}</td></tr>"
         for c in report["candidates"])
     body = f"""<!doctype html><html><head><meta charset="utf-8"><title>aibo diagnose</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:2em auto}}td,th{{padding:2px 8px;border-bottom:1px solid #ddd}}
@@ -270,6 +282,7 @@ likelihood-ratio tests and held-out gains (table below: "named" marks the effect
 {_none_of_the_above(report.get("unexplained", []))}
 {''.join(_img(p) for p in figures if p.exists())}
 <h2>Candidates</h2><table><tr><th>round</th><th>effect</th><th>train gain (nats)</th><th>held-out gain (nats)</th>
-<th>p</th><th>significant</th><th>named</th><th>identifiable</th><th>note</th></tr>{rows}</table>
+<th>p</th><th>significant</th><th>named</th><th>identifiable</th><th>checks (in order; &#10007; refused, &#9675; a
+note that decides nothing)</th><th>note</th></tr>{rows}</table>
 <h2>Full report</h2><pre>{html.escape(text)}</pre></body></html>"""
     atomic_write(path, lambda f: f.write(body.encode()))

@@ -24,7 +24,8 @@ import numpy as np
 from aibo_core.atomic import atomic_write, read_jsonl, write_jsonl
 from aibo_core.trajectory import Trajectory, blind
 from aibo_gym.collect import collect
-from learners.discrepancy.search import SEARCH_PATIENCE, _fit, base_fit, drop_outliers
+from learners.discrepancy.fitting import SEARCH_PATIENCE, fit
+from learners.discrepancy.search import base_fit, drop_outliers
 from learners.discrepancy.signatures import signatures
 from learners.discrepancy.split import training_log
 from learners.em.options import EMOptions
@@ -45,7 +46,7 @@ def fitted_base(tr: Trajectory, cache: Path, refit: bool) -> tuple[Model, list[T
     base = base_fit([tr], opts)
     logs, _ = drop_outliers(base, [tr])
     polish = replace(opts, gate=None, max_iter=min(opts.max_iter, 200), patience=min(opts.patience, SEARCH_PATIENCE))
-    base = _fit([training_log(t) for t in logs], base, polish)
+    base = fit([training_log(t) for t in logs], base, polish)
     save_model(cache, base, {})
     return base, logs
 

@@ -14,7 +14,7 @@ import pytest
 from aibo_core import trajectory
 from aibo_gym.collect import collect
 from experiments.calibrated import predictive_check
-from learners.discrepancy.search import held
+from learners.discrepancy.fitting import held
 from learners.em.learner import EMLearner
 from learners.em.options import EMOptions
 from learners.inference.batch import make_batch

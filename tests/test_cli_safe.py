@@ -3,6 +3,7 @@ dataset, diagnose never leaves a mixed folder, a refused experiment rerun never 
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -84,6 +85,11 @@ def test_diagnose_folder_appears_whole_or_not_at_all(blind_log, tmp_path, monkey
     assert "calibrated.png" not in capsys.readouterr().out  # --replicas 0: not written, not claimed
     first = _snapshot(out)
     assert set(first) == {"report.json", "model.json", "report.html", "signatures.png", "gap.png"}
+    # every candidate carries its checks' trail, and its flag is read off it
+    for c in json.loads(first["report.json"])["candidates"]:
+        assert c["checks"][0]["name"] == "likelihood ratio" and c["checks"][0]["p"] == c["p_value"]
+        assert c["significant"] == all(v["passed"] for v in c["checks"] if v["decides"])
+    assert "likelihood ratio" in first["report.html"].decode()
 
     def full_disk(*args, **kwargs):
         raise OSError(28, "No space left on device")

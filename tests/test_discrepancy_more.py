@@ -9,7 +9,7 @@ import pytest
 
 from aibo_gym.collect import collect
 from learners.arrays.batch import make_batch
-from learners.discrepancy.search import ZERO_DOF_NATS
+from learners.discrepancy.fitting import ZERO_DOF_NATS
 from learners.em.estep import e_step
 from learners.em.learner import EMLearner
 from learners.em.options import EMOptions
@@ -219,7 +219,7 @@ def test_a_drift_that_pushes_into_the_walls_is_named_with_them(tmp_path):
 @pytest.mark.parametrize("seed", [3011, 3022])
 def test_walls_are_not_reported_as_a_speed_that_depends_on_the_heading(tmp_path, seed):
     """Effect-free logs that meet the walls: a robot pushing a wall moves slower towards it, which a speed that
-    depends on the heading mimics. Seed 3011: the probe is tested given the wall nuisance (``search.GIVEN_WALLS``)
+    depends on the heading mimics. Seed 3011: the probe is tested given the wall nuisance (``checks.GivenNuisance``)
     and is not reported (it was, p = 0.004). Seed 3022: after a base escape from ``wall_contact``'s fit, the repeated
     round fits it from its own fit too (``try_candidate``'s ``previous``); from the escape alone it kept no contact,
     nothing was named and the walls came out as a speed that depends on the heading."""
@@ -295,7 +295,7 @@ def test_a_gain_that_the_base_keeps_without_the_effect_is_not_the_effects():
     """The effect-free log where ``actuation_lag`` was named (paper-sim noise, seed 1005, 5 min: 0.1 s, +28.7 nats,
     p = 4e-14): EM from the paper's start stopped at a poor optimum of the base model, and the lag's fit left it.
     Refitted without the lag, that fit keeps the whole gain: the lag is not named, and the better base becomes the
-    current model (``learners.discrepancy.search._given_its_own_base``). Where EM from the paper's start is left at
+    current model (``learners.discrepancy.checks.GivenItsOwnBase``). Where EM from the paper's start is left at
     the poor optimum depends on the CPU's rounding (on an AMD EPYC it found the better base itself): the lag is
     never named, and when a candidate's fit finds the better base, the round is repeated from it."""
     from aibo_core.trajectory import blind

@@ -35,7 +35,7 @@ def test_wall_slowdown_is_neutral_at_one_and_scales_only_the_near_frames():
     model = EMLearner(EMOptions(max_iter=5, starts=1, alias_search=False, lag_search=False)).fit([tr]).params
     batch = make_batch([tr])
     nuisance = WallSlowdown.around(e_step(model, batch, "compiled"), batch)
-    assert nuisance.n_near() > 0
+    assert nuisance.n_frames() > 0
     assert model.with_effect(nuisance).effective_commands(batch)[1] is None  # factor 1: no scale at all
     slowed = WallSlowdown(0.8, near=nuisance.near, key=nuisance.key)
     scale = model.with_effect(slowed).effective_commands(batch)[1]

@@ -236,7 +236,7 @@ def test_an_implausible_bias_fit_is_refitted_in_stages_and_named():
     """A 5-minute log with the bias (sigma_rel 0.1, tau_s 8 s; seed 2001): fitted directly from its warm start, EM
     climbed to (0.29, 150 s), implausible, and nothing was named; fitted in stages (the rest of the model first, the
     bias frozen at its warm start) it reaches (0.11, 11.7 s), 66 nats more likely, and is named
-    (``learners.discrepancy.search._staged``)."""
+    (``learners.discrepancy.search.staged``)."""
     from aibo_core.trajectory import blind
     from aibo_gym.collect import collect
     from learners.discrepancy.search import search

@@ -273,7 +273,8 @@ def test_real_robot3_diagnose_starts_from_the_whole_logs_first_sightings():
     within 400 mm RMS (measured 378 mm, the commands' face value 362; the diagnosed model's is in docs/results.md)."""
     from dataclasses import replace
 
-    from learners.discrepancy.search import _fit, base_fit
+    from learners.discrepancy.fitting import fit
+    from learners.discrepancy.search import base_fit
     from learners.discrepancy.split import training_log
     from learners.em.options import EMOptions
     from learners.scoring import pose_scores
@@ -285,7 +286,7 @@ def test_real_robot3_diagnose_starts_from_the_whole_logs_first_sightings():
     assert np.hypot(*(model.init[0].mean[:2] - tr.pose[0, :2])) < 1000.0, model.init[0].mean
     assert pose_scores(model, [tr])["pose_rms"] < 400.0
     # the training half's own start (before): the wrong side of the landmarks, kept to show the test can fail
-    was = _fit([training_log(tr)], None, opts)
+    was = fit([training_log(tr)], None, opts)
     assert np.hypot(*(was.init[0].mean[:2] - tr.pose[0, :2])) > 3000.0, was.init[0].mean
     assert pose_scores(was, [tr])["pose_rms"] > 2.0 * pose_scores(model, [tr])["pose_rms"]
 

@@ -79,7 +79,7 @@ def test_on_a_simulated_fade_the_profile_interval_agrees_with_the_wald_one():
     # the held fits went past the 1.92-nat drop from the best (the free fit's, or a held fit's if one beat it) on
     # both sides; the free fit is the peak, which no held point need come near (on one CPU the nearest were 0.3 and
     # 0.5 nats below it)
-    from learners.discrepancy.search import _train_loglik
+    from learners.discrepancy.fitting import train_loglik as _train_loglik
 
     lls = np.array([ll for _, ll in entry["profile"]])
     vs = np.array([v for v, _ in entry["profile"]])

@@ -3,99 +3,63 @@ plausibility of a fitted bias, and the warning of a fit in a world that does not
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import pytest
 
 from learners.discrepancy import search as search_module
-from learners.discrepancy.search import PAST_PEAK_NATS, Candidate, prune, walk_profile
+from learners.discrepancy.candidate import Candidate
+from learners.discrepancy.search import PAST_PEAK_NATS, prune, walk_profile
 from learners.em.learner import MAX_OFF_FIELD, field_warnings
 from learners.model.landmark_bias import MAX_PLAUSIBLE_SIGMA, LandmarkBias
+from tests._search_stand_ins import StandInContext as _Context
+from tests._search_stand_ins import StandInEffect as _Effect
+from tests._search_stand_ins import StandInModel as _Model
 
 
-@dataclass(frozen=True)
-class _Effect:
-    name: str
-    k: int = 1
-    why_implausible: str = ""
-
-    def dof(self) -> int:
-        return self.k
-
-    def implausible(self) -> str:
-        return self.why_implausible
-
-
-@dataclass(frozen=True)
-class _Model:
-    """A stand-in model: its effects, and the training and held-out log-likelihoods the test assigns it."""
-
-    effects: tuple[_Effect, ...]
-
-    def effect(self, name):
-        return next((e for e in self.effects if e.name == name), None)
-
-    def without_effect(self, name):
-        return _Model(tuple(e for e in self.effects if e.name != name))
-
-
-@dataclass
-class _Score:
-    heldout_loglik: float
-
-
-def _run(monkeypatch, names, train_ll, heldout_ll):
-    """prune() on stand-ins: ``train_ll`` / ``heldout_ll`` map a frozenset of effect names to log-likelihoods."""
-    monkeypatch.setattr(search_module, "_drop_job",
-                        lambda args: (args[1].without_effect(args[0]),
-                                      train_ll[frozenset(e.name for e in args[1].without_effect(args[0]).effects)]))
-    monkeypatch.setattr(search_module, "score",
-                        lambda model, logs: _Score(heldout_ll[frozenset(e.name for e in model.effects)]))
+def _run(names, train_ll, heldout_ll):
+    """prune() on stand-ins."""
     named = [Candidate(n, {}, 0.0, 0.0, 1, 0.0) for n in names]
     full = _Model(tuple(_Effect(n) for n in names))
-    model, ll = prune(named, full, train_ll[frozenset(names)], [], [], None, None, lambda s: None)
+    model, ll = prune(named, full, train_ll[frozenset(names)], _Context(train_ll, heldout_ll), None, lambda s: None)
     return [c.name for c in named], model, ll
 
 
-def test_the_backward_check_drops_a_stand_in_and_keeps_what_earns_its_place(monkeypatch):
+def test_the_backward_check_drops_a_stand_in_and_keeps_what_earns_its_place():
     """'bias' was named first but, given 'outliers', gains 0.5 nats (p 0.3): dropped; 'outliers' given 'bias'
     gains 40 nats train and 30 held-out: kept, and the returned model is the reduced refit."""
     s = frozenset
     train = {s({"bias", "outliers"}): -1000.0, s({"outliers"}): -1000.5, s({"bias"}): -1040.0}
     held = {s({"bias", "outliers"}): -900.0, s({"outliers"}): -899.0, s({"bias"}): -930.0}
-    kept, model, ll = _run(monkeypatch, ["bias", "outliers"], train, held)
+    kept, model, ll = _run(["bias", "outliers"], train, held)
     assert kept == ["outliers"]
     assert [e.name for e in model.effects] == ["outliers"] and ll == -1000.5
 
 
-def test_the_backward_check_keeps_two_effects_that_both_matter(monkeypatch):
+def test_the_backward_check_keeps_two_effects_that_both_matter():
     s = frozenset
     train = {s({"a", "b"}): -1000.0, s({"b"}): -1030.0, s({"a"}): -1025.0}
     held = {s({"a", "b"}): -900.0, s({"b"}): -920.0, s({"a"}): -915.0}
-    kept, model, ll = _run(monkeypatch, ["a", "b"], train, held)
+    kept, model, ll = _run(["a", "b"], train, held)
     assert kept == ["a", "b"] and ll == -1000.0
 
 
-def test_the_backward_check_drops_an_effect_that_loses_on_the_held_out_half(monkeypatch):
+def test_the_backward_check_drops_an_effect_that_loses_on_the_held_out_half():
     """Significant on the training half (+20 nats) but worse held out (-2 nats): an over-fit, dropped."""
     s = frozenset
     train = {s({"a", "b"}): -1000.0, s({"b"}): -1030.0, s({"a"}): -1020.0}
     held = {s({"a", "b"}): -900.0, s({"b"}): -920.0, s({"a"}): -898.0}
-    kept, _, _ = _run(monkeypatch, ["a", "b"], train, held)
+    kept, _, _ = _run(["a", "b"], train, held)
     assert kept == ["a"]
 
 
-def test_an_effect_the_later_ones_made_implausible_is_dropped_before_the_backward_check(monkeypatch):
+def test_an_effect_the_later_ones_made_implausible_is_dropped_before_the_backward_check():
     """'bias' was credible when named (round 2) but the refit with 'outliers' took it to 33%: dropped and the model
     refitted without it, even though it still gains on both halves (measured on a false-sightings log, seed 11)."""
     s = frozenset
     train = {s({"bias", "outliers"}): -1000.0, s({"outliers"}): -1100.0}
-    monkeypatch.setattr(search_module, "_fit", lambda logs, init, opts: init)
-    monkeypatch.setattr(search_module, "_train_loglik", lambda model, logs: train[s(e.name for e in model.effects)])
     named = [Candidate(n, {}, 0.0, 0.0, 1, 0.0) for n in ("outliers", "bias")]
     full = _Model((_Effect("outliers"), _Effect("bias", why_implausible="sigma_rel 0.33 is no bias")))
     said = []
-    model, ll = prune(named, full, train[s({"bias", "outliers"})], [], [], None, None, said.append)
+    model, ll = prune(named, full, train[s({"bias", "outliers"})], _Context(train, {}), None, said.append)
     assert [c.name for c in named] == ["outliers"] and [e.name for e in model.effects] == ["outliers"]
     assert ll == -1100.0 and said == ["dropped: bias (given the others, sigma_rel 0.33 is no bias)"]
 
@@ -114,12 +78,10 @@ def test_an_effect_made_implausible_by_a_drop_is_dropped_too(monkeypatch):
         return reduced, train[s(e.name for e in reduced.effects)]
 
     monkeypatch.setattr(search_module, "_drop_job", drop_job)
-    monkeypatch.setattr(search_module, "score", lambda model, logs: _Score(held[s(e.name for e in model.effects)]))
-    monkeypatch.setattr(search_module, "_fit", lambda logs, init, opts: init)
-    monkeypatch.setattr(search_module, "_train_loglik", lambda model, logs: train[s(e.name for e in model.effects)])
     named = [Candidate(n, {}, 0.0, 0.0, 1, 0.0) for n in ("fade", "bias")]
     said = []
-    model, ll = prune(named, _Model((_Effect("fade"), _Effect("bias"))), -1000.0, [], [], None, None, said.append)
+    model, ll = prune(named, _Model((_Effect("fade"), _Effect("bias"))), -1000.0, _Context(train, held), None,
+                      said.append)
     assert named == [] and model.effects == () and ll == -1050.0, said
     assert said[-1] == "dropped: bias (given the others, sigma_rel 0.30 is no bias)"
 

@@ -18,9 +18,18 @@ from aibo_core.atomic import atomic_folder, write_json
 from aibo_core.compat import check_compatible
 from learners.arrays.batch import make_batch
 from learners.discrepancy.effect_sizes import base_shift, effect_intervals, holds_off, moved_since_named
+from learners.discrepancy.fitting import SEARCH_PATIENCE
 from learners.discrepancy.profile import profile_where_wald_fails
-from learners.discrepancy.score import GAP_METRIC, MOTION_GAP_METRIC, WHITENESS_METRIC, motion_score, motion_trade, score
-from learners.discrepancy.search import SEARCH_PATIENCE, search
+from learners.discrepancy.score import (
+    GAP_METRIC,
+    MOTION_GAP_METRIC,
+    MOTION_WORSE_Z,
+    WHITENESS_METRIC,
+    motion_score,
+    motion_trade,
+    score,
+)
+from learners.discrepancy.search import search
 from learners.discrepancy.signatures import probe_signature, signatures
 from learners.discrepancy.statistics import plain_reading
 from learners.em.learner import EMLearner, feature_map_for
@@ -200,11 +209,6 @@ def calibrated(found: dict, logs: list, args, say) -> dict:
         for failure in check.failed:
             say(f"    {failure}")
     return checks
-
-
-#: z of the motion gap's paired change (after - before, block standard error) beyond which the named effects are
-#: said to make the motion worse: one-sided 2.3% if the change were noise alone.
-MOTION_WORSE_Z = 2.0
 
 
 def motion_gaps(base, model, logs: list) -> dict:

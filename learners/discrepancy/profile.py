@@ -9,8 +9,8 @@ chi-square(1, 0.95) / 2 = 1.92 nats of the best fit.
 ``profile_bounds`` walks out from the estimate on each side in steps that double (the first is the standard error,
 or a tenth of the value's scale without one) until the profile drops more than 1.92 nats or the domain ends, then
 bisects the last step ``BISECTIONS`` times: an end is good to 1/2**BISECTIONS of its bracket. Each point is one EM
-fit (the search's stop rule, at most ``search.HELD_MAX_ITER`` iterations); a side costs 2-8 fits. The likelihood compared is
-the E-step's on the logs' sightings (``search._train_loglik``), the same for every point.
+fit (the search's stop rule, at most ``fitting.HELD_MAX_ITER`` iterations); a side costs 2-8 fits. The likelihood compared is
+the E-step's on the logs' sightings (``fitting.train_loglik``), the same for every point.
 
 Only effects with exactly one scalar parameter and no per-batch state qualify (``profiled_parameter``): freezing is
 per effect (``EMOptions.frozen``), so holding one of several parameters would need per-parameter freezing. Grid
@@ -122,7 +122,7 @@ def profile_interval(final: Model, logs: list[Trajectory], name: str, se: float 
     """The 95% profile-likelihood interval of effect ``name``'s one scalar parameter in the diagnosed model
     ``final`` (fitted on ``logs``; ``opts``: its fit's options): {"interval_95", "open", "method", "points", "note"}
     (module docstring, ``profile_bounds``)."""
-    from learners.discrepancy.search import SEARCH_PATIENCE, _fit, _train_loglik, _with, held
+    from learners.discrepancy.fitting import SEARCH_PATIENCE, fit, held, train_loglik, with_values
 
     pname = profiled_parameter(name)
     if pname is None:
@@ -131,19 +131,19 @@ def profile_interval(final: Model, logs: list[Trajectory], name: str, se: float 
     value = float(np.asarray(final.effect(name).values()[pname]))
     scale = float(np.max(np.atleast_1d(param.scale)))
     step = se if se is not None and math.isfinite(se) and se > 0 else 0.1 * max(abs(value), scale)
-    # warm-started, so one start and no alias search (``search._fit``)
+    # warm-started, so one start and no alias search (``fitting.fit``)
     held_opts = held(replace(opts.comparable(), patience=SEARCH_PATIENCE), name)
 
     failed: list[str] = []
 
     def loglik(v: float) -> float:
         try:
-            return _train_loglik(_fit(logs, final.with_effect(_with(final.effect(name), {pname: v})), held_opts), logs)
+            return train_loglik(fit(logs, final.with_effect(with_values(final.effect(name), {pname: v})), held_opts), logs)
         except (FloatingPointError, np.linalg.LinAlgError, ValueError) as err:  # counted as beyond the interval
             failed.append(f"the fit with {pname} held at {v:.3g} failed ({err})")
             return -math.inf
 
-    free = _train_loglik(final, logs)
+    free = train_loglik(final, logs)
     ends, open_ends, points, best = profile_bounds(loglik, value, free, step, param.low, param.high)
     notes = [f"the profile stays within {HALF_CHI2_1_95:.2f} nats of its best up to "
              f"{'the domain bound ' if e in (param.low, param.high) else ''}{e:.3g}" for e, o in zip(ends, open_ends) if o]
@@ -159,7 +159,7 @@ def conditional_interval(final: Model, logs: list[Trajectory], name: str, se: fl
     """The 95% conditional likelihood interval of effect ``name``'s one scalar parameter (``conditional_parameter``) in
     the diagnosed model ``final`` on ``logs``: everything else held at ``final``'s values, the log-likelihood (the
     E-step's, mixtures included) walked and bisected as ``profile_bounds`` does. Same keys as ``profile_interval``."""
-    from learners.discrepancy.search import _train_loglik, _with
+    from learners.discrepancy.fitting import train_loglik, with_values
 
     pname = conditional_parameter(name)
     if pname is None:
@@ -172,11 +172,11 @@ def conditional_interval(final: Model, logs: list[Trajectory], name: str, se: fl
 
     def loglik(v: float) -> float:
         try:
-            return _train_loglik(final.with_effect(_with(effect, {pname: v})), logs)
+            return train_loglik(final.with_effect(with_values(effect, {pname: v})), logs)
         except (FloatingPointError, np.linalg.LinAlgError, ValueError):  # beyond the interval
             return -math.inf
 
-    ends, open_ends, points, _ = profile_bounds(loglik, value, _train_loglik(final, logs), step, param.low, param.high)
+    ends, open_ends, points, _ = profile_bounds(loglik, value, train_loglik(final, logs), step, param.low, param.high)
     notes = [f"the likelihood stays within {HALF_CHI2_1_95:.2f} nats of its best up to "
              f"{'the domain bound ' if e in (param.low, param.high) else ''}{e:.3g}" for e, o in zip(ends, open_ends) if o]
     return {"interval_95": ends, "open": open_ends,

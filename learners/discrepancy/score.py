@@ -71,6 +71,11 @@ def score(model: Model, logs: list[Trajectory], gate: float | None = None) -> Sc
                  float(np.mean((z < lo) | (z > hi))), white if np.isfinite(white) else 0.0, nis)
 
 
+#: z of the motion gap's paired change (after - before, block standard error; ``motion_trade``) beyond which a model
+#: is said to make the motion worse: one-sided 2.3% if the change were noise alone
+MOTION_WORSE_Z = 2.0
+
+
 def horizon_key(seconds: float) -> str:
     """The key of a horizon in ``report.json`` (seconds, shortest form: "1", "2", "0.5")."""
     return f"{seconds:g}"

@@ -32,6 +32,7 @@ from aibo_core.geometry import rot, wrap
 from learners.arrays.batch import Batch
 from learners.arrays.lowered import Lowered
 from learners.arrays.posterior import Posterior
+from learners.model.catalogue_more import WallSlowdown
 from learners.model.effects import EffectModel, register_effect
 from learners.model.parameters import Param
 
@@ -104,6 +105,9 @@ class VelocityFade(EffectModel):
     PARAMS: ClassVar[dict[str, Param]] = {"fade_per_min": Param("1/min", "scaled", 0.01, low=-1.0, high=1.0, shape=())}
     PROBE: ClassVar[dict[str, Any]] = {"fade_per_min": 0.03}
     EXAMPLE: ClassVar[dict[str, Any]] = {"fade_per_min": 0.02}
+    #: a robot that spends more of its later minutes pressing a wall moves slower later (docs/results.md, "Given the
+    #: walls")
+    CONFOUNDERS: ClassVar[tuple[type, ...]] = (WallSlowdown,)
 
     def disp_scale(self, batch: Batch) -> np.ndarray:
         return np.maximum(0.0, 1.0 - self.fade_per_min * batch.frame_time / 60.0)

@@ -264,7 +264,8 @@ class WallSlowdown(EffectModel):
     """A NUISANCE, not a catalogue effect (not registered: never a candidate, never named): one free factor on
     the mean displacement of the frames whose smoothed end pose (of the model it was made from) is within
     ``NEAR_MM`` of a wall or beyond it, i.e. the frames where the robot may be pressing a wall. The search
-    tests a time-signature candidate (``velocity_fade``) GIVEN it (``learners.discrepancy.search``): a fade of
+    tests a time-signature candidate (``velocity_fade``, whose ``CONFOUNDERS`` name it) GIVEN it
+    (``learners.discrepancy.checks.GivenNuisance``): a fade of
     the speed over the log is what more time spent pushing a wall later in the log looks like.
 
     ``NEAR_MM`` is wide on purpose: on the effect-free wall log of seed 3008 (``aibo`` noise, 5 min) the
@@ -294,8 +295,13 @@ class WallSlowdown(EffectModel):
         near = np.any(half[None, :] - np.abs(end[:, :2]) < cls.NEAR_MM, axis=1)
         return cls(1.0, near=near, key=_frame_key(batch))
 
-    def n_near(self) -> int:
+    def n_frames(self) -> int:
+        """The frames it acts on (near a wall)."""
         return 0 if self.near is None else int(self.near.sum())
+
+    def given(self) -> str:
+        """What a test given it holds, for the report (``checks.GivenNuisance``)."""
+        return f"a free speed factor on the {self.n_frames()} frames near a wall (x{self.factor:.2f})"
 
     def disp_scale(self, batch: Batch) -> np.ndarray | None:
         if self.near is None or self.key != _frame_key(batch) or self.factor == 1.0:

@@ -62,6 +62,9 @@ class EffectModel(Component):
     #: Whether ``aibo diagnose`` tries the effect by default (False: only when ``--candidates`` names it, for an
     #: effect whose evidence on real logs is not yet good enough to be named without being asked for).
     DEFAULT_CANDIDATE: ClassVar[bool] = True
+    #: Nuisances the effect can stand in for (classes with ``around(post, batch)``, ``n_frames()``, ``given()``; e.g.
+    #: ``WallSlowdown``): the search tests a significant candidate again given each (``checks.GivenNuisance``).
+    CONFOUNDERS: ClassVar[tuple[type, ...]] = ()
 
     def negligible(self, n_sightings: int) -> str:
         """Why the fitted effect is too small to name ("" when it is not), on data of ``n_sightings``

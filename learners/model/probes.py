@@ -33,7 +33,7 @@ import numpy as np
 
 from learners.arrays.batch import Batch
 from learners.arrays.posterior import Posterior
-from learners.model.catalogue_more import _frame_key
+from learners.model.catalogue_more import WallSlowdown, _frame_key
 from learners.model.effects import EffectModel
 from learners.model.parameters import Param
 
@@ -59,6 +59,9 @@ class SpeedProbe(EffectModel):
     DESCRIBES: ClassVar[str] = ""
     #: the covariates' names, in ``coef``'s order
     TERMS: ClassVar[tuple[str, ...]] = ()
+    #: a robot pushing a wall moves slower towards it, in those headings and at those places (docs/results.md, "Given
+    #: the walls")
+    CONFOUNDERS: ClassVar[tuple[type, ...]] = (WallSlowdown,)
 
     @classmethod
     def covariates(cls, post: Posterior, batch: Batch) -> np.ndarray:
