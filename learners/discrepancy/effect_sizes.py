@@ -18,11 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from learners.em.uncertainty import file_values
+from learners.em.uncertainty import CHI2_1_95, Z95, file_values
 from learners.model.model import Model
-
-Z95 = 1.959963984540054  # two-sided 95% quantile of the standard normal
-CHI2_1_95 = 3.841458820694124  # 95% quantile of chi-square with 1 degree of freedom
 
 
 def profile_interval(grid: list[float], lls: list[float]) -> list[float]:

@@ -32,13 +32,12 @@ import numpy as np
 from learners.arrays.batch import Batch
 from learners.em.fit import EMState, initial_state, run
 from learners.em.options import EMOptions
+from learners.em.uncertainty import CHI2_1_95
 from learners.model.catalogue import ActuationLag
 from learners.model.model import Model
 
 ALPHA = 0.01  # false-alarm level of keeping a lag
-#: nats: the drop that bounds a 95% profile interval, chi-square(1, 0.95) / 2 (a constant: scipy.stats costs every
-#: command ~1 s to import)
-HALF_CHI2_1_95 = 1.9207294103470617
+HALF_CHI2_1_95 = CHI2_1_95 / 2.0  # nats: the drop that bounds a 95% profile interval
 #: The lags refitted (s), walked in order until two in a row fall past the best: the catalogue's grid (``aibo
 #: diagnose`` profiles over ``ActuationLag.GRID``, 0-0.5 s) and on to 1 s, so a log whose commands are stamped
 #: early still finds its lag.

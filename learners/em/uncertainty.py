@@ -64,6 +64,11 @@ from learners.model.model import Model
 from learners.model.parameters import helmert
 from learners.model.sensor import curve_nodes
 
+#: 95% quantiles as constants (scipy.stats costs every command ~1 s to import): the standard normal's two-sided, and
+#: chi-square with 1 degree of freedom (a profile-likelihood interval is the drop of half of it, in nats)
+Z95 = 1.959963984540054
+CHI2_1_95 = 3.841458820694124
+
 #: Forward-difference step in the packed units (one unit ~ one noise width: 10 mm/frame, 1 px, ...);
 #: a negative step asks for central differences (twice the passes; the tests compare the two).
 STEP = 1e-5
