@@ -89,8 +89,8 @@ def _binned(name: str, variable: str, r: np.ndarray, x: np.ndarray, categorical:
         return None
     inside = keep[idx]  # bins with fewer than 2 residuals are left out, the others renumbered 0, 1, ...
     r, idx = r[inside], (np.cumsum(keep) - 1)[idx[inside]]
-    means, cov = bin_means(r, idx, int(keep.sum()))
-    p = wald_p(means, cov)
+    means, cov, nu = bin_means(r, idx, int(keep.sum()))
+    p = wald_p(means, cov, nu)
     return Signature(name, variable, [float(c) for c in centers[keep]], means.tolist(),
                      np.sqrt(np.maximum(np.diag(cov), 0.0)).tolist(), p if np.isfinite(p) else 1.0)
 
