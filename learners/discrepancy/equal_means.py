@@ -7,24 +7,24 @@ its F-test reports p = 1e-200 on a log with no effect at all.
 
 Here the bin means' covariance is the heteroskedasticity-and-autocorrelation-consistent (Newey-West) one: the
 residuals' autocovariance at lags 1..L, each lag's weight 1 - k / (L + 1) (Bartlett kernel), summed over the pairs of
-series elements that lag apart in each pair of bins. Two choices keep the test's size honest (each a standard one):
+series elements that lag apart in each pair of bins. The Wald statistic W of the q = G - 1 contrasts "bin g minus the
+last bin" is referred not to chi-square(q) but to Hotelling's F for a covariance estimated with nu equivalent degrees
+of freedom, W (nu - q + 1) / (nu q) ~ F(q, nu - q + 1), nu by Satterthwaite's rule for this estimate: with the
+autocovariance estimates' variances of white noise (2 g0^2 / n at lag 0, g0^2 / n beyond), nu = 2 n / (2 + sum_k
+(w_k s_k)^2), w_k the Bartlett weight and s_k the lag's share of the contrasts' variance (tr(A_0^-1 A_k) / q). For
+contiguous bins (elapsed time) s_k ~ 2 and nu ~ 3 n / (2 L), the Bartlett kernel's (Sun, Phillips and Jin 2008,
+Econometrica 76(1)); for bins that interleave (a landmark, a heading) s_k ~ 0 and nu ~ n: the chi-square test as
+before. An AR(1) series of lag-1 correlation 0.5 / 0.9 / 0.97 in 8 contiguous bins of 6000 frames (200 series) was
+rejected at 5% in 17% / 15% / 33% of series with the chi-square reference, 6.5% / 9% / 16.5% with this one (at 0.9,
+another 100 series: 24% and 18%); in interleaved bins 3.5-5% either way. Measured on blind effect-free 5-minute
+logs (``scripts/signatures_null.py``; docs/results.md, "Residual signatures on effect-free logs"), logs with any of ~29
+signatures at p < 0.001, raw / Holm-adjusted: 10 / 2 -> 5 / 1 of 40 (seeds 6000-6019, both presets), 15 / 5 -> 13 / 3
+(6100-6119), 9 raw -> 7 / 1 (6200-6219, generated after the rule was fixed).
 
-- the autocovariances are those of the residuals under the null, net of the overall mean, not of each bin's mean
-  (the Lagrange-multiplier form): with bins of contiguous frames, each bin's own mean takes the low frequencies out
-  of the residuals, and the covariance comes out too small. An AR(1) series of lag-1 correlation 0.5 / 0.9 / 0.97 in
-  8 contiguous bins of 6000 frames (200 series): rejected at 5% in 17% / 15% / 33% of series with each bin's mean
-  removed, 2.5% / 5% / 8% with the overall mean;
-- the reference is not chi-square(q), q = G - 1, but Hotelling's F for a covariance estimated with nu equivalent
-  degrees of freedom, W (nu - q + 1) / (nu q) ~ F(q, nu - q + 1), nu by Satterthwaite's rule for this estimate: with
-  the autocovariance estimates' variances of white noise (2 g0^2 / n at lag 0, g0^2 / n beyond), nu = 2 n / (2 +
-  sum_k (w_k s_k)^2), w_k the Bartlett weight and s_k the lag's share of the contrasts' variance (tr(A_0^-1 A_k) / q).
-  For contiguous bins s_k ~ 2 and nu ~ 3 n / (2 L), the Bartlett kernel's (Sun, Phillips and Jin 2008,
-  Econometrica 76(1)); for bins that interleave (a landmark, a heading) s_k ~ 0 and nu ~ n: the F-test's.
-
-Measured on blind effect-free 5-minute logs (``scripts/signatures_null.py``; docs/results.md, "Residual signatures on
-effect-free logs"), logs with any of ~29 signatures at p < 0.001, raw / Holm-adjusted: before these two choices 10 / 2
-of 40 (seeds 6000-6019, both presets) and 15 / 5 of 40 (6100-6119); with them 1 / 0 and 4 / 1, and the share of all
-signatures below 0.05 went from 10% to 3-3.5% and below 0.001 from 1.4-1.6% to 0.1-0.3%.
+The covariance is kept in the Wald form (each bin's own mean taken out of the residuals): in the Lagrange-multiplier
+form (the overall mean) the contiguous-bin AR(1) series were rejected in 0.5-2.5%, but an effect inflates that
+covariance, so a p-value could not fall below about 1e-4 however large the effect, and the calibrated check, which
+reads the signatures' strengths, no longer saw ``beacon_height_scale`` (its "size vs landmark").
 
 The bandwidth L is the larger of Andrews' (1991) plug-in rule for
 the Bartlett kernel under an AR(1) approximation, 1.1447 (alpha n)^(1/3), alpha = 4 rho^2 / ((1 - rho)^2 (1 + rho)^2),
@@ -58,16 +58,16 @@ def bandwidth(e: np.ndarray) -> int:
 
 
 def bin_means(r: np.ndarray, group: np.ndarray, n_groups: int) -> tuple[np.ndarray, np.ndarray, float]:
-    """(the bin means, their covariance robust to serial correlation under the null of equal means, its equivalent
-    degrees of freedom: module docstring) of the series ``r`` (in time order) binned by ``group`` (integers
+    """(the bin means, their covariance robust to serial correlation, its equivalent degrees of freedom: module
+    docstring) of the series ``r`` (in time order) binned by ``group`` (integers
     0..n_groups-1, each bin non-empty)."""
     r = np.asarray(r, dtype=float)
     g = np.asarray(group, dtype=np.int64)
     n, G = len(r), n_groups
     count = np.bincount(g, minlength=G).astype(float)
     means = np.bincount(g, weights=r, minlength=G) / count
-    lags = bandwidth(r - means[g])
-    e = r - r.mean()  # the residuals under the null (module docstring)
+    e = r - means[g]
+    lags = bandwidth(e)
     # the contrasts "bin g minus the last" scaled by the counts: the bin means' differences in pair sums
     contrast = np.hstack([np.eye(G - 1), -np.ones((G - 1, 1))]) / count
     a0 = contrast @ np.diag(count) @ contrast.T
