@@ -103,8 +103,9 @@ def build_parser() -> argparse.ArgumentParser:
                     "range = distance (or --init's) and screens no stretched starts (default); free fits the cubic "
                     "(paper)")
     lr.add_argument("--face-value-gate", action=argparse.BooleanOptionalAction, default=None,
-                    help="velocity commands with a range sensor: judge the first-iteration outlier gate under the "
-                         "commands' face value, once for every start (default on; paper: off)")
+                    help="velocity commands with a range sensor, from the paper's start: judge the first-iteration "
+                         "outlier gate under the commands' face value, once for every start (default on; paper: off; "
+                         "a fitted --init model is gated at itself)")
     lr.add_argument("--alias-search", action=argparse.BooleanOptionalAction, default=None,
                     help="after the fit, search heading aliases of commands held once or a few times (default on; "
                          "paper: off)")

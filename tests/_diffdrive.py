@@ -33,13 +33,29 @@ def velocity(commands: np.ndarray) -> np.ndarray:
     return np.stack([v, w, v * np.abs(w), np.abs(w), np.ones_like(v)], axis=1) @ TRUE_W
 
 
+def range_biases(T: int, n_landmarks: int, dt: float, sigma_rel: float, tau_s: float, seed: int) -> np.ndarray:
+    """(T, n_landmarks) relative range biases: per landmark a first-order Gauss-Markov process of stationary standard
+    deviation ``sigma_rel`` and correlation time ``tau_s`` (s), drawn from its own stream (seed ``seed``)."""
+    rng = np.random.default_rng([seed, 7])
+    phi = np.exp(-dt / tau_s)
+    b = np.empty((T, n_landmarks))
+    b[0] = rng.normal(0.0, sigma_rel, n_landmarks)
+    for t in range(1, T):
+        b[t] = phi * b[t - 1] + rng.normal(0.0, sigma_rel * np.sqrt(1.0 - phi * phi), n_landmarks)
+    return b
+
+
 def diff_drive_log(seconds: float = 600.0, dt: float = 0.05, seed: int = 0,
-                   drift_mm_s: tuple[float, float] = (0.0, 0.0)) -> Trajectory:
+                   drift_mm_s: tuple[float, float] = (0.0, 0.0),
+                   range_bias: tuple[float, float] | None = None) -> Trajectory:
     """A log of ``seconds`` with commands held 1-3 s, wandering among 8 landmarks in a 6 m square;
-    ``drift_mm_s``: a hidden world-frame drift (mm/s), recorded nowhere in the log."""
+    ``drift_mm_s``: a hidden world-frame drift (mm/s), recorded nowhere in the log; ``range_bias``: (sigma_rel, tau_s)
+    of a slowly varying relative bias per landmark on the range (``range_biases``; range = d (1 + b) + noise; the
+    rest of the log is the same as without it), as ``landmark_bias`` models it."""
     rng = np.random.default_rng(seed)
     T = int(round(seconds / dt))
     landmarks = rng.uniform(-3000.0, 3000.0, size=(8, 2))
+    bias = np.zeros((T, 8)) if range_bias is None else range_biases(T, 8, dt, *range_bias, seed)
     pose = np.zeros((T + 1, 3))
     controls = np.zeros((T, 2))
     frames, marks, values = [], [], []
@@ -62,7 +78,7 @@ def diff_drive_log(seconds: float = 600.0, dt: float = 0.05, seed: int = 0,
         for b in np.flatnonzero((d > 300) & (d < 4000) & (np.abs(bearing) < 0.9) & (rng.random(8) < 0.4)):
             frames.append(t)
             marks.append(b)
-            values.append((d[b] + rng.normal(0, 40.0), wrap(bearing[b] + rng.normal(0, 0.02))))
+            values.append((d[b] * (1.0 + bias[t, b]) + rng.normal(0, 40.0), wrap(bearing[b] + rng.normal(0, 0.02))))
     return Trajectory(dt=dt, landmarks=landmarks, sighting_frame=np.array(frames), sighting_landmark=np.array(marks),
                       sighting_value=np.array(values).reshape(-1, 2), sensor_kind="range_mm", controls=controls,
                       control_names=("v_mm_s", "omega_rad_s"), pose=pose,

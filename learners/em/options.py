@@ -67,8 +67,10 @@ class EMOptions:
     # and screens no stretched starts; "free": EM fits the cubic as for a height (the paper). Default "held"
     # (deviation from the paper, measured on the five MRCLAM robots: docs/results.md, "Why robots 3 and 4 ...")
     range_curve: str = "held"
-    # continuous (v, omega) commands with a range sensor: the first-iteration outlier gate is judged once, under the
-    # commands' face value, and every start sees the same sightings (``learners.em.learner.face_value_gate``)
+    # continuous (v, omega) commands with a range sensor, from a start that stands still (the paper's): the
+    # first-iteration outlier gate is judged once, under the commands' face value, and every start sees the same
+    # sightings (``learners.em.learner.face_value_gate``); a warm start (one that moves) is gated at itself
+    # (``learners.em.learner.stands_still``)
     face_value_gate: bool = True
     hold_curve: bool = False  # internal: set by the learner for the fit of a range sensor with range_curve "held"
 
