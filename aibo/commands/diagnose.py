@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -17,9 +16,8 @@ from aibo_core import trajectory
 from aibo_core.atomic import atomic_folder, write_json
 from aibo_core.compat import check_compatible
 from learners.arrays.batch import make_batch
-from learners.discrepancy.effect_sizes import base_shift, effect_intervals, holds_off, moved_since_named
-from learners.discrepancy.fitting import SEARCH_PATIENCE
-from learners.discrepancy.profile import profile_where_wald_fails
+from learners.discrepancy.effect_sizes import base_shift, holds_off, moved_since_named
+from learners.discrepancy.final import diagnosed
 from learners.discrepancy.score import (
     GAP_METRIC,
     MOTION_GAP_METRIC,
@@ -32,7 +30,7 @@ from learners.discrepancy.score import (
 from learners.discrepancy.search import search
 from learners.discrepancy.signatures import probe_signature, signatures
 from learners.discrepancy.statistics import plain_reading
-from learners.em.learner import EMLearner, feature_map_for
+from learners.em.learner import feature_map_for
 from learners.em.options import EMOptions
 from learners.model.effects import EFFECT_MODELS
 from learners.model.io import save_result
@@ -88,21 +86,10 @@ def run(args) -> int:
     before, after = score(found["base"], logs), score(found["model"], logs)
     motion = motion_gaps(found["base"], found["model"], logs)
     sig_before, sig_after = signatures(found["base"], logs), signatures(found["model"], logs)
-    # warm-started: one start (the screening of stretched sensor curves is the paper's-start rescue; from the
-    # searched model it once kept a curve with distances x0.25 and a world 99% off the field) and no alias search
-    # (it ran in the base fit, from the paper's start, as in every fit of the search; on a 10-minute log with 10%
-    # false sightings it took 104 of this fit's 128 s)
-    t1 = time.perf_counter()
-    # and the search's stop rule (0.1 nat, patience SEARCH_PATIENCE: the model was converged with it on the training
-    # half), not the strict rule a start with effects otherwise resolves to (``fit_options``; patience 50)
-    final_opts = replace(opts.comparable(), patience=SEARCH_PATIENCE, starts=1, alias_search=False)
-    final = EMLearner(final_opts, check_field=False).fit(logs, init=found["model"])
-    seconds["final fit with standard errors"] = time.perf_counter() - t1
-    report = _report(found, final.params, final.info, before, after, sig_before)
+    final = diagnosed(found, opts)  # the whole-log fit and the named effects' intervals (learners.discrepancy.final)
+    seconds.update(final.seconds)
+    report = _report(found, final.effects, before, after, sig_before)
     report.update(motion)
-    t1 = time.perf_counter()
-    if profile_where_wald_fails(report["effects"], final.params, logs, final_opts):  # a rate near its bound
-        seconds["profile intervals"] = time.perf_counter() - t1
     say("")
     say(f"named effects, in order: {', '.join(e['name'] for e in report['effects']) or 'none'}")
     for e in report["effects"]:
@@ -139,8 +126,8 @@ def run(args) -> int:
         say(f"none of the above: {u['describes']} (train +{u['gain_train']:.1f} nats, held-out {u['gain_heldout']:+.1f} "
             f"nats, p = {u['p_value']:.2g}); {u['why_not_named']}; its signature: {u['statistic']}"
             + (f", p = {u['signature']['p_value']:.2g}" if u["signature"] else ""))
-    report["warnings"] = list(final.info.get("warnings", []))  # e.g. a fit that may be a wrong world: said loudly
-    report["warnings"] += [f"{e.name}: {e.implausible()}" for e in final.params.effects if e.implausible()]
+    report["warnings"] = list(final.result.info.get("warnings", []))  # e.g. a fit that may be a wrong world: said loudly
+    report["warnings"] += [f"{e.name}: {e.implausible()}" for e in final.result.params.effects if e.implausible()]
     report["warnings"] += off_held(report["effects"], logs)
     report["warnings"] += [w for e in report["effects"]
                            if (w := moved_since_named(e["name"], e["intervals"], e["parameters_when_named"]))]
@@ -151,13 +138,9 @@ def run(args) -> int:
     report["seconds"] = time.perf_counter() - t0
     report["seconds_by_stage"] = seconds
     say(f"{report['seconds']:.1f} s in all ({', '.join(f'{k} {v:.1f} s' for k, v in seconds.items())})")
-    written = write_outputs(out, final, report, lines, sig_before, sig_after, before, after)
+    written = write_outputs(out, final.result, report, lines, sig_before, sig_after, before, after)
     print(f"wrote {out}/: {', '.join(written)}")
     return 0
-
-
-def _values(effect) -> dict:
-    return {k: np.asarray(v).tolist() for k, v in effect.values().items()}
 
 
 def write_outputs(out: Path, final, report: dict, lines: list[str], sig_before, sig_after, before, after) -> list[str]:
@@ -303,16 +286,11 @@ against the probe's fitted factor)."""
     return out
 
 
-def _report(found: dict, final, final_info: dict, before, after, sig_before) -> dict:
-    """report.json's body. The named effects' parameters are those of the diagnosed model (``final``, model.json:
-    every kept effect, refitted on the whole logs), with standard errors and 95% intervals from its fit's
-    information (``intervals``, ``learners.discrepancy.effect_sizes``); ``parameters_when_named``: the candidate's
-    fit in its round; ``base_change``: how far the named effects moved the base model (both fits on the training
-    half)."""
-    se = final_info.get("standard_errors", {})
-    effects = [{"name": c.name, "parameters": _values(final.effect(c.name)),
-                "intervals": effect_intervals(final, c.name, se, c.profile),
-                "parameters_when_named": c.as_dict()["parameters"]} for c in found["named"]]
+def _report(found: dict, effects: list[dict], before, after, sig_before) -> dict:
+    """report.json's body. ``effects``: the named effects' entries (``learners.discrepancy.final.diagnosed``: the
+    parameters of the diagnosed model, model.json, every kept effect refitted on the whole logs, with standard errors
+    and 95% intervals; ``parameters_when_named``: the candidate's fit in its round); ``base_change``: how far the
+    named effects moved the base model (both fits on the training half)."""
     # "named": this try is the one that named the effect, and the diagnosed model holds it (not pruned)
     tried = [dict(c.as_dict(), round=k + 1, named=any(c is n for n in found["named"]))
              for k, rnd in enumerate(found["rounds"]) for c in rnd]

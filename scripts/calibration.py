@@ -1,0 +1,213 @@
+"""Calibration of `aibo diagnose`'s estimates: do the named effects' 95% intervals cover the truth, is the estimate biased?
+
+    python scripts/calibration.py [--logs 100] [--effects a,b,...] [--minutes 5] [--first-log 0] [--out runs/calibration]
+    python scripts/calibration.py --out runs/calibration --table      # print the table of the rows so far
+
+For each effect of the catalogue at one strength (``STRENGTH``) and each log i = ``--first-log`` .. ``--logs`` - 1:
+a 5-minute blind log simulated with the effect (``aibo_gym.collect.collect``, seed ``SEED + i``, noise preset
+``PRESETS[i % 2]``: ``aibo``, ``paper-sim`` alternating), then what `aibo diagnose LOG --candidates EFFECT` does to
+name it and to estimate it, in this process: the search (``learners.discrepancy.search.search``, one candidate, one
+worker, diagnose's options) and, the effect named, the final fit on the whole log with each named parameter's 95%
+interval (``learners.discrepancy.final.diagnosed``, the function ``aibo diagnose`` calls; Wald from the Fisher
+information, the profile or conditional likelihood interval where Wald fails, the search's grid profile for the lag).
+What the study skips of the command (the scores, signatures, motion gaps, the calibrated check, the page) does not
+change the named effects or their intervals. Every random choice is the log's seed or diagnose's ``--seed 0``.
+
+One row per (effect, log) in OUT/rows.jsonl, written after each log (the study resumes where it stopped; a second
+process can take other logs with ``--first-log``); OUT/table.md, printed at the end: per parameter (array parameters
+per component) and noise preset, over the logs where the effect was named:
+
+- coverage: the share of the 95% intervals that hold the truth, with its binomial standard error;
+- bias: mean estimate - truth; SE: the mean of the reported standard errors (a grid or profile interval has none:
+  its half-width / 1.96 stands in); bias / SE with its Monte Carlo standard error (the spread of estimate - truth
+  over the logs / sqrt(n) / SE); spread / SE: the spread of the estimates over the logs against the mean reported
+  standard error (1 when the standard errors are right);
+- missing: named logs whose interval is None.
+
+Targets (issue 34): coverage 90-98%, |bias| / SE < 1/3. Truths are compared in the learner's parametrization:
+``beacon_height_scale`` normalized to geometric mean 1 and ``landmark_bearing_offset`` to mean 0 (their constraints).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):  # one BLAS thread, as the command (aibo/__init__.py)
+    os.environ.setdefault(_var, "1")
+
+import numpy as np  # noqa: E402
+
+from aibo_core.atomic import atomic_write, read_jsonl  # noqa: E402
+
+#: The strength of each effect: the "medium" of ``scripts/diagnose_power.py``'s STRENGTHS, except where issue 34 asks
+#: for another (``false_sightings`` at 8%) or where the medium is named on at most 1 in 10 five-minute `aibo` logs
+#: (``floor_drift`` 6 mm/s, ``velocity_fade`` 0.01/min: 1 and 0 of 10): there the strong one (7 and 5 of 10), so that
+#: the intervals given that the effect is named are not mostly a selection of lucky logs. ``wall_contact`` has no
+#: parameter; ``angle_bias`` is not identifiable (never named: its right answer is none).
+STRENGTH: dict[str, dict[str, Any]] = {
+    "landmark_bias": {"sigma_rel": 0.05, "tau_s": 8.0},
+    "false_sightings": {"rate": 0.08},
+    "off_center_shrink": {"k": 0.1},
+    "actuation_lag": {"lag_s": 0.1},
+    "beacon_height_scale": {"scale": [1.02, 0.98, 1.01, 0.99]},
+    "distance_dependent_noise": {"exponent": 0.5},
+    "landmark_bearing_offset": {"offset_rad": [0.01, -0.01, 0.005, -0.005]},
+    "floor_drift": {"drift_mm_s": [12.0, 0.0]},
+    "velocity_fade": {"fade_per_min": 0.02},
+}
+PRESETS = ("aibo", "paper-sim")
+SEED = 8000  # log i has seed SEED + i (the power study's logs are 1000-5009)
+Z95 = 1.959963984540054
+
+
+def truth(effect: str, params: dict[str, Any]) -> dict[str, Any]:
+    """The simulated parameters in the learner's parametrization (module docstring)."""
+    out = {k: (np.asarray(v, float) if np.ndim(v) else float(v)) for k, v in params.items()}
+    if effect == "beacon_height_scale":
+        out["scale"] = out["scale"] / np.exp(np.mean(np.log(out["scale"])))
+    if effect == "landmark_bearing_offset":
+        out["offset_rad"] = out["offset_rad"] - np.mean(out["offset_rad"])
+    return {k: np.asarray(v).tolist() for k, v in out.items()}
+
+
+def one(effect: str, i: int, minutes: float) -> dict[str, Any]:
+    """Log ``i`` of ``effect``: simulated, searched and, the effect named, its final estimates and intervals."""
+    from aibo_core.trajectory import blind
+    from aibo_gym.collect import collect
+    from learners.discrepancy.final import diagnosed
+    from learners.discrepancy.search import search
+    from learners.em.options import EMOptions
+
+    params, seed, preset = STRENGTH[effect], SEED + i, PRESETS[i % len(PRESETS)]
+    tr = blind(collect({"noise": preset, "effects": {effect: params}}, int(round(minutes * 60 * 30)), seed=seed))
+    t0, c0 = time.perf_counter(), time.process_time()
+    opts = EMOptions(seed=0, lag_search=False)  # ``aibo diagnose``'s (its --seed 0)
+    found = search([tr], [effect], opts, jobs=1, progress=lambda s: None)
+    tried = [c for rnd in found["rounds"] for c in rnd if c.name == effect]
+    row = {"effect": effect, "log": i, "seed": seed, "preset": preset, "minutes": minutes, "params": params,
+           "truth": truth(effect, params), "named": [c.name for c in found["named"]],
+           "candidate": tried[0].as_dict() if tried else None, "n_sightings": int(sum(t.n_sightings for t in found["logs"])),
+           "outliers": int(tr.n_sightings - sum(t.n_sightings for t in found["logs"]))}
+    row["seconds_search"] = time.perf_counter() - t0
+    if found["named"]:
+        final = diagnosed(found, opts)
+        row["effects"] = final.effects
+        row["final_pruned"] = int(final.result.pruned_observations)
+        row["warnings"] = list(final.result.info.get("warnings", []))
+        row["seconds_final"] = sum(final.seconds.values())
+    row["seconds"], row["cpu_seconds"] = time.perf_counter() - t0, time.process_time() - c0
+    return row
+
+
+def estimates(row: dict[str, Any]) -> dict[str, dict[str, Any]] | None:
+    """The named target effect's interval entries (``report.json["effects"][k]["intervals"]``), None when not named."""
+    entry = next((e for e in row.get("effects", []) if e["name"] == row["effect"]), None)
+    return None if entry is None else entry["intervals"]
+
+
+def components(row: dict[str, Any]) -> list[tuple[str, int | None]]:
+    """(parameter, component index or None for a scalar) of the row's effect, in order."""
+    return [(p, None) if np.ndim(v) == 0 else (p, j) for p, v in row["truth"].items() for j in
+            ([None] if np.ndim(v) == 0 else range(len(v)))]
+
+
+def cell(entry: dict[str, Any], j: int | None) -> tuple[float, float | None, list[float] | None]:
+    """(estimate, standard error or None, [lo, hi] or None) of component ``j`` of an interval entry."""
+    pick = (lambda v: v) if j is None else (lambda v: v[j])
+    value = float(pick(entry["value"]))
+    se = None if entry.get("se") is None else float(pick(entry["se"]))
+    iv = entry.get("interval_95")
+    return value, se, None if iv is None else [float(pick(iv[0])), float(pick(iv[1]))]
+
+
+def summary(values: list[float], ses: list[float | None], intervals: list[list[float] | None], true: float) -> dict:
+    """The calibration of one parameter over the logs where it was estimated: ``values`` the estimates, ``ses`` their
+    standard errors (None: none reported), ``intervals`` their 95% intervals (None: missing), ``true`` the truth.
+    Keys: n, missing, covered, coverage and its binomial standard error, bias (mean estimate - truth), bias_mcse, se
+    (mean standard error; a half-width / Z95 where none was reported), ratio (bias / se) and ratio_mcse, spread (of
+    the estimates) and spread_ratio (spread / se)."""
+    n = len(values)
+    have = [iv for iv in intervals if iv is not None]
+    covered = sum(lo <= true <= hi for lo, hi in have)
+    cov = covered / len(have) if have else float("nan")
+    err = np.asarray(values, float) - true
+    implied = [s if s is not None else (None if iv is None else (iv[1] - iv[0]) / (2 * Z95)) for s, iv in zip(ses, intervals)]
+    se = float(np.mean([s for s in implied if s is not None])) if any(s is not None for s in implied) else float("nan")
+    spread = float(np.std(values, ddof=1)) if n > 1 else float("nan")
+    bias = float(err.mean()) if n else float("nan")
+    mcse = spread / np.sqrt(n) if n > 1 else float("nan")
+    return {"n": n, "missing": n - len(have), "covered": covered, "coverage": cov,
+            "coverage_se": float(np.sqrt(cov * (1 - cov) / len(have))) if have else float("nan"),
+            "bias": bias, "bias_mcse": mcse, "se": se, "ratio": bias / se, "ratio_mcse": mcse / se,
+            "spread": spread, "spread_ratio": spread / se}
+
+
+def table(rows: list[dict[str, Any]]) -> str:
+    """The markdown table (module docstring): per effect, parameter (component) and noise preset, over the logs where
+    the effect was named, with how many logs named it."""
+    lines = ["| effect | parameter | preset | truth | named | coverage (+- s.e.) | bias | SE | bias / SE (+- MC s.e.) | "
+             "spread / SE | missing |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for effect in dict.fromkeys(r["effect"] for r in rows):
+        rs = [r for r in rows if r["effect"] == effect]
+        for pname, j in components(rs[0]):
+            true = rs[0]["truth"][pname] if j is None else rs[0]["truth"][pname][j]
+            label = pname if j is None else f"{pname}[{j}]"
+            for preset in PRESETS:
+                logs = [r for r in rs if r["preset"] == preset]
+                cells = [cell(e[pname], j) for e in (estimates(r) for r in logs) if e is not None]
+                head = f"| {effect} | {label} | {preset} | {true:.4g} | {len(cells)} of {len(logs)} |"
+                if not cells:
+                    lines.append(head + " | | | | | |")
+                    continue
+                s = summary([c[0] for c in cells], [c[1] for c in cells], [c[2] for c in cells], true)
+                lines.append(head + f" {s['coverage']:.0%} +- {s['coverage_se']:.0%} ({s['covered']} of "
+                             f"{s['n'] - s['missing']}) | {s['bias']:+.3g} | {s['se']:.3g} | {s['ratio']:+.2f} +- "
+                             f"{s['ratio_mcse']:.2f} | {s['spread_ratio']:.2f} | {s['missing']} |")
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--logs", type=int, default=100, help="logs per effect (log i: seed SEED + i, preset PRESETS[i %% 2])")
+    ap.add_argument("--first-log", type=int, default=0, help="start at this log (a second process can take others)")
+    ap.add_argument("--effects", default=",".join(STRENGTH), help="comma-separated, in the order run (default: all)")
+    ap.add_argument("--minutes", type=float, default=5.0, help="log length (default 5: 9000 frames)")
+    ap.add_argument("--out", default="runs/calibration")
+    ap.add_argument("--table", action="store_true", help="only print the table of OUT/rows.jsonl")
+    args = ap.parse_args()
+    out = Path(args.out)
+    rows = read_jsonl(out / "rows.jsonl")
+    if not args.table:
+        from study import resume
+
+        effects = [e.strip() for e in args.effects.split(",") if e.strip()]
+        unknown = [e for e in effects if e not in STRENGTH]
+        if unknown:
+            ap.error(f"--effects: no strength for {unknown[0]!r} (valid: {', '.join(STRENGTH)})")
+        # log by log, each effect in turn: a study stopped early has as many logs of every effect
+        keys = [{"effect": e, "log": i, "minutes": args.minutes} for i in range(args.first_log, args.logs) for e in effects]
+
+        def progress(r: dict[str, Any], md: str) -> None:
+            est = estimates(r)
+            short = (lambda v: None if v is None else np.round(np.asarray(v, float), 4).tolist())
+            text = "not named" if est is None else "; ".join(f"{p} {short(v['value'])} {short(v['interval_95'])}"
+                                                            for p, v in est.items())
+            print(f"{r['effect']:25s} log {r['log']:3d} ({r['preset']:9s} seed {r['seed']}): named {r['named']}; {text} "
+                  f"[{r['seconds']:.0f} s, {r['cpu_seconds']:.0f} s CPU]", flush=True)
+
+        rows = resume(out, "rows.jsonl", keys, lambda k: one(k["effect"], k["log"], k["minutes"]), table, progress)
+    md = table(rows)
+    atomic_write(out / "table.md", lambda f: f.write(md.encode()))
+    print(md)
+
+
+if __name__ == "__main__":
+    main()

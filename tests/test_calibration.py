@@ -1,0 +1,124 @@
+"""scripts/calibration.py's arithmetic (coverage, bias, bias / SE on known inputs; truths in the learner's
+parametrization) and the final fit it shares with ``aibo diagnose`` (``learners.discrepancy.final.diagnosed``)."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "calibration.py"
+
+
+def _load():
+    spec = importlib.util.spec_from_file_location("calibration", SCRIPT)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_coverage_bias_and_their_standard_errors_on_known_inputs():
+    cal = _load()
+    values = [1.0, 2.0, 3.0, 4.0]  # truth 2: errors -1, 0, 1, 2 (mean 0.5); spread sd = 1.291
+    ses = [0.5, 0.5, None, 1.5]  # the third has no SE: its interval's half-width / 1.96 (0.5) stands in
+    intervals = [[0.0, 2.0], [1.5, 2.5], [3.0 - 0.5 * cal.Z95, 3.0 + 0.5 * cal.Z95], None]  # in, in, out, missing
+    s = cal.summary(values, ses, intervals, 2.0)
+    assert (s["n"], s["missing"], s["covered"]) == (4, 1, 2)
+    assert s["coverage"] == pytest.approx(2 / 3) and s["coverage_se"] == pytest.approx(math.sqrt(2 / 9 / 3))
+    assert s["bias"] == pytest.approx(0.5)
+    spread = float(np.std(values, ddof=1))
+    assert s["bias_mcse"] == pytest.approx(spread / 2)
+    assert s["se"] == pytest.approx((0.5 + 0.5 + 0.5 + 1.5) / 4)
+    assert s["ratio"] == pytest.approx(0.5 / 0.75) and s["ratio_mcse"] == pytest.approx(spread / 2 / 0.75)
+    assert s["spread_ratio"] == pytest.approx(spread / 0.75)
+
+
+def test_an_interval_holding_the_truth_at_its_end_covers_it():
+    cal = _load()
+    s = cal.summary([0.1, 0.1], [None, None], [[0.0, 0.1], [0.1, 0.2]], 0.1)  # a grid interval ends at the truth
+    assert s["coverage"] == 1.0 and s["bias"] == 0.0 and s["se"] == pytest.approx(0.1 / (2 * cal.Z95))
+
+
+def test_truths_are_compared_in_the_learners_parametrization():
+    cal = _load()
+    scale = cal.truth("beacon_height_scale", {"scale": [1.02, 0.98, 1.01, 0.99]})["scale"]
+    assert np.exp(np.mean(np.log(scale))) == pytest.approx(1.0)  # geometric mean 1, as the log-contrast group
+    assert np.allclose(np.asarray(scale) / scale[0], np.array([1.02, 0.98, 1.01, 0.99]) / 1.02)
+    offsets = cal.truth("landmark_bearing_offset", {"offset_rad": [0.02, 0.0, 0.0, 0.0]})["offset_rad"]
+    assert np.allclose(offsets, [0.015, -0.005, -0.005, -0.005])  # mean 0, as the contrast group
+    assert cal.truth("landmark_bias", {"sigma_rel": 0.05, "tau_s": 8.0}) == {"sigma_rel": 0.05, "tau_s": 8.0}
+
+
+def test_the_table_counts_the_named_logs_and_reports_array_parameters_per_component_and_preset():
+    cal = _load()
+
+    def row(log, named, value=None):
+        r = {"effect": "floor_drift", "log": log, "preset": cal.PRESETS[log % 2], "truth": {"drift_mm_s": [12.0, 0.0]},
+             "named": ["floor_drift"] if named else []}
+        if named:
+            r["effects"] = [{"name": "floor_drift", "intervals": {"drift_mm_s": {
+                "value": value, "se": [1.0, 1.0], "interval_95": [[v - 2 for v in value], [v + 2 for v in value]]}}}]
+        return r
+
+    md = cal.table([row(0, True, [11.0, 0.5]), row(1, False), row(2, True, [13.0, 3.0])])
+    lines = [line for line in md.splitlines() if line.startswith("| floor_drift")]
+    assert [line.split(" | ")[1:3] for line in lines] == [["drift_mm_s[0]", "aibo"], ["drift_mm_s[0]", "paper-sim"],
+                                                          ["drift_mm_s[1]", "aibo"], ["drift_mm_s[1]", "paper-sim"]]
+    assert "| 2 of 2 |" in lines[0] and "| 0 of 1 |" in lines[1]
+    assert "100% +- 0% (2 of 2)" in lines[0] and "50% +- 35% (1 of 2)" in lines[2]  # 0 is outside [1, 5]
+    assert "+1.75" in lines[2]  # bias 1.75 over SE 1
+
+
+def test_every_strength_is_a_valid_simulator_and_learner_parameter_set():
+    from aibo_gym.config import make_config
+    from learners.model.effects import EFFECT_MODELS
+
+    cal = _load()
+    assert set(cal.STRENGTH) == set(EFFECT_MODELS) - {"wall_contact", "angle_bias"}
+    for name, params in cal.STRENGTH.items():
+        assert set(params) == set(EFFECT_MODELS[name].PARAMS)
+        make_config({"effects": {name: params}})  # valid for the simulator (ValueError otherwise)
+
+
+def test_diagnosed_is_the_final_fit_of_the_searched_model_with_each_named_effects_intervals():
+    """``learners.discrepancy.final.diagnosed`` (what ``aibo diagnose`` and the calibration study call): the final fit
+    warm-started from ``found["model"]`` on ``found["logs"]`` with the search's stop rule; a named effect's parameters
+    are the final fit's, its Wald intervals come from that fit's standard errors, a grid parameter's from the search's
+    profile, and ``parameters_when_named`` from the candidate."""
+    from learners.arrays.batch import make_batch
+    from learners.discrepancy.candidate import Candidate
+    from learners.discrepancy.effect_sizes import Z95
+    from learners.discrepancy.final import FINAL_FIT_STAGE, diagnosed, final_options
+    from learners.discrepancy.fitting import SEARCH_PATIENCE
+    from learners.em.learner import EMLearner
+    from learners.em.options import EMOptions
+    from learners.model.catalogue import ActuationLag, VelocityFade
+    from tests._logs import sim_log
+
+    tr = sim_log(3000)
+    opts = EMOptions(seed=0, lag_search=False)
+    fopts = final_options(opts)
+    assert (fopts.starts, fopts.alias_search, fopts.patience, fopts.min_improvement) == (1, False, SEARCH_PATIENCE, 0.1)
+    base = EMLearner(EMOptions(max_iter=15, lag_search=False)).fit([tr]).params
+    batch = make_batch([tr])
+    model = base.with_effect(VelocityFade.start(batch)).with_effect(ActuationLag.start(batch))
+    profile = [[0.0, 0.1, 0.2, 0.3], [-9.0, 0.0, -1.0, -30.0]]  # the grid's training log-likelihoods
+    named = [Candidate("velocity_fade", {"fade_per_min": 0.004}, 5.0, 1.0, 1, 0.001, model=model),
+             Candidate("actuation_lag", {"lag_s": 0.1}, 9.0, 2.0, 1, 1e-5, model=model, profile={"lag_s": profile})]
+    out = diagnosed({"model": model, "logs": [tr], "named": named}, opts)
+    assert [e["name"] for e in out.effects] == ["velocity_fade", "actuation_lag"]
+    assert list(out.seconds) == [FINAL_FIT_STAGE] and out.profiled == []
+    fade, lag = out.effects
+    se = out.result.info["standard_errors"]["effects.velocity_fade.fade_per_min"]
+    value = float(out.result.params.effect("velocity_fade").fade_per_min)
+    iv = fade["intervals"]["fade_per_min"]
+    assert fade["parameters"] == {"fade_per_min": value} and iv["value"] == value and iv["se"] == pytest.approx(se)
+    assert iv["method"] == "wald" and iv["interval_95"] == pytest.approx([value - Z95 * se, value + Z95 * se])
+    assert fade["parameters_when_named"] == {"fade_per_min": 0.004}
+    assert lag["intervals"]["lag_s"]["interval_95"] == [0.0, 0.3]  # within 1.92 nats: 0.1 and 0.2, widened by a step
+    assert lag["parameters_when_named"] == {"lag_s": 0.1}
