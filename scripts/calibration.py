@@ -13,8 +13,9 @@ information, the profile or conditional likelihood interval where Wald fails, th
 What the study skips of the command (the scores, signatures, motion gaps, the calibrated check, the page) does not
 change the named effects or their intervals. Every random choice is the log's seed or diagnose's ``--seed 0``.
 
-One row per (effect, log) in OUT/rows.jsonl, written after each log (the study resumes where it stopped; a second
-process can take other logs with ``--first-log``); OUT/table.md, printed at the end: per parameter (array parameters
+One row per (effect, log) in OUT/rows.jsonl, written after each log (the study resumes where it stopped); a second
+process started with ``--first-log N`` writes OUT/rows-from-N.jsonl and skips the logs any rows file holds, and the
+table reads every OUT/rows*.jsonl. OUT/table.md, printed at the end: per parameter (array parameters
 per component) and noise preset, over the logs where the effect was named:
 
 - coverage: the share of the 95% intervals that hold the truth, with its binomial standard error;
@@ -155,7 +156,8 @@ def table(rows: list[dict[str, Any]]) -> str:
     the effect was named, with how many logs named it."""
     lines = ["| effect | parameter | preset | truth | named | coverage (+- s.e.) | bias | SE | bias / SE (+- MC s.e.) | "
              "spread / SE | missing |", "|---|---|---|---|---|---|---|---|---|---|---|"]
-    for effect in dict.fromkeys(r["effect"] for r in rows):
+    order = {e: k for k, e in enumerate(STRENGTH)}
+    for effect in sorted({r["effect"] for r in rows}, key=lambda e: (order.get(e, len(order)), e)):
         rs = [r for r in rows if r["effect"] == effect]
         for pname, j in components(rs[0]):
             true = rs[0]["truth"][pname] if j is None else rs[0]["truth"][pname][j]
@@ -174,6 +176,12 @@ def table(rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def all_rows(out: Path) -> list[dict[str, Any]]:
+    """The rows of every OUT/rows*.jsonl (one per process that ran), in log order."""
+    rows = [r for path in sorted(out.glob("rows*.jsonl")) for r in read_jsonl(path)]
+    return sorted(rows, key=lambda r: r["log"])
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--logs", type=int, default=100, help="logs per effect (log i: seed SEED + i, preset PRESETS[i %% 2])")
@@ -181,10 +189,10 @@ def main() -> None:
     ap.add_argument("--effects", default=",".join(STRENGTH), help="comma-separated, in the order run (default: all)")
     ap.add_argument("--minutes", type=float, default=5.0, help="log length (default 5: 9000 frames)")
     ap.add_argument("--out", default="runs/calibration")
-    ap.add_argument("--table", action="store_true", help="only print the table of OUT/rows.jsonl")
+    ap.add_argument("--table", action="store_true", help="only print the table of the rows in OUT")
     args = ap.parse_args()
     out = Path(args.out)
-    rows = read_jsonl(out / "rows.jsonl")
+    rows = all_rows(out)
     if not args.table:
         from study import resume
 
@@ -193,7 +201,10 @@ def main() -> None:
         if unknown:
             ap.error(f"--effects: no strength for {unknown[0]!r} (valid: {', '.join(STRENGTH)})")
         # log by log, each effect in turn: a study stopped early has as many logs of every effect
-        keys = [{"effect": e, "log": i, "minutes": args.minutes} for i in range(args.first_log, args.logs) for e in effects]
+        done = {(r["effect"], r["log"], r["minutes"]) for r in rows}
+        keys = [{"effect": e, "log": i, "minutes": args.minutes} for i in range(args.first_log, args.logs) for e in effects
+                if (e, i, args.minutes) not in done]
+        rows_file = "rows.jsonl" if args.first_log == 0 else f"rows-from-{args.first_log}.jsonl"
 
         def progress(r: dict[str, Any], md: str) -> None:
             est = estimates(r)
@@ -203,7 +214,9 @@ def main() -> None:
             print(f"{r['effect']:25s} log {r['log']:3d} ({r['preset']:9s} seed {r['seed']}): named {r['named']}; {text} "
                   f"[{r['seconds']:.0f} s, {r['cpu_seconds']:.0f} s CPU]", flush=True)
 
-        rows = resume(out, "rows.jsonl", keys, lambda k: one(k["effect"], k["log"], k["minutes"]), table, progress)
+        resume(out, rows_file, keys, lambda k: one(k["effect"], k["log"], k["minutes"]), lambda _: table(all_rows(out)),
+               progress)
+        rows = all_rows(out)
     md = table(rows)
     atomic_write(out / "table.md", lambda f: f.write(md.encode()))
     print(md)

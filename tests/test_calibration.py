@@ -74,6 +74,16 @@ def test_the_table_counts_the_named_logs_and_reports_array_parameters_per_compon
     assert "+1.75" in lines[2]  # bias 1.75 over SE 1
 
 
+def test_the_rows_of_every_process_are_read_together_in_log_order(tmp_path):
+    from aibo_core.atomic import write_jsonl
+
+    cal = _load()
+    write_jsonl(tmp_path / "rows.jsonl", [{"effect": "velocity_fade", "log": 0}, {"effect": "velocity_fade", "log": 1}])
+    write_jsonl(tmp_path / "rows-from-50.jsonl", [{"effect": "velocity_fade", "log": 50}])
+    write_jsonl(tmp_path / "rows-from-25.jsonl", [{"effect": "velocity_fade", "log": 25}])
+    assert [r["log"] for r in cal.all_rows(tmp_path)] == [0, 1, 25, 50]
+
+
 def test_every_strength_is_a_valid_simulator_and_learner_parameter_set():
     from aibo_gym.config import make_config
     from learners.model.effects import EFFECT_MODELS

@@ -1,0 +1,206 @@
+"""The causes of the biases ``scripts/calibration.py`` measured (docs/results.md, "The named effects' estimates against
+the truth"), each from logs of that study's seeds or fresh ones, every number reproducible from its command:
+
+    python scripts/calibration_causes.py tau-alone [--replicates 30]   # the Gauss-Markov MLE alone: is tau_s biased?
+    python scripts/calibration_causes.py tau-em                         # the final fit as diagnose stops it, then on
+    python scripts/calibration_causes.py shrink                         # off_center_shrink: errors in the bearing
+    python scripts/calibration_causes.py rate                           # false_sightings: the final fit's iterations
+
+- ``tau-alone``: landmark_bias's process b_l (sigma_rel 0.05, tau_s 8 s) drawn anew at the sighting frames of the
+  study's `aibo` logs 0, 2, 4 (seeds 8000, 8002, 8004), observed as b + e with each sighting's relative size noise
+  (sigma_height / its true size), and (sigma_rel, tau_s) fitted by exact maximum likelihood (a scalar Kalman filter
+  per landmark): the estimator with the pose and the sensor curve known.
+- ``tau-em``: the study's search and final fit (``learners.discrepancy.final.diagnosed``) on `aibo` logs 0, 2, 4, 6,
+  then the same final fit with the strict stop rule (patience 50, at most 600 iterations).
+- ``shrink``: k = 0.8 on `aibo` logs of seeds 9100-9103, with the preset's bearing noise and with sigma_angle 0.002
+  rad, against the attenuation that regressing the size's shrink on the observed phi^2 instead of the true one
+  predicts (weighted by the true size squared, centered: the curve takes a constant factor); and that attenuation on
+  the study's `paper-sim` logs 1, 3, 5.
+- ``rate``: the final fit's iterations (log-likelihood, rate) on the study's logs 0, 4, 6 (`aibo`) and 7
+  (`paper-sim`), as diagnose runs it, without its first-iteration gate, and without SQUAREM.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):  # one BLAS thread, as the command (aibo/__init__.py)
+    os.environ.setdefault(_var, "1")
+
+import numpy as np  # noqa: E402
+
+from aibo_core.trajectory import blind  # noqa: E402
+from aibo_gym.collect import collect  # noqa: E402
+
+STEPS = 9000
+BIAS = {"sigma_rel": 0.05, "tau_s": 8.0}
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    return (a + np.pi) % (2 * np.pi) - np.pi
+
+
+def _geometry(tr) -> tuple[np.ndarray, np.ndarray]:
+    """(true distance mm, true bearing rad in the robot frame) of each sighting (its frame's end pose)."""
+    f, lm = tr.sighting_frame, tr.landmarks[tr.sighting_landmark]
+    p = tr.pose[f + 1]
+    return (np.hypot(lm[:, 0] - p[:, 0], lm[:, 1] - p[:, 1]),
+            np.arctan2(lm[:, 1] - p[:, 1], lm[:, 0] - p[:, 0]) - p[:, 2])
+
+
+def _search(tr, effect: str):
+    from learners.discrepancy.search import search
+    from learners.em.options import EMOptions
+
+    opts = EMOptions(seed=0, lag_search=False)  # as scripts/calibration.py and aibo diagnose
+    return search([blind(tr)], [effect], opts, jobs=1, progress=lambda s: None), opts
+
+
+def gauss_markov_nll(params: np.ndarray, data: list, dt: float) -> float:
+    """Negative log-likelihood of (log sigma_rel, log tau_s) for ``data``: per landmark (frames, y, noise variances)."""
+    s, tau = math.exp(params[0]), math.exp(params[1])
+    out = 0.0
+    for frames, y, r in data:
+        phis = np.exp(-np.diff(frames) * dt / tau)
+        m, p = 0.0, s * s
+        for i in range(len(y)):
+            if i:
+                ph = phis[i - 1]
+                m, p = ph * m, ph * ph * p + s * s * (1 - ph * ph)
+            S = p + r[i]
+            v = y[i] - m
+            out += 0.5 * (math.log(2 * math.pi * S) + v * v / S)
+            m, p = m + p / S * v, (1 - p / S) * p
+    return out
+
+
+def tau_alone(replicates: int) -> None:
+    from scipy.optimize import minimize
+
+    rng = np.random.default_rng(0)
+    fits = []
+    for seed in (8000, 8002, 8004):
+        tr = collect({"noise": "aibo", "effects": {"landmark_bias": BIAS}}, STEPS, seed=seed)
+        truth = tr.meta["truth"]
+        d, _ = _geometry(tr)
+        rel_var = (truth["sigma_height"] / (truth["sensor"]["height_px_mm"] / d)) ** 2
+        phi = math.exp(-tr.dt / BIAS["tau_s"])
+        for _ in range(replicates):
+            data = []
+            for lm in range(len(tr.landmarks)):
+                sel = np.flatnonzero(tr.sighting_landmark == lm)
+                fr = tr.sighting_frame[sel]
+                w = BIAS["sigma_rel"] * math.sqrt(1 - phi * phi) * rng.standard_normal(fr[-1] - fr[0] + 1)
+                b = np.empty(len(w))
+                b[0] = BIAS["sigma_rel"] * rng.standard_normal()
+                for i in range(1, len(b)):
+                    b[i] = phi * b[i - 1] + w[i]
+                data.append((fr, b[fr - fr[0]] + np.sqrt(rel_var[sel]) * rng.standard_normal(len(sel)), rel_var[sel]))
+            res = minimize(gauss_markov_nll, [math.log(BIAS["sigma_rel"]), math.log(BIAS["tau_s"])], args=(data, tr.dt),
+                           method="Nelder-Mead", options={"xatol": 1e-4, "fatol": 1e-4})
+            fits.append([seed, *np.exp(res.x)])
+        f = np.array([x for x in fits if x[0] == seed])
+        print(f"seed {seed}: {tr.n_sightings} sightings, median relative noise {np.median(np.sqrt(rel_var)):.3f}; "
+              f"sigma_rel {f[:, 1].mean():.4f}, tau_s mean {f[:, 2].mean():.2f} s (sd {f[:, 2].std(ddof=1):.2f})")
+    f = np.array(fits)
+    print(f"all {len(f)}: tau_s {f[:, 2].mean():.2f} +- {f[:, 2].std(ddof=1) / math.sqrt(len(f)):.2f} s, "
+          f"sigma_rel {f[:, 1].mean():.4f} +- {f[:, 1].std(ddof=1) / math.sqrt(len(f)):.4f} (truth 8 s, 0.05)")
+
+
+def tau_em() -> None:
+    from learners.discrepancy.final import diagnosed, final_options
+    from learners.discrepancy.fitting import train_loglik
+    from learners.em.learner import EMLearner
+
+    print("| log (seed) | warm start | named (training half) | final: iterations, sigma_rel, tau_s | "
+          "patience 50: iterations, sigma_rel, tau_s | gain (nats) |\n|---|---|---|---|---|---|")
+    for seed in (8000, 8002, 8004, 8006):
+        found, opts = _search(collect({"noise": "aibo", "effects": {"landmark_bias": BIAS}}, STEPS, seed=seed),
+                              "landmark_bias")
+        c, logs = found["named"][0], found["logs"]
+        final = diagnosed(found, opts).result
+        strict = EMLearner(replace(final_options(opts), patience=50, max_iter=600, uncertainty=False),
+                           check_field=False).fit(logs, init=found["model"])
+        w, e, s = (c.start.effect("landmark_bias"), final.params.effect("landmark_bias"),
+                   strict.params.effect("landmark_bias"))
+        print(f"| {seed - 8000} ({seed}) | {w.sigma_rel:.2f}, {w.tau_s:.0f} s | {c.parameters['sigma_rel']:.4f}, "
+              f"{c.parameters['tau_s']:.1f} s | {len(final.history)}, {e.sigma_rel:.4f}, {e.tau_s:.2f} s | "
+              f"{len(strict.history)}, {s.sigma_rel:.4f}, {s.tau_s:.2f} s | "
+              f"{train_loglik(strict.params, logs) - train_loglik(final.params, logs):+.1f} |", flush=True)
+
+
+def attenuation(tr) -> float:
+    """The factor by which regressing the size's shrink on the observed phi^2 (phi = bearing - head pan) instead of the
+    true one shrinks k: cov(phi_obs^2, phi_true^2) / var(phi_obs^2), weighted by the true size squared, centered."""
+    d, bearing = _geometry(tr)
+    pan = tr.head_pan[tr.sighting_frame]
+    true2, obs2 = _wrap(bearing - pan) ** 2, _wrap(tr.sighting_value[:, 1] - pan) ** 2
+    w = d ** -2.0
+
+    def c(x):
+        return x - np.average(x, weights=w)
+
+    return float(np.average(c(obs2) * c(true2), weights=w) / np.average(c(obs2) ** 2, weights=w))
+
+
+def shrink() -> None:
+    from learners.discrepancy.final import diagnosed
+
+    k = 0.8
+    for sigma_angle in (None, 0.002):
+        for seed in (9100, 9101, 9102, 9103):
+            cfg = {"noise": "aibo", "effects": {"off_center_shrink": {"k": k}}}
+            if sigma_angle is not None:
+                cfg["sigma_angle"] = sigma_angle
+            tr = collect(cfg, STEPS, seed=seed)
+            found, opts = _search(tr, "off_center_shrink")
+            iv = diagnosed(found, opts).effects[0]["intervals"]["k"]
+            print(f"aibo, sigma_angle {sigma_angle or 'of the preset'}, seed {seed}: k {iv['value']:.4f} "
+                  f"[{iv['interval_95'][0]:.4f}, {iv['interval_95'][1]:.4f}] (se {iv['se']:.4f}); k / truth "
+                  f"{iv['value'] / k:.3f}; predicted attenuation {attenuation(tr):.3f}", flush=True)
+    for seed in (8001, 8003, 8005):
+        tr = collect({"noise": "paper-sim", "effects": {"off_center_shrink": {"k": 0.1}}}, STEPS, seed=seed)
+        print(f"paper-sim, seed {seed}: predicted attenuation {attenuation(tr):.3f}")
+
+
+def rate() -> None:
+    from learners.discrepancy.final import final_options
+    from learners.discrepancy.fitting import train_loglik
+    from learners.em.learner import EMLearner
+
+    for seed, preset in ((8000, "aibo"), (8004, "aibo"), (8006, "aibo"), (8007, "paper-sim")):
+        tr = collect({"noise": preset, "effects": {"false_sightings": {"rate": 0.08}}}, STEPS, seed=seed)
+        found, opts = _search(tr, "false_sightings")
+        c = found["named"][0]
+        print(f"{preset} log {seed - 8000} (seed {seed}): {len(tr.meta['truth']['spurious_sightings'])} spurious of "
+              f"{tr.n_sightings} sightings; named at rate {c.parameters['rate']:.4f}")
+        fo = final_options(opts)
+        for label, o in (("as diagnose", fo), ("no gate", replace(fo, gate=None)), ("no SQUAREM", replace(fo, accel="none"))):
+            res = EMLearner(replace(o, uncertainty=False), check_field=False).fit(found["logs"], init=found["model"])
+            hist = [(h.iteration, h.loglik, float(h.params.effect("false_sightings").rate)) for h in res.history]
+            best = max(hist, key=lambda h: h[1])
+            drops = [b[1] - a[1] for a, b in zip(hist, hist[1:])]
+            print(f"  {label}: {res.pruned_observations} pruned, rate {res.params.effect('false_sightings').rate:.4f} "
+                  f"(the best of {len(hist)} iterations, at iteration {best[0]}); the largest drop of the "
+                  f"log-likelihood between iterations {min(drops):.0f} nats; ungated log-likelihood "
+                  f"{train_loglik(res.params, found['logs']):.1f}; (iteration, rate) "
+                  + ", ".join(f"({i}, {r:.3f})" for i, _, r in hist[:8]) + ", ...", flush=True)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("what", choices=["tau-alone", "tau-em", "shrink", "rate"])
+    ap.add_argument("--replicates", type=int, default=30, help="tau-alone: draws of the process per log")
+    args = ap.parse_args()
+    sys.stdout.reconfigure(line_buffering=True)
+    {"tau-alone": lambda: tau_alone(args.replicates), "tau-em": tau_em, "shrink": shrink, "rate": rate}[args.what]()
+
+
+if __name__ == "__main__":
+    main()
