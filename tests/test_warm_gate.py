@@ -84,7 +84,8 @@ def test_real_robot2_the_whole_log_refit_of_a_model_with_bias_states_keeps_its_s
     sightings (22%) and met a tamer sensor (sigma_rel 0.033 against 0.044 named); judged at the start itself it prunes
     0 (sigma_rel 0.047). About 20 s."""
     from aibo_core.mrclam import import_robot
-    from learners.discrepancy.search import SEARCH_PATIENCE, _fit, base_fit, drop_outliers
+    from learners.discrepancy.fitting import SEARCH_PATIENCE, fit
+    from learners.discrepancy.search import base_fit, drop_outliers
     from learners.discrepancy.split import training_log
     from learners.em.estep import forward_loglik
 
@@ -95,7 +96,7 @@ def test_real_robot2_the_whole_log_refit_of_a_model_with_bias_states_keeps_its_s
     batch = make_batch(train)
     start = base.with_effect(LandmarkBias.start(batch))
     start = start.with_effect(start.effect("landmark_bias").warm_start(start, batch, forward_loglik(batch)))
-    named = _fit(train, start, replace(opts, gate=None, max_iter=200, patience=SEARCH_PATIENCE))
+    named = fit(train, start, replace(opts, gate=None, max_iter=200, patience=SEARCH_PATIENCE))
     n = int(make_batch(logs).used.sum())
     assert face_value_gate(make_batch(logs), named, DEFAULT_GATE).sum() > 0.1 * n  # what the final fit pruned
     final_opts = replace(opts, patience=SEARCH_PATIENCE, starts=1, alias_search=False, uncertainty=False)
