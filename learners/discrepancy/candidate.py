@@ -79,14 +79,15 @@ class Candidate:
     @property
     def escape(self) -> Model | None:
         """The last base model without the effect that a check fitted (None: none)."""
-        found = next((v.escape for v in reversed(self.checks) if v.escape is not None), None)
-        return None if found is None else found[0]
+        return self._last_escape()[0]
 
     @property
     def escape_ll(self) -> float:
         """:attr:`escape`'s training log-likelihood (nats; -inf without one)."""
-        found = next((v.escape for v in reversed(self.checks) if v.escape is not None), None)
-        return -math.inf if found is None else found[1]
+        return self._last_escape()[1]
+
+    def _last_escape(self) -> tuple[Model | None, float]:
+        return next((v.escape for v in reversed(self.checks) if v.escape is not None), (None, -math.inf))
 
     def verdict(self, name: str) -> Verdict | None:
         return next((v for v in self.checks if v.name == name), None)

@@ -27,8 +27,6 @@ from typing import ClassVar
 
 import numpy as np
 
-from learners.arrays.batch import make_batch
-from learners.em.estep import e_step
 from learners.model.effects import EFFECT_MODELS
 
 from .candidate import Candidate, Verdict
@@ -105,11 +103,9 @@ class GivenNuisance(Check):
         return c.significant and bool(_class_of(c.name).CONFOUNDERS)
 
     def run(self, ctx: SearchContext, c: Candidate) -> Verdict:
-        batch = make_batch(ctx.train)
-        post = e_step(ctx.current, batch, "compiled")
         verdict = self.verdict(True)  # no confounder covers a frame of these logs
         for confounder in _class_of(c.name).CONFOUNDERS:
-            nuisance = confounder.around(post, batch)
+            nuisance = confounder.around(ctx.posterior, ctx.batch)
             if not nuisance.n_frames():
                 continue
             null = ctx.fit(ctx.current.with_effect(nuisance))

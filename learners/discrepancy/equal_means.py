@@ -57,6 +57,11 @@ def bandwidth(e: np.ndarray) -> int:
     return int(np.clip(np.ceil(lags), 1, max(n // 4, 1)))
 
 
+def contrasts(n_groups: int) -> np.ndarray:
+    """(G - 1, G): the contrasts "bin g minus the last bin"."""
+    return np.hstack([np.eye(n_groups - 1), -np.ones((n_groups - 1, 1))])
+
+
 def bin_means(r: np.ndarray, group: np.ndarray, n_groups: int) -> tuple[np.ndarray, np.ndarray, float]:
     """(the bin means, their covariance robust to serial correlation, its equivalent degrees of freedom: module
     docstring) of the series ``r`` (in time order) binned by ``group`` (integers
@@ -69,7 +74,7 @@ def bin_means(r: np.ndarray, group: np.ndarray, n_groups: int) -> tuple[np.ndarr
     e = r - means[g]
     lags = bandwidth(e)
     # the contrasts "bin g minus the last" scaled by the counts: the bin means' differences in pair sums
-    contrast = np.hstack([np.eye(G - 1), -np.ones((G - 1, 1))]) / count
+    contrast = contrasts(G) / count
     a0 = contrast @ np.diag(count) @ contrast.T
     a0_inv = np.linalg.pinv(a0)
     cov = np.diag(count) * (np.dot(e, e) / n)  # sums over pairs of elements; divided by the counts below
@@ -95,7 +100,7 @@ def wald_p(means: np.ndarray, cov: np.ndarray, nu: float) -> float:
     covariance is singular."""
     G = len(means)
     q = G - 1
-    contrast = np.hstack([np.eye(q), -np.ones((q, 1))])
+    contrast = contrasts(G)
     d = contrast @ means
     try:
         wald = float(d @ np.linalg.solve(contrast @ cov @ contrast.T, d))

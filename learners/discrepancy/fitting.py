@@ -10,13 +10,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from functools import cached_property
 from typing import Any
 
 import numpy as np
 from scipy import stats
 
 from aibo_core.trajectory import Trajectory
-from learners.arrays.batch import make_batch
+from learners.arrays.batch import Batch, make_batch
+from learners.arrays.posterior import Posterior
 from learners.em.estep import e_step
 from learners.em.learner import EMLearner
 from learners.em.options import EMOptions
@@ -94,9 +96,19 @@ class SearchContext:
         """EM on the training halves from ``init`` (:func:`fit`), with this round's options unless ``opts``."""
         return fit(self.train, init, self.opts if opts is None else opts)
 
+    @cached_property
+    def batch(self) -> Batch:
+        """The training halves as one batch (made once per context and process)."""
+        return make_batch(self.train)
+
+    @cached_property
+    def posterior(self) -> Posterior:
+        """``current``'s E-step on the training halves (its smoothed path: the probes' and nuisances' covariates)."""
+        return e_step(self.current, self.batch, "compiled")
+
     def loglik(self, model: Model) -> float:
-        """``model``'s training log-likelihood (nats)."""
-        return train_loglik(model, self.train)
+        """``model``'s training log-likelihood (nats; :func:`train_loglik`)."""
+        return float(e_step(model, self.batch, "compiled").loglik)
 
     def heldout(self, model: Model) -> float:
         """``model``'s held-out log-likelihood (nats; ``learners.discrepancy.score``)."""

@@ -77,7 +77,7 @@ def fit_candidate(name: str, ctx: SearchContext, previous: Model | None = None) 
     holding the effect to fit from as well (not for a grid effect), the more likely fit kept: the candidate's own fit
     of the round that an escape repeats."""
     cls = EFFECT_MODELS[name]
-    batch = make_batch(ctx.train)
+    batch = ctx.batch
     start = ctx.current.with_effect(cls.start(batch))
     start = start.with_effect(start.effect(name).warm_start(start, batch, forward_loglik(batch)))
     null, profiled = None, {}
@@ -139,8 +139,7 @@ def try_probe(name: str, ctx: SearchContext) -> Candidate:
     ``ctx.current``: fitted warm-started with its covariates read off that model's smoothed path, tested as a
     candidate is, and put through ``checks.PROBE_CHECKS``."""
     t0 = time.perf_counter()
-    batch = make_batch(ctx.train)
-    start = ctx.current.with_effect(PROBES[name].around(e_step(ctx.current, batch, "compiled"), batch))
+    start = ctx.current.with_effect(PROBES[name].around(ctx.posterior, ctx.batch))
     model = ctx.fit(start)
     c = tested(name, model, ctx.loglik(model), ctx)
     c.start = start
@@ -353,7 +352,5 @@ def none_of_the_above(current: Model, last: SearchContext | None, ctx: SearchCon
                  else with_null(ctx, current, len(PROBES)))
     tried = _map(pool, run_trial, [Trial(n, probe_ctx, probe=True) for n in PROBES])
     progress("none of the above? (effects outside the catalogue, on the final model)")
-    for c in tried:
-        progress(f"  {c.name:26s} train +{c.gain_train:8.1f} nats, held-out {c.gain_heldout:+8.1f} nats, "
-                 f"p = {c.p_value:.2g}{'  SIGNIFICANT' if c.significant else ''}  [{c.seconds:.1f} s]")
+    _say_round(tried, progress)
     return tried
