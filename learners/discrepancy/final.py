@@ -39,8 +39,10 @@ def final_options(opts: EMOptions) -> EMOptions:
     base fit, from the paper's start, as in every fit of the search; on a 10-minute log with 10% false sightings it
     took 104 of this fit's 128 s); and the search's stop rule (0.1 nat, patience SEARCH_PATIENCE: the model was
     converged with it on the training half), not the strict rule a start with effects otherwise resolves to
-    (``learners.em.learner.fit_options``; patience 50)."""
-    return replace(opts.comparable(), patience=SEARCH_PATIENCE, starts=1, alias_search=False)
+    (``learners.em.learner.fit_options``; patience 50). Then, converged, each effect's ``polish`` (ECME's direct
+    maximization over its own parameters, EM resumed after it; ``EMOptions.polish``): the values the report states
+    are the likelihood's maximum, not EM's stop on a ridge (``landmark_bias``' tau_s: docs/results.md, calibration)."""
+    return replace(opts.comparable(), patience=SEARCH_PATIENCE, starts=1, alias_search=False, polish=True)
 
 
 @dataclass

@@ -66,6 +66,7 @@ def save(path: str | os.PathLike, state: EMState, fp: str) -> None:
         "format": FORMAT, "fingerprint": fp, "iteration": state.iteration, "best_loglik": state.best_loglik,
         "best_iteration": state.best_iteration, "pruned": state.pruned, "rng_state": state.rng_state,
         "converged": state.converged, "record_iteration": state.record_iteration, "starts": state.starts,
+        "polishes": state.polishes,
     }
     arrays = {"cur": np.array(_model_text(state.params)), "best": np.array(_model_text(state.best)),
               **_arrays("cur", state.params), **_arrays("best", state.best)}
@@ -97,6 +98,7 @@ def load(path: str | os.PathLike, fp: str) -> EMState | None:
             loglik=d["loglik"].tolist(), used=d["used"].astype(bool), pruned=int(scalars["pruned"]),
             rng_state=scalars["rng_state"], converged=bool(scalars["converged"]), seconds=d["seconds"].tolist(),
             record_iteration=int(scalars["record_iteration"]), starts=list(scalars.get("starts", [])),
+            polishes=int(scalars.get("polishes", 0)),
         )
     except (FileFormatError, KeyError, TypeError, OSError, json.JSONDecodeError, ValueError) as exc:
         if str(exc).startswith(f"{path}: checkpoint is for other"):

@@ -63,6 +63,11 @@ class EMOptions:
     switch_gain: float = 1.0  # with the finish, EM stops once SWITCH_WINDOW iterations gained less (nats)
     seed: int = 0
     frozen: tuple[str, ...] = ()  # effects held at their values (profile likelihood), by name
+    # once EM has converged: each free effect's ``polish`` (a direct maximization of the likelihood over its own
+    # parameters, the rest held: ECME's conditional step) and EM resumed from it, at most ``fit.POLISH_ROUNDS`` times.
+    # Off by default (the search's fits, ``aibo learn``); on in ``aibo diagnose``'s final fit, whose values the report
+    # states (``learners.discrepancy.final``; evidence: docs/results.md, calibration)
+    polish: bool = False
     # a range sensor (range_mm): "held" keeps its curve at the start's (range = distance: the sensor reports metres)
     # and screens no stretched starts; "free": EM fits the cubic as for a height (the paper). Default "held"
     # (deviation from the paper, measured on the five MRCLAM robots: docs/results.md, "Why robots 3 and 4 ...")

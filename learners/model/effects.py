@@ -105,6 +105,14 @@ class EffectModel(Component):
         model's components never run inference themselves)."""
         return self
 
+    def polish(self, model: "Model", batch: Batch, loglik: Callable[["Model"], float]) -> "EffectModel":
+        """This effect's parameters maximizing ``loglik`` (the likelihood itself, one forward pass per call) with the
+        rest of ``model`` held: a conditional maximization step on the observed-data likelihood (ECME, Liu & Rubin
+        1994), which EM's loop takes once it has converged when ``EMOptions.polish`` is on (``learners.em.fit``);
+        default: itself. For an effect whose M-step, a maximum of the expected complete-data likelihood, moves its
+        parameters slowly along a ridge of the likelihood (``landmark_bias``: docs/results.md, calibration)."""
+        return self
+
     def commands(self, commands: np.ndarray, batch: Batch) -> np.ndarray:
         """The commands in force per frame (e.g. delayed by a lag); default: as logged."""
         return commands

@@ -21,7 +21,9 @@ depends on the sightings only (``slot_schedule``), never on the parameters.
 M-step: closed form for sigma_rel given phi from the smoothed first and second moments and the lag-one
 cross-moments of the states, then a 1-d maximization over phi (tau_s) of that profile. Only the stretch
 of each state from its landmark's first sighting to its last counts: the tail after the last sighting
-integrates out exactly.
+integrates out exactly. That update crawls along a ridge of the likelihood (the states hold a fraction of its
+information about tau_s); ``polish`` maximizes the likelihood itself over (sigma_rel, tau_s), the rest held, after
+EM has converged (``EMOptions.polish``: ECME's conditional step; on in ``aibo diagnose``'s final fit).
 """
 
 from __future__ import annotations
@@ -54,6 +56,8 @@ MAX_PLAUSIBLE_SIGMA = 0.2
 #: per-beacon height factors of 1-4% (9 logs) and 437-575 s where it stood in for unmodelled wall contacts
 #: (``paper-sim`` noise, effect-free wall logs of seeds 3000 and 3008: docs/results.md).
 MAX_PLAUSIBLE_TAU_S = 60.0
+POLISH_SIMPLEX = 0.05  # ``polish``'s first simplex: log sigma_rel +5%, log tau_s +10%
+POLISH_MAX_EVALS = 200  # ``polish``: forward passes at most (measured: 28-50 per call on 5-minute logs)
 WARM_GRID = ((0.01, 0.02, 0.04, 0.08), (1.0, 3.0, 10.0, 30.0))  # warm_start's sigma_rel and tau_s (s)
 
 
@@ -157,6 +161,29 @@ class LandmarkBias(EffectModel):
         was at 0.025 / 44 s after 80 iterations, 70 nats below the optimum near the truth)."""
         return max((LandmarkBias(s, t) for s in WARM_GRID[0] for t in WARM_GRID[1]),
                    key=lambda e: loglik(model.with_effect(e)))
+
+    def polish(self, model: "Model", batch: Batch, loglik: Callable[["Model"], float]) -> "LandmarkBias":
+        """(sigma_rel, tau_s) maximizing the likelihood itself, the rest of ``model`` held (ECME's conditional step;
+        ``EffectModel.polish``): Nelder-Mead over their logarithms from the current values, to 0.01 nat. Why: EM's
+        M-step maximizes the expected log density of the states, whose information about tau_s is a fraction of the
+        likelihood's, and the fit stops on a ridge with tau_s still falling (5-minute logs at tau_s 8 s: 11.8 s
+        at EM's stop, 9.3 s after 370 more iterations; docs/results.md, calibration)."""
+        from scipy.optimize import minimize  # here, not at import (SciPy's load costs every command)
+
+        lo_s, lo_t = math.log(SIGMA_FLOOR), math.log(TAU_BOUNDS_S[0])
+        hi_s, hi_t = math.log(self.PARAMS["sigma_rel"].high), math.log(TAU_BOUNDS_S[1])
+
+        def at(x: np.ndarray) -> "LandmarkBias":
+            return LandmarkBias(math.exp(min(max(x[0], lo_s), hi_s)), math.exp(min(max(x[1], lo_t), hi_t)))
+
+        def negative(x: np.ndarray) -> float:
+            return -loglik(model.with_effect(at(x)))
+
+        x0 = np.array([math.log(max(self.sigma_rel, SIGMA_FLOOR)), math.log(self.tau_s)])
+        simplex = [x0, x0 + POLISH_SIMPLEX * np.array([1.0, 0.0]), x0 + POLISH_SIMPLEX * np.array([0.0, 2.0])]
+        best = minimize(negative, x0, method="Nelder-Mead",
+                        options={"initial_simplex": simplex, "xatol": 1e-3, "fatol": 0.01, "maxfev": POLISH_MAX_EVALS})
+        return at(best.x) if best.fun < negative(x0) else self
 
     def implausible(self) -> str:
         """A 'bias' above ``MAX_PLAUSIBLE_SIGMA`` is not one: the base model's sizes are off by more than a
