@@ -90,3 +90,30 @@ def test_with_the_final_fits_stop_rule_the_polish_shortens_the_correlation_time_
     tau_early, tau = early.params.effect("landmark_bias").tau_s, polished.params.effect("landmark_bias").tau_s
     assert tau_early > 13.0 and tau < tau_early - 1.0
     assert max(polished.loglik) > max(early.loglik)
+
+
+def test_the_lag_is_refined_below_its_grid():
+    """A simulated wheeled robot whose commands act 0.25 s late (between the grid's 0.2 and 0.3, where the search
+    places it): from 0.2 s, EM with the polish ends within 20 ms of 0.25 s, and more likely."""
+    from aibo_gym.collect_wheeled import collect_wheeled
+    from learners.model.catalogue import ActuationLag
+
+    tr = collect_wheeled({"effects": {"actuation_lag": {"lag_s": 0.25}}, "start_pose": "random"}, 6000, 3)
+    opts = replace(EMOptions(uncertainty=False, lag_search=False).comparable(), patience=15, alias_search=False)
+    start = EMLearner(opts, check_field=False).fit([tr]).params.with_effect(ActuationLag(0.2))
+    held = EMLearner(opts, check_field=False).fit([tr], init=start)
+    polished = EMLearner(replace(opts, polish=True), check_field=False).fit([tr], init=start)
+    assert held.params.effect("actuation_lag").lag_s == 0.2  # EM alone does not move it (no M-step: a grid parameter)
+    assert abs(polished.params.effect("actuation_lag").lag_s - 0.25) < 0.02
+    assert max(polished.loglik) > max(held.loglik)
+
+
+def test_a_discrete_commands_lag_is_polished_in_whole_frames(fitted):
+    """Aibo commands move by whole frames: the polished lag is a whole number of frames."""
+    from learners.model.catalogue import ActuationLag
+
+    tr, base = fitted
+    batch = make_batch([tr])
+    lag = ActuationLag(0.1).polish(base.with_effect(ActuationLag(0.1)), batch, forward_loglik(batch))
+    frames = lag.lag_s / tr.dt
+    assert 0.0 <= lag.lag_s <= 0.2 and abs(frames - round(frames)) < 1e-9

@@ -10,7 +10,9 @@ on the whole logs where the effect has one scalar parameter (``profile``). A par
 (``EffectModel.GRID``, a lag) has no standard error; its interval is the profile-likelihood one, from the search's
 profile on the training half: the grid values within chi-square(1, 0.95) / 2 = 1.92 nats of the best, widened to
 the neighbouring grid values (``profile_interval``; ``grid_step`` in the entry), so it holds the true profile interval
-to the grid's step, and is wider than the whole log's would be (half the sightings)."""
+to the grid's step, and is wider than the whole log's would be (half the sightings). The value is the final fit's,
+refined between the grid's values where the effect polishes (``ActuationLag.polish``: the lag maximizing the whole
+logs' likelihood within a grid step of the search's, the rest held)."""
 
 from __future__ import annotations
 
@@ -50,9 +52,11 @@ def effect_intervals(model: Model, name: str, standard_errors: dict[str, Any],
         v = np.asarray(value, dtype=float)
         if profiles and pname in profiles:
             step = grid_step(effect.GRID[pname]) if pname in effect.GRID else grid_step(profiles[pname][0])
+            method = f"profile likelihood over a grid of step {step:g}, training half, widened to the neighbouring grid values"
+            if not np.any(np.isclose(v, np.asarray(profiles[pname][0], dtype=float))):
+                method += "; the value refined between them by the final fit (``EffectModel.polish``)"
             out[pname] = {"value": v.tolist(), "se": None, "interval_95": profile_interval(*profiles[pname]),
-                          "grid_step": step, "method": f"profile likelihood over a grid of step {step:g}, training "
-                          "half, widened to the neighbouring grid values"}
+                          "grid_step": step, "method": method}
             continue
         se = standard_errors.get(f"effects.{name}.{pname}")
         if se is None or np.any(np.asarray(se, dtype=object) == None):  # noqa: E711 (None entries: undetermined)

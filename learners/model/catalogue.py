@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any, Callable, ClassVar
 
 import numpy as np
 
@@ -147,6 +147,27 @@ class ActuationLag(EffectModel):
                                                                  shape=())}
     GRID: ClassVar[dict[str, tuple[float, ...]]] = {"lag_s": (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)}
     EXAMPLE: ClassVar[dict[str, Any]] = {"lag_s": 0.2}  # no PROBE: the grid's profile shows a flat likelihood
+
+    def polish(self, model: "Model", batch: Batch, loglik: Callable[["Model"], float]) -> "ActuationLag":
+        """The lag maximizing the likelihood within one grid step either side of this one, the rest of ``model`` held
+        (``EffectModel.polish``): the search places it on ``GRID`` (0.1 s apart), the final fit refines it below.
+        Continuous commands: Brent's method on the continuous lag, to 1 ms. Discrete commands move by whole frames:
+        each frame's lag in the range, the most likely kept."""
+        step = float(np.min(np.diff(self.GRID["lag_s"])))
+        low, high = max(self.lag_s - step, 0.0), self.lag_s + step
+
+        def ll(lag_s: float) -> float:
+            return loglik(model.with_effect(ActuationLag(float(lag_s))))
+
+        if batch.controls is None:  # discrete: the frame lags in [low, high] (ceil(lag / dt) frames each)
+            lags = [k * batch.dt for k in range(math.ceil(low / batch.dt - 1e-9), math.floor(high / batch.dt + 1e-9) + 1)]
+            best = max(lags, key=ll)
+        else:
+            from scipy.optimize import minimize_scalar  # here, not at import (SciPy's load costs every command)
+
+            best = float(minimize_scalar(lambda x: -ll(x), bounds=(low, high), method="bounded",
+                                         options={"xatol": 1e-3}).x)
+        return ActuationLag(float(best)) if ll(best) > ll(self.lag_s) else self
 
     def commands(self, commands: np.ndarray, batch: Batch) -> np.ndarray:
         frames = self.lag_s / batch.dt
