@@ -151,8 +151,13 @@ def test_a_grid_parameter_gets_the_profile_likelihood_interval():
     model = Model(action=None, sensor=None, init=(), effects=(ActuationLag(0.2),))
     iv = effect_intervals(model, "actuation_lag", {}, {"lag_s": [grid[:5], lls]})["lag_s"]
     assert iv["interval_95"] == [0.0, 0.4] and iv["se"] is None and iv["method"].startswith("profile")
-    assert iv["grid_step"] == 0.1 and "step 0.1" in iv["method"]
+    assert iv["grid_step"] == 0.1 and "step 0.1" in iv["method"] and "refined" not in iv["method"]
     assert effect_intervals(model, "actuation_lag", {})["lag_s"]["interval_95"] is None  # no profile: no interval
+    # the final fit's polish refined it between the grid's values: the method says so, the interval holds it
+    refined = Model(action=None, sensor=None, init=(), effects=(ActuationLag(0.237),))
+    iv = effect_intervals(refined, "actuation_lag", {}, {"lag_s": [grid[:5], lls]})["lag_s"]
+    assert iv["value"] == 0.237 and "refined between them" in iv["method"]
+    assert iv["interval_95"][0] <= 0.237 <= iv["interval_95"][1]
 
 
 def test_base_shift_reports_the_largest_velocity_and_curve_changes_in_file_units():

@@ -54,7 +54,7 @@ def effect_intervals(model: Model, name: str, standard_errors: dict[str, Any],
             step = grid_step(effect.GRID[pname]) if pname in effect.GRID else grid_step(profiles[pname][0])
             method = f"profile likelihood over a grid of step {step:g}, training half, widened to the neighbouring grid values"
             if not np.any(np.isclose(v, np.asarray(profiles[pname][0], dtype=float))):
-                method += "; the value refined between them by the final fit (``EffectModel.polish``)"
+                method += "; the value refined between them by the final fit (the whole logs' most likely, the rest held)"
             out[pname] = {"value": v.tolist(), "se": None, "interval_95": profile_interval(*profiles[pname]),
                           "grid_step": step, "method": method}
             continue
