@@ -8,6 +8,7 @@ that lacks it depend; a learner-side twin looks for it there.
 name                       parameters (units)                                residual signature
 =========================  ================================================  ==============================
 actuation_lag              lag_s (s)                                         time since the last command change
+response_time              tau_s (s, first-order lag of the command)         time since the last command change
 floor_drift                drift_mm_s ([x, y] mm/s, world frame)             world heading
 velocity_fade              fade_per_min (fraction of speed lost per minute)  elapsed time
 wall_contact               (none)                                            distance to the walls
@@ -79,11 +80,54 @@ class ActuationLag(Effect):
         if executed != frame.command:
             v = np.zeros(3) if _no_command(executed) else frame.velocity(executed)
             m.set_velocity(v, frame.dt)
+            m.command = executed
         return m
 
     def _delayed(self, n: int):
         """The command given n frames before this one (``NO_COMMAND`` before the first)."""
         return self.history[-1 - n] if len(self.history) > n else NO_COMMAND
+
+
+@register_effect
+class ResponseTime(Effect):
+    """The robot follows its command through a first-order lag: a step in the command is reached as
+    1 - exp(-t / ``tau_s``) (s), as a drive whose speed controller cannot change the speed at once (motor and body
+    inertia, a speed ramp).
+
+    A continuous command (a tuple of k floats) is low-passed, y[t] = y[t - 1] + a (c[t] - y[t - 1]) with
+    a = 1 - exp(-dt / tau_s), y starting at the first command, and the frame moves at ``Frame.velocity(y[t])``
+    (the learner's twin does the same, after ``actuation_lag`` when both act: it reads ``Motion.command``). A
+    discrete command (an index, which cannot be averaged) has its true velocity low-passed the same way; the
+    learner fits the effect on continuous commands only. Slip noise is unchanged.
+    Residual signature: time since the last command change (as a lag's).
+    """
+
+    name = "response_time"
+    defaults = {"tau_s": 0.0}
+    bounds = {"tau_s": (0.0, math.inf)}
+    motion_order = 1  # after actuation_lag, whatever the config's order: it follows the delayed command
+
+    def reset(self, rng: np.random.Generator) -> None:
+        super().reset(rng)
+        self.state: np.ndarray | None = None  # the low-passed command (continuous) or velocity (discrete)
+
+    def motion(self, m: Motion, frame: Frame) -> Motion:
+        tau = self.params["tau_s"]
+        if tau <= 0.0:
+            return m
+        command = frame.command if m.command is None else m.command
+        continuous = isinstance(command, tuple)
+        if not continuous and _no_command(command):
+            return m  # before the first command acts (a lag): standing still, nothing to follow yet
+        target = np.asarray(command, float) if continuous else np.asarray(m.velocity, float)
+        a = 1.0 - math.exp(-frame.dt / tau)
+        self.state = target.copy() if self.state is None else self.state + a * (target - self.state)
+        if continuous:
+            m.command = tuple(float(x) for x in self.state)
+            m.set_velocity(frame.velocity(m.command), frame.dt)
+        else:
+            m.set_velocity(self.state, frame.dt)
+        return m
 
 
 def _no_command(command) -> bool:

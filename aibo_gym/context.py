@@ -89,11 +89,14 @@ class Motion:
     velocity: ndarray (3,) the true velocity driving ``disp`` (mm/s, mm/s, rad/s); change it with
         :meth:`set_velocity` so that ``disp`` follows.
     world: ndarray (2,) world-frame offset added after the rotation (mm, mm).
+    command: the command driving ``velocity`` when an effect replaced the frame's own (``actuation_lag``: the
+        delayed one, for an effect after it to read); None: ``Frame.command``.
     """
 
     disp: np.ndarray
     velocity: np.ndarray
     world: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    command: Any = None
 
     def set_velocity(self, velocity: np.ndarray, dt: float) -> None:
         """Replace the driving velocity (mm/s, mm/s, rad/s), keeping the slip noise of ``disp``."""

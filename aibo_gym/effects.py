@@ -11,7 +11,8 @@ An effect is a small class (subclass of :class:`Effect`) with three hooks, all n
 
 ``frame`` is the frame's :class:`~aibo_gym.context.Frame` (index, time, commands, poses, head pan,
 wall contact, field, dt). Effects are enabled by name through the env config, e.g.
-``config={"effects": {"height_bias": {"offset_px": 2.0}}}``, and run in the order given; their
+``config={"effects": {"height_bias": {"offset_px": 2.0}}}``, and run in the order given (the motion hooks
+by ``motion_order`` first: an effect that follows the command in force, ``response_time``, after a lag); their
 validated parameters (defaults filled in) are recorded in the log's ``meta["truth"]["effects"]``.
 Register a new one with :func:`register_effect`; the simulator twins of the effect catalogue live
 in :mod:`aibo_gym.catalogue`.
@@ -45,6 +46,8 @@ class Effect:
     defaults: ClassVar[dict[str, Any]] = {}
     per_beacon: ClassVar[dict[str, float]] = {}  # list parameters of one value per beacon -> neutral value
     bounds: ClassVar[dict[str, tuple[float, float]]] = {}  # inclusive (low, high) per parameter
+    #: motion hooks run by this, then in config order: 1 for an effect that reads ``Motion.command`` as a lag left it
+    motion_order: ClassVar[int] = 0
 
     def __init__(self, params: dict[str, Any] | None = None, cfg: dict[str, Any] | None = None) -> None:
         self.params = validate_params(type(self), params)
@@ -191,7 +194,8 @@ class EffectChain:
     def __init__(self, cfg: dict[str, Any], sensor_capacity: int = 1) -> None:
         """``sensor_capacity``: most sightings the env's sensor reports in a frame before the effects."""
         self.effects = [EFFECTS[name](params, cfg) for name, params in cfg["effects"].items()]
-        self.motion_effects = [e for e in self.effects if type(e).motion is not Effect.motion]
+        self.motion_effects = sorted((e for e in self.effects if type(e).motion is not Effect.motion),
+                                     key=lambda e: e.motion_order)  # stable: config order within one order
         self.sense_effects = [e for e in self.effects if type(e).sense is not Effect.sense]
         self.max_sightings = sensor_capacity
         for e in self.sense_effects:

@@ -5,7 +5,8 @@
 
 For each effect of the catalogue at one strength (``STRENGTH``) and each log i = ``--first-log`` .. ``--logs`` - 1:
 a 5-minute blind log simulated with the effect (``aibo_gym.collect.collect``, seed ``SEED + i``, noise preset
-``PRESETS[i % 2]``: ``aibo``, ``paper-sim`` alternating), then what `aibo diagnose LOG --candidates EFFECT` does to
+``PRESETS[i % 2]``: ``aibo``, ``paper-sim`` alternating; for an effect of continuous commands, ``response_time``, a
+wheeled robot's log, ``aibo_gym.collect_wheeled.collect_wheeled``, "preset" ``wheeled``), then what `aibo diagnose LOG --candidates EFFECT` does to
 name it and to estimate it, in this process: the search (``learners.discrepancy.search.search``, one candidate, one
 worker, diagnose's options) and, the effect named, the final fit on the whole log with each named parameter's 95%
 interval (``learners.discrepancy.final.diagnosed``, the function ``aibo diagnose`` calls; Wald from the Fisher
@@ -63,8 +64,12 @@ STRENGTH: dict[str, dict[str, Any]] = {
     "landmark_bearing_offset": {"offset_rad": [0.01, -0.01, 0.005, -0.005]},
     "floor_drift": {"drift_mm_s": [12.0, 0.0]},
     "velocity_fade": {"fade_per_min": 0.02},
+    "response_time": {"tau_s": 0.15},  # continuous commands only: a wheeled robot's logs (WHEELED)
 }
 PRESETS = ("aibo", "paper-sim")
+#: the "preset" of the logs of an effect that needs continuous commands (``EffectModel.NEEDS``): ``WheeledRobot-v0``
+#: driven to random waypoints from a random start (``collect_wheeled``), its default noise, 10 frames per second
+WHEELED = "wheeled"
 SEED = 8000  # log i has seed SEED + i (the power study's logs are 1000-5009)
 Z95 = 1.959963984540054
 
@@ -87,8 +92,15 @@ def one(effect: str, i: int, minutes: float) -> dict[str, Any]:
     from learners.discrepancy.search import search
     from learners.em.options import EMOptions
 
+    from aibo_gym.collect_wheeled import collect_wheeled
+    from learners.model.effects import EFFECT_MODELS
+
     params, seed, preset = STRENGTH[effect], SEED + i, PRESETS[i % len(PRESETS)]
-    tr = blind(collect({"noise": preset, "effects": {effect: params}}, int(round(minutes * 60 * 30)), seed=seed))
+    if "controls" in EFFECT_MODELS[effect].NEEDS:
+        preset = WHEELED
+        tr = collect_wheeled({"effects": {effect: params}, "start_pose": "random"}, int(round(minutes * 600)), seed)
+    else:
+        tr = blind(collect({"noise": preset, "effects": {effect: params}}, int(round(minutes * 60 * 30)), seed=seed))
     t0, c0 = time.perf_counter(), time.process_time()
     opts = EMOptions(seed=0, lag_search=False)  # ``aibo diagnose``'s (its --seed 0)
     found = search([tr], [effect], opts, jobs=1, progress=lambda s: None)

@@ -102,7 +102,8 @@ class WheeledRobotEnv(gym.Env):
     mm here) and its noise-free value in ``Sighting.true_height``; ``Sighting.image_angle`` is the true
     bearing (the camera does not pan; ``Frame.head_pan`` is 0). ``Frame.command`` is the command as a
     tuple of k floats and ``Frame.velocity(command)`` its true velocity, so ``actuation_lag`` delays
-    continuous commands. For a wheeled robot: actuation_lag, floor_drift, velocity_fade, drift,
+    continuous commands and ``response_time`` low-passes them. For a wheeled robot: actuation_lag, response_time,
+    floor_drift, velocity_fade, drift,
     angle_bias, height_bias (a range offset, mm), beacon_height_scale (a range scale per landmark),
     distance_dependent_noise, off_center_shrink, false_sightings; wall_contact needs walls.
 
