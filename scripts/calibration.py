@@ -174,7 +174,7 @@ def table(rows: list[dict[str, Any]]) -> str:
         for pname, j in components(rs[0]):
             true = rs[0]["truth"][pname] if j is None else rs[0]["truth"][pname][j]
             label = pname if j is None else f"{pname}[{j}]"
-            for preset in PRESETS:
+            for preset in [p for p in (*PRESETS, WHEELED) if any(r["preset"] == p for r in rs)]:
                 logs = [r for r in rs if r["preset"] == preset]
                 cells = [cell(e[pname], j) for e in (estimates(r) for r in logs) if e is not None]
                 head = f"| {effect} | {label} | {preset} | {true:.4g} | {len(cells)} of {len(logs)} |"
