@@ -195,6 +195,41 @@ def test_a_grid_profile_stops_past_its_peak_and_walks_a_flat_one_whole():
     assert walk_profile(grid, lambda g: flat[grid.index(g)]) == flat
 
 
+def test_walked_keeps_what_the_walk_in_order_evaluates_of_points_computed_ahead():
+    """``grid.walked`` and ``GridWalk``: the points a pool computes ahead of the walk, cut where the walk stops."""
+    from learners.discrepancy.grid import GridWalk, walked
+
+    peaked = [0.0, 246.0, 457.0, 371.0, 181.0, 15.0]
+    assert walked(peaked) == 4 and walked(peaked[:3]) == 3 and walked([0.0, -PAST_PEAK_NATS - 1]) == 2
+    w = GridWalk("actuation_lag", None, None)
+    assert [w.next_value(), w.next_value()] == [0, 1]
+    w.record(1, (None, 246.0))  # out of order: the walk waits for the first value
+    assert not w.done() and w.next_value() == 2
+    for k in (0, 2):
+        w.record(k, (None, peaked[k]))
+    assert not w.done() and w.next_value() == 3
+    w.record(3, (None, 371.0))
+    assert w.done() and w.next_value() is None
+
+
+def test_a_pool_walks_a_grid_candidate_as_one_process_does():
+    """``run_round`` on two workers (a grid candidate's points as jobs of their own) names the same effects with the
+    same profiles and gains as the search in one process, on a wheeled robot's log with a 0.2 s lag."""
+    from aibo_gym.collect_wheeled import collect_wheeled
+    from learners.discrepancy.search import search
+    from learners.em.options import EMOptions
+
+    tr = collect_wheeled({"effects": {"actuation_lag": {"lag_s": 0.2}}, "start_pose": "random"}, 3000, 7)
+    found = [search([tr], ["actuation_lag", "velocity_fade", "floor_drift"], EMOptions(), jobs=j, progress=lambda s: None)
+             for j in (1, 2)]
+    assert [c.name for c in found[0]["named"]] == [c.name for c in found[1]["named"]] == ["actuation_lag"]
+    for one, two in zip(*(f["rounds"] for f in found)):
+        for a, b in zip(one, two):
+            assert (a.name, a.profile, a.gain_train, a.gain_heldout, a.significant) == \
+                (b.name, b.profile, b.gain_train, b.gain_heldout, b.significant)
+            assert [v.name for v in a.checks] == [v.name for v in b.checks]
+
+
 def test_a_final_estimate_outside_its_interval_from_the_value_when_named_is_said():
     """A rate named at 0.072 on the training half whose final fit says 0.0124 +- 0.004: the report warns (the two
     fits disagree) and states the final value; within the interval, nothing is said."""

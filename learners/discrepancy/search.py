@@ -22,6 +22,7 @@ checks").
 from __future__ import annotations
 
 import time
+from concurrent.futures import FIRST_COMPLETED, Future, wait
 from dataclasses import dataclass, replace
 from typing import Any, Callable
 
@@ -30,7 +31,7 @@ import numpy as np
 from aibo_core.trajectory import Trajectory
 from aibo_core.workers import process_pool
 from learners.arrays.batch import make_batch
-from learners.em.estep import e_step, forward_loglik
+from learners.em.estep import e_step
 from learners.em.options import DEFAULT_GATE, EMOptions
 from learners.em.start import initial_state_for
 from learners.model.effects import EFFECT_MODELS
@@ -39,15 +40,11 @@ from learners.model.probes import PROBES
 
 from .candidate import Candidate, Verdict
 from .checks import CANDIDATE_CHECKS, LAST_ROUND_CHECKS, PROBE_CHECKS, MotionSide, run_checks, tested
-from .fitting import SEARCH_PATIENCE, SearchContext, fit, held, lr_test, with_values
+from .fitting import SEARCH_PATIENCE, SearchContext, fit, lr_test
+from .grid import PAST_PEAK_NATS, GridWalk, candidate_start, grid_point, profiled, walk_profile  # noqa: F401
 from .split import training_log
 
 MAX_ROUNDS = 3
-#: A grid effect's profile (``EffectModel.GRID``, e.g. actuation_lag's 0.0-0.5 s) is walked in order and stops at
-#: the first value this many nats below the best so far: a lag's profile rises to one peak and falls (measured on
-#: MRCLAM robot 1 with bias states, in nats over no lag: 0, 246, 457, 371, 181, 15), and the values past it, each a
-#: fit of up to 150 iterations, cannot win.
-PAST_PEAK_NATS = 20.0
 #: A candidate's base refit (``checks.GivenItsOwnBase``) this many nats above the round's null replaces the current
 #: model and the round is repeated from it, at most ``MAX_ESCAPES`` times per search.
 ESCAPE_NATS = 2.0
@@ -55,63 +52,27 @@ MAX_ESCAPES = 2
 
 
 def applicable(name: str, logs: list[Trajectory]) -> bool:
-    """Whether the logs hold what the effect needs (e.g. a head pan)."""
     return all(all(getattr(tr, need) is not None for tr in logs) for need in EFFECT_MODELS[name].NEEDS)
-
-
-def walk_profile(grid: tuple[float, ...], loglik: Callable[[float], float]) -> list[float]:
-    """``loglik`` at the grid's values in order, until one is ``PAST_PEAK_NATS`` below the best so far (the
-    profile has passed its peak); the log-likelihoods evaluated, in grid order."""
-    lls: list[float] = []
-    for g in grid:
-        lls.append(loglik(g))
-        if lls[-1] < max(lls) - PAST_PEAK_NATS:
-            break
-    return lls
 
 
 def fit_candidate(name: str, ctx: SearchContext, previous: Model | None = None) -> Candidate:
     """The current model extended with effect ``name`` and fitted (warm-started: the effect's ``start`` and
-    ``warm_start``), with its likelihood-ratio verdict. A grid effect is profiled over its grid, the effect frozen at
-    each value; the grid's neutral point, when walked, is its null (the same start and budget). ``previous``: a model
-    holding the effect to fit from as well (not for a grid effect), the more likely fit kept: the candidate's own fit
-    of the round that an escape repeats."""
-    cls = EFFECT_MODELS[name]
-    batch = ctx.batch
-    start = ctx.current.with_effect(cls.start(batch))
-    start = start.with_effect(start.effect(name).warm_start(start, batch, forward_loglik(batch)))
-    null, profiled = None, {}
-    if cls.GRID:
-        (pname, grid), = cls.GRID.items()
-        frozen = held(ctx.opts, name)
-        fits = []
-
-        def profile(g: float) -> float:
-            # each grid value's fit starts from the warm start, not from the previous value's fit (continuation): on
-            # the 5-minute log of seed 2005 with a 0.1 s lag, continuation reached the same training likelihood
-            # (-264.6 vs -265.0 nats) 47 nats worse held out, and the lag was not named (docs/results.md)
-            fits.append(ctx.fit(start.with_effect(with_values(start.effect(name), {pname: g})), frozen))
-            return ctx.loglik(fits[-1])
-
-        lls = walk_profile(grid, profile)
-        profiled = {pname: [list(grid[:len(lls)]), lls]}
-        k = int(np.argmax(lls))
-        model, ll = fits[k], lls[k]
-        neutral = float(np.asarray(start.effect(name).values()[pname]))
-        if neutral in grid[:len(lls)]:
-            k0 = list(grid).index(neutral)
-            null = (lls[k0], ctx.heldout(fits[k0]))
-    else:
-        model = ctx.fit(start)
-        ll = ctx.loglik(model)
-        if previous is not None:
-            again = ctx.fit(previous)
-            ll_again = ctx.loglik(again)
-            model, ll = (again, ll_again) if ll_again > ll else (model, ll)
-        if model.effect(name).implausible():
-            model, ll = staged(name, start, model, ll, ctx)
-    c = tested(name, model, ll, ctx, null)
-    c.start, c.profile = start, profiled
+    ``warm_start``), with its likelihood-ratio verdict. A grid effect is profiled over its grid
+    (``learners.discrepancy.grid``). ``previous``: a model holding the effect to fit from as well (not for a grid
+    effect), the more likely fit kept: the candidate's own fit of the round that an escape repeats."""
+    if EFFECT_MODELS[name].GRID:
+        return profiled(name, ctx)
+    start = candidate_start(name, ctx)
+    model = ctx.fit(start)
+    ll = ctx.loglik(model)
+    if previous is not None:
+        again = ctx.fit(previous)
+        ll_again = ctx.loglik(again)
+        model, ll = (again, ll_again) if ll_again > ll else (model, ll)
+    if model.effect(name).implausible():
+        model, ll = staged(name, start, model, ll, ctx)
+    c = tested(name, model, ll, ctx)
+    c.start = start
     return c
 
 
@@ -165,6 +126,87 @@ def run_trial(t: Trial) -> Candidate:
         return try_probe(t.name, t.ctx) if t.probe else try_candidate(t.name, t.ctx, t.previous)
     except (FloatingPointError, np.linalg.LinAlgError, ValueError) as err:
         return Candidate(t.name, {}, 0.0, 0.0, 0, 1.0, checks=[Verdict("fit", False, note=f"fit failed: {err}")])
+
+
+def _failed(name: str, err: Exception) -> Candidate:
+    return Candidate(name, {}, 0.0, 0.0, 0, 1.0, checks=[Verdict("fit", False, note=f"fit failed: {err}")])
+
+
+def _point_job(args: tuple[str, SearchContext, Model, float]) -> tuple[Model, float] | Exception:
+    try:
+        return grid_point(args)
+    except (FloatingPointError, np.linalg.LinAlgError, ValueError) as err:
+        return err
+
+
+def _checks_job(args: tuple[SearchContext, Candidate]) -> Candidate:
+    ctx, c = args
+    t0 = time.perf_counter()
+    try:
+        c = run_checks(CANDIDATE_CHECKS, ctx, c)
+    except (FloatingPointError, np.linalg.LinAlgError, ValueError) as err:
+        return _failed(c.name, err)
+    c.seconds += time.perf_counter() - t0
+    return c
+
+
+def run_round(trials: list[Trial], pool: Any, jobs: int = 1) -> list[Candidate]:
+    """Every trial of a round (``run_trial``), in order. On a worker pool of ``jobs`` workers, a grid candidate's
+    profile points are jobs of their own, submitted first and kept ``jobs`` ahead of its walk, and its checks one more
+    job once the walk is settled (``learners.discrepancy.grid``): the same fits and decisions as one process walking
+    the grid, without the round waiting for one worker to walk it alone."""
+    walks: dict[int, GridWalk] = {}
+    out: dict[int, Candidate] = {}
+    if pool is not None:
+        for i, t in enumerate(trials):
+            if not t.probe and EFFECT_MODELS[t.name].GRID:
+                try:
+                    walks[i] = GridWalk(t.name, t.ctx, candidate_start(t.name, t.ctx))
+                except (FloatingPointError, np.linalg.LinAlgError, ValueError) as err:
+                    out[i] = _failed(t.name, err)
+    if not walks:
+        return [out[i] if i in out else c for i, c in enumerate(_map(pool, run_trial, trials))]
+    pending: dict[Future, tuple[str, int, int]] = {}  # future -> (kind, trial, grid index)
+    settled: set[int] = set()  # walks whose candidate is made (late points are dropped)
+    began = time.perf_counter()
+
+    def ahead(i: int) -> None:
+        w = walks[i]
+        while sum(1 for kind, j, _ in pending.values() if kind == "point" and j == i) < jobs:
+            k = w.next_value()
+            if k is None:
+                return
+            pending[pool.submit(_point_job, (w.name, w.ctx, w.start, w.grid[k]))] = ("point", i, k)
+
+    for i in walks:
+        ahead(i)
+    pending.update({pool.submit(run_trial, t): ("trial", i, -1) for i, t in enumerate(trials)
+                    if i not in walks and i not in out})
+    while pending:
+        done, _ = wait(pending, return_when=FIRST_COMPLETED)
+        for f in done:
+            kind, i, k = pending.pop(f)
+            if f.cancelled() or i in settled and kind == "point":
+                continue
+            if kind != "point":
+                out[i] = f.result()
+                continue
+            w, point = walks[i], f.result()
+            if isinstance(point, Exception):
+                out[i] = _failed(w.name, point)
+                settled.add(i)
+                continue
+            w.record(k, point)
+            if not w.done():
+                ahead(i)
+                continue
+            settled.add(i)
+            for g in [g for g, (kd, j, _) in pending.items() if kd == "point" and j == i]:
+                g.cancel()  # past the walk's stop: not needed (one already running finishes, unused)
+            c = w.candidate()
+            c.seconds = time.perf_counter() - began
+            pending[pool.submit(_checks_job, (w.ctx, c))] = ("checks", i, -1)
+    return [out[i] for i in range(len(trials))]
 
 
 def _map(pool: Any, fn: Callable[[Any], Any], args: list[Any]) -> list[Any]:
@@ -304,7 +346,7 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
             last = round_ctx = with_null(ctx, current, len(remaining))
             progress(f"  (null: the current model refitted as the candidates are, train "
                      f"+{round_ctx.null_ll - current_ll:.1f} nats)")
-            tried = _map(workers, run_trial, [Trial(n, round_ctx, previous.get(n)) for n in remaining])
+            tried = run_round([Trial(n, round_ctx, previous.get(n)) for n in remaining], workers, jobs)
             rounds.append(tried)
             escape = max(tried, key=lambda c: c.escape_ll)
             escaping = escape.escape_ll > round_ctx.null_ll + ESCAPE_NATS and len(escapes) < MAX_ESCAPES
