@@ -183,6 +183,18 @@ def test_a_disagreement_left_after_the_search_names_the_effect_whose_signature_i
     assert unexplained({"calibrated_simulation": {"note": "not run"}}) == []
 
 
+def test_a_disagreement_that_is_the_signature_of_an_effect_not_tried_by_default_says_how_to_try_it():
+    """MRCLAM robot 3's "|turn| vs time since command change" after ``actuation_lag``: the signature of
+    ``response_time`` too, which ``aibo diagnose`` tries only when ``--candidates`` names it."""
+    from aibo.commands.diagnose import unexplained
+
+    report = {"effects": [{"name": "actuation_lag", "parameters": {}}], "candidates": [],
+              "calibrated_simulation": {"after": {"disagreements": [
+                  {"statistic": "|turn| (sigma) vs time since command change (s) (strength)", "z": 5.8}]}}}
+    (u,) = unexplained(report)
+    assert u["effect"] == "response_time" and "--candidates ...,response_time" in u["why_not_named"]
+
+
 def test_every_learned_effect_drives_its_simulator_twin(fitted):
     """A model with every effect of the catalogue (the registry, at each class's EXAMPLE): its simulator
     has their twins with the same parameters, walls (the model has wall_contact), and the spurious sightings it asks for."""

@@ -252,7 +252,7 @@ def unexplained(report: dict) -> list[dict]:
         matches = [name for name, cls in sorted(EFFECT_MODELS.items()) if cls.SIGNATURE and cls.SIGNATURE in d["statistic"]]
         for name in (n for n in matches if n not in named):
             c = tried.get(name)
-            why = ("not among the candidates" if c is None else c["note"] or
+            why = (not_tried(name) if c is None else c["note"] or
                    f"training gain {c['gain_train']:.1f} nats, p = {c['p_value']:.2g}; held-out gain {c['gain_heldout']:+.1f} nats")
             out.append({"statistic": d["statistic"], "z": d["z"], "effect": name, "why_not_named": why, "reading": reading})
         if not matches or all(n in named for n in matches):
@@ -260,6 +260,13 @@ def unexplained(report: dict) -> list[dict]:
                    else "no effect of the catalogue leaves this signature")
             out.append({"statistic": d["statistic"], "z": d["z"], "effect": None, "why_not_named": why, "reading": reading})
     return out
+
+
+def not_tried(name: str) -> str:
+    """Why effect ``name`` has no candidate in the report: not asked for, or not a default candidate."""
+    if EFFECT_MODELS[name].DEFAULT_CANDIDATE:
+        return "not among the candidates"
+    return f"not among the candidates: tried only when asked for (--candidates ...,{name})"
 
 
 #: ``report.json["unexplained"][*]["effect"]`` of a significant probe (``learners.model.probes``)
