@@ -7,10 +7,11 @@ For each effect of the catalogue at one strength (``STRENGTH``) and each log i =
 a 5-minute blind log simulated with the effect (``aibo_gym.collect.collect``, seed ``SEED + i``, noise preset
 ``PRESETS[i % 2]``: ``aibo``, ``paper-sim`` alternating; for an effect of continuous commands, ``response_time``, a
 wheeled robot's log, ``aibo_gym.collect_wheeled.collect_wheeled``, "preset" ``wheeled``), then what `aibo diagnose
-LOG --candidates EFFECT` does to name it and to estimate it, in this process: the search (``learners.discrepancy.search.search``, one candidate, one
-worker, diagnose's options) and, the effect named, the final fit on the whole log with each named parameter's 95%
-interval (``learners.discrepancy.final.diagnosed``, the function ``aibo diagnose`` calls; Wald from the Fisher
-information, the profile or conditional likelihood interval where Wald fails, the search's grid profile for the lag).
+LOG --candidates EFFECT` does to name it and to estimate it, in this process: the search
+(``learners.discrepancy.search.search``, one candidate, one worker, diagnose's options) and, the effect named, the
+final fit on the whole log with each named parameter's 95% interval (``learners.discrepancy.final.diagnosed``, the
+function ``aibo diagnose`` calls; Wald from the Fisher information, the profile or conditional likelihood interval
+where Wald fails, the search's grid profile for the lag).
 What the study skips of the command (the scores, signatures, motion gaps, the calibrated check, the page) does not
 change the named effects or their intervals. Every random choice is the log's seed or diagnose's ``--seed 0``.
 
