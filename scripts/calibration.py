@@ -89,11 +89,10 @@ def one(effect: str, i: int, minutes: float) -> dict[str, Any]:
     """Log ``i`` of ``effect``: simulated, searched and, the effect named, its final estimates and intervals."""
     from aibo_core.trajectory import blind
     from aibo_gym.collect import collect
+    from aibo_gym.collect_wheeled import collect_wheeled
     from learners.discrepancy.final import diagnosed
     from learners.discrepancy.search import search
     from learners.em.options import EMOptions
-
-    from aibo_gym.collect_wheeled import collect_wheeled
     from learners.model.effects import EFFECT_MODELS
 
     params, seed, preset = STRENGTH[effect], SEED + i, PRESETS[i % len(PRESETS)]
