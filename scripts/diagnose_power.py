@@ -20,7 +20,8 @@ Blind simulated logs, every effect of the catalogue a candidate:
 - on every log, whether the search's "none of the above" check (``learners.model.probes``) reported a dependence
   outside the catalogue.
 Writes ``power.json``, ``power.md`` (tables), ``power.png`` (detection rates) and ``confusion.png``; resumable
-(finished runs are kept in ``runs.jsonl``).
+(finished runs are kept in ``runs.jsonl``; a second process started with ``--first-power-seed N`` writes its own
+``runs-from-N.jsonl``, skips the runs any of them holds, and the tables read them all).
 """
 
 from __future__ import annotations
@@ -148,10 +149,11 @@ def main() -> None:
     args = ap.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    done_path = out / "runs.jsonl"
+    # one file per process: two processes rewriting one file would each drop the other's runs
+    done_path = out / ("runs.jsonl" if args.first_power_seed == 0 else f"runs-from-{args.first_power_seed}.jsonl")
     done = read_jsonl(done_path)
     key = {(r["effect"], json.dumps(r["params"]), r["seed"], r.get("preset", "aibo"), r.get("walls", False))
-           for r in done}
+           for r in all_runs(out)}
     jobs = []
     # interleaved (seed by seed: each preset without, then with walls), so that a run stopped early covers every
     # group of the false-alarm table
@@ -174,7 +176,12 @@ def main() -> None:
         write_jsonl(done_path, done)
         print(f"{r['effect']:26s} {json.dumps(r['params'])!s:45s} {preset}{' walls' if walls else ''} seed {seed}: "
               f"named {r['named']} ({r['seconds']:.0f} s)", flush=True)
-    summarize(done, out)
+    summarize(all_runs(out), out)
+
+
+def all_runs(out: Path) -> list[dict]:
+    """The runs of every OUT/runs*.jsonl (one file per process that ran)."""
+    return [r for path in sorted(out.glob("runs*.jsonl")) for r in read_jsonl(path)]
 
 
 def false_alarm_lines(none: list[dict]) -> list[str]:

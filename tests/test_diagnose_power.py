@@ -35,3 +35,22 @@ def test_wall_contact_is_no_false_alarm_where_the_walls_are_met():
     assert not dp.false_alarm({"named": ["wall_contact"], "walls": True})
     assert dp.false_alarm({"named": ["wall_contact"], "walls": False})
     assert dp.false_alarm({"named": ["wall_contact", "velocity_fade"], "walls": True})
+
+
+def test_a_second_process_keeps_its_runs_in_its_own_file(tmp_path, monkeypatch):
+    """``--first-power-seed N`` writes runs-from-N.jsonl: a second process never rewrites the first one's runs.jsonl
+    (each rewrote the whole file from what it had read, dropping the other's runs); the tables read both."""
+    from aibo_core.atomic import read_jsonl
+
+    dp = _load()
+    monkeypatch.setattr(dp, "one", lambda effect, params, seed, minutes, preset, walls, effects=None: {
+        "effect": effect or "none", "params": params, "seed": seed, "preset": preset, "walls": walls, "named": [],
+        "seconds": 0.0})
+    seen = []
+    monkeypatch.setattr(dp, "summarize", lambda runs, out: seen.append(len(runs)))
+    common = ["--seeds", "0", "--effects", "actuation_lag", "--out", str(tmp_path)]
+    for argv in (["--power-seeds", "1"], ["--first-power-seed", "1", "--power-seeds", "2"], ["--power-seeds", "2"]):
+        monkeypatch.setattr(sys, "argv", ["diagnose_power.py", *argv, *common])
+        dp.main()
+    assert len(read_jsonl(tmp_path / "runs.jsonl")) == 3 and len(read_jsonl(tmp_path / "runs-from-1.jsonl")) == 3
+    assert seen == [3, 6, 6]  # the third run finds seed 1's runs in the other file: nothing to do again
