@@ -36,14 +36,14 @@ def test_a_sub_frame_lag_averages_the_held_commands_over_the_frame():
     np.testing.assert_array_equal(ActuationLag(0.25).commands(idx, batch)[3:6], idx[0:3])  # indices: whole frames
 
 
-@pytest.mark.parametrize("lag_s", [0.25, 0.1, 0.37])
-def test_the_simulator_twin_moves_as_the_learner_twin_predicts(lag_s):
-    """WheeledRobot-v0's true velocity of every frame equals the learner's: features of its lagged commands times
-    the weights (the first frames, before the first command acts, aside)."""
+def twin_velocities(effects: dict, transform) -> tuple[np.ndarray, np.ndarray]:
+    """(the true robot-frame velocities of WheeledRobot-v0 with ``effects`` and no motion noise, those the learner
+    predicts: features of ``transform(commands, batch)`` times the env's weights), (N, 3) each, for 36 frames of
+    random commands held 3 frames each."""
     import gymnasium as gym
 
-    env = gym.make("aibo_gym:WheeledRobot-v0", config={"effects": {"actuation_lag": {"lag_s": lag_s}},
-                                                       "motion_cov": (np.eye(3) * 1e-18).tolist(), "walls": "open"})
+    env = gym.make("aibo_gym:WheeledRobot-v0", config={"effects": effects, "motion_cov": (np.eye(3) * 1e-18).tolist(),
+                                                       "walls": "open"})
     pose = [env.reset(seed=0)[1]["pose"]]
     rng = np.random.default_rng(1)
     commands = np.repeat(rng.uniform([0.0, -0.5], [80.0, 0.5], (12, 2)), 3, axis=0)  # each held 3 frames
@@ -52,9 +52,16 @@ def test_the_simulator_twin_moves_as_the_learner_twin_predicts(lag_s):
     c, s = np.cos(p[:-1, 2]), np.sin(p[:-1, 2])
     d = np.diff(p, axis=0)
     got = np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], d[:, 2]], axis=1) / 0.1  # robot frame
-    cfg = env.unwrapped.config
-    lagged = ActuationLag(lag_s).commands(commands, _batch([len(commands)]))
-    want = FEATURE_MAPS[cfg["feature_map"]][0](lagged) @ np.asarray(env.unwrapped.weights)
+    executed = transform(commands, _batch([len(commands)]))
+    want = FEATURE_MAPS[env.unwrapped.config["feature_map"]][0](executed) @ np.asarray(env.unwrapped.weights)
+    return got, want
+
+
+@pytest.mark.parametrize("lag_s", [0.25, 0.1, 0.37])
+def test_the_simulator_twin_moves_as_the_learner_twin_predicts(lag_s):
+    """WheeledRobot-v0's true velocity of every frame equals the learner's: features of its lagged commands times
+    the weights (the first frames, before the first command acts, aside)."""
+    got, want = twin_velocities({"actuation_lag": {"lag_s": lag_s}}, ActuationLag(lag_s).commands)
     start = int(np.ceil(lag_s / 0.1)) + 1
     np.testing.assert_allclose(got[start:], want[start:], rtol=1e-6, atol=1e-6)  # motion noise 1e-9
 

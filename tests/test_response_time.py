@@ -6,9 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aibo_core.features import FEATURE_MAPS
 from learners.model.catalogue import ActuationLag, ResponseTime
-from tests.test_continuous_lag import _batch
+from tests.test_continuous_lag import _batch, twin_velocities
 
 
 def test_a_step_is_reached_as_one_minus_exp_of_minus_t_over_tau_in_each_log():
@@ -33,24 +32,8 @@ def test_the_simulator_twin_moves_as_the_learner_twin_predicts(effects):
     """WheeledRobot-v0's true velocity of every frame equals the learner's: features of its low-passed (and lagged)
     commands times the weights, whatever order the config names the effects in (the first frames, before the first
     command acts, aside)."""
-    import gymnasium as gym
-
-    env = gym.make("aibo_gym:WheeledRobot-v0", config={"effects": effects, "motion_cov": (np.eye(3) * 1e-18).tolist(),
-                                                       "walls": "open"})
-    pose = [env.reset(seed=0)[1]["pose"]]
-    rng = np.random.default_rng(1)
-    commands = np.repeat(rng.uniform([0.0, -0.5], [80.0, 0.5], (12, 2)), 3, axis=0)  # each held 3 frames
-    pose += [env.step(c)[4]["pose"] for c in commands]
-    p = np.array(pose)
-    c, s = np.cos(p[:-1, 2]), np.sin(p[:-1, 2])
-    d = np.diff(p, axis=0)
-    got = np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], d[:, 2]], axis=1) / 0.1  # robot frame
-    batch = _batch([len(commands)])
-    lag = effects.get("actuation_lag", {}).get("lag_s", 0.0)
-    executed = ResponseTime(effects["response_time"]["tau_s"]).commands(ActuationLag(lag).commands(commands, batch),
-                                                                         batch)
-    cfg = env.unwrapped.config
-    want = FEATURE_MAPS[cfg["feature_map"]][0](executed) @ np.asarray(env.unwrapped.weights)
+    lag, tau = effects.get("actuation_lag", {}).get("lag_s", 0.0), effects["response_time"]["tau_s"]
+    got, want = twin_velocities(effects, lambda c, b: ResponseTime(tau).commands(ActuationLag(lag).commands(c, b), b))
     start = int(np.ceil(lag / 0.1)) + 1  # the simulated robot stands still until its first command acts
     np.testing.assert_allclose(got[start:][10:], want[start:][10:], rtol=1e-6, atol=1e-3)  # after the start's transient
 
