@@ -52,6 +52,7 @@ MAX_ESCAPES = 2
 
 
 def applicable(name: str, logs: list[Trajectory]) -> bool:
+    """Whether the logs hold what the effect needs (e.g. a head pan)."""
     return all(all(getattr(tr, need) is not None for tr in logs) for need in EFFECT_MODELS[name].NEEDS)
 
 
@@ -125,10 +126,11 @@ def run_trial(t: Trial) -> Candidate:
     try:
         return try_probe(t.name, t.ctx) if t.probe else try_candidate(t.name, t.ctx, t.previous)
     except (FloatingPointError, np.linalg.LinAlgError, ValueError) as err:
-        return Candidate(t.name, {}, 0.0, 0.0, 0, 1.0, checks=[Verdict("fit", False, note=f"fit failed: {err}")])
+        return _failed(t.name, err)
 
 
 def _failed(name: str, err: Exception) -> Candidate:
+    """The candidate of a fit that failed numerically: its verdict "fit" not passed, with why."""
     return Candidate(name, {}, 0.0, 0.0, 0, 1.0, checks=[Verdict("fit", False, note=f"fit failed: {err}")])
 
 
@@ -139,14 +141,16 @@ def _point_job(args: tuple[str, SearchContext, Model, float]) -> tuple[Model, fl
         return err
 
 
-def _checks_job(args: tuple[SearchContext, Candidate]) -> Candidate:
-    ctx, c = args
+def _walked_job(args: tuple[GridWalk, float]) -> Candidate:
+    """A settled walk's candidate (``GridWalk.candidate``: its held-out scores) put through the candidate checks;
+    ``seconds``: its points' wall time so far."""
+    walk, seconds = args
     t0 = time.perf_counter()
     try:
-        c = run_checks(CANDIDATE_CHECKS, ctx, c)
+        c = run_checks(CANDIDATE_CHECKS, walk.ctx, walk.candidate())
     except (FloatingPointError, np.linalg.LinAlgError, ValueError) as err:
-        return _failed(c.name, err)
-    c.seconds += time.perf_counter() - t0
+        return _failed(walk.name, err)
+    c.seconds = seconds + time.perf_counter() - t0
     return c
 
 
@@ -203,9 +207,7 @@ def run_round(trials: list[Trial], pool: Any, jobs: int = 1) -> list[Candidate]:
             settled.add(i)
             for g in [g for g, (kd, j, _) in pending.items() if kd == "point" and j == i]:
                 g.cancel()  # past the walk's stop: not needed (one already running finishes, unused)
-            c = w.candidate()
-            c.seconds = time.perf_counter() - began
-            pending[pool.submit(_checks_job, (w.ctx, c))] = ("checks", i, -1)
+            pending[pool.submit(_walked_job, (w, time.perf_counter() - began))] = ("checks", i, -1)
     return [out[i] for i in range(len(trials))]
 
 
