@@ -81,3 +81,18 @@ def test_aibo_diagnose_tells_a_response_time_from_a_lag(tmp_path, effects, named
         (entry,) = report["effects"][0]["intervals"].values()
         low, high = entry["interval_95"]
         assert low <= 0.2 <= high and high - low < 0.1, entry
+
+
+def test_on_discrete_commands_it_is_not_tried_and_the_report_says_why(tmp_path):
+    import json
+
+    from aibo.cli import main
+    from aibo_core import trajectory
+    from aibo_gym.collect import collect
+
+    log, out = tmp_path / "aibo.npz", tmp_path / "diag"
+    trajectory.save(collect({}, 1500, seed=1), log)
+    assert main(["diagnose", str(log), "--out", str(out), "--candidates", "response_time", "--replicas", "0"]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert report["effects"] == [] and report["candidates"] == []
+    assert report["not_tried"] == {"response_time": "the log(s) hold no continuous commands (controls)"}

@@ -51,6 +51,10 @@ ESCAPE_NATS = 2.0
 MAX_ESCAPES = 2
 
 
+#: ``EffectModel.NEEDS`` in the words of "not tried: the log(s) hold no ..." (the field's own name where not listed)
+NEEDS_WORDS = {"controls": "continuous commands (controls)", "head_pan": "head_pan"}
+
+
 def applicable(name: str, logs: list[Trajectory]) -> bool:
     """Whether the logs hold what the effect needs (e.g. a head pan)."""
     return all(all(getattr(tr, need) is not None for tr in logs) for need in EFFECT_MODELS[name].NEEDS)
@@ -334,7 +338,7 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
     current, current_ll = base, base_ll
     rounds, named = [], []
     remaining = [c for c in candidates if applicable(c, logs)]
-    skipped = {c: "the log(s) hold no " + ", ".join(need for need in EFFECT_MODELS[c].NEEDS
+    skipped = {c: "the log(s) hold no " + ", ".join(NEEDS_WORDS.get(need, need) for need in EFFECT_MODELS[c].NEEDS
                                                     if any(getattr(tr, need) is None for tr in logs))
                for c in candidates if c not in remaining}
     for name, why in skipped.items():
