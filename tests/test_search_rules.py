@@ -7,7 +7,8 @@ import pytest
 
 from learners.discrepancy import search as search_module
 from learners.discrepancy.candidate import Candidate
-from learners.discrepancy.search import PAST_PEAK_NATS, prune, walk_profile
+from learners.discrepancy.grid import PAST_PEAK_NATS, walk_profile
+from learners.discrepancy.search import prune
 from learners.em.learner import MAX_OFF_FIELD, field_warnings
 from learners.model.landmark_bias import MAX_PLAUSIBLE_SIGMA, LandmarkBias
 from tests._search_stand_ins import StandInContext as _Context

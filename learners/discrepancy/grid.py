@@ -36,7 +36,7 @@ def walk_profile(grid: tuple[float, ...], loglik: Callable[[float], float]) -> l
     lls: list[float] = []
     for g in grid:
         lls.append(loglik(g))
-        if lls[-1] < max(lls) - PAST_PEAK_NATS:
+        if stop_index(lls) is not None:
             break
     return lls
 

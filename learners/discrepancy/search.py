@@ -41,7 +41,7 @@ from learners.model.probes import PROBES
 from .candidate import Candidate, Verdict
 from .checks import CANDIDATE_CHECKS, LAST_ROUND_CHECKS, PROBE_CHECKS, MotionSide, run_checks, tested
 from .fitting import SEARCH_PATIENCE, SearchContext, fit, lr_test
-from .grid import PAST_PEAK_NATS, GridWalk, candidate_start, grid_point, profiled, walk_profile  # noqa: F401
+from .grid import GridWalk, candidate_start, grid_point, profiled
 from .split import training_log
 
 MAX_ROUNDS = 3

@@ -24,6 +24,7 @@ smoothed means where a cubature expectation would change little (first order).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Callable, ClassVar
@@ -158,6 +159,7 @@ class ActuationLag(EffectModel):
         step = float(np.min(np.diff(self.GRID["lag_s"])))
         low, high = max(self.lag_s - step, 0.0), self.lag_s + step
 
+        @functools.cache  # the best and the start are compared again after the search: no second forward pass
         def ll(lag_s: float) -> float:
             return loglik(model.with_effect(ActuationLag(float(lag_s))))
 
@@ -240,10 +242,11 @@ class ResponseTime(EffectModel):
             return float(np.sum(w * np.einsum("ij,jk,ik->i", r, Wi, r)))
 
         grid = RESPONSE_GRID
-        k = int(np.argmin([cost(t) for t in grid]))
+        costs = [cost(t) for t in grid]
+        k = int(np.argmin(costs))
         lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
-        best = float(minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 1e-4}).x)
-        best = best if cost(best) < cost(grid[k]) else float(grid[k])
+        found = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 1e-4})
+        best = float(found.x) if found.fun < costs[k] else float(grid[k])
         return model.with_effect(ResponseTime(best))
 
 
