@@ -15,7 +15,7 @@ from learners.em.estep import e_step
 from learners.em.options import DEFAULT_GATE
 from learners.em.predictive import model_logdens, own_noise, predictive_logdens, sightings_logdens
 from learners.em.whiteness import consecutive_pairs, lag1, normalized_size_innovations
-from learners.inference.open_loop import open_loop_logdens
+from learners.inference.open_loop import open_loop_innovations
 from learners.model.model import Model
 
 from .split import heldout_mask
@@ -119,9 +119,9 @@ def motion_score(model: Model, logs: list[Trajectory], horizons_s: tuple[float, 
     log = np.searchsorted(batch.frame_start, frame, side="right") - 1
     out = {}
     for h in horizons_s:
-        ll = open_loop_logdens(lo, batch, post, idx, max(1, int(round(h / batch.dt))), lo_own)
-        ok = np.isfinite(ll)
-        ll[ok] = model_logdens(model, ll[ok], lo_own, batch, idx[ok])
+        ok, innov = open_loop_innovations(lo, batch, post, idx, max(1, int(round(h / batch.dt))), lo_own)
+        ll = np.full(len(idx), np.nan)
+        ll[ok] = model_logdens(model, innov, batch, idx[ok])
         out[horizon_key(h)] = ll
     one = sightings_logdens(model, batch, post, idx, lo)
     return MotionScore(idx, (frame - batch.frame_start[log] + 1) * batch.dt, log, out, one)

@@ -17,6 +17,7 @@ import numpy as np
 
 from aibo_core import geometry
 from learners.arrays.batch import Batch
+from learners.arrays.innovations import Innovations
 from learners.arrays.lowered import Lowered, sighting_model
 from learners.arrays.posterior import Posterior
 from learners.inference.reference import AIBO_ANGLE_MASK, ekf_innovation, ekf_update
@@ -27,16 +28,20 @@ if TYPE_CHECKING:
 
 def predictive_logdens(lo: Lowered, batch: Batch, post: Posterior, idx: np.ndarray,
                        lo_own: Lowered | None = None) -> np.ndarray:
-    """log N(z_j; h(m-), H P- H^T + R) of sightings ``idx``: the one-step predictive density the forward
-    filter gave each, from the filtered belief at the start of its frame (mu_alpha, cov_alpha), the
-    motion of the frame, and the frame's earlier sightings applied in order (as the E-step does).
-    ``lo_own``: the lowered arrays whose noise R the sighting's OWN density uses (default ``lo``; an
-    effect may inflate a sighting's variance in the filter from the sighting itself, e.g. by its
+    """log N(z_j; h(m-), H P- H^T + R) of sightings ``idx``: ``predictive_innovations(...).logdens()``."""
+    return predictive_innovations(lo, batch, post, idx, lo_own).logdens()
+
+
+def predictive_innovations(lo: Lowered, batch: Batch, post: Posterior, idx: np.ndarray,
+                           lo_own: Lowered | None = None) -> Innovations:
+    """The innovations of sightings ``idx`` in the forward filter: each one's prediction from the filtered belief at
+    the start of its frame (mu_alpha, cov_alpha), the motion of the frame, and the frame's earlier sightings applied
+    in order (as the E-step does). ``lo_own``: the lowered arrays whose noise R the sighting's OWN density uses
+    (default ``lo``; an effect may inflate a sighting's variance in the filter from the sighting itself, e.g. by its
     responsibility, which its own density must not see)."""
     lo_own = lo if lo_own is None else lo_own
     if lo.extra is not None:  # extra states change the prediction: the augmented forward filter's own innovations
-        return _augmented_logdens(lo, batch, idx, lo_own)
-    out = np.empty(len(idx))
+        return _augmented_innovations(lo, batch, idx, lo_own)
     frame = batch.sight_frame[idx]
     first = batch.sight_start[frame]
     p = batch.frame_to_pose[frame]
@@ -52,30 +57,25 @@ def predictive_logdens(lo: Lowered, batch: Batch, post: Posterior, idx: np.ndarr
                 mk, Pk = ekf_update(mk, Pk, H[0], np.diag(rd[0]), v, S)
         m[k], P[k] = mk, Pk
     h, H, rd = sighting_model(lo_own, m, batch.sight_xy[idx], idx)
-    S = H @ P @ np.swapaxes(H, 1, 2)
-    S[:, 0, 0] += rd[:, 0]
-    S[:, 1, 1] += rd[:, 1]
+    hph = H @ P @ np.swapaxes(H, 1, 2)
     v = batch.sight_value[idx] - h
     v[:, 1] = geometry.wrap(v[:, 1])
-    det = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
-    m2 = (S[:, 1, 1] * v[:, 0] ** 2 - 2 * S[:, 0, 1] * v[:, 0] * v[:, 1] + S[:, 0, 0] * v[:, 1] ** 2) / det
-    out[:] = -0.5 * (m2 + np.log(det) + 2.0 * np.log(2.0 * np.pi))
-    return out
+    return Innovations(v, np.stack([hph[:, 0, 0], 0.5 * (hph[:, 0, 1] + hph[:, 1, 0]), hph[:, 1, 1]], axis=1), rd)
 
 
-def _augmented_logdens(lo: Lowered, batch: Batch, idx: np.ndarray, lo_own: Lowered) -> np.ndarray:
-    """log N(v; 0, S) of sightings ``idx`` from the augmented forward filter (every used sighting applied, no
-    gate): the predictive density each got from the belief on (pose, extra states) before it, with the
-    sighting's OWN noise (``lo_own``'s variance factors in place of the filter's: S is H P- H^T + R)."""
+def _augmented_innovations(lo: Lowered, batch: Batch, idx: np.ndarray, lo_own: Lowered) -> Innovations:
+    """The innovations of sightings ``idx`` in the augmented forward filter (every used sighting applied, no gate):
+    each one's prediction from the belief on (pose, extra states) before it, with the sighting's OWN noise
+    (``lo_own``'s variance factors in place of the filter's)."""
     from learners.inference.kernels.estep import innovations_compiled
 
     _, innov = innovations_compiled(lo, batch)
     v0, v1, s00, s01, s11 = innov[idx].T
-    s00 = s00 + lo.sigma_size ** 2 * (lo_own.size_var_factor[idx] - lo.size_var_factor[idx])
-    s11 = s11 + lo.sigma_bearing ** 2 * (lo_own.bearing_var_factor[idx] - lo.bearing_var_factor[idx])
-    det = s00 * s11 - s01 * s01
-    m2 = (s11 * v0 * v0 - 2.0 * s01 * v0 * v1 + s00 * v1 * v1) / det
-    return -0.5 * (m2 + np.log(det) + 2.0 * np.log(2.0 * np.pi))
+    hph = np.stack([s00 - lo.sigma_size ** 2 * lo.size_var_factor[idx], s01,
+                    s11 - lo.sigma_bearing ** 2 * lo.bearing_var_factor[idx]], axis=1)
+    r = np.stack([lo.sigma_size ** 2 * lo_own.size_var_factor[idx],
+                  lo.sigma_bearing ** 2 * lo_own.bearing_var_factor[idx]], axis=1)
+    return Innovations(np.stack([v0, v1], axis=1), hph, r)
 
 
 def has_mixture(model: "Model") -> bool:
@@ -91,8 +91,7 @@ def sightings_logdens(model: "Model", batch: Batch, post: Posterior, idx: np.nda
     Gaussian (``predictive_logdens``, each sighting's own noise from the effects' ``predictive()``
     versions), then every effect's ``predictive_logdens`` hook."""
     lo = model.lower(batch) if lo is None else lo
-    lo_own = own_noise(model, batch, lo)
-    return model_logdens(model, predictive_logdens(lo, batch, post, idx, lo_own), lo_own, batch, idx)
+    return model_logdens(model, predictive_innovations(lo, batch, post, idx, own_noise(model, batch, lo)), batch, idx)
 
 
 def own_noise(model: "Model", batch: Batch, lo: Lowered) -> Lowered:
@@ -102,10 +101,11 @@ def own_noise(model: "Model", batch: Batch, lo: Lowered) -> Lowered:
     return lo if all(a is b for a, b in zip(own, model.effects)) else replace(model, effects=own).lower(batch)
 
 
-def model_logdens(model: "Model", gaussian: np.ndarray, lo_own: Lowered, batch: Batch, idx: np.ndarray) -> np.ndarray:
-    """The model's log density of sightings ``idx`` from their Gaussian predictive log densities: every effect's
-    ``predictive_logdens`` hook applied in turn (a mixture's, e.g.)."""
-    out = gaussian
-    for e in model.effects:
-        out = e.predictive_logdens(out, lo_own, batch, idx)
+def model_logdens(model: "Model", innov: Innovations, batch: Batch, idx: np.ndarray) -> np.ndarray:
+    """The model's log density of sightings ``idx`` from their innovations (their own noise in ``innov.r``): the
+    Gaussian's, then every effect's ``predictive_logdens`` hook applied in turn, in ``DENSITY_ORDER`` (a scale mixture
+    of the noise before a mixture with spurious sightings)."""
+    out = innov.logdens()
+    for e in sorted(model.effects, key=lambda e: e.DENSITY_ORDER):
+        out = e.predictive_logdens(out, innov, batch, idx)
     return out

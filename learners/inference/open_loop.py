@@ -31,10 +31,9 @@ import numpy as np
 
 from aibo_core import geometry
 from learners.arrays.batch import Batch
+from learners.arrays.innovations import Innovations
 from learners.arrays.lowered import Lowered
 from learners.arrays.posterior import Posterior
-
-LOG_2PI = float(np.log(2.0 * np.pi))
 
 
 def open_loop_start(batch: Batch, idx: np.ndarray, k_frames: int) -> np.ndarray:
@@ -139,24 +138,33 @@ def _propagate(lo: Lowered, idx: np.ndarray, f0: np.ndarray, k_frames: int, m: n
 def open_loop_logdens(lo: Lowered, batch: Batch, post: Posterior, idx: np.ndarray, k_frames: int,
                       lo_own: Lowered | None = None, moments: str = "exact") -> np.ndarray:
     """(len(idx),) log N(z_j; h(m), H P H^T + R_j) of sightings ``idx`` predicted ``k_frames`` frames open loop
-    (module docstring); NaN where the log began too recently (``open_loop_start``). ``lo_own``: the arrays
-    whose noise R the sighting's own density uses (default ``lo``; see ``predictive.predictive_logdens``);
-    ``moments``: "exact" (a Gaussian heading's, the default) or "linear" (the EKF's prediction)."""
-    lo_own = lo if lo_own is None else lo_own
-    idx = np.asarray(idx, dtype=np.int64)
-    out = np.full(len(idx), np.nan)
-    f0 = open_loop_start(batch, idx, k_frames)
-    ok = f0 >= 0
-    if not ok.any():
-        return out
-    j, f0 = idx[ok], f0[ok]
-    m, P = _propagate(lo, j, f0, k_frames, *_start_belief(lo, batch, post, j, f0), moments)
-    out[ok] = _gaussian_logdens(lo_own, batch, j, m, P)
+    (module docstring); NaN where the log began too recently (``open_loop_start``). Arguments: ``open_loop_innovations``."""
+    ok, innov = open_loop_innovations(lo, batch, post, idx, k_frames, lo_own, moments)
+    out = np.full(len(ok), np.nan)
+    out[ok] = innov.logdens()
     return out
 
 
-def _gaussian_logdens(lo: Lowered, batch: Batch, idx: np.ndarray, m: np.ndarray, P: np.ndarray) -> np.ndarray:
-    """log N(z; h(m), H P H^T + R) for the 4-state beliefs (pose, bias): size = scale f(d) (1 + b) + offset."""
+def open_loop_innovations(lo: Lowered, batch: Batch, post: Posterior, idx: np.ndarray, k_frames: int,
+                          lo_own: Lowered | None = None, moments: str = "exact") -> tuple[np.ndarray, Innovations]:
+    """(ok (len(idx),) bool, the innovations of sightings ``idx[ok]``) predicted ``k_frames`` frames open loop (module
+    docstring); not ok where the log began too recently (``open_loop_start``). ``lo_own``: the arrays whose noise R
+    the sighting's own density uses (default ``lo``; see ``learners.em.predictive.predictive_innovations``);
+    ``moments``: "exact" (a Gaussian heading's, the default) or "linear" (the EKF's prediction)."""
+    lo_own = lo if lo_own is None else lo_own
+    idx = np.asarray(idx, dtype=np.int64)
+    f0 = open_loop_start(batch, idx, k_frames)
+    ok = f0 >= 0
+    if not ok.any():
+        return ok, Innovations(np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 2)))
+    j, f0 = idx[ok], f0[ok]
+    m, P = _propagate(lo, j, f0, k_frames, *_start_belief(lo, batch, post, j, f0), moments)
+    return ok, _innovations(lo_own, batch, j, m, P)
+
+
+def _innovations(lo: Lowered, batch: Batch, idx: np.ndarray, m: np.ndarray, P: np.ndarray) -> Innovations:
+    """The innovations of sightings ``idx`` from the 4-state beliefs (pose, bias) N(m, P): size = scale f(d) (1 + b)
+    + offset."""
     xy = batch.sight_xy[idx]
     dx, dy = xy[:, 0] - m[:, 0], xy[:, 1] - m[:, 1]
     q = dx * dx + dy * dy
@@ -171,11 +179,9 @@ def _gaussian_logdens(lo: Lowered, batch: Batch, idx: np.ndarray, m: np.ndarray,
     H[:, 1, 1] = -dx / q
     H[:, 1, 2] = -1.0
     S = H @ P @ np.swapaxes(H, 1, 2)
-    S[:, 0, 0] += lo.sigma_size ** 2 * lo.size_var_factor[idx]
-    S[:, 1, 1] += lo.sigma_bearing ** 2 * lo.bearing_var_factor[idx]
+    r = np.stack([lo.sigma_size ** 2 * lo.size_var_factor[idx], lo.sigma_bearing ** 2 * lo.bearing_var_factor[idx]],
+                 axis=1)
     v0 = batch.sight_value[idx, 0] - (sc * f * (1.0 + b) + lo.size_offset[idx])
     v1 = geometry.wrap(batch.sight_value[idx, 1] - (np.arctan2(dy, dx) - m[:, 2] + lo.bearing_offset[idx]))
-    s00, s01, s11 = S[:, 0, 0], 0.5 * (S[:, 0, 1] + S[:, 1, 0]), S[:, 1, 1]
-    det = s00 * s11 - s01 * s01
-    m2 = (s11 * v0 * v0 - 2.0 * s01 * v0 * v1 + s00 * v1 * v1) / det
-    return -0.5 * (m2 + np.log(det) + 2.0 * LOG_2PI)
+    hph = np.stack([S[:, 0, 0], 0.5 * (S[:, 0, 1] + S[:, 1, 0]), S[:, 1, 1]], axis=1)
+    return Innovations(np.stack([v0, v1], axis=1), hph, r)

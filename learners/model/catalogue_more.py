@@ -52,9 +52,10 @@ import numpy as np
 
 from aibo_core.geometry import wrap
 from learners.arrays.batch import Batch
-from learners.arrays.lowered import Lowered, sighting_model
+from learners.arrays.innovations import Innovations
+from learners.arrays.lowered import Lowered
 from learners.arrays.posterior import Posterior
-from learners.model.effects import EffectModel, register_effect
+from learners.model.effects import EffectModel, register_effect, smoothed_innovations
 from learners.model.parameters import Param
 
 if TYPE_CHECKING:
@@ -109,6 +110,7 @@ class FalseSightings(EffectModel):
     PARAMS: ClassVar[dict[str, Param]] = {"rate": Param("fraction of sightings", "log", low=0.0, high=0.5, shape=())}
     EXAMPLE: ClassVar[dict[str, Any]] = {"rate": 0.05}
     STARTS_OFF: ClassVar[bool] = False  # EM starts from a few spurious sightings (START_RATE)
+    DENSITY_ORDER: ClassVar[int] = 1  # wraps the real sightings' density, whatever its shape
 
     @classmethod
     def start(cls, batch: Batch) -> "FalseSightings":
@@ -135,8 +137,9 @@ class FalseSightings(EffectModel):
     def predictive(self) -> "FalseSightings":
         return replace(self, w=None, key=None)
 
-    def predictive_logdens(self, base_logdens: np.ndarray, lo: Lowered, batch: Batch, idx: np.ndarray) -> np.ndarray:
-        """log((1 - rate) N + rate u)."""
+    def predictive_logdens(self, base_logdens: np.ndarray, innov: Innovations, batch: Batch,
+                           idx: np.ndarray) -> np.ndarray:
+        """log((1 - rate) N + rate u), N the real sightings' density ``base_logdens``."""
         r = self._rate()
         log_u = self.log_u if self.log_u is not None else spurious_log_density(batch)
         return np.logaddexp(math.log1p(-r) + base_logdens, math.log(r) + log_u)
@@ -149,26 +152,19 @@ class FalseSightings(EffectModel):
         others = replace(model, effects=tuple(e for e in model.effects if e.name != self.name))
         lo0 = others.lower(batch)
         log_u = self.log_u if self.log_u is not None else spurious_log_density(batch)
-        idx = np.flatnonzero(batch.used)
-        pose = batch.sight_pose[idx]
-        h, H, _ = sighting_model(lo0, post.mu_gamma[pose], batch.sight_xy[idx], idx)
-        hph = H @ post.cov_gamma[pose] @ np.swapaxes(H, 1, 2)
-        v = batch.sight_value[idx] - h
-        v[:, 1] = wrap(v[:, 1])
+        idx, inn = smoothed_innovations(lo0, batch, post)
+        e2 = inn.v ** 2 + inn.hph[:, [0, 2]]  # expected squared residuals at the smoothed path (size, bearing)
         vf, bvf = lo0.size_var_factor[idx], lo0.bearing_var_factor[idx]
         var_s, var_b = lo0.sigma_size**2, lo0.sigma_bearing**2
         r = self._rate()
         for _ in range(INNER):  # the mixture's EM at the fixed path (the path-only part converges slowly)
-            s00, s11, s01 = hph[:, 0, 0] + var_s * vf, hph[:, 1, 1] + var_b * bvf, hph[:, 0, 1]
-            det = s00 * s11 - s01 ** 2
-            m2 = (s11 * v[:, 0] ** 2 - 2 * s01 * v[:, 0] * v[:, 1] + s00 * v[:, 1] ** 2) / det
-            a = math.log1p(-r) - 0.5 * (m2 + np.log(det)) - math.log(2.0 * math.pi)
+            a = math.log1p(-r) + replace(inn, r=np.stack([var_s * vf, var_b * bvf], axis=1)).logdens()
             b = math.log(r) + log_u
             w = np.exp(a - np.logaddexp(a, b))
             r = float(np.clip(np.mean(1.0 - w), W_FLOOR, MAX_RATE))
             ws = float(w.sum())
-            var_s = float(np.sum(w * (v[:, 0] ** 2 + hph[:, 0, 0]) / vf) / ws)
-            var_b = float(np.sum(w * (v[:, 1] ** 2 + hph[:, 1, 1]) / bvf) / ws)
+            var_s = float(np.sum(w * e2[:, 0] / vf) / ws)
+            var_b = float(np.sum(w * e2[:, 1] / bvf) / ws)
         rate = r
         w_all = np.ones(batch.n_sightings)
         w_all[idx] = w

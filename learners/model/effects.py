@@ -8,7 +8,7 @@ An effect is a ``Component`` (walk-through: ``docs/adding-an-effect.md``) that
 - ``maximize(model, batch, post)``: its conditional M-step (ECM: the other parameters held at
   their newest values), returning the new Model (it may also re-normalize another component);
 - ``start(batch)``: its neutral value sized for the data (the effect switched off);
-- ``predictive()`` and ``predictive_logdens(base, lo, batch, idx)``: a mixture's density of a sighting
+- ``predictive()`` and ``predictive_logdens(base, innov, batch, idx)``: a mixture's density of a sighting
   (default: the Gaussian), used by the E-step's likelihood and the held-out score.
 
 It also carries what the discrepancy search and the tests need: ``SIGNATURE`` (the residual signature
@@ -23,8 +23,10 @@ from typing import TYPE_CHECKING, Any, Callable, ClassVar
 
 import numpy as np
 
+from aibo_core.geometry import wrap
 from learners.arrays.batch import Batch
-from learners.arrays.lowered import Lowered
+from learners.arrays.innovations import Innovations
+from learners.arrays.lowered import Lowered, sighting_model
 from learners.arrays.posterior import Posterior
 from learners.model.parameters import Component, Param, as_numbers
 
@@ -59,6 +61,10 @@ class EffectModel(Component):
     #: Whether ``start`` switches the effect off (its values the neutral ones: a rate 0, a scale 1); False where EM
     #: needs a weak effect to start from (a bias of 1%, a few spurious sightings).
     STARTS_OFF: ClassVar[bool] = True
+    #: The order ``predictive_logdens`` hooks run in (``learners.em.predictive.model_logdens``): 0 a hook that reshapes
+    #: the Gaussian (a scale mixture of the noise), 1 a mixture with a non-Gaussian component that wraps it (spurious
+    #: sightings: (1 - rate) x whatever the real sightings' density is + rate x uniform).
+    DENSITY_ORDER: ClassVar[int] = 0
     #: Whether ``aibo diagnose`` tries the effect by default (False: only when ``--candidates`` names it, for an
     #: effect whose evidence on real logs is not yet good enough to be named without being asked for).
     DEFAULT_CANDIDATE: ClassVar[bool] = True
@@ -137,10 +143,13 @@ class EffectModel(Component):
         ``lower`` uses the sightings themselves (responsibilities) returns itself without that part."""
         return self
 
-    def predictive_logdens(self, base_logdens: np.ndarray, lo: Lowered, batch: Batch, idx: np.ndarray) -> np.ndarray:
-        """The model's log density of sightings ``idx`` given their Gaussian one-step predictive log
-        densities ``base_logdens`` (``learners.em.predictive``); default: the Gaussian itself.
-        A mixture (spurious sightings) overrides it; the E-step's likelihood and the score then use it."""
+    def predictive_logdens(self, base_logdens: np.ndarray, innov: Innovations, batch: Batch,
+                           idx: np.ndarray) -> np.ndarray:
+        """The model's log density of sightings ``idx`` given their log densities so far ``base_logdens`` (the
+        Gaussian predictive one, or an earlier effect's hook's) and their innovations ``innov`` (the prediction's
+        share of the covariance and the sensor's own noise apart: ``learners.arrays.innovations``); default:
+        ``base_logdens`` itself. A mixture overrides it (spurious sightings, a scale mixture of the noise); the
+        E-step's likelihood and the scores then use it. Hooks run in ``DENSITY_ORDER``."""
         return base_logdens
 
     @classmethod
@@ -200,6 +209,19 @@ def cubature_distances(batch: Batch, post: Posterior) -> tuple[np.ndarray, np.nd
     pts = np.concatenate([mu[:, None, :] + s3L, mu[:, None, :] - s3L], axis=1)
     d = np.hypot(batch.sight_xy[idx, None, 0] - pts[..., 0], batch.sight_xy[idx, None, 1] - pts[..., 1])
     return idx, d
+
+
+def smoothed_innovations(lo: Lowered, batch: Batch, post: Posterior) -> tuple[np.ndarray, Innovations]:
+    """(indices (n,), innovations) of the used sightings at the smoothed path: v = z - h(mu_gamma), the smoothed
+    pose's share H Sigma_gamma H^T and ``lo``'s noise R: what a noise mixture's M-step weighs (responsibilities at the
+    path, first order in its uncertainty)."""
+    idx = np.flatnonzero(batch.used)
+    pose = batch.sight_pose[idx]
+    h, H, rd = sighting_model(lo, post.mu_gamma[pose], batch.sight_xy[idx], idx)
+    hph = H @ post.cov_gamma[pose] @ np.swapaxes(H, 1, 2)
+    v = batch.sight_value[idx] - h
+    v[:, 1] = wrap(v[:, 1])
+    return idx, Innovations(v, np.stack([hph[:, 0, 0], 0.5 * (hph[:, 0, 1] + hph[:, 1, 0]), hph[:, 1, 1]], axis=1), rd)
 
 
 @register_effect
