@@ -139,7 +139,8 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument("logs", nargs="+", type=path, help="aibo-trajectory/2 logs (.npz; /1 files are converted on read) of one robot")
     dg.add_argument("--out", type=path, required=True, help="folder for report.html, report.json, model.json and figures")
     dg.add_argument("--candidates", help="comma-separated effects to try (default: the whole catalogue but "
-                    "landmark_bearing_offset, which is tried only when named here)")
+                    "landmark_bearing_offset, response_time and heavy_tailed_noise, which are tried only when named "
+                    "here)")
     dg.add_argument("--jobs", type=workers, default=2, help="worker processes for the candidates (default 2)")
     dg.add_argument("--seed", type=integer(0), default=0, help="seed of the fits and of the replicas (default 0)")
     dg.add_argument("--action-model", choices=["table", "features", "unicycle"], default=None,

@@ -18,6 +18,8 @@ landmark_bearing_offset    offset_rad (rad, one per beacon)                  bea
 off_center_shrink          k (height x (1 - k phi^2), phi rad in the image)  position in the image
 distance_dependent_noise   exponent (sigma ~ (d / 2500 mm)^exponent)         distance (the height variance)
 false_sightings            rate (fraction of sightings, <= 0.5)              none: outliers anywhere in the image
+heavy_tailed_noise         rate (fraction of sightings, <= 0.5), scale        none: heavier tails of both residuals
+                           (factor on their noise's deviation, 1-10)
 landmark_bias              sigma_rel (stationary std, fraction), tau_s (s)   size residuals correlated in time,
                                                                              per landmark
 =========================  ================================================  ==============================
@@ -346,6 +348,32 @@ class FalseSightings(Effect):
         height = float(self.rng.uniform(lo, hi))
         bearing = wrap_angle(frame.head_pan + image_angle)
         return Sighting(beacon, height, bearing, math.nan, bearing, image_angle, math.nan, spurious=True)
+
+
+@register_effect
+class HeavyTailedNoise(Effect):
+    """A share ``rate`` of the real sightings has its noise ``scale`` times wider (a scale mixture of two Gaussians).
+
+    Each real sighting, with probability ``rate`` (the effect's own stream; one draw per real sighting), has its
+    height's and its angle's deviation from their true values (the noise, and whatever an effect earlier in the
+    config added) multiplied by ``scale``: a partly hidden or blurred landmark, a detection off its centre. Spurious
+    sightings are left alone. Residual signature: none (heavier tails of the size and bearing residuals, and a
+    narrower core, than one Gaussian's).
+    """
+
+    name = "heavy_tailed_noise"
+    defaults = {"rate": 0.0, "scale": 1.0}
+    bounds = {"rate": (0.0, 0.5), "scale": (1.0, 10.0)}
+
+    def sense(self, sightings: list[Sighting], frame: Frame) -> list[Sighting]:
+        rate, scale = self.params["rate"], self.params["scale"]
+        if not rate or scale == 1.0:
+            return sightings
+        for s in sightings:
+            if not s.spurious and self.rng.random() < rate:
+                s.height = s.true_height + (s.height - s.true_height) * scale
+                s.angle = wrap_angle(s.bearing + wrap_angle(s.angle - s.bearing) * scale)
+        return sightings
 
 
 @register_effect

@@ -65,6 +65,7 @@ STRENGTH: dict[str, dict[str, Any]] = {
     "landmark_bearing_offset": {"offset_rad": [0.01, -0.01, 0.005, -0.005]},
     "floor_drift": {"drift_mm_s": [12.0, 0.0]},
     "velocity_fade": {"fade_per_min": 0.02},
+    "heavy_tailed_noise": {"rate": 0.1, "scale": 2.0},
     "response_time": {"tau_s": 0.15},  # continuous commands only: a wheeled robot's logs (WHEELED)
 }
 PRESETS = ("aibo", "paper-sim")

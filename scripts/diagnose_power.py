@@ -51,6 +51,7 @@ STRENGTHS = {
     "landmark_bearing_offset": [{"offset_rad": [s, -s, s / 2, -s / 2]} for s in (0.005, 0.01, 0.02)],  # rad
     "landmark_bias": [{"sigma_rel": s, "tau_s": 8.0} for s in (0.02, 0.05, 0.1)],
     "false_sightings": [{"rate": r} for r in (0.02, 0.05, 0.1)],
+    "heavy_tailed_noise": [{"rate": 0.1, "scale": c} for c in (1.5, 2.0, 3.0)],  # MRCLAM's tails: about 0.1 at 2
     "angle_bias": [{"bias_rad": b} for b in (0.02, 0.05, 0.1)],  # not identifiable: "none" is the right answer
 }
 #: Effects whose right answer is "none" at any strength (the search reports them not identifiable).

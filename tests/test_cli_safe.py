@@ -755,3 +755,14 @@ def test_an_open_profile_interval_is_printed_as_open():
     assert interval_text({"lag_s": {**iv, "open": [False, True]}}) == "95%: lag_s [0.1, >=0.5] (profile, open above)"
     assert interval_text({"tau_s": {"value": 8.0, "interval_95": [6.9, 11.2], "open": [True, False]}}) == \
         "95%: tau_s [<=6.9, 11.2] (open below)"
+
+
+def test_diagnose_help_names_every_effect_tried_only_when_asked_for(capsys):
+    """``--candidates``' help lists the effects that are not default candidates (``EffectModel.DEFAULT_CANDIDATE``)."""
+    from learners.model.effects import EFFECT_MODELS
+
+    with pytest.raises(SystemExit):
+        main(["diagnose", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    asked = [name for name, cls in EFFECT_MODELS.items() if not cls.DEFAULT_CANDIDATE]
+    assert asked and all(name in text for name in asked), asked

@@ -10,8 +10,16 @@ with R scaled and the pose's share held; ``logdens()`` is the Gaussian predictiv
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+from aibo_core import geometry
+
+if TYPE_CHECKING:
+    from learners.arrays.batch import Batch
+    from learners.arrays.lowered import Lowered
+    from learners.arrays.posterior import Posterior
 
 LOG_2PI = float(np.log(2.0 * np.pi))
 
@@ -39,7 +47,54 @@ class Innovations:
         return Innovations(self.v[mask], self.hph[mask], self.r[mask])
 
 
-def innovations_from_s(v: np.ndarray, S: np.ndarray, r: np.ndarray) -> Innovations:
-    """Innovations from the whole covariance S (n, 2, 2) = H P H^T + R and R's diagonal ``r`` (n, 2)."""
-    s01 = 0.5 * (S[:, 0, 1] + S[:, 1, 0])
-    return Innovations(v, np.stack([S[:, 0, 0] - r[:, 0], s01, S[:, 1, 1] - r[:, 1]], axis=1), r)
+def joint_belief(lo: "Lowered", post: "Posterior", idx: np.ndarray, pose: np.ndarray,
+                 smoothed: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Mean (n, 4) and covariance (n, 4, 4) of (x, y, theta, b) at poses ``pose`` for sightings ``idx``: the filtered
+    (``smoothed`` False: alpha) or smoothed (gamma) pose and, with extra states (``lo.extra``), the size bias b of
+    sighting j's slot (0 with variance 0 where it has none, or without extra states)."""
+    n = len(idx)
+    m = np.zeros((n, 4))
+    P = np.zeros((n, 4, 4))
+    extra = lo.extra
+    if extra is None or post.extra is None:
+        m[:, :3] = post.mu_gamma[pose] if smoothed else post.mu_alpha[pose]
+        P[:, :3, :3] = post.cov_gamma[pose] if smoothed else post.cov_alpha[pose]
+        return m, P
+    slot = extra.slot[idx]
+    has = slot >= 0
+    col = np.r_[0, 1, 2][None, :].repeat(n, 0)
+    cols = np.concatenate([col, np.where(has, 3 + slot, 0)[:, None]], axis=1)  # (n, 4) state indices
+    ex = post.extra
+    fm, fc = (ex.smoothed_mean[pose], ex.smoothed_cov[pose]) if smoothed else (ex.filtered_mean[pose],
+                                                                             ex.filtered_cov[pose])
+    m[:] = fm[np.arange(n)[:, None], cols]
+    P[:] = fc[np.arange(n)[:, None, None], cols[:, :, None], cols[:, None, :]]
+    m[~has, 3] = 0.0
+    P[~has, 3, :] = 0.0
+    P[~has, :, 3] = 0.0
+    return m, P
+
+
+def belief_innovations(lo: "Lowered", batch: "Batch", idx: np.ndarray, m: np.ndarray, P: np.ndarray) -> Innovations:
+    """The innovations of sightings ``idx`` from the 4-state beliefs (pose, size bias) N(m, P) of ``joint_belief``:
+    size = scale f(d) (1 + b) + offset, bearing = atan2(dy, dx) - theta + bearing offset; R from ``lo``."""
+    xy = batch.sight_xy[idx]
+    dx, dy = xy[:, 0] - m[:, 0], xy[:, 1] - m[:, 1]
+    q = dx * dx + dy * dy
+    d = np.sqrt(q)
+    f, fp = lo.curve(d)
+    sc, b = lo.size_scale[idx], m[:, 3]
+    H = np.zeros((len(idx), 2, 4))
+    H[:, 0, 0] = -sc * fp * (1.0 + b) * dx / d
+    H[:, 0, 1] = -sc * fp * (1.0 + b) * dy / d
+    H[:, 0, 3] = sc * f
+    H[:, 1, 0] = dy / q
+    H[:, 1, 1] = -dx / q
+    H[:, 1, 2] = -1.0
+    S = H @ P @ np.swapaxes(H, 1, 2)
+    r = np.stack([lo.sigma_size ** 2 * lo.size_var_factor[idx], lo.sigma_bearing ** 2 * lo.bearing_var_factor[idx]],
+                 axis=1)
+    v0 = batch.sight_value[idx, 0] - (sc * f * (1.0 + b) + lo.size_offset[idx])
+    v1 = geometry.wrap(batch.sight_value[idx, 1] - (np.arctan2(dy, dx) - m[:, 2] + lo.bearing_offset[idx]))
+    hph = np.stack([S[:, 0, 0], 0.5 * (S[:, 0, 1] + S[:, 1, 0]), S[:, 1, 1]], axis=1)
+    return Innovations(np.stack([v0, v1], axis=1), hph, r)

@@ -31,7 +31,7 @@ import numpy as np
 
 from aibo_core import geometry
 from learners.arrays.batch import Batch
-from learners.arrays.innovations import Innovations
+from learners.arrays.innovations import Innovations, belief_innovations, joint_belief
 from learners.arrays.lowered import Lowered
 from learners.arrays.posterior import Posterior
 
@@ -45,32 +45,6 @@ def open_loop_start(batch: Batch, idx: np.ndarray, k_frames: int) -> np.ndarray:
     log = np.searchsorted(batch.frame_start, frame, side="right") - 1
     f0 = frame - k_frames + 1
     return np.where(f0 >= batch.frame_start[log], f0, -1)
-
-
-def _start_belief(lo: Lowered, batch: Batch, post: Posterior, idx: np.ndarray, f0: np.ndarray):
-    """Mean (n, 4) and covariance (n, 4, 4) of (x, y, theta, b) at the start of frames ``f0``: the filtered
-    pose and, with extra states, the bias of sighting j's slot (0 with variance 0 where it has none)."""
-    p = batch.frame_to_pose[f0]
-    n = len(idx)
-    m = np.zeros((n, 4))
-    P = np.zeros((n, 4, 4))
-    extra = lo.extra
-    if extra is None or post.extra is None:
-        m[:, :3] = post.mu_alpha[p]
-        P[:, :3, :3] = post.cov_alpha[p]
-        return m, P
-    slot = extra.slot[idx]
-    has = slot >= 0
-    col = np.r_[0, 1, 2][None, :].repeat(n, 0)
-    cols = np.concatenate([col, np.where(has, 3 + slot, 0)[:, None]], axis=1)  # (n, 4) state indices
-    fm, fc = post.extra.filtered_mean[p], post.extra.filtered_cov[p]
-    rows = np.arange(n)[:, None]
-    m[:] = fm[rows, cols]
-    P[:] = fc[np.arange(n)[:, None, None], cols[:, :, None], cols[:, None, :]]
-    m[~has, 3] = 0.0
-    P[~has, 3, :] = 0.0
-    P[~has, :, 3] = 0.0
-    return m, P
 
 
 def _heading_moments(mu: np.ndarray, var: np.ndarray):
@@ -158,30 +132,5 @@ def open_loop_innovations(lo: Lowered, batch: Batch, post: Posterior, idx: np.nd
     if not ok.any():
         return ok, Innovations(np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 2)))
     j, f0 = idx[ok], f0[ok]
-    m, P = _propagate(lo, j, f0, k_frames, *_start_belief(lo, batch, post, j, f0), moments)
-    return ok, _innovations(lo_own, batch, j, m, P)
-
-
-def _innovations(lo: Lowered, batch: Batch, idx: np.ndarray, m: np.ndarray, P: np.ndarray) -> Innovations:
-    """The innovations of sightings ``idx`` from the 4-state beliefs (pose, bias) N(m, P): size = scale f(d) (1 + b)
-    + offset."""
-    xy = batch.sight_xy[idx]
-    dx, dy = xy[:, 0] - m[:, 0], xy[:, 1] - m[:, 1]
-    q = dx * dx + dy * dy
-    d = np.sqrt(q)
-    f, fp = lo.curve(d)
-    sc, b = lo.size_scale[idx], m[:, 3]
-    H = np.zeros((len(idx), 2, 4))
-    H[:, 0, 0] = -sc * fp * (1.0 + b) * dx / d
-    H[:, 0, 1] = -sc * fp * (1.0 + b) * dy / d
-    H[:, 0, 3] = sc * f
-    H[:, 1, 0] = dy / q
-    H[:, 1, 1] = -dx / q
-    H[:, 1, 2] = -1.0
-    S = H @ P @ np.swapaxes(H, 1, 2)
-    r = np.stack([lo.sigma_size ** 2 * lo.size_var_factor[idx], lo.sigma_bearing ** 2 * lo.bearing_var_factor[idx]],
-                 axis=1)
-    v0 = batch.sight_value[idx, 0] - (sc * f * (1.0 + b) + lo.size_offset[idx])
-    v1 = geometry.wrap(batch.sight_value[idx, 1] - (np.arctan2(dy, dx) - m[:, 2] + lo.bearing_offset[idx]))
-    hph = np.stack([S[:, 0, 0], 0.5 * (S[:, 0, 1] + S[:, 1, 0]), S[:, 1, 1]], axis=1)
-    return Innovations(np.stack([v0, v1], axis=1), hph, r)
+    m, P = _propagate(lo, j, f0, k_frames, *joint_belief(lo, post, j, batch.frame_to_pose[f0], smoothed=False), moments)
+    return ok, belief_innovations(lo_own, batch, j, m, P)

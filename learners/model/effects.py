@@ -23,10 +23,9 @@ from typing import TYPE_CHECKING, Any, Callable, ClassVar
 
 import numpy as np
 
-from aibo_core.geometry import wrap
 from learners.arrays.batch import Batch
-from learners.arrays.innovations import Innovations
-from learners.arrays.lowered import Lowered, sighting_model
+from learners.arrays.innovations import Innovations, belief_innovations, joint_belief
+from learners.arrays.lowered import Lowered
 from learners.arrays.posterior import Posterior
 from learners.model.parameters import Component, Param, as_numbers
 
@@ -212,16 +211,11 @@ def cubature_distances(batch: Batch, post: Posterior) -> tuple[np.ndarray, np.nd
 
 
 def smoothed_innovations(lo: Lowered, batch: Batch, post: Posterior) -> tuple[np.ndarray, Innovations]:
-    """(indices (n,), innovations) of the used sightings at the smoothed path: v = z - h(mu_gamma), the smoothed
-    pose's share H Sigma_gamma H^T and ``lo``'s noise R: what a noise mixture's M-step weighs (responsibilities at the
-    path, first order in its uncertainty)."""
+    """(indices (n,), innovations) of the used sightings at the smoothed path: v = z - h(mu_gamma) (with a size bias
+    state, its smoothed value), the smoothed belief's share H Sigma_gamma H^T and ``lo``'s noise R: what a noise
+    mixture's M-step weighs (responsibilities at the path, first order in its uncertainty)."""
     idx = np.flatnonzero(batch.used)
-    pose = batch.sight_pose[idx]
-    h, H, rd = sighting_model(lo, post.mu_gamma[pose], batch.sight_xy[idx], idx)
-    hph = H @ post.cov_gamma[pose] @ np.swapaxes(H, 1, 2)
-    v = batch.sight_value[idx] - h
-    v[:, 1] = wrap(v[:, 1])
-    return idx, Innovations(v, np.stack([hph[:, 0, 0], 0.5 * (hph[:, 0, 1] + hph[:, 1, 0]), hph[:, 1, 1]], axis=1), rd)
+    return idx, belief_innovations(lo, batch, idx, *joint_belief(lo, post, idx, batch.sight_pose[idx], smoothed=True))
 
 
 @register_effect
