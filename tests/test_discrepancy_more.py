@@ -13,7 +13,8 @@ from learners.discrepancy.fitting import ZERO_DOF_NATS
 from learners.em.estep import e_step
 from learners.em.learner import EMLearner
 from learners.em.options import EMOptions
-from learners.em.predictive import predictive_logdens, sightings_logdens
+from learners.em.predictive import sightings_logdens
+from learners.inference.predictive import predictive_logdens
 from learners.model.catalogue_more import FalseSightings, WallContact
 from learners.model.effects import EFFECT_MODELS
 from tests._logs import diagnose, sim_log

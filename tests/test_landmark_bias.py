@@ -196,7 +196,7 @@ def test_the_held_out_score_of_a_model_with_bias_states_reads_the_augmented_filt
     """The one-step predictive densities of every sighting sum to the filter's likelihood, and with a vanishing
     bias they are the base model's (the score must see the states: read off the pose alone, a fit with the
     bias scored 21 nats per sighting on MRCLAM robot 2 against the base model's 3.4)."""
-    from learners.em.predictive import predictive_logdens
+    from learners.inference.predictive import predictive_logdens
 
     lo, batch, _ = case("several")
     aug = _with_bias(lo, batch, sigma=0.05)

@@ -13,9 +13,9 @@ import pytest
 
 from learners.discrepancy.score import motion_score, motion_trade, score
 from learners.discrepancy.split import training_log
-from learners.em.predictive import predictive_logdens
 from learners.inference.kernels.estep import innovations_compiled, smooth_compiled
 from learners.inference.open_loop import _motion_moments, open_loop_logdens
+from learners.inference.predictive import predictive_logdens
 from learners.model.landmark_bias import LandmarkBias
 from tests._synth import CASES, case
 from tests.test_mrclam import DATA, needs_data

@@ -52,23 +52,45 @@ def joint_belief(lo: "Lowered", post: "Posterior", idx: np.ndarray, pose: np.nda
     """Mean (n, 4) and covariance (n, 4, 4) of (x, y, theta, b) at poses ``pose`` for sightings ``idx``: the filtered
     (``smoothed`` False: alpha) or smoothed (gamma) pose and, with extra states (``lo.extra``), the size bias b of
     sighting j's slot (0 with variance 0 where it has none, or without extra states)."""
-    n = len(idx)
-    m = np.zeros((n, 4))
-    P = np.zeros((n, 4, 4))
-    extra = lo.extra
-    if extra is None or post.extra is None:
-        m[:, :3] = post.mu_gamma[pose] if smoothed else post.mu_alpha[pose]
-        P[:, :3, :3] = post.cov_gamma[pose] if smoothed else post.cov_alpha[pose]
-        return m, P
-    slot = extra.slot[idx]
-    has = slot >= 0
-    col = np.r_[0, 1, 2][None, :].repeat(n, 0)
-    cols = np.concatenate([col, np.where(has, 3 + slot, 0)[:, None]], axis=1)  # (n, 4) state indices
+    if lo.extra is None or post.extra is None:
+        return _pose_only(post.mu_gamma[pose] if smoothed else post.mu_alpha[pose],
+                          post.cov_gamma[pose] if smoothed else post.cov_alpha[pose])
     ex = post.extra
-    fm, fc = (ex.smoothed_mean[pose], ex.smoothed_cov[pose]) if smoothed else (ex.filtered_mean[pose],
-                                                                             ex.filtered_cov[pose])
-    m[:] = fm[np.arange(n)[:, None], cols]
-    P[:] = fc[np.arange(n)[:, None, None], cols[:, :, None], cols[:, None, :]]
+    return _with_slot(lo, idx, *((ex.smoothed_mean[pose], ex.smoothed_cov[pose]) if smoothed else
+                                 (ex.filtered_mean[pose], ex.filtered_cov[pose])))
+
+
+def frame_prediction(lo: "Lowered", batch: "Batch", post: "Posterior", idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean (n, 4) and covariance (n, 4, 4) of (x, y, theta, b) as the forward filter predicted them for the frame of
+    each sighting ``idx``, before any of the frame's sightings: the filtered belief at the frame's start moved by its
+    motion (with extra states, the augmented filter's own prediction). A sighting after others in its frame (rare)
+    gets the frame's prediction, not the one updated by those (``learners.inference.predictive`` applies them)."""
+    frame = batch.sight_frame[idx]
+    if lo.extra is not None and post.extra is not None:
+        return _with_slot(lo, idx, post.extra.predicted_mean[frame], post.extra.predicted_cov[frame])
+    p = batch.frame_to_pose[frame]
+    g, F, R3 = geometry.motion(post.mu_alpha[p], lo.disp[frame])
+    P = F @ post.cov_alpha[p] @ np.swapaxes(F, 1, 2) + lo.cov_scale[frame, None, None] * (R3 @ lo.cov @ np.swapaxes(R3, 1, 2))
+    return _pose_only(g + lo.offset[frame], P)
+
+
+def _pose_only(mean: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The 4-state belief of pose beliefs (n, 3), (n, 3, 3): no bias (0, variance 0)."""
+    m = np.zeros((len(mean), 4))
+    P = np.zeros((len(mean), 4, 4))
+    m[:, :3], P[:, :3, :3] = mean, cov
+    return m, P
+
+
+def _with_slot(lo: "Lowered", idx: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The 4-state beliefs (pose, the bias of sighting j's slot) out of beliefs on the whole augmented state (n, 3 + K),
+    (n, 3 + K, 3 + K); a sighting without a slot gets b = 0 with variance 0."""
+    n = len(idx)
+    slot = lo.extra.slot[idx]
+    has = slot >= 0
+    cols = np.concatenate([np.r_[0, 1, 2][None, :].repeat(n, 0), np.where(has, 3 + slot, 0)[:, None]], axis=1)
+    m = mean[np.arange(n)[:, None], cols]
+    P = cov[np.arange(n)[:, None, None], cols[:, :, None], cols[:, None, :]]
     m[~has, 3] = 0.0
     P[~has, 3, :] = 0.0
     P[~has, :, 3] = 0.0

@@ -18,9 +18,11 @@ from typing import Any
 
 import numpy as np
 
+from aibo_core.trajectory import Trajectory
 from learners.base import LearnResult
 from learners.em.learner import EMLearner
 from learners.em.options import EMOptions
+from learners.model.model import Model
 
 from .effect_sizes import effect_intervals
 from .fitting import SEARCH_PATIENCE
@@ -56,6 +58,32 @@ class Diagnosed:
     seconds: dict[str, float] = field(default_factory=dict)  # by stage: FINAL_FIT_STAGE, PROFILE_STAGE when profiled
 
 
+#: ``method`` of an interval from an effect's own likelihood, the filter held (``EffectModel.conditional_errors``)
+CONDITIONAL_WALD = "wald, from the effect's own likelihood of the sightings with the forward filter held (the rest at the final fit)"
+
+
+def _conditional_errors(model: Model, logs: list[Trajectory], names: list[str], se: dict[str, Any]) -> dict[str, list[str]]:
+    """Fill ``se`` (file key -> standard error), in place, for the named effects' parameters the EKF's information left
+    undetermined, from each effect's ``conditional_errors``; returns the parameters filled, by effect."""
+    from learners.arrays.batch import make_batch
+    from learners.em.estep import e_step
+
+    missing = {n: [p for p in model.effect(n).PARAMS if se.get(f"effects.{n}.{p}") is None] for n in names}
+    missing = {n: ps for n, ps in missing.items() if ps}
+    if not missing:
+        return {}
+    batch = make_batch(logs)
+    post = e_step(model, batch, "compiled")
+    done: dict[str, list[str]] = {}
+    for name, params in missing.items():
+        errors = model.effect(name).conditional_errors(model, batch, post)
+        for p in params:
+            if p in errors:
+                se[f"effects.{name}.{p}"] = errors[p]
+                done.setdefault(name, []).append(p)
+    return done
+
+
 def _values(effect) -> dict[str, Any]:
     return {k: np.asarray(v).tolist() for k, v in effect.values().items()}
 
@@ -69,10 +97,14 @@ def diagnosed(found: dict[str, Any], opts: EMOptions) -> Diagnosed:
     t0 = time.perf_counter()
     fopts = final_options(opts)
     final = EMLearner(fopts, check_field=False).fit(logs, init=found["model"])
-    se = final.info.get("standard_errors", {})
+    se = dict(final.info.get("standard_errors", {}))
+    conditional = _conditional_errors(final.params, logs, [c.name for c in found["named"]], se)
     effects = [{"name": c.name, "parameters": _values(final.params.effect(c.name)),
                 "intervals": effect_intervals(final.params, c.name, se, c.profile),
                 "parameters_when_named": c.as_dict()["parameters"]} for c in found["named"]]
+    for e in effects:
+        for pname in conditional.get(e["name"], ()):
+            e["intervals"][pname]["method"] = CONDITIONAL_WALD
     seconds = {FINAL_FIT_STAGE: time.perf_counter() - t0}
     t0 = time.perf_counter()
     profiled = profile_where_wald_fails(effects, final.params, logs, fopts)  # a rate near its bound

@@ -13,9 +13,10 @@ from aibo_core.trajectory import Trajectory
 from learners.arrays.batch import make_batch
 from learners.em.estep import e_step
 from learners.em.options import DEFAULT_GATE
-from learners.em.predictive import model_logdens, own_noise, predictive_logdens, sightings_logdens
+from learners.em.predictive import model_logdens, own_noise, sightings_logdens
 from learners.em.whiteness import consecutive_pairs, lag1, normalized_size_innovations
 from learners.inference.open_loop import open_loop_innovations
+from learners.inference.predictive import predictive_logdens
 from learners.model.model import Model
 
 from .split import heldout_mask

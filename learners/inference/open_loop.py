@@ -78,7 +78,7 @@ def _motion_moments(m: np.ndarray, P: np.ndarray, disp: np.ndarray):
 
 def _propagate(lo: Lowered, idx: np.ndarray, f0: np.ndarray, k_frames: int, m: np.ndarray, P: np.ndarray,
                moments: str = "exact"):
-    """Run the beliefs (m, P) of ``_start_belief`` through frames f0 .. f0 + k_frames - 1, open loop."""
+    """Run the beliefs (m, P) of ``joint_belief`` through frames f0 .. f0 + k_frames - 1, open loop."""
     if moments not in ("exact", "linear"):
         raise ValueError(f"moments {moments!r}: 'exact' or 'linear'")
     sig = np.asarray(lo.cov, dtype=float)

@@ -137,6 +137,13 @@ class EffectModel(Component):
         of each frame net of the previous world offset, the prior's pull included: ``learners.inference``)."""
         return model
 
+    def conditional_errors(self, model: "Model", batch: Batch, post: Posterior) -> dict[str, float]:
+        """Standard errors of this effect's parameters (by parameter name) where the Fisher information of the EKF's
+        innovations (``learners.em.uncertainty``) cannot see them: a mixture's rate and width change each sighting's
+        density, not the filter. From the observed information of the effect's own likelihood given ``post`` (the
+        forward filter held); {} by default (the filter's information is the one)."""
+        return {}
+
     def predictive(self) -> "EffectModel":
         """The effect as it enters a sighting's OWN predictive density (default: itself). An effect whose
         ``lower`` uses the sightings themselves (responsibilities) returns itself without that part."""

@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 
 from learners.arrays.batch import Batch
-from learners.arrays.innovations import Innovations
+from learners.arrays.innovations import Innovations, belief_innovations, frame_prediction
 from learners.arrays.lowered import Lowered
 from learners.arrays.posterior import Posterior
 from learners.model.catalogue_more import MAX_RATE, W_FLOOR, _sighting_key
@@ -103,15 +103,10 @@ class HeavyTailedNoise(EffectModel):
         """(rate, scale, the core's variances) maximizing the mixture's likelihood of the sightings with the forward
         filter held, then each sighting's expected precision at the smoothed path for the filter (module
         docstring); sets the sensor's sigmas to the core's."""
-        from learners.em.predictive import predictive_innovations
-
-        others = replace(model, effects=tuple(e for e in model.effects if e.name != self.name))
-        lo0 = others.lower(batch)
-        idx = np.flatnonzero(batch.used & np.isfinite(post.mahal2))
-        pred = predictive_innovations(model.lower(batch), batch, post, idx, lo0)
+        pred, vf, lo0 = self._one_step(model, batch, post)
         rate, c2 = self._mixture()
-        rate, scale, var = fit_scale_mixture(pred, np.stack([lo0.size_var_factor[idx], lo0.bearing_var_factor[idx]], 1),
-                                             rate, math.sqrt(c2), np.array([lo0.sigma_size ** 2, lo0.sigma_bearing ** 2]))
+        rate, scale, var = fit_scale_mixture(pred, vf, rate, math.sqrt(c2),
+                                             np.array([lo0.sigma_size ** 2, lo0.sigma_bearing ** 2]))
         idx, smoothed = smoothed_innovations(lo0, batch, post)
         vf = np.stack([lo0.size_var_factor[idx], lo0.bearing_var_factor[idx]], axis=1)
         w_all = np.ones(batch.n_sightings)
@@ -119,6 +114,38 @@ class HeavyTailedNoise(EffectModel):
         sensor = replace(model.sensor, sigma_size=math.sqrt(var[0]), sigma_bearing=math.sqrt(var[1]))
         new = replace(self, rate=rate, scale=scale, w=w_all, key=_sighting_key(batch))
         return model.with_effect(new).with_(sensor=sensor)
+
+    def _one_step(self, model: "Model", batch: Batch, post: Posterior) -> tuple[Innovations, np.ndarray, Lowered]:
+        """(the applied sightings' innovations against ``post``'s forward prediction of their frame, with the noise of
+        the model without this effect; their other effects' variance factors (n, 2); that model's lowered arrays)."""
+        lo0 = replace(model, effects=tuple(e for e in model.effects if e.name != self.name)).lower(batch)
+        idx = np.flatnonzero(batch.used & np.isfinite(post.mahal2))
+        pred = belief_innovations(lo0, batch, idx, *frame_prediction(model.lower(batch), batch, post, idx))
+        return pred, np.stack([lo0.size_var_factor[idx], lo0.bearing_var_factor[idx]], axis=1), lo0
+
+    def conditional_errors(self, model: "Model", batch: Batch, post: Posterior) -> dict[str, float]:
+        """Standard errors of rate and scale from the observed information of the mixture's likelihood of the
+        sightings, the forward filter held, the core's two variances estimated with them (central differences)."""
+        pred, vf, _ = self._one_step(model, batch, post)
+        var = np.array([model.sensor.sigma_size ** 2, model.sensor.sigma_bearing ** 2])
+        x0 = np.array([self.rate, self.scale, 0.0, 0.0])
+        h = np.array([1e-3 * max(self.rate, 1e-3), 1e-3 * self.scale, 1e-3, 1e-3])
+
+        def nll(x: np.ndarray) -> float:
+            return mixture_nll(pred, vf, float(x[0]), float(x[1]), var * np.exp(x[2:]))
+
+        H = np.empty((4, 4))
+        for i in range(4):
+            for j in range(i, 4):
+                ei, ej = np.eye(4)[i] * h[i], np.eye(4)[j] * h[j]
+                H[i, j] = H[j, i] = (nll(x0 + ei + ej) - nll(x0 + ei - ej) - nll(x0 - ei + ej) + nll(x0 - ei - ej)) / (
+                    4.0 * h[i] * h[j])
+        try:
+            cov = np.linalg.inv(H)
+        except np.linalg.LinAlgError:
+            return {}
+        se = np.sqrt(np.diag(cov)[:2])
+        return {"rate": float(se[0]), "scale": float(se[1])} if np.all(np.isfinite(se)) and np.all(se > 0) else {}
 
     def to_json(self) -> dict[str, Any]:
         return {"name": self.name, "parameters": {"rate": float(self.rate), "scale": float(self.scale)}}
@@ -138,6 +165,13 @@ def expected_precision(noise: Innovations, rate: float, c2: float) -> np.ndarray
     return (1.0 - q) + q / c2
 
 
+def mixture_nll(inn: Innovations, vf: np.ndarray, rate: float, scale: float, var: np.ndarray) -> float:
+    """-sum log((1 - rate) N(v; HPH^T + R) + rate N(v; HPH^T + scale^2 R)) over the sightings ``inn``, R = diag(var) x
+    ``vf`` (nats)."""
+    noise = replace(inn, r=var * vf)
+    return -float(np.sum(np.logaddexp(math.log1p(-rate) + noise.logdens(), math.log(rate) + noise.logdens(scale ** 2))))
+
+
 def fit_scale_mixture(inn: Innovations, vf: np.ndarray, rate: float, scale: float,
                       var: np.ndarray) -> tuple[float, float, np.ndarray]:
     """(rate, scale, core variances (2,)) maximizing sum log((1 - rate) N(v; HPH^T + R) + rate N(v; HPH^T + scale^2 R))
@@ -150,9 +184,7 @@ def fit_scale_mixture(inn: Innovations, vf: np.ndarray, rate: float, scale: floa
     log_var0 = np.log(var)
 
     def nll(x: np.ndarray) -> float:
-        noise = replace(inn, r=np.exp(log_var0 + x[2:]) * vf)
-        mix = np.logaddexp(math.log1p(-x[0]) + noise.logdens(), math.log(x[0]) + noise.logdens(x[1] ** 2))
-        return -float(np.sum(mix))
+        return mixture_nll(inn, vf, float(x[0]), float(x[1]), np.exp(log_var0 + x[2:]))
 
     x0 = np.array([min(max(rate, 2 * W_FLOOR), 0.49), min(max(scale, 1.01), 0.99 * MAX_SCALE), 0.0, 0.0])
     res = minimize(nll, x0, method="L-BFGS-B", bounds=[(W_FLOOR, MAX_RATE), (1.0, MAX_SCALE), (-3, 3), (-3, 3)])
