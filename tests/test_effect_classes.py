@@ -89,11 +89,10 @@ def test_the_search_reads_probe_and_remedy_from_the_classes():
 def test_every_signature_names_a_statistic_the_check_computes(batch):
     """``SIGNATURE`` is matched (as a substring) against the calibrated check's statistic names: one that
     matches none would never report the effect as unexplained."""
-    from learners.discrepancy.signatures import signatures
-    from learners.discrepancy.statistics import signature_key
+    from learners.discrepancy.statistics import check_statistics
 
     tr = collect(None, 600, seed=5)
-    names = [signature_key(s.residual, s.variable) for s in signatures(start_model(batch, 1 / 30, "height_px", 40), [tr])]
+    names = list(check_statistics(start_model(batch, 1 / 30, "height_px", 40), [tr]))
     for name, cls in EFFECT_MODELS.items():
         if cls.SIGNATURE:
             assert any(cls.SIGNATURE in n for n in names), (name, cls.SIGNATURE, names)

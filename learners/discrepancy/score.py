@@ -45,6 +45,7 @@ class Score:
     gap: float  # GAP_METRIC: -heldout_loglik / n_heldout (nats per sighting; lower is better)
     nis_mean: float  # mean normalized innovation squared (2 expected: 2-d sightings)
     nis_outside: float  # share outside the chi-square(2) 95% band (0.05 expected)
+    nis_median: float  # median NIS (chi-square(2): 2 log 2 = 1.386 expected)
     whiteness: float  # WHITENESS_METRIC (0 expected)
     nis: np.ndarray  # (S,) per sighting, NaN where gated
 
@@ -68,8 +69,8 @@ def score(model: Model, logs: list[Trajectory], gate: float | None = None) -> Sc
     lo, hi = stats.chi2.ppf([0.025, 0.975], 2)
     z = nis[ok]
     white = lag1(consecutive_pairs(batch, normalized_size_innovations(model, batch)))
-    return Score(heldout, n, -heldout / max(n, 1), float(np.mean(z)),
-                 float(np.mean((z < lo) | (z > hi))), white if np.isfinite(white) else 0.0, nis)
+    return Score(heldout, n, -heldout / max(n, 1), float(np.mean(z)), float(np.mean((z < lo) | (z > hi))),
+                 float(np.median(z)) if len(z) else float("nan"), white if np.isfinite(white) else 0.0, nis)
 
 
 #: z of the motion gap's paired change (after - before, block standard error; ``motion_trade``) beyond which a model

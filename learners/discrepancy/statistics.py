@@ -5,7 +5,9 @@ simulated spread calibrates every one of them (a parametric-bootstrap, posterior
 Three kinds:
 
 - fit consistency (:func:`learners.discrepancy.score.score`): the held-out gap (nats per sighting),
-  the mean normalized innovation squared, its share outside the chi-square 95% band, whiteness;
+  the mean normalized innovation squared (NIS), its share outside the chi-square 95% band, its median (the
+  innovations' core: a noise with heavier tails than one Gaussian's has a sharper core, which the mean and the share
+  outside the band can miss: ``heavy_tailed_noise``), whiteness;
 - residual signatures (:func:`learners.discrepancy.signatures.signatures`): the strength
   sqrt(-log10 p) of each (residual, variable) dependence. Their p-values assume independent
   residuals and are optimistic; the simulated spread of the strength is the honest reference. The
@@ -45,6 +47,7 @@ def check_statistics(model: Model, logs: list[Trajectory]) -> dict[str, float]:
         "held-out NLL per sighting (nats)": s.gap,
         "mean NIS": s.nis_mean,
         "share of NIS outside the 95% band": s.nis_outside,
+        "median NIS": s.nis_median,
         "size-innovation autocorrelation (lag 1, per landmark)": s.whiteness,
     }
     for sig in signatures(model, logs):
@@ -102,6 +105,10 @@ def plain_reading(statistic: str, z: float) -> str:
                                                 "not hold)" if more else " of the log's sightings fall outside the "
                                                 "model's 95% band than of its simulation's (the model's noise is too "
                                                 "wide)")
+    if statistic.startswith("median NIS"):
+        return ("most of the log's sightings are predicted " + ("less" if more else "more") + " closely, against the "
+                "model's noise, than its simulation's" + ("" if more else " (a sharper core than one Gaussian's, the "
+                                                          "tails heavier: a scale mixture of the noise)"))
     if statistic.startswith("mean NIS") or statistic.startswith("held-out NLL"):
         return ("the model predicts the log's sightings " + ("worse" if more else "better")
                 + " than it predicts its own simulation's")

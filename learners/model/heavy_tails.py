@@ -50,7 +50,8 @@ START = {"rate": 0.1, "scale": 2.0}  # EM's start: at rate 0 or scale 1 the mixt
 @dataclass(frozen=True)
 class HeavyTailedNoise(EffectModel):
     """A share ``rate`` of the sightings has its noise ``scale`` times wider (module docstring). Residual signature:
-    none (the innovations' tails: the share of NIS outside the 95% band)."""
+    none of a residual against a variable; the calibrated check's NIS statistics (its median below the simulation's,
+    more of it outside the 95% band)."""
 
     rate: float  # fraction of sightings in the wide component
     scale: float  # the wide component's standard deviation / the core's
@@ -58,6 +59,7 @@ class HeavyTailedNoise(EffectModel):
     key: tuple | None = field(default=None, compare=False, repr=False)
 
     name: ClassVar[str] = "heavy_tailed_noise"
+    SIGNATURE: ClassVar[str] = "NIS"  # the calibrated check's NIS statistics (its share outside the band, its median)
     PARAMS: ClassVar[dict[str, Param]] = {
         "rate": Param("fraction of sightings", "log", low=0.0, high=MAX_RATE, shape=()),
         "scale": Param("factor on the noise's standard deviation", "log", low=1.0, high=MAX_SCALE, shape=())}
