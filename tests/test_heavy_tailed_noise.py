@@ -149,9 +149,14 @@ def test_the_smoothed_residuals_hold_the_size_bias_states():
     assert np.std(b) > 0.03  # the states carry the bias: leaving them out changes the residuals
 
 
-def test_negligible_below_five_wide_sightings():
+def test_a_few_outliers_or_a_slightly_wider_gaussian_are_not_heavy_tails():
+    """Below five wide sightings, or a rate below 1% (the effect-free logs' 0.0015-0.0017 at the scale's bound), the
+    fit is negligible; a wide component under 1.5 times the core is implausible (0.19 x 1.33 on an effect-free log)."""
     assert "negligible: the rate 0.001 means 3.0 sightings with the wider noise" in HeavyTailedNoise(1e-3, 3.0).negligible(3000)
-    assert HeavyTailedNoise(0.01, 3.0).negligible(3000) == ""
+    assert "below 0.01 (8 sightings)" in HeavyTailedNoise(0.0017, 10.0).negligible(4600)
+    assert HeavyTailedNoise(0.01, 3.0).negligible(3000) == "" and HeavyTailedNoise(0.06, 10.0).negligible(4400) == ""
+    assert "only 1.33 times the core's" in HeavyTailedNoise(0.19, 1.33).implausible()
+    assert HeavyTailedNoise(0.1, 2.0).implausible() == ""
 
 
 def test_aibo_diagnose_names_it_with_intervals_that_hold_the_truth(tmp_path):
