@@ -29,16 +29,18 @@ class Innovations:
     """n sightings' innovations (module docstring)."""
 
     v: np.ndarray  # (n, 2) z - h(m): size (px or mm), bearing (rad, wrapped)
-    hph: np.ndarray  # (n, 3) the entries s00, s01, s11 of H P H^T (the predicted pose's share)
+    hph: np.ndarray  # (n, 2, 2) H P H^T (the predicted pose's share), as computed (its off-diagonal entries may differ
+    # in the last bit: kept so, the density's arithmetic is the filter's own, and EM's path with a mixture, which rounding
+    # can move, the same as before this container)
     r: np.ndarray  # (n, 2) the sensor's own size and bearing variances (R's diagonal)
 
     def logdens(self, noise_factor: float | np.ndarray = 1.0) -> np.ndarray:
         """(n,) log N(v; 0, H P H^T + noise_factor R), ``noise_factor`` a number or one per sighting."""
-        s00 = self.hph[:, 0] + noise_factor * self.r[:, 0]
-        s11 = self.hph[:, 2] + noise_factor * self.r[:, 1]
-        s01 = self.hph[:, 1]
+        s00 = self.hph[:, 0, 0] + noise_factor * self.r[:, 0]
+        s11 = self.hph[:, 1, 1] + noise_factor * self.r[:, 1]
+        s01 = self.hph[:, 0, 1]
         v0, v1 = self.v[:, 0], self.v[:, 1]
-        det = s00 * s11 - s01 * s01
+        det = s00 * s11 - s01 * self.hph[:, 1, 0]
         m2 = (s11 * v0 * v0 - 2.0 * s01 * v0 * v1 + s00 * v1 * v1) / det
         return -0.5 * (m2 + np.log(det) + 2.0 * LOG_2PI)
 
@@ -118,5 +120,4 @@ def belief_innovations(lo: "Lowered", batch: "Batch", idx: np.ndarray, m: np.nda
                  axis=1)
     v0 = batch.sight_value[idx, 0] - (sc * f * (1.0 + b) + lo.size_offset[idx])
     v1 = geometry.wrap(batch.sight_value[idx, 1] - (np.arctan2(dy, dx) - m[:, 2] + lo.bearing_offset[idx]))
-    hph = np.stack([S[:, 0, 0], 0.5 * (S[:, 0, 1] + S[:, 1, 0]), S[:, 1, 1]], axis=1)
-    return Innovations(np.stack([v0, v1], axis=1), hph, r)
+    return Innovations(np.stack([v0, v1], axis=1), S, r)

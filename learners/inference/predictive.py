@@ -48,7 +48,7 @@ def predictive_innovations(lo: Lowered, batch: Batch, post: Posterior, idx: np.n
     hph = H @ P @ np.swapaxes(H, 1, 2)
     v = batch.sight_value[idx] - h
     v[:, 1] = geometry.wrap(v[:, 1])
-    return Innovations(v, np.stack([hph[:, 0, 0], 0.5 * (hph[:, 0, 1] + hph[:, 1, 0]), hph[:, 1, 1]], axis=1), rd)
+    return Innovations(v, hph, rd)
 
 
 def _augmented_innovations(lo: Lowered, batch: Batch, idx: np.ndarray, lo_own: Lowered) -> Innovations:
@@ -59,8 +59,10 @@ def _augmented_innovations(lo: Lowered, batch: Batch, idx: np.ndarray, lo_own: L
 
     _, innov = innovations_compiled(lo, batch)
     v0, v1, s00, s01, s11 = innov[idx].T
-    hph = np.stack([s00 - lo.sigma_size ** 2 * lo.size_var_factor[idx], s01,
-                    s11 - lo.sigma_bearing ** 2 * lo.bearing_var_factor[idx]], axis=1)
+    hph = np.empty((len(idx), 2, 2))
+    hph[:, 0, 0] = s00 - lo.sigma_size ** 2 * lo.size_var_factor[idx]
+    hph[:, 0, 1] = hph[:, 1, 0] = s01
+    hph[:, 1, 1] = s11 - lo.sigma_bearing ** 2 * lo.bearing_var_factor[idx]
     r = np.stack([lo.sigma_size ** 2 * lo_own.size_var_factor[idx],
                   lo.sigma_bearing ** 2 * lo_own.bearing_var_factor[idx]], axis=1)
     return Innovations(np.stack([v0, v1], axis=1), hph, r)

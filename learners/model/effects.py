@@ -23,9 +23,10 @@ from typing import TYPE_CHECKING, Any, Callable, ClassVar
 
 import numpy as np
 
+from aibo_core.geometry import wrap
 from learners.arrays.batch import Batch
 from learners.arrays.innovations import Innovations, belief_innovations, joint_belief
-from learners.arrays.lowered import Lowered
+from learners.arrays.lowered import Lowered, sighting_model
 from learners.arrays.posterior import Posterior
 from learners.model.parameters import Component, Param, as_numbers
 
@@ -222,7 +223,13 @@ def smoothed_innovations(lo: Lowered, batch: Batch, post: Posterior) -> tuple[np
     state, its smoothed value), the smoothed belief's share H Sigma_gamma H^T and ``lo``'s noise R: what a noise
     mixture's M-step weighs (responsibilities at the path, first order in its uncertainty)."""
     idx = np.flatnonzero(batch.used)
-    return idx, belief_innovations(lo, batch, idx, *joint_belief(lo, post, idx, batch.sight_pose[idx], smoothed=True))
+    pose = batch.sight_pose[idx]
+    if lo.extra is None or post.extra is None:  # the pose alone (as the sensor M-step: the same arithmetic)
+        h, H, rd = sighting_model(lo, post.mu_gamma[pose], batch.sight_xy[idx], idx)
+        v = batch.sight_value[idx] - h
+        v[:, 1] = wrap(v[:, 1])
+        return idx, Innovations(v, H @ post.cov_gamma[pose] @ np.swapaxes(H, 1, 2), rd)
+    return idx, belief_innovations(lo, batch, idx, *joint_belief(lo, post, idx, pose, smoothed=True))
 
 
 @register_effect
