@@ -95,9 +95,24 @@ def spurious_log_density(batch: Batch) -> float:
     return -math.log(max(size_span, 1e-9) * max(angle_span, 1e-9))
 
 
+class WeighedSightings:
+    """What a noise mixture's effect does in the filter (the EKF carries one Gaussian): each sighting's size and bearing
+    variances divided by a weight ``w`` its M-step computed at the smoothed path (fields ``w``, (S,), and ``key``, the
+    batch it belongs to; floored at ``W_FLOOR``); a sighting's OWN density (``predictive``) without them."""
+
+    def lower(self, lo: Lowered, batch: Batch) -> None:
+        if self.w is not None and self.key == _sighting_key(batch):
+            inv = 1.0 / np.maximum(self.w, W_FLOOR)
+            lo.size_var_factor = lo.size_var_factor * inv
+            lo.bearing_var_factor = lo.bearing_var_factor * inv
+
+    def predictive(self):
+        return replace(self, w=None, key=None)
+
+
 @register_effect
 @dataclass(frozen=True)
-class FalseSightings(EffectModel):
+class FalseSightings(WeighedSightings, EffectModel):
     """A fraction ``rate`` of the sightings are spurious (module docstring). Residual signature: none
     (outliers anywhere in the image: heavy tails of the size and bearing residuals)."""
 
@@ -127,15 +142,6 @@ class FalseSightings(EffectModel):
 
     def _rate(self) -> float:
         return float(min(max(self.rate, W_FLOOR), MAX_RATE))
-
-    def lower(self, lo: Lowered, batch: Batch) -> None:
-        if self.w is not None and self.key == _sighting_key(batch):
-            inv = 1.0 / np.maximum(self.w, W_FLOOR)
-            lo.size_var_factor = lo.size_var_factor * inv
-            lo.bearing_var_factor = lo.bearing_var_factor * inv
-
-    def predictive(self) -> "FalseSightings":
-        return replace(self, w=None, key=None)
 
     def predictive_logdens(self, base_logdens: np.ndarray, innov: Innovations, batch: Batch,
                            idx: np.ndarray) -> np.ndarray:

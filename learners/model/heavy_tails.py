@@ -35,7 +35,7 @@ from learners.arrays.batch import Batch
 from learners.arrays.innovations import Innovations, belief_innovations, frame_prediction
 from learners.arrays.lowered import Lowered
 from learners.arrays.posterior import Posterior
-from learners.model.catalogue_more import MAX_RATE, W_FLOOR, _sighting_key
+from learners.model.catalogue_more import MAX_RATE, W_FLOOR, WeighedSightings, _sighting_key
 from learners.model.effects import EffectModel, register_effect, smoothed_innovations
 from learners.model.parameters import Param
 
@@ -48,7 +48,7 @@ START = {"rate": 0.1, "scale": 2.0}  # EM's start: at rate 0 or scale 1 the mixt
 
 @register_effect
 @dataclass(frozen=True)
-class HeavyTailedNoise(EffectModel):
+class HeavyTailedNoise(WeighedSightings, EffectModel):
     """A share ``rate`` of the sightings has its noise ``scale`` times wider (module docstring). Residual signature:
     none of a residual against a variable; the calibrated check's NIS statistics (its median below the simulation's,
     more of it outside the 95% band)."""
@@ -98,15 +98,6 @@ class HeavyTailedNoise(EffectModel):
     def _mixture(self) -> tuple[float, float]:
         """(rate, scale^2) inside their domain (rate above 0: its log is taken)."""
         return float(min(max(self.rate, W_FLOOR), MAX_RATE)), float(min(max(self.scale, 1.0), MAX_SCALE)) ** 2
-
-    def lower(self, lo: Lowered, batch: Batch) -> None:
-        if self.w is not None and self.key == _sighting_key(batch):
-            inv = 1.0 / np.maximum(self.w, W_FLOOR)
-            lo.size_var_factor = lo.size_var_factor * inv
-            lo.bearing_var_factor = lo.bearing_var_factor * inv
-
-    def predictive(self) -> "HeavyTailedNoise":
-        return replace(self, w=None, key=None)
 
     def predictive_logdens(self, base_logdens: np.ndarray, innov: Innovations, batch: Batch,
                            idx: np.ndarray) -> np.ndarray:
