@@ -73,7 +73,9 @@ def _digest(a: np.ndarray) -> str:
     return hashlib.blake2b(np.ascontiguousarray(a).tobytes(), digest_size=16).hexdigest()
 
 
-def _sighting_key(batch: Batch) -> tuple:
+def sighting_key(batch: Batch) -> tuple:
+    """What ties per-sighting state (a mixture's weights) to the batch it was computed on: the sightings' count and
+    digests of their values and landmarks."""
     return (batch.n_sightings, _digest(batch.sight_value), _digest(batch.sight_landmark))
 
 
@@ -101,7 +103,7 @@ class WeighedSightings:
     batch it belongs to; floored at ``W_FLOOR``); a sighting's OWN density (``predictive``) without them."""
 
     def lower(self, lo: Lowered, batch: Batch) -> None:
-        if self.w is not None and self.key == _sighting_key(batch):
+        if self.w is not None and self.key == sighting_key(batch):
             inv = 1.0 / np.maximum(self.w, W_FLOOR)
             lo.size_var_factor = lo.size_var_factor * inv
             lo.bearing_var_factor = lo.bearing_var_factor * inv
@@ -181,7 +183,7 @@ class FalseSightings(WeighedSightings, EffectModel):
         w_all = np.ones(batch.n_sightings)
         w_all[idx] = w
         sensor = replace(model.sensor, sigma_size=math.sqrt(var_s), sigma_bearing=math.sqrt(var_b))
-        new = replace(self, rate=rate, w=w_all, key=_sighting_key(batch), log_u=log_u)
+        new = replace(self, rate=rate, w=w_all, key=sighting_key(batch), log_u=log_u)
         return model.with_effect(new).with_(sensor=sensor)
 
     def to_json(self) -> dict[str, Any]:

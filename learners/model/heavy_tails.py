@@ -17,10 +17,13 @@ at the smoothed path, w = (1 - q) + q / scale^2 (q: the posterior probability of
 Student-t (the responsibilities belong to the batch they were computed on: ``key``). The held-out score's filter is
 the plain one with the core's R; its densities are the mixture's (as ``false_sightings``').
 
-M-step (ECM at the fixed smoothed path, iterated ``INNER`` times): q from the two components' densities; rate =
-mean(q); the core's variances sigma^2 = mean(w e / vf) (e the expected squared residual, vf the other effects' variance
-factor); scale^2 = sum q a / (2 sum q), a = e_size / R_size + e_bearing / R_bearing (two dimensions), clipped to
-[1, ``MAX_SCALE``^2].
+M-step: rate, scale and the core's two variances maximizing the mixture's likelihood of the sightings with the
+forward filter held (each sighting's innovation against the filter's prediction of its frame: ``fit_scale_mixture``,
+L-BFGS-B from the current values); then each sighting's expected precision at the smoothed path for the filter. EM's
+own closed-form steps crawl along the rate-scale ridge (docs/results.md, "A scale mixture of the noise"). Standard
+errors: ``conditional_errors`` (the EKF's Fisher information cannot see a mixture's parameters). Not named below a rate
+of ``MIN_RATE`` (outliers) or a scale of ``MIN_SCALE`` (a slightly mis-specified Gaussian); not a default candidate:
+on the MRCLAM robots it trades robot 4's forward speed for robot 1's (docs/results.md).
 """
 
 from __future__ import annotations
@@ -35,7 +38,7 @@ from learners.arrays.batch import Batch
 from learners.arrays.innovations import Innovations, belief_innovations, frame_prediction
 from learners.arrays.lowered import Lowered
 from learners.arrays.posterior import Posterior
-from learners.model.catalogue_more import MAX_RATE, W_FLOOR, WeighedSightings, _sighting_key
+from learners.model.catalogue_more import MAX_RATE, W_FLOOR, WeighedSightings, sighting_key
 from learners.model.effects import EffectModel, register_effect, smoothed_innovations
 from learners.model.parameters import Param
 
@@ -121,7 +124,7 @@ class HeavyTailedNoise(WeighedSightings, EffectModel):
         w_all = np.ones(batch.n_sightings)
         w_all[idx] = expected_precision(replace(smoothed, r=var * vf), rate, scale ** 2)
         sensor = replace(model.sensor, sigma_size=math.sqrt(var[0]), sigma_bearing=math.sqrt(var[1]))
-        new = replace(self, rate=rate, scale=scale, w=w_all, key=_sighting_key(batch))
+        new = replace(self, rate=rate, scale=scale, w=w_all, key=sighting_key(batch))
         return model.with_effect(new).with_(sensor=sensor)
 
     def _one_step(self, model: "Model", batch: Batch, post: Posterior) -> tuple[Innovations, np.ndarray, Lowered]:
