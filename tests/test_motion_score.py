@@ -140,3 +140,11 @@ def test_the_diagnosis_warns_of_a_trade_only_when_the_motion_gets_worse_beyond_i
     (w,) = motion_warning(report(2.5))
     assert "landmark_bias" in w and "-1.100" in w and "5 s +0.100 +- 0.040" in w
     assert motion_warning(report(float("nan"))) == []
+
+
+def test_a_horizon_longer_than_the_log_gives_no_prediction():
+    """No sighting has a full-horizon prediction: every density is NaN (an empty set of innovations, not an error)."""
+    lo, batch, _ = case(CASES[0])
+    post = smooth_compiled(lo, batch)
+    idx = np.flatnonzero(batch.used)
+    assert np.all(np.isnan(open_loop_logdens(lo, batch, post, idx, batch.n_frames + 1)))

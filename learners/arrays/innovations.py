@@ -44,10 +44,6 @@ class Innovations:
         m2 = (s11 * v0 * v0 - 2.0 * s01 * v0 * v1 + s00 * v1 * v1) / det
         return -0.5 * (m2 + np.log(det) + 2.0 * LOG_2PI)
 
-    def take(self, mask: np.ndarray) -> "Innovations":
-        """The sightings selected by ``mask`` (boolean or indices)."""
-        return Innovations(self.v[mask], self.hph[mask], self.r[mask])
-
 
 def joint_belief(lo: "Lowered", post: "Posterior", idx: np.ndarray, pose: np.ndarray,
                  smoothed: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -70,10 +66,17 @@ def frame_prediction(lo: "Lowered", batch: "Batch", post: "Posterior", idx: np.n
     frame = batch.sight_frame[idx]
     if lo.extra is not None and post.extra is not None:
         return _with_slot(lo, idx, post.extra.predicted_mean[frame], post.extra.predicted_cov[frame])
+    return _pose_only(*pose_prediction(lo, batch, post, frame))
+
+
+def pose_prediction(lo: "Lowered", batch: "Batch", post: "Posterior", frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean (n, 3) and covariance (n, 3, 3) of the pose at the end of each of ``frame``, as the forward filter predicts
+    it before the frame's sightings: the filtered belief at the frame's start (mu_alpha, cov_alpha) moved by the frame's
+    mean displacement (EKF linearization), its world offset, and its motion noise."""
     p = batch.frame_to_pose[frame]
     g, F, R3 = geometry.motion(post.mu_alpha[p], lo.disp[frame])
     P = F @ post.cov_alpha[p] @ np.swapaxes(F, 1, 2) + lo.cov_scale[frame, None, None] * (R3 @ lo.cov @ np.swapaxes(R3, 1, 2))
-    return _pose_only(g + lo.offset[frame], P)
+    return g + lo.offset[frame], P
 
 
 def _pose_only(mean: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

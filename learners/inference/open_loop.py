@@ -130,7 +130,7 @@ def open_loop_innovations(lo: Lowered, batch: Batch, post: Posterior, idx: np.nd
     f0 = open_loop_start(batch, idx, k_frames)
     ok = f0 >= 0
     if not ok.any():
-        return ok, Innovations(np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 2)))
+        return ok, Innovations(np.zeros((0, 2)), np.zeros((0, 2, 2)), np.zeros((0, 2)))
     j, f0 = idx[ok], f0[ok]
     m, P = _propagate(lo, j, f0, k_frames, *joint_belief(lo, post, j, batch.frame_to_pose[f0], smoothed=False), moments)
     return ok, belief_innovations(lo_own, batch, j, m, P)

@@ -8,7 +8,7 @@ import numpy as np
 
 from aibo_core import geometry
 from learners.arrays.batch import Batch
-from learners.arrays.innovations import Innovations
+from learners.arrays.innovations import Innovations, pose_prediction
 from learners.arrays.lowered import Lowered, sighting_model
 from learners.arrays.posterior import Posterior
 from learners.inference.reference import AIBO_ANGLE_MASK, ekf_innovation, ekf_update
@@ -32,10 +32,7 @@ def predictive_innovations(lo: Lowered, batch: Batch, post: Posterior, idx: np.n
         return _augmented_innovations(lo, batch, idx, lo_own)
     frame = batch.sight_frame[idx]
     first = batch.sight_start[frame]
-    p = batch.frame_to_pose[frame]
-    g, F, R3 = geometry.motion(post.mu_alpha[p], lo.disp[frame])
-    m = g + lo.offset[frame]
-    P = F @ post.cov_alpha[p] @ np.swapaxes(F, 1, 2) + lo.cov_scale[frame, None, None] * (R3 @ lo.cov @ np.swapaxes(R3, 1, 2))
+    m, P = pose_prediction(lo, batch, post, frame)
     for k in np.flatnonzero(first < idx):  # earlier sightings of the same frame (rare): applied first
         mk, Pk = m[k], P[k]
         for e in range(first[k], idx[k]):

@@ -107,9 +107,8 @@ class HeavyTailedNoise(WeighedSightings, EffectModel):
         """``base_logdens`` times the mixture's density over the core's: log((1 - rate) N(R) + rate N(scale^2 R)) when
         ``base_logdens`` is the core Gaussian's (this hook runs first: ``DENSITY_ORDER`` 0)."""
         rate, c2 = self._mixture()
-        core = innov.logdens()
-        mix = np.logaddexp(math.log1p(-rate) + core, math.log(rate) + innov.logdens(c2))
-        return base_logdens + (mix - core)
+        core, wide = mixture_terms(innov, rate, c2)
+        return base_logdens + (np.logaddexp(core, wide) - (core - math.log1p(-rate)))
 
     def maximize(self, model: "Model", batch: Batch, post: Posterior, mu_star: np.ndarray) -> "Model":
         """(rate, scale, the core's variances) maximizing the mixture's likelihood of the sightings with the forward
@@ -163,10 +162,15 @@ class HeavyTailedNoise(WeighedSightings, EffectModel):
         return {"name": self.name, "parameters": {"rate": float(self.rate), "scale": float(self.scale)}}
 
 
+def mixture_terms(noise: Innovations, rate: float, c2: float) -> tuple[np.ndarray, np.ndarray]:
+    """(n,), (n,): log((1 - rate) N(v; HPH^T + R)) and log(rate N(v; HPH^T + scale^2 R)), ``noise.r`` the core's R and
+    ``c2`` = scale^2: the mixture's density is their logaddexp."""
+    return math.log1p(-rate) + noise.logdens(), math.log(rate) + noise.logdens(c2)
+
+
 def wide_probability(noise: Innovations, rate: float, c2: float) -> np.ndarray:
     """(n,) q: each sighting's posterior probability of the wide component (``noise.r`` the core's variances)."""
-    a = math.log1p(-rate) + noise.logdens()
-    b = math.log(rate) + noise.logdens(c2)
+    a, b = mixture_terms(noise, rate, c2)
     return np.exp(b - np.logaddexp(a, b))
 
 
@@ -180,8 +184,7 @@ def expected_precision(noise: Innovations, rate: float, c2: float) -> np.ndarray
 def mixture_nll(inn: Innovations, vf: np.ndarray, rate: float, scale: float, var: np.ndarray) -> float:
     """-sum log((1 - rate) N(v; HPH^T + R) + rate N(v; HPH^T + scale^2 R)) over the sightings ``inn``, R = diag(var) x
     ``vf`` (nats)."""
-    noise = replace(inn, r=var * vf)
-    return -float(np.sum(np.logaddexp(math.log1p(-rate) + noise.logdens(), math.log(rate) + noise.logdens(scale ** 2))))
+    return -float(np.sum(np.logaddexp(*mixture_terms(replace(inn, r=var * vf), rate, scale ** 2))))
 
 
 def fit_scale_mixture(inn: Innovations, vf: np.ndarray, rate: float, scale: float,
