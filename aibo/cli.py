@@ -102,6 +102,10 @@ def build_parser() -> argparse.ArgumentParser:
     lr.add_argument("--range-curve", choices=["held", "free"], help="range sensors (mm): held keeps the curve at "
                     "range = distance (or --init's) and screens no stretched starts (default); free fits the cubic "
                     "(paper)")
+    lr.add_argument("--range-shrink", action=argparse.BooleanOptionalAction, default=None,
+                    help="range sensors (mm), from the paper's start: fit the range's shrink away from the image "
+                         "centre, range x (1 - k phi^2) (a range from a landmark's apparent size is depth, not "
+                         "distance; the effect off_center_shrink, k from 0; default on; paper: off)")
     lr.add_argument("--face-value-gate", action=argparse.BooleanOptionalAction, default=None,
                     help="velocity commands with a range sensor, from the paper's start: judge the first-iteration "
                          "outlier gate under the commands' face value, once for every start (default on; paper: off; "

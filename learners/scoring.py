@@ -173,14 +173,18 @@ def measured_sensor(model: Model, logs: list[Trajectory]) -> tuple[np.ndarray, f
 
 def sensor_scores(model: Model, logs: list[Trajectory]) -> dict[str, float]:
     """``range_curve_rms`` mm (vs the curve fitted to truth, over its 1-99% distances),
-    ``range_rms`` mm (measured range minus the model's mean at the true distance), the model's
+    ``range_rms`` mm (measured range minus the model's mean at the true distance, its effects' scale and offset of
+    each sighting applied), the model's
     ``sigma_range`` and ``sigma_bearing``."""
     coef, _, _, (lo, hi) = measured_sensor(model, logs)
     grid = np.linspace(lo, hi, 400)
     truth = replace(model.sensor, coef=coef).mean(grid)
     d, z, _ = true_sightings(logs)
+    lo = model.lower(make_batch(logs))  # each sighting's scale and offset of the model's effects (a range's shrink)
+    ok = np.concatenate([_valid_poses(tr)[tr.sighting_frame + 1] for tr in logs])
+    mean = lo.size_scale[ok] * model.sensor.mean(d) + lo.size_offset[ok]
     return {"range_curve_rms": float(np.sqrt(np.mean((model.sensor.mean(grid) - truth) ** 2))),
-            "range_rms": float(np.sqrt(np.mean((z - model.sensor.mean(d)) ** 2))),
+            "range_rms": float(np.sqrt(np.mean((z - mean) ** 2))),
             "sigma_range": float(model.sensor.sigma_size), "sigma_bearing": float(model.sensor.sigma_bearing)}
 
 

@@ -95,7 +95,9 @@ def test_the_calibrated_simulator_is_built_from_the_model_and_the_log(sim):
     made = tr.meta["config"]
     assert all(cfg[k] == made[k] for k in ("fov", "range_mm", "detect_prob"))  # a log of this simulator: its camera
     lagged = m.with_effect(ActuationLag(0.3))
-    assert simulator_config(lagged, tr)["effects"] == {"actuation_lag": {"lag_s": 0.3}}
+    effects = simulator_config(lagged, tr)["effects"]  # the range's shrink, fitted on every range sensor, is ~0 here
+    assert set(effects) == {"actuation_lag", "off_center_shrink"} and effects["actuation_lag"] == {"lag_s": 0.3}
+    assert abs(effects["off_center_shrink"]["k"]) < 0.05
 
 
 def test_replay_takes_the_logs_controls_and_image_frames_and_is_seeded(sim):

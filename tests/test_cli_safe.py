@@ -401,15 +401,15 @@ def test_a_bad_model_file_is_one_line_naming_its_field(edit, field, what, learne
 @pytest.mark.parametrize("entry, field, what", [
     ({"name": "beacon_height_scale", "parameters": {"scale": [1.0, 1.0]}}, "effects.beacon_height_scale.parameters.scale",
      "these logs need"),
-    ({"name": "off_center_shrink", "parameters": {"k": 0.1}}, "effects.off_center_shrink", "head_pan"),
+    ({"name": "wall_contact", "parameters": {}}, "effects.wall_contact", "field"),
 ])
 def test_an_init_model_the_log_cannot_use_is_one_line(entry, field, what, learned, blind_log, tmp_path, capsys):
     from dataclasses import replace
 
     from aibo_core import trajectory
 
-    log = tmp_path / "nopan.npz"
-    trajectory.save(replace(trajectory.load(blind_log), head_pan=None), log)
+    log = tmp_path / "nofield.npz"
+    trajectory.save(replace(trajectory.load(blind_log), field=None), log)
     init = _write_model(learned, tmp_path / "init.json", _effects(entry))
     assert main(["learn", str(log), "--init", str(init), "--out", str(tmp_path / "m.json")]) == 2
     _one_line_error(capsys, f"--init {init}", f"'{field}'", what)
@@ -568,15 +568,15 @@ def test_diagnose_reports_candidates_the_log_cannot_support(blind_log, tmp_path,
 
     from aibo_core import trajectory
 
-    log = tmp_path / "nopan.npz"
-    trajectory.save(replace(trajectory.load(blind_log), head_pan=None), log)
+    log = tmp_path / "nofield.npz"
+    trajectory.save(replace(trajectory.load(blind_log), field=None), log)
     out = tmp_path / "D"
-    assert main(["diagnose", str(log), "--out", str(out), "--candidates", "floor_drift,off_center_shrink",
+    assert main(["diagnose", str(log), "--out", str(out), "--candidates", "floor_drift,wall_contact",
                  "--jobs", "1", "--replicas", "0"]) == 0
     text = capsys.readouterr().out
-    assert "off_center_shrink: not tried" in text and "head_pan" in text
+    assert "wall_contact: not tried" in text and "field" in text
     report = json.loads((out / "report.json").read_text())
-    assert list(report["not_tried"]) == ["off_center_shrink"]
+    assert list(report["not_tried"]) == ["wall_contact"]
     assert [c["name"] for c in report["candidates"]] == ["floor_drift"]
 
 

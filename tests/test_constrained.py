@@ -145,7 +145,8 @@ def test_weights_the_unicycle_holds_at_zero_are_reported_as_fixed_not_estimated(
     np.testing.assert_array_equal(res.params.action.zero_cells(), held)
     assert np.all(w[held] == 0.0), w  # the finish did not move them
     assert info["fixed"] == UNICYCLE_HELD
-    assert info["parameters"] == 15 - 8 + 11  # 7 free weights, 3 curve nodes + 2 sigmas + 6 log-Cholesky
+    # 7 free weights, 3 curve nodes + 2 sigmas + 6 log-Cholesky, the range's shrink k (EMOptions.range_shrink)
+    assert info["parameters"] == 15 - 8 + 12
     assert not set(UNICYCLE_HELD) & set(info["undetermined"] + info["weakest_direction"]), info
     se = np.array(res.info["standard_errors"]["action_model.weights"], dtype=float)
     assert np.all(se[held] == 0.0) and np.all(np.isfinite(se)) and np.all(se[~held] > 0), se

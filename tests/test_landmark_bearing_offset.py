@@ -162,29 +162,32 @@ def test_diagnose_does_not_name_it_without_offsets(tmp_path, noise, seed):
 @pytest.mark.realdata
 @pytest.mark.skipif(not (MRCLAM / "Robot1_Odometry.dat").is_file(),
                     reason=f"MRCLAM Dataset 7 not found at {MRCLAM} (see README, 'Real robot logs (MRCLAM)')")
-def test_real_robot1_offsets_gain_but_are_not_the_vicon_ones():
-    """Robot 1, first 5 minutes (unicycle, no lag): the offsets gain 112 nats over the base fit (14 numbers) and take the
-    landmark out of the bearing residuals (the signature's serial-correlation-robust p-value 2e-9 -> above 0.01).
-    Their values are not the markers' (Vicon, ``scripts/mrclam_bearing_offsets.py``): the 8 landmarks south of the
-    field (y < -2 m) come out +15..+34 mrad and the 7 north of it +8..-58 mrad (south minus north +52 mrad), where the
-    residuals at the Vicon poses give -10..+8 mrad per landmark and -6 mrad south minus north. That contrast is the
-    weak direction: the robot sees one group or the other, and in between its heading may turn by as much (the model's
-    sigma_angle is 4-6 mrad, the residuals' at the Vicon poses 27: the bearings steer the heading)."""
+def test_real_robot1_offsets_gain_and_their_contrast_is_the_vicon_one_once_the_range_is_depth():
+    """Robot 1, first 5 minutes (unicycle, no lag): the offsets gain 69 nats over the base fit (14 numbers) and take the
+    landmark out of the bearing residuals (the signature's serial-correlation-robust p-value 0.003 -> 0.81).
+
+    Before the base fitted the range's shrink (``EMOptions.range_shrink``: MRCLAM's range is depth along the camera's
+    axis, k = 0.44 here), the offsets gained 112 nats and their values were not the markers' (Vicon,
+    ``scripts/mrclam_bearing_offsets.py``): the 8 landmarks south of the field (y < -2 m) came out +15..+34 mrad and
+    the 7 north of it +8..-58 mrad (south minus north +52 mrad), where the residuals at the Vicon poses give -10..+8
+    mrad per landmark and -6 mrad south minus north; the base's p-value was 3e-8. Much of what the offsets took up
+    was the range read as distance; with the shrink the contrast is -4 mrad."""
     from learners.discrepancy.signatures import signatures
 
     tr = import_robot(MRCLAM, 1, dt=0.1, seconds=300.0)
     opts = EMOptions(seed=0, lag_search=False, uncertainty=False)
     base = EMLearner(opts).fit([tr])
+    assert 0.3 < base.params.effect("off_center_shrink").k < 0.6
     fit = EMLearner(opts).fit([tr], init=base.params.with_effect(LandmarkBearingOffset.start(make_batch([tr]))))
     assert fit.loglik[-1] - base.loglik[-1] > 50.0, (base.loglik[-1], fit.loglik[-1])
 
     def p_value(model) -> float:
         return next(s.p_value for s in signatures(model, [tr]) if (s.residual, s.variable) == ("bearing (sigma)", "landmark"))
 
-    assert p_value(base.params) < 1e-6 and p_value(fit.params) > 0.01  # robust p (Newey-West): 2e-9 before
+    assert p_value(base.params) < 0.01 and p_value(fit.params) > 0.1  # robust p (Newey-West)
     offset = fit.params.effect("landmark_bearing_offset").offset_rad
     south = tr.landmarks[:, 1] < -2000.0
-    assert np.mean(offset[south]) - np.mean(offset[~south]) > 0.03, offset  # Vicon: -6 mrad
+    assert abs(np.mean(offset[south]) - np.mean(offset[~south]) - (-0.006)) < 0.015, offset  # Vicon: -6 mrad
 
 
 def test_diagnose_tries_it_only_when_asked_for():

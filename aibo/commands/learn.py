@@ -28,7 +28,7 @@ def em_options(args) -> EMOptions:
     if args.patience is not None:
         opts.patience = args.patience
     for name in ("sensor_method", "learn_motion_noise", "accel", "alias_search", "lag_search", "finish", "range_curve",
-                 "face_value_gate"):
+                 "range_shrink", "face_value_gate"):
         if getattr(args, name) is not None:
             setattr(opts, name, getattr(args, name))
     if args.gate is not None:
@@ -105,6 +105,11 @@ def uncertainty_report(result: LearnResult) -> list[str]:
         if key in se:
             err = "undetermined" if se[key] is None else format(se[key], ".2g")
             lines.append(f"  {key.split('.')[1]}: {getattr(result.params.sensor, _SIGMA[key]):.4g} +- {err}")
+    for key, err in se.items():  # the effects the fit carries (a range's shrink: EMOptions.range_shrink)
+        name, _, pname = key.removeprefix("effects.").partition(".")
+        if key.startswith("effects.") and result.params.effect(name) is not None and np.ndim(err) == 0:
+            value = float(np.asarray(result.params.effect(name).values()[pname]))
+            lines.append(f"  {name}.{pname}: {value:.4g} +- {'undetermined' if err is None else format(err, '.2g')}")
     if inf["undetermined"]:
         lines.append(f"  undetermined (no sighting depends on them): {', '.join(inf['undetermined'][:6])}"
                      + (" ..." if len(inf["undetermined"]) > 6 else ""))

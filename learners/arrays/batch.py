@@ -13,6 +13,7 @@ from functools import cached_property
 
 import numpy as np
 
+from aibo_core.geometry import wrap
 from aibo_core.trajectory import Trajectory
 
 
@@ -86,6 +87,14 @@ class Batch:
     def sight_log(self) -> np.ndarray:
         """(S,) log of each sighting."""
         return np.searchsorted(self.frame_start, self.sight_frame, side="right") - 1
+
+    @cached_property
+    def image_angle(self) -> np.ndarray:
+        """(S,) rad: each sighting's measured position in the image, its bearing - the head pan (wrapped); with no
+        head pan (a camera fixed to the body) the bearing itself."""
+        if self.head_pan is None:
+            return np.asarray(self.sight_value[:, 1], float)
+        return wrap(self.sight_value[:, 1] - self.head_pan[self.sight_frame])
 
     def with_used(self, used: np.ndarray) -> "Batch":
         return replace(self, used=np.asarray(used, dtype=bool))

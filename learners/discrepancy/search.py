@@ -337,9 +337,11 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
              "sightings set aside")
     current, current_ll = base, base_ll
     rounds, named = [], []
-    remaining = [c for c in candidates if applicable(c, logs)]
-    skipped = {c: "the log(s) hold no " + ", ".join(NEEDS_WORDS.get(need, need) for need in EFFECT_MODELS[c].NEEDS
-                                                    if any(getattr(tr, need) is None for tr in logs))
+    in_base = {e.name for e in base.effects}  # fitted by the base itself (a range's shrink: EMOptions.range_shrink)
+    remaining = [c for c in candidates if applicable(c, logs) and c not in in_base]
+    skipped = {c: "in the base model already (aibo learn fits it on this sensor)" if c in in_base else
+               "the log(s) hold no " + ", ".join(NEEDS_WORDS.get(need, need) for need in EFFECT_MODELS[c].NEEDS
+                                                 if any(getattr(tr, need) is None for tr in logs))
                for c in candidates if c not in remaining}
     for name, why in skipped.items():
         progress(f"  {name}: not tried ({why})")

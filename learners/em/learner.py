@@ -32,6 +32,7 @@ from learners.em.support import (
     mirror_warnings,
     weak_command_warnings,
 )
+from learners.model.catalogue import OffCenterShrink
 from learners.model.initial import DEFAULT_INITIAL, InitialState
 from learners.model.model import Model, start_model
 
@@ -224,6 +225,8 @@ class EMLearner:
             raise StartModelError(f"the start model's sensor measures {start.sensor.kind}, the log {tr.sensor_kind}",
                                   "sensor_model.kind", "sensor_kind")
         start = start.with_(sensor=start.sensor.in_basis(basis, degree))
+        if init is None and tr.sensor_kind == "range_mm" and self.options.range_shrink:
+            start = start.with_effect(OffCenterShrink(0.0))  # a range is depth (EMOptions.range_shrink)
         if len(start.init) != len(logs):
             start = replace(start, init=tuple(start.init[0] if len(start.init) == 1 else DEFAULT_INITIAL
                                               for _ in logs))

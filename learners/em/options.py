@@ -72,6 +72,12 @@ class EMOptions:
     # and screens no stretched starts; "free": EM fits the cubic as for a height (the paper). Default "held"
     # (deviation from the paper, measured on the five MRCLAM robots: docs/results.md, "Why robots 3 and 4 ...")
     range_curve: str = "held"
+    # a range sensor (range_mm) from the paper's start: the range's shrink away from the image centre (the effect
+    # ``off_center_shrink``, k from 0) fitted with the rest. A range computed from a landmark's apparent size is the
+    # depth along the camera's axis (d cos(phi)), not the distance; held at the distance, EM read the range's sweep
+    # across the image on arcs as forward motion (MRCLAM robot 5's whole-log forward error 0.69x the face value's;
+    # with it 0.36-0.47x on all five robots: docs/results.md, "A range is depth"). Paper: off (a camera's heights).
+    range_shrink: bool = True
     # continuous (v, omega) commands with a range sensor, from a start that stands still (the paper's): the
     # first-iteration outlier gate is judged once, under the commands' face value, and every start sees the same
     # sightings (``learners.em.learner.face_value_gate``); a warm start (one that moves) is gated at itself
@@ -92,7 +98,7 @@ class EMOptions:
         base = dict(sensor_method="sample", learn_motion_noise=False, accel="none", min_improvement=0.0,
                     patience=STRICT_PATIENCE,
                     basis="power", degree=3, starts=1, alias_search=False, lag_search=False, range_curve="free",
-                    face_value_gate=False)
+                    range_shrink=False, face_value_gate=False)
         return cls(**{**base, **overrides})
 
     def validate(self) -> "EMOptions":

@@ -409,8 +409,12 @@ def _size_fit(model: "Model", batch: Batch, post: Posterior, skip: EffectModel):
 @register_effect
 @dataclass(frozen=True)
 class OffCenterShrink(EffectModel):
-    """Apparent height shrinks away from the image centre: size x (1 - k phi^2), phi = bearing - head pan
-    (rad; the observed bearing stands in for the true one). Residual signature: position in the image."""
+    """The size measurement shrinks away from the image centre: size x (1 - k phi^2), phi the sighting's position in
+    the image (rad: bearing - head pan, ``Batch.image_angle``; the observed bearing stands in for the true one). On a
+    camera's landmark heights: lens falloff. On a range computed from a landmark's apparent size (MRCLAM's): the depth
+    along the camera's axis, d cos(phi) ~ d (1 - phi^2 / 2), not the distance d; ``aibo learn`` therefore fits it on
+    every range sensor (``EMOptions.range_shrink``). A camera fixed to the body (no head pan) has phi = the bearing.
+    Residual signature: position in the image."""
 
     k: float
 
@@ -419,11 +423,9 @@ class OffCenterShrink(EffectModel):
     PARAMS: ClassVar[dict[str, Param]] = {"k": Param("1/rad^2", "scaled", 0.05, low=-10.0, high=10.0, shape=())}
     PROBE: ClassVar[dict[str, Any]] = {"k": 0.3}
     EXAMPLE: ClassVar[dict[str, Any]] = {"k": 0.2}
-    NEEDS: ClassVar[tuple[str, ...]] = ("head_pan",)
 
     def factor(self, batch: Batch) -> np.ndarray:
-        phi = wrap(batch.sight_value[:, 1] - batch.head_pan[batch.sight_frame])
-        return 1.0 - self.k * phi * phi
+        return 1.0 - self.k * batch.image_angle ** 2
 
     def lower(self, lo: Lowered, batch: Batch) -> None:
         lo.size_scale = lo.size_scale * self.factor(batch)
@@ -431,7 +433,7 @@ class OffCenterShrink(EffectModel):
     def maximize(self, model: "Model", batch: Batch, post: Posterior, mu_star: np.ndarray) -> "Model":
         """z = f (1 - k phi^2) is linear in k: k = sum w f phi^2 (f - z) / sum w f^2 phi^4."""
         idx, _, f, z, w = _size_fit(model, batch, post, self)
-        phi2 = wrap(batch.sight_value[idx, 1] - batch.head_pan[batch.sight_frame[idx]]) ** 2
+        phi2 = batch.image_angle[idx] ** 2
         den = np.sum(w * f * f * phi2 * phi2)
         return model.with_effect(OffCenterShrink(float(np.sum(w * f * phi2 * (f - z)) / den))) if den > 0 else model
 
