@@ -2,12 +2,15 @@
 
     python scripts/diagnose_power.py [--seeds 20] [--presets aibo,paper-sim] [--wall-seeds 0] [--power-seeds 5]
                                      [--minutes 10] [--effects a,b] [--pair-seeds 0] [--pair-minutes M] [--out runs/power]
+                                     [--candidates all|defaults|a,b,...]
 
 The published tables (docs/results.md, README "How often aibo diagnose is wrong"), in one command (about 1 h on 2
 cores): ``python scripts/diagnose_power.py --presets aibo,paper-sim --seeds 25 --wall-seeds 25 --power-seeds 10
 --pair-seeds 10 --minutes 5 --pair-minutes 10``.
 
-Blind simulated logs, every effect of the catalogue a candidate:
+Blind simulated logs, every effect of the catalogue a candidate (``--candidates all``, the published tables), or the
+candidates ``aibo diagnose`` tries by default (``--candidates defaults``: the study as the command runs; give it its own
+``--out``, the finished runs are not told apart by their candidates), or a list:
 - effect-free logs, ``--seeds`` per noise preset, and ``--wall-seeds`` per preset whose random walk leaves the
   field by 800 mm (the robot meets the walls: ``wall_contact`` is there and is the one right name). A false alarm
   is a log with any other named effect (family-wise; target: at most 5%), with its exact (Clopper-Pearson) 95%
@@ -84,21 +87,38 @@ WALL_MARGIN_MM = -800.0  # the random walk's margin to the walls: negative, it l
 
 
 def one(effect: str | None, params: dict | None, seed: int, minutes: float, preset: str = "aibo",
-        walls: bool = False, effects: dict | None = None) -> dict:
-    """One blind log, diagnosed with every candidate: what was named, with what values, and how long it took (s).
-    ``effects``: several hidden effects at once ({name: parameters}; ``effect`` is then the pair's label)."""
+        walls: bool = False, effects: dict | None = None, candidates: list[str] | None = None) -> dict:
+    """One blind log, diagnosed with ``candidates`` (None: every effect of the catalogue): what was named, with what
+    values, and how long it took (s). ``effects``: several hidden effects at once ({name: parameters}; ``effect`` is
+    then the pair's label)."""
     hidden = effects if effects is not None else ({effect: params} if effect else {})
     config = {"noise": preset, "effects": hidden}
     policy = {"margin_mm": WALL_MARGIN_MM} if walls else None
     tr = blind(collect(config, int(minutes * 60 * 30), seed=seed, policy_params=policy))
     t0 = time.perf_counter()
-    found = search([tr], sorted(EFFECT_MODELS), EMOptions(), jobs=2, progress=lambda s: None)
+    found = search([tr], sorted(candidates or EFFECT_MODELS), EMOptions(), jobs=2, progress=lambda s: None)
     named = [c.name for c in found["named"]]
     values = {n: {k: np.asarray(v).tolist() for k, v in found["model"].effect(n).values().items()} for n in named}
     return {"effect": effect or "none", "params": params if effects is None else effects, "seed": seed,
             "preset": preset, "walls": walls, "named": named, "values": values,
             "unexplained": [c.name for c in found["probes"] if c.significant],
             "detected": first_named(named) == right_answer(effect or "none"), "seconds": time.perf_counter() - t0}
+
+
+def chosen_candidates(arg: str) -> list[str] | None:
+    """``--candidates``: None for "all" (every effect of the catalogue), ``aibo diagnose``'s defaults for "defaults",
+    else the names given (each checked against the catalogue)."""
+    if arg == "all":
+        return None
+    if arg == "defaults":
+        from aibo.commands.diagnose import candidates
+
+        return list(candidates(None))
+    names = [n for n in arg.split(",") if n]
+    unknown = [n for n in names if n not in EFFECT_MODELS]
+    if unknown or not names:
+        raise SystemExit(f"--candidates: not in the catalogue: {', '.join(unknown) or '(none given)'}")
+    return names
 
 
 def first_named(named: list[str]) -> str:
@@ -147,7 +167,10 @@ def main() -> None:
     ap.add_argument("--pair-seeds", type=int, default=0, help="logs per pair of effects (PAIRS)")
     ap.add_argument("--pair-minutes", type=float, default=None, help="length of the pairs' logs (default: --minutes)")
     ap.add_argument("--out", default="runs/power")
+    ap.add_argument("--candidates", default="all",
+                    help="all (every effect of the catalogue), defaults (aibo diagnose's), or a comma-separated list")
     args = ap.parse_args()
+    candidates = chosen_candidates(args.candidates)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     # one file per process: two processes rewriting one file would each drop the other's runs
@@ -171,8 +194,9 @@ def main() -> None:
         if (effect or "none", json.dumps(params), seed, preset, walls) in key:
             continue
         pair = effect is not None and effect not in STRENGTHS
-        r = (one(effect, None, seed, args.pair_minutes or args.minutes, preset, walls, effects=params) if pair
-             else one(effect, params, seed, args.minutes, preset, walls))
+        r = (one(effect, None, seed, args.pair_minutes or args.minutes, preset, walls, effects=params,
+                 candidates=candidates) if pair
+             else one(effect, params, seed, args.minutes, preset, walls, candidates=candidates))
         done.append(r)
         write_jsonl(done_path, done)
         print(f"{r['effect']:26s} {json.dumps(r['params'])!s:45s} {preset}{' walls' if walls else ''} seed {seed}: "

@@ -43,7 +43,7 @@ def test_a_second_process_keeps_its_runs_in_its_own_file(tmp_path, monkeypatch):
     from aibo_core.atomic import read_jsonl
 
     dp = _load()
-    monkeypatch.setattr(dp, "one", lambda effect, params, seed, minutes, preset, walls, effects=None: {
+    monkeypatch.setattr(dp, "one", lambda effect, params, seed, minutes, preset, walls, effects=None, candidates=None: {
         "effect": effect or "none", "params": params, "seed": seed, "preset": preset, "walls": walls, "named": [],
         "seconds": 0.0})
     seen = []
@@ -54,3 +54,27 @@ def test_a_second_process_keeps_its_runs_in_its_own_file(tmp_path, monkeypatch):
         dp.main()
     assert len(read_jsonl(tmp_path / "runs.jsonl")) == 3 and len(read_jsonl(tmp_path / "runs-from-1.jsonl")) == 3
     assert seen == [3, 6, 6]  # the third run finds seed 1's runs in the other file: nothing to do again
+
+
+def test_the_study_runs_with_the_commands_default_candidates_when_asked(tmp_path, monkeypatch):
+    """``--candidates defaults``: what ``aibo diagnose`` tries without ``--candidates`` (not the effects it tries only
+    when asked for); "all": every effect (None); a list is checked against the catalogue."""
+    import pytest
+
+    from aibo.commands.diagnose import candidates
+
+    dp = _load()
+    assert dp.chosen_candidates("all") is None
+    assert dp.chosen_candidates("defaults") == list(candidates(None))
+    assert "heavy_tailed_noise" not in dp.chosen_candidates("defaults")
+    assert dp.chosen_candidates("floor_drift,wall_contact") == ["floor_drift", "wall_contact"]
+    given = []
+    monkeypatch.setattr(dp, "one", lambda *a, candidates=None, **k: given.append(candidates) or {
+        "effect": "none", "params": None, "seed": a[2], "preset": a[4], "walls": a[5], "named": [], "seconds": 0.0})
+    monkeypatch.setattr(dp, "summarize", lambda runs, out: None)
+    monkeypatch.setattr(sys, "argv", ["diagnose_power.py", "--seeds", "1", "--power-seeds", "0", "--candidates",
+                                      "defaults", "--out", str(tmp_path)])
+    dp.main()
+    assert given == [list(candidates(None))]
+    with pytest.raises(SystemExit, match="not in the catalogue: nope"):
+        dp.chosen_candidates("floor_drift,nope")
