@@ -73,3 +73,15 @@ def test_real_robot5_whole_log_forward_speed_within_0_6_of_the_face_value():
     got, face = velocity_scores(res.params, [tr]), velocity_scores(face_value_model(res.params), [tr])
     assert 0.3 < res.params.effect("off_center_shrink").k < 0.6
     assert got["vx_rms"] < 0.6 * face["vx_rms"], (got, face)
+
+
+def test_diagnose_does_not_try_the_shrink_its_base_fits_already():
+    """The search's base model is ``aibo learn``'s: on a range sensor it carries the shrink, so ``off_center_shrink`` as a
+    candidate is reported "not tried" with the reason (a candidate identical to its null would gain nothing)."""
+    from learners.discrepancy.search import search
+
+    tr = collect_wheeled({"effects": {"off_center_shrink": {"k": 0.3}}}, 3000, seed=4)
+    found = search([tr], ["off_center_shrink"], EMOptions(seed=0), jobs=1, progress=lambda s: None)
+    assert found["skipped"] == {"off_center_shrink": "in the base model already (aibo learn fits it on this sensor)"}
+    assert found["named"] == [] and found["rounds"] == []
+    assert found["model"].effect("off_center_shrink").k > 0.2
