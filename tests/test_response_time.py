@@ -77,6 +77,9 @@ def test_aibo_diagnose_tells_a_response_time_from_a_lag(tmp_path, effects, named
                  "--replicas", "0"]) == 0
     report = json.loads((out / "report.json").read_text())
     assert [e["name"] for e in report["effects"]] == named
+    # the base model's own effect (aibo learn's range shrink), reported with its final value: ~0 on this simulator
+    (shrink,) = report["base_effects"]
+    assert shrink["name"] == "off_center_shrink" and abs(shrink["parameters"]["k"]) < 0.05, shrink
     if named == ["response_time"]:
         (entry,) = report["effects"][0]["intervals"].values()
         low, high = entry["interval_95"]
@@ -94,5 +97,5 @@ def test_on_discrete_commands_it_is_not_tried_and_the_report_says_why(tmp_path):
     trajectory.save(collect({}, 1500, seed=1), log)
     assert main(["diagnose", str(log), "--out", str(out), "--candidates", "response_time", "--replicas", "0"]) == 0
     report = json.loads((out / "report.json").read_text())
-    assert report["effects"] == [] and report["candidates"] == []
+    assert report["effects"] == [] and report["candidates"] == [] and report["base_effects"] == []
     assert report["not_tried"] == {"response_time": "the log(s) hold no continuous commands (controls)"}

@@ -34,6 +34,7 @@ from learners.em.learner import feature_map_for
 from learners.em.options import EMOptions
 from learners.model.effects import EFFECT_MODELS
 from learners.model.io import save_result
+from learners.model.model import Model
 
 FIGURES = ("signatures.png", "gap.png", "calibrated.png")
 #: Every file of a diagnosis: the --out folder holds these and nothing else (it is replaced whole).
@@ -102,6 +103,10 @@ def run(args) -> int:
         say(f"  {name}: present or not, {note}")
     for name, why in report["not_tried"].items():
         say(f"  {name}: not tried, {why}")
+    report["base_effects"] = base_effects(final.result.params, report["effects"])
+    for e in report["base_effects"]:
+        say(f"  {e['name']}: in the base model (aibo learn fits it on this sensor), {fig.short(e['parameters'])} in the "
+            "final fit")
     say(f"gap ({GAP_METRIC}): {before.gap:.4f} before, {after.gap:.4f} after; mean NIS {before.nis_mean:.2f} -> "
         f"{after.nis_mean:.2f} (2 expected)")
     say(f"motion gap ({MOTION_GAP_METRIC}, each held-out sighting predicted from the pose k s earlier and the "
@@ -291,6 +296,13 @@ against the probe's fitted factor)."""
                     "why_not_named": "no effect of the catalogue is this dependence; the named effects do not explain it",
                     "signature": sig.as_dict() if sig is not None else None})
     return out
+
+
+def base_effects(final: Model, named: list[dict]) -> list[dict]:
+    """The effects the diagnosed model carries that no candidate named: the base model's own (``aibo learn``'s range
+    shrink on a range sensor: ``EMOptions.range_shrink``), with their values in the final fit."""
+    names = {e["name"] for e in named}
+    return [e.to_json() for e in final.effects if e.name not in names]
 
 
 def _report(found: dict, effects: list[dict], before, after, sig_before) -> dict:
