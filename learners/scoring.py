@@ -180,9 +180,9 @@ def sensor_scores(model: Model, logs: list[Trajectory]) -> dict[str, float]:
     grid = np.linspace(lo, hi, 400)
     truth = replace(model.sensor, coef=coef).mean(grid)
     d, z, _ = true_sightings(logs)
-    lo = model.lower(make_batch(logs))  # each sighting's scale and offset of the model's effects (a range's shrink)
+    lowered = model.lower(make_batch(logs))  # each sighting's scale and offset of the model's effects (a range's shrink)
     ok = np.concatenate([_valid_poses(tr)[tr.sighting_frame + 1] for tr in logs])
-    mean = lo.size_scale[ok] * model.sensor.mean(d) + lo.size_offset[ok]
+    mean = lowered.size_scale[ok] * model.sensor.mean(d) + lowered.size_offset[ok]
     return {"range_curve_rms": float(np.sqrt(np.mean((model.sensor.mean(grid) - truth) ** 2))),
             "range_rms": float(np.sqrt(np.mean((z - mean) ** 2))),
             "sigma_range": float(model.sensor.sigma_size), "sigma_bearing": float(model.sensor.sigma_bearing)}
