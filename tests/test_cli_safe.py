@@ -766,3 +766,20 @@ def test_diagnose_help_names_every_effect_tried_only_when_asked_for(capsys):
     text = " ".join(capsys.readouterr().out.split())
     asked = [name for name, cls in EFFECT_MODELS.items() if not cls.DEFAULT_CANDIDATE]
     assert asked and all(name in text for name in asked), asked
+
+
+def test_a_named_effect_the_final_fit_takes_to_nothing_is_warned_about():
+    """``negligible_when_final``: false_sightings named on the training half, its rate in the whole-log fit so small that
+    it stands for about one sighting (the false-alarm study's paper-sim log 3000: 0.0031 when named, 0.0003 final)."""
+    from aibo.commands.diagnose import negligible_when_final
+    from aibo_gym.collect import collect
+    from learners.em.learner import EMLearner
+    from learners.em.options import EMOptions
+    from learners.model.catalogue_more import FalseSightings
+
+    tr = collect({}, 600, seed=1)
+    model = EMLearner(EMOptions(max_iter=3, uncertainty=False, alias_search=False)).fit([tr]).params
+    named = [{"name": "false_sightings"}]
+    tiny = negligible_when_final(model.with_effect(FalseSightings(0.0003)), named, [tr])
+    assert len(tiny) == 1 and tiny[0].startswith("false_sightings: named, but in the final fit") and "negligible" in tiny[0]
+    assert negligible_when_final(model.with_effect(FalseSightings(0.2)), named, [tr]) == []
