@@ -103,13 +103,14 @@ def uncertainty_report(result: LearnResult) -> list[str]:
             *np.sqrt(np.nanmean(v**2, axis=0))))
     for key in ("sensor_model.sigma_height", "sensor_model.sigma_range_mm", "sensor_model.sigma_angle"):
         if key in se:
-            err = "undetermined" if se[key] is None else format(se[key], ".2g")
-            lines.append(f"  {key.split('.')[1]}: {getattr(result.params.sensor, _SIGMA[key]):.4g} +- {err}")
+            lines.append(f"  {key.split('.')[1]}: {_plus_minus(getattr(result.params.sensor, _SIGMA[key]), se[key])}")
     for key, err in se.items():  # the effects the fit carries (a range's shrink: EMOptions.range_shrink)
-        name, _, pname = key.removeprefix("effects.").partition(".")
-        if key.startswith("effects.") and result.params.effect(name) is not None and np.ndim(err) == 0:
-            value = float(np.asarray(result.params.effect(name).values()[pname]))
-            lines.append(f"  {name}.{pname}: {value:.4g} +- {'undetermined' if err is None else format(err, '.2g')}")
+        if not key.startswith("effects."):
+            continue
+        _, name, pname = key.split(".", 2)
+        effect = result.params.effect(name)
+        if effect is not None and np.ndim(err) == 0:
+            lines.append(f"  {name}.{pname}: {_plus_minus(float(np.asarray(effect.values()[pname])), err)}")
     if inf["undetermined"]:
         lines.append(f"  undetermined (no sighting depends on them): {', '.join(inf['undetermined'][:6])}"
                      + (" ..." if len(inf["undetermined"]) > 6 else ""))
@@ -117,6 +118,11 @@ def uncertainty_report(result: LearnResult) -> list[str]:
         lines.append(f"  fixed by the model, not estimated (standard error 0): {', '.join(inf['fixed'][:6])}"
                      + (" ..." if len(inf["fixed"]) > 6 else ""))
     return lines
+
+
+def _plus_minus(value: float, err: float | None) -> str:
+    """"value +- standard error" as the standard-error lines print it (None: undetermined)."""
+    return f"{value:.4g} +- {'undetermined' if err is None else format(err, '.2g')}"
 
 
 _SIGMA = {"sensor_model.sigma_height": "sigma_size", "sensor_model.sigma_range_mm": "sigma_size",

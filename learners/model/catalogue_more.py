@@ -50,7 +50,6 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from aibo_core.geometry import wrap
 from learners.arrays.batch import Batch
 from learners.arrays.innovations import Innovations
 from learners.arrays.lowered import Lowered
@@ -90,8 +89,7 @@ def spurious_log_density(batch: Batch) -> float:
     z = batch.sight_value[batch.used]
     size_span = float(np.ptp(z[:, 0])) if len(z) > 1 else 1.0
     if batch.head_pan is not None and len(z) > 1:
-        phi = wrap(z[:, 1] - batch.head_pan[batch.sight_frame[batch.used]])
-        angle_span = float(np.ptp(phi))
+        angle_span = float(np.ptp(batch.image_angle[batch.used]))
     else:
         angle_span = 2.0 * math.pi
     return -math.log(max(size_span, 1e-9) * max(angle_span, 1e-9))

@@ -23,7 +23,8 @@ L-BFGS-B from the current values); then each sighting's expected precision at th
 own closed-form steps crawl along the rate-scale ridge (docs/results.md, "A scale mixture of the noise"). Standard
 errors: ``conditional_errors`` (the EKF's Fisher information cannot see a mixture's parameters). Not named below a rate
 of ``MIN_RATE`` (outliers) or a scale of ``MIN_SCALE`` (a slightly mis-specified Gaussian); not a default candidate:
-on the MRCLAM robots it trades robot 4's forward speed for robot 1's (docs/results.md).
+on the MRCLAM robots it traded robot 4's forward speed for robot 1's with the range held at the distance, and with the
+range's shrink in the base it is named on 1 of 10 halves (docs/results.md).
 """
 
 from __future__ import annotations
