@@ -10,8 +10,8 @@ wheeled robot's log, ``aibo_gym.collect_wheeled.collect_wheeled``, "preset" ``wh
 LOG --candidates EFFECT` does to name it and to estimate it, in this process: the search
 (``learners.discrepancy.search.search``, one candidate, one worker, diagnose's options) and, the effect named, the
 final fit on the whole log with each named parameter's 95% interval (``learners.discrepancy.final.diagnosed``, the
-function ``aibo diagnose`` calls; Wald from the Fisher information, the profile or conditional likelihood interval
-where Wald fails, the search's grid profile for the lag).
+function ``aibo diagnose`` calls; Wald with the robust standard errors (``--fisher`` tabulates the Fisher ones kept
+beside them), the profile or conditional likelihood interval where Wald fails, the search's grid profile for the lag).
 What the study skips of the command (the scores, signatures, motion gaps, the calibrated check, the page) does not
 change the named effects or their intervals. Every random choice is the log's seed or diagnose's ``--seed 0``.
 
@@ -133,12 +133,15 @@ def components(row: dict[str, Any]) -> list[tuple[str, int | None]]:
             ([None] if np.ndim(v) == 0 else range(len(v)))]
 
 
-def cell(entry: dict[str, Any], j: int | None) -> tuple[float, float | None, list[float] | None]:
-    """(estimate, standard error or None, [lo, hi] or None) of component ``j`` of an interval entry."""
+def cell(entry: dict[str, Any], j: int | None, fisher: bool = False) -> tuple[float, float | None, list[float] | None]:
+    """(estimate, standard error or None, [lo, hi] or None) of component ``j`` of an interval entry (``fisher``: the
+    Fisher standard error and interval where the entry has them beside the robust ones, "se_fisher" and
+    "interval_95_fisher")."""
     pick = (lambda v: v) if j is None else (lambda v: v[j])
     value = float(pick(entry["value"]))
-    se = None if entry.get("se") is None else float(pick(entry["se"]))
-    iv = entry.get("interval_95")
+    tag = "_fisher" if fisher and entry.get("se_fisher") is not None else ""
+    se = None if entry.get("se" + tag) is None else float(pick(entry["se" + tag]))
+    iv = entry.get("interval_95" + tag)
     return value, se, None if iv is None else [float(pick(iv[0])), float(pick(iv[1]))]
 
 
@@ -164,9 +167,9 @@ def summary(values: list[float], ses: list[float | None], intervals: list[list[f
             "spread": spread, "spread_ratio": spread / se}
 
 
-def table(rows: list[dict[str, Any]]) -> str:
+def table(rows: list[dict[str, Any]], fisher: bool = False) -> str:
     """The markdown table (module docstring): per effect, parameter (component) and noise preset, over the logs where
-    the effect was named, with how many logs named it."""
+    the effect was named, with how many logs named it (``fisher``: of the Fisher intervals, ``cell``)."""
     lines = ["| effect | parameter | preset | truth | named | coverage (+- s.e.) | bias | SE | bias / SE (+- MC s.e.) | "
              "spread / SE | missing |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     order = {e: k for k, e in enumerate(STRENGTH)}
@@ -177,7 +180,7 @@ def table(rows: list[dict[str, Any]]) -> str:
             label = pname if j is None else f"{pname}[{j}]"
             for preset in [p for p in (*PRESETS, WHEELED) if any(r["preset"] == p for r in rs)]:
                 logs = [r for r in rs if r["preset"] == preset]
-                cells = [cell(e[pname], j) for e in (estimates(r) for r in logs) if e is not None]
+                cells = [cell(e[pname], j, fisher) for e in (estimates(r) for r in logs) if e is not None]
                 head = f"| {effect} | {label} | {preset} | {true:.4g} | {len(cells)} of {len(logs)} |"
                 if not cells:
                     lines.append(head + " | | | | | |")
@@ -203,6 +206,8 @@ def main() -> None:
     ap.add_argument("--minutes", type=float, default=5.0, help="log length (default 5: 9000 frames)")
     ap.add_argument("--out", default="runs/calibration")
     ap.add_argument("--table", action="store_true", help="only print the table of the rows in OUT")
+    ap.add_argument("--fisher", action="store_true",
+                    help="tabulate the Fisher intervals where the rows have them beside the robust ones (OUT/table-fisher.md)")
     args = ap.parse_args()
     out = Path(args.out)
     rows = all_rows(out)
@@ -230,8 +235,8 @@ def main() -> None:
         resume(out, rows_file, keys, lambda k: one(k["effect"], k["log"], k["minutes"]), lambda _: table(all_rows(out)),
                progress)
         rows = all_rows(out)
-    md = table(rows)
-    atomic_write(out / "table.md", lambda f: f.write(md.encode()))
+    md = table(rows, args.fisher)
+    atomic_write(out / ("table-fisher.md" if args.fisher else "table.md"), lambda f: f.write(md.encode()))
     print(md)
 
 

@@ -102,7 +102,7 @@ def test_diagnosed_is_the_final_fit_of_the_searched_model_with_each_named_effect
     profile, and ``parameters_when_named`` from the candidate."""
     from learners.arrays.batch import make_batch
     from learners.discrepancy.candidate import Candidate
-    from learners.discrepancy.effect_sizes import Z95
+    from learners.discrepancy.effect_sizes import ROBUST_WALD, Z95
     from learners.discrepancy.final import FINAL_FIT_STAGE, diagnosed, final_options
     from learners.discrepancy.fitting import SEARCH_PATIENCE
     from learners.em.learner import EMLearner
@@ -124,11 +124,14 @@ def test_diagnosed_is_the_final_fit_of_the_searched_model_with_each_named_effect
     assert [e["name"] for e in out.effects] == ["velocity_fade", "actuation_lag"]
     assert list(out.seconds) == [FINAL_FIT_STAGE] and out.profiled == []
     fade, lag = out.effects
-    se = out.result.info["standard_errors"]["effects.velocity_fade.fade_per_min"]
+    fisher = out.result.info["standard_errors"]["effects.velocity_fade.fade_per_min"]
+    se = out.result.info["robust_standard_errors"]["effects.velocity_fade.fade_per_min"]
     value = float(out.result.params.effect("velocity_fade").fade_per_min)
     iv = fade["intervals"]["fade_per_min"]
     assert fade["parameters"] == {"fade_per_min": value} and iv["value"] == value and iv["se"] == pytest.approx(se)
-    assert iv["method"] == "wald" and iv["interval_95"] == pytest.approx([value - Z95 * se, value + Z95 * se])
+    assert iv["method"] == ROBUST_WALD and iv["interval_95"] == pytest.approx([value - Z95 * se, value + Z95 * se])
+    assert se >= fisher and iv["se_fisher"] == pytest.approx(fisher)  # the larger of Fisher and sandwich; Fisher kept
+    assert iv["interval_95_fisher"] == pytest.approx([value - Z95 * fisher, value + Z95 * fisher])
     assert fade["parameters_when_named"] == {"fade_per_min": 0.004}
     assert lag["intervals"]["lag_s"]["interval_95"] == [0.0, 0.3]  # within 1.92 nats: 0.1 and 0.2, widened by a step
     assert lag["parameters_when_named"] == {"lag_s": 0.1}

@@ -64,7 +64,7 @@ def test_on_a_simulated_fade_the_profile_interval_agrees_with_the_wald_one():
     fit = EMLearner(replace(opts, starts=1, alias_search=False), check_field=False).fit([log], init=start)
     intervals = effect_intervals(fit.params, "velocity_fade", fit.info["standard_errors"])
     wald = intervals["fade_per_min"]
-    assert wald["method"] == "wald" and not wald["clipped"]
+    assert wald["method"] == "wald" and not wald["clipped"]  # the Fisher errors alone (no robust ones given)
     effects = [{"name": "velocity_fade", "intervals": intervals}]
     assert profile_where_wald_fails(effects, fit.params, [log], opts) == []  # a Wald interval inside the domain stays
     wald["clipped"] = True  # as if it had crossed the domain's bound

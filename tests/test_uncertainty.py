@@ -128,3 +128,47 @@ def test_a_log_too_long_for_the_memory_takes_the_coordinates_in_blocks_with_the_
     for key, se in whole.standard_errors.items():
         np.testing.assert_allclose(np.array(blocked.standard_errors[key], dtype=float), np.array(se, dtype=float),
                                    rtol=1e-4, equal_nan=True)
+
+
+def _with_laplace_sizes(model, batch, poses, seed: int):
+    """``batch`` with its sizes' noise drawn again from a Laplace distribution of the model's variance (kurtosis 6,
+    a Gaussian's 3): the model's noise then has the right width but the wrong shape."""
+    from dataclasses import replace
+
+    d = np.hypot(*(batch.sight_xy - poses[batch.sight_pose, :2]).T)
+    z = batch.sight_value.copy()
+    rng = np.random.default_rng(seed)
+    z[:, 0] = model.sensor.mean(d) + rng.laplace(0.0, model.sensor.sigma_size / np.sqrt(2.0), batch.n_sightings)
+    return replace(batch, sight_value=z)
+
+
+def test_the_robust_covariance_follows_the_noise_kurtosis_the_fisher_one_cannot_see():
+    """Known answer: with the poses known, sigma's estimate is sqrt(mean r^2), whose variance is (mu4 - sigma^4) /
+    (4 sigma^2 n): sigma^2 / (2 n) for Gaussian noise (the Fisher information's), 5 sigma^2 / (4 n) for Laplace noise
+    of the same variance, a standard error sqrt(2.5) = 1.58 times the Fisher one. The robust errors find that ratio
+    on the Laplace sizes and about 1 on the Gaussian log; the bearings (Gaussian in both) keep theirs."""
+    model, batch, poses = known_poses_case(BASIS_POWER, frames=12000)
+    ratio = {}
+    for name, b in (("gauss", batch), ("laplace", _with_laplace_sizes(model, batch, poses, seed=0))):
+        unc = parameter_uncertainty(model, b, fixed=SENSOR_ONLY)
+        assert unc.blocks == 40  # 400 s of log in blocks of ROBUST_BLOCK_S = 10 s
+        ratio[name] = {k: np.asarray(unc.robust_standard_errors[k], float) / np.asarray(unc.standard_errors[k], float)
+                       for k in ("sensor_model.sigma_height", "sensor_model.sigma_angle")}
+    assert 1.0 <= ratio["gauss"]["sensor_model.sigma_height"] < 1.15  # the larger of the two: never below 1
+    assert 1.0 <= ratio["gauss"]["sensor_model.sigma_angle"] < 1.15
+    assert 1.25 < ratio["laplace"]["sensor_model.sigma_height"] < 1.9, ratio  # 1.36-1.42 on seeds 0-3
+    np.testing.assert_allclose(ratio["laplace"]["sensor_model.sigma_angle"], ratio["gauss"]["sensor_model.sigma_angle"],
+                               rtol=1e-3)  # the poses move a little with the sizes
+
+
+def test_the_scores_block_sums_add_up_to_the_score():
+    """The per-sighting scores behind the robust covariance (``_score_weights``) are the likelihood's: their block
+    sums add up to the score the forward differences of the log-likelihood give."""
+    from learners.em.uncertainty import _Differences, _information, packed
+
+    model, batch, _ = known_poses_case(BASIS_POWER, frames=1500)
+    model = model.with_(sensor=model.sensor.with_values(sigma_size=0.9))  # off the optimum: a score to match
+    diff = _Differences(model, batch, packed(model, SENSOR_ONLY), SENSOR_ONLY, np.flatnonzero(batch.used), -1e-4)
+    coords = np.arange(len(packed(model, SENSOR_ONLY)))
+    _, score, blocks = _information(diff, coords, 2**30)
+    np.testing.assert_allclose(blocks.sum(axis=1), score, rtol=1e-4, atol=1e-3 * np.abs(score).max())

@@ -89,6 +89,7 @@ def starts_report(info: dict) -> list[str]:
 def uncertainty_report(result: LearnResult) -> list[str]:
     """Lines on the standard errors (``info["standard_errors"]``) and the information behind them."""
     se, inf = result.info.get("standard_errors"), result.info.get("information")
+    robust = result.info.get("robust_standard_errors") or {}
     if inf and "error" in inf:
         return [inf["error"]]
     if not se or not inf:
@@ -103,14 +104,17 @@ def uncertainty_report(result: LearnResult) -> list[str]:
             *np.sqrt(np.nanmean(v**2, axis=0))))
     for key in ("sensor_model.sigma_height", "sensor_model.sigma_range_mm", "sensor_model.sigma_angle"):
         if key in se:
-            lines.append(f"  {key.split('.')[1]}: {_plus_minus(getattr(result.params.sensor, _SIGMA[key]), se[key])}")
+            lines.append(f"  {key.split('.')[1]}: "
+                         f"{_plus_minus(getattr(result.params.sensor, _SIGMA[key]), se[key], robust.get(key))}")
     for key, err in se.items():  # the effects the fit carries (a range's shrink: EMOptions.range_shrink)
         if not key.startswith("effects."):
             continue
         _, name, pname = key.split(".", 2)
         effect = result.params.effect(name)
         if effect is not None and np.ndim(err) == 0:
-            lines.append(f"  {name}.{pname}: {_plus_minus(float(np.asarray(effect.values()[pname])), err)}")
+            value = float(np.asarray(effect.values()[pname]))
+            lines.append(f"  {name}.{pname}: {_plus_minus(value, err, robust.get(key))}")
+    lines += _robust_note(se, robust)
     if inf["undetermined"]:
         lines.append(f"  undetermined (no sighting depends on them): {', '.join(inf['undetermined'][:6])}"
                      + (" ..." if len(inf["undetermined"]) > 6 else ""))
@@ -120,9 +124,32 @@ def uncertainty_report(result: LearnResult) -> list[str]:
     return lines
 
 
-def _plus_minus(value: float, err: float | None) -> str:
-    """"value +- standard error" as the standard-error lines print it (None: undetermined)."""
-    return f"{value:.4g} +- {'undetermined' if err is None else format(err, '.2g')}"
+def _plus_minus(value: float, err: float | None, robust: float | None = None) -> str:
+    """"value +- standard error (robust R)" as the standard-error lines print it (None: undetermined)."""
+    text = f"{value:.4g} +- {'undetermined' if err is None else format(err, '.2g')}"
+    return text + (f" (robust {robust:.2g})" if err is not None and robust is not None and robust > err else "")
+
+
+#: ``aibo learn`` says so when a robust error is more than this many times its Fisher error
+ROBUST_RATIO_NOTE = 1.5
+
+
+def _robust_note(se: dict, robust: dict) -> list[str]:
+    """One line when the robust errors (``learners.em.uncertainty``: the larger of the Fisher and the sandwich one)
+    exceed the Fisher ones by more than ``ROBUST_RATIO_NOTE`` somewhere: the data vary more than the model says."""
+    worst, where = 1.0, ""
+    for key, err in se.items():
+        if key.startswith("initial_state") or key not in robust:
+            continue
+        a = np.array(np.ravel(np.array(err, dtype=object)), dtype=float)
+        b = np.array(np.ravel(np.array(robust[key], dtype=object)), dtype=float)
+        ok = np.isfinite(a) & np.isfinite(b) & (a > 0)
+        if a.shape == b.shape and ok.any() and np.max(b[ok] / a[ok]) > worst:
+            worst, where = float(np.max(b[ok] / a[ok])), key
+    if worst <= ROBUST_RATIO_NOTE:
+        return []
+    return [f"  robust errors up to {worst:.2g}x the Fisher ones ({where}): these data vary more than the model says "
+            "(info[\"robust_standard_errors\"]; quote those)"]
 
 
 _SIGMA = {"sensor_model.sigma_height": "sigma_size", "sensor_model.sigma_range_mm": "sigma_size",

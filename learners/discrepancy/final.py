@@ -100,7 +100,8 @@ def diagnosed(found: dict[str, Any], opts: EMOptions) -> Diagnosed:
     se = dict(final.info.get("standard_errors", {}))
     conditional = _conditional_errors(final.params, logs, [c.name for c in found["named"]], se)
     effects = [{"name": c.name, "parameters": _values(final.params.effect(c.name)),
-                "intervals": effect_intervals(final.params, c.name, se, c.profile),
+                "intervals": effect_intervals(final.params, c.name, se, c.profile,
+                                              final.info.get("robust_standard_errors")),
                 "parameters_when_named": c.as_dict()["parameters"]} for c in found["named"]]
     for e in effects:
         for pname in conditional.get(e["name"], ()):

@@ -40,6 +40,8 @@ class FitInfo:
     lag_search: dict | None = None
     scoring: dict | None = None
     standard_errors: dict | None = None
+    #: the same from the robust (sandwich) covariance (``learners.em.uncertainty.sandwich``)
+    robust_standard_errors: dict | None = None
     information: dict | None = None
     warnings: list[str] = field(default_factory=list)
     #: sightings the first gate, judged under the commands at face value, set aside (``learners.em.support``)
@@ -64,6 +66,8 @@ class FitInfo:
                 out[name] = getattr(self, name)
         if self.standard_errors is not None:
             out["standard_errors"] = self.standard_errors
+        if self.robust_standard_errors is not None:
+            out["robust_standard_errors"] = self.robust_standard_errors
         if self.information is not None:
             out["information"] = self.information
         if t and t.uncertainty is not None:

@@ -384,6 +384,7 @@ class EMLearner:
     def _set_uncertainty(info: FitInfo, unc, seconds: float, cpu_seconds: float) -> None:
         """Put ``unc``'s standard errors and information summary into ``info``; its cost (s) into the timings."""
         info.standard_errors, info.information = unc.standard_errors, unc.summary()
+        info.robust_standard_errors = unc.robust_standard_errors
         info.timings.uncertainty, info.timings.uncertainty_cpu = seconds, cpu_seconds
 
     def discard_checkpoint(self) -> None:

@@ -21,6 +21,19 @@ budget counts the passes' own arrays. The
 covariance of the estimate is I^-1 (Cramer-Rao); it is mapped to the model file's units by the
 delta method (the Jacobian of the file's numbers with respect to the packed parameters).
 
+Robust errors beside them (``Uncertainty.robust_standard_errors``, a model file's ``info["robust_standard_errors"]``):
+per entry the larger of the Fisher error and the sandwich error of I^-1 J I^-1 (Huber 1967, White 1982), J the
+variance of the score, estimated from the same derivatives: each sighting's score is its whitened derivative rows
+times ``_score_weights`` (no extra pass), summed over blocks of ``ROBUST_BLOCK_S`` of a log (batch means: scores
+correlated over less than a block, as a model's missing correlations make them, still give a consistent J). Where
+the model is the data's, J = I and the two agree, to J's sampling error; where it is not, the sandwich follows the
+data: Laplace size noise makes sigma's error sqrt(2.5) times the Fisher one (``tests/test_uncertainty.py``). The
+larger of the two, not the sandwich alone (Angrist & Pischke 2009, 8.1): a parameter whose score lives in a few
+blocks (one of 40 commands) has a sandwich error from a few numbers, often far too small. Measured
+(``scripts/se_halves.py``, docs/results.md "Robust standard errors"): between two fits of the same simulated robot
+the differences are about 1 of either error; between the two halves of an MRCLAM robot's log they are 1.7-4.8 Fisher
+errors and 1.0-2.5 robust ones.
+
 Parameters: every trainable parameter in ``Model.pack`` (velocities, the sensor curve as its
 values at fixed distances, log sigmas, the log-Cholesky factor of Sigma_A unless fixed, effects)
 and each log's initial pose mean (``init.mean``; the initial covariance is held fixed). Two kinds of
@@ -101,6 +114,12 @@ CENTRAL_BYTES_PER_SIGHTING = 80
 #: given every other direction, is below this fraction of the information along it alone: measured 4e-16 for an
 #: unseen landmark's height scale (tests/test_constrained.py's log), 0.46 for the same with the sensor curve held.
 NULL_RATIO = 1e-8
+#: The robust errors' blocks (``block_starts``): seconds of a log per block, at least ``MIN_BLOCKS`` blocks in a
+#: batch. Measured with ``scripts/se_halves.py`` (docs/results.md, "Robust standard errors"): on every MRCLAM robot the
+#: halves' differences over the robust errors fall as the blocks lengthen (0.5, 2, 5, 10, 20 s) and level off at
+#: 10-20 s; the simulated pairs stay at z about 1 for every length.
+ROBUST_BLOCK_S = 10.0
+MIN_BLOCKS = 30
 
 
 @dataclass
@@ -122,6 +141,10 @@ class Uncertainty:
     held: np.ndarray | None = None  # (all coordinates,) bool: which coordinates ``fixed`` are
     passes: int = 0  # forward passes of the filter spent on the derivatives (one per coordinate, two if central)
     null: np.ndarray | None = None  # (p, r) orthonormal directions over ``names`` held at their values (unseen group members)
+    #: file key -> robust (sandwich) SE, shaped as ``standard_errors`` (``parameter_uncertainty``)
+    robust_standard_errors: dict[str, Any] = field(default_factory=dict)
+    robust_covariance: np.ndarray | None = None  # (p, p) I^-1 J I^-1 over ``names`` (packed units)
+    blocks: int = 0  # batch-means blocks behind J
 
     def summary(self) -> dict[str, Any]:
         """The JSON-ready part for a model file's ``info``."""
@@ -217,6 +240,31 @@ def _solve(c, a0: np.ndarray, a1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return w0, (a1 - c[1] * w0) / c[2]
 
 
+def _score_weights(v: np.ndarray, c) -> np.ndarray:
+    """(n, 5) weights u with one sighting's score d log N(v; 0, S) / dk = (its ``_columns`` row for k) . u: with the
+    whitened innovation e = C^-1 v, the score is -(C^-1 dv) . e + 1/2 (e^T A e - tr A), A = C^-1 dS C^-T, so u =
+    (-e0, -e1, (e0^2 - 1) / sqrt(2), e0 e1, (e1^2 - 1) / sqrt(2)) against the rows' (w0, w1, a00 / sqrt(2), a01,
+    a11 / sqrt(2))."""
+    e0, e1 = _solve(c, v[:, 0], v[:, 1])
+    h = math.sqrt(0.5)
+    return np.stack([-e0, -e1, h * (e0 * e0 - 1.0), e0 * e1, h * (e1 * e1 - 1.0)], axis=1)
+
+
+def block_starts(batch: Batch, rows: np.ndarray) -> np.ndarray:
+    """Start indices (into ``rows``, the applied sightings in time order) of the blocks of the robust covariance
+    (``parameter_uncertainty``): the sightings of each ``block_seconds(batch)`` of a log."""
+    if not len(rows):
+        return np.zeros(0, dtype=int)
+    frames = batch.sight_frame[rows]
+    key = batch.sight_log[rows] * 10**9 + np.floor(batch.frame_time[frames] / block_seconds(batch)).astype(np.int64)
+    return np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+
+
+def block_seconds(batch: Batch) -> float:
+    """The blocks' length (s): ``ROBUST_BLOCK_S``, shorter on a batch of less than ``MIN_BLOCKS`` of them."""
+    return min(ROBUST_BLOCK_S, batch.n_frames * batch.dt / MIN_BLOCKS)
+
+
 def _columns(dv: np.ndarray, dS: np.ndarray, c, out: np.ndarray | None = None) -> np.ndarray:
     """(n, 5) rows whose Gram sum is the information: C^-1 dv and 1/sqrt(2) C^-1 dS C^-T (symmetric,
     off-diagonal counted twice); written into ``out`` ((n, 5), float64 or float32: rounded once) when given."""
@@ -268,6 +316,8 @@ class _Differences:
         self.ll0, innov0 = innovations_compiled(model.lower(batch), batch)
         self.base = innov0[rows]
         self.c = _whiten(self.base[:, 2:])
+        self.u = _score_weights(self.base[:, :2], self.c)
+        self.starts = block_starts(batch, rows)
         self.plus = innov0  # the passes' output (S, 5), reused; a second one only for central differences
         self.steps = np.broadcast_to(np.asarray(step, dtype=float), x0.shape)
         self.minus = np.empty_like(innov0) if np.any(self.steps < 0) else None
@@ -289,10 +339,16 @@ class _Differences:
         d /= span
         return _columns(d[:, :2], d[:, 2:], self.c, out), (llp - llm) / span
 
+    def block_scores(self, cols: np.ndarray) -> np.ndarray:
+        """(blocks,) a coordinate's score summed over each block of consecutive sightings (``block_starts``), from its
+        whitened derivative rows ``cols`` (n, 5): per sighting, the rows times ``_score_weights``."""
+        return np.add.reduceat(np.einsum("nf,nf->n", cols, self.u, dtype=float), self.starts)
 
-def _information(diff: _Differences, coords: np.ndarray, memory_bytes: int) -> tuple[np.ndarray, np.ndarray]:
-    """(I (p, p) = the Gram sum of the whitened derivatives G (p, n, 5), score (p,)) over the coordinates
-    ``coords`` (p of them: indices into the packed vector).
+
+def _information(diff: _Differences, coords: np.ndarray,
+                 memory_bytes: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(I (p, p) = the Gram sum of the whitened derivatives G (p, n, 5), score (p,), the score's block sums (p,
+    blocks): ``_Differences.block_scores``) over the coordinates ``coords`` (p of them: indices into the packed vector).
 
     ``memory_bytes`` bounds what the derivatives take beside the passes' own arrays (``_pass_bytes``). G is
     held whole (float64) when it fits: p forward passes. A longer log holds one block of s coordinates
@@ -302,13 +358,14 @@ def _information(diff: _Differences, coords: np.ndarray, memory_bytes: int) -> t
     run max(j, 1) times: 425 passes for p = 134 with 38 coordinates in memory at 1,000,000 frames, 332 now;
     the differences themselves carry ~1e-5 relative error, far above float32's rounding.)"""
     n, p = len(diff.rows), len(coords)
-    score = np.empty(p)
+    score, blocks = np.empty(p), np.empty((p, len(diff.starts)))
     budget = memory_bytes - _pass_bytes(diff)
     if p * n * 5 * 8 <= budget:
         G = np.empty((p, n, 5))
         for k in range(p):
             _, score[k] = diff(int(coords[k]), out=G[k])
-        return _gram(G), score
+            blocks[k] = diff.block_scores(G[k])
+        return _gram(G), score, blocks
     per = n * 5 * 4 + CROSS_CHUNK * 5 * 8  # one coordinate's float32 rows and its float64 chunk in ``_cross``
     q = min(STREAM, max(1, p - 1))
     size = max(1, min(p, budget // per - q))
@@ -318,6 +375,7 @@ def _information(diff: _Differences, coords: np.ndarray, memory_bytes: int) -> t
         block = np.arange(a, min(a + size, p))
         for r, k in enumerate(block):
             _, score[k] = diff(int(coords[k]), out=A[r])
+            blocks[k] = diff.block_scores(A[r])
         Ab = A[: len(block)]
         info[np.ix_(block, block)] = _cross(Ab, Ab)
         for c in range(block[-1] + 1, p, q):
@@ -326,7 +384,7 @@ def _information(diff: _Differences, coords: np.ndarray, memory_bytes: int) -> t
                 _, score[k] = diff(int(coords[k]), out=B[r])
             info[np.ix_(block, group)] = _cross(Ab, B[: len(group)])
             info[np.ix_(group, block)] = info[np.ix_(block, group)].T
-    return info, score
+    return info, score, blocks
 
 
 def _pass_bytes(diff: _Differences) -> int:
@@ -471,7 +529,7 @@ def parameter_uncertainty(model: Model, batch: Batch, fixed: frozenset[str] = fr
     coords = np.flatnonzero(~held)
     steps = np.broadcast_to(np.asarray(step, dtype=float), x0.shape)
     diff = _Differences(model, batch, x0, fixed, rows, step)
-    info_c, score_c = _information(diff, coords, memory_bytes)
+    info_c, score_c, blocks_c = _information(diff, coords, memory_bytes)
     info_all, score = np.zeros((len(x0), len(x0))), np.zeros(len(x0))
     info_all[np.ix_(coords, coords)], score[coords] = info_c, score_c
     passes = int(np.sum(np.where(steps[coords] < 0, 2, 1)))
@@ -493,7 +551,42 @@ def parameter_uncertainty(model: Model, batch: Batch, fixed: frozenset[str] = fr
     g = score[free]
     newton = float(np.sqrt(max(g @ cov @ g, 0.0)))
     shapes = {k: v.shape for k, v in file_values(model).items()}
-    errors = _errors(_file_jacobian(model, x0, fixed), shapes, free, held, cov, null)
+    jac = _file_jacobian(model, x0, fixed)
+    errors = _errors(jac, shapes, free, held, cov, null)
+    block_sums = np.zeros((len(x0), blocks_c.shape[1]))
+    block_sums[coords] = blocks_c
+    robust = sandwich(cov, block_sums[free])
     return Uncertainty(errors, free_names, info, cov, lo, cond, weakest,
                        [n for n, f, h in zip(names, free, held) if not f and not h] + unseen, newton, free, g,
-                       fixed=[n for n, h in zip(names, held) if h], held=held, passes=passes, null=null)
+                       fixed=[n for n, h in zip(names, held) if h], held=held, passes=passes, null=null,
+                       robust_standard_errors=_larger(errors, _errors(jac, shapes, free, held, robust, null)),
+                       robust_covariance=robust,
+                       blocks=blocks_c.shape[1])
+
+
+def _larger(fisher: dict[str, Any], sandwich_errors: dict[str, Any]) -> dict[str, Any]:
+    """Per file key and entry, the larger of the Fisher and the sandwich standard error (None where either is): the
+    robust errors reported (module docstring)."""
+    out = {}
+    for key, se in fisher.items():
+        a = np.array(se, dtype=object)
+        b = np.array(sandwich_errors.get(key), dtype=object)
+        if a.shape != b.shape:
+            out[key] = None if a.shape == () else np.full(a.shape, None).tolist()
+            continue
+        flat = [None if x is None or y is None else max(float(x), float(y)) for x, y in zip(a.ravel(), b.ravel())]
+        out[key] = flat[0] if a.shape == () else np.array(flat, dtype=object).reshape(a.shape).tolist()
+    return out
+
+
+def sandwich(cov: np.ndarray, block_sums: np.ndarray) -> np.ndarray:
+    """The robust covariance I^-1 J I^-1 (Huber 1967; White 1982): ``cov`` = I^-1 (p, p), J the variance of the score
+    estimated by batch means, sum over blocks of (B_b - mean B)(B_b - mean B)^T x m / (m - 1), ``block_sums`` (p, m)
+    the score summed over each block of consecutive sightings. It equals I^-1 in expectation when the model is the
+    data's (J = I) and stays the estimate's sampling covariance when it is not: noise that is not Gaussian (the
+    variances' errors then follow the noise's kurtosis, not 2 sigma^4), or an EKF's linearization far from linear."""
+    m = block_sums.shape[1]
+    c = block_sums - block_sums.mean(axis=1, keepdims=True)
+    J = (c @ c.T) * (m / max(m - 1, 1))
+    out = cov @ J @ cov
+    return 0.5 * (out + out.T)
