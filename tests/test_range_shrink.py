@@ -28,9 +28,10 @@ def _fits(tr):
 
 
 def test_a_range_that_is_depth_is_learned_and_the_forward_speed_with_it():
-    """k = 0.45 (MRCLAM's robots: 0.38-0.45): k comes back at 0.438-0.445 on seeds 0-2 (standard error 0.002; the
-    observed bearing stands in for the true one, a small attenuation), the forward speed's RMS error 0.2-0.7 mm/s where
-    the range held at the distance gives 3.1-6.9 (EM reads the range's sweep across the image on arcs as motion)."""
+    """k = 0.45 (MRCLAM's robots: 0.38-0.45): k comes back at 0.440-0.448 on seeds 0-2 (standard error 0.002; phi^2
+    taken as its expectation given the observed bearing, ``expected_phi2``; with the observed phi^2 itself,
+    0.438-0.445), the forward speed's RMS error 0.2-0.7 mm/s where the range held at the distance gives 3.1-6.9 (EM
+    reads the range's sweep across the image on arcs as motion)."""
     tr = collect_wheeled({"effects": {"off_center_shrink": {"k": 0.45}}}, 6000, seed=0)
     shrink, plain = _fits(tr)
     k, se = shrink.params.effect("off_center_shrink").k, shrink.info["standard_errors"]["effects.off_center_shrink.k"]
@@ -85,3 +86,27 @@ def test_diagnose_does_not_try_the_shrink_its_base_fits_already():
     assert found["skipped"] == {"off_center_shrink": "in the base model already (aibo learn fits it on this sensor)"}
     assert found["named"] == [] and found["rounds"] == []
     assert found["model"].effect("off_center_shrink").k > 0.2
+
+
+def test_the_expected_phi2_given_the_observed_bearing_is_not_attenuated():
+    """Known answer (regression calibration): phi ~ N(0.1, 0.3^2) rad, observed with N(0, 0.15^2) noise. The true phi^2
+    regressed on the observed phi^2 has slope 0.66 (the attenuation that made k low); on ``expected_phi2``, 0.998, and
+    the mean difference 0.0002 rad^2. With a bearing noise of 1e-6 rad it is phi_obs^2."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from learners.model.catalogue import expected_phi2
+
+    rng = np.random.default_rng(0)
+    phi = rng.normal(0.1, 0.3, 200_000)
+    obs = phi + rng.normal(0.0, 0.15, phi.size)
+    batch = SimpleNamespace(image_angle=obs, used=np.ones(phi.size, dtype=bool))
+    g = expected_phi2(batch, 0.15)
+
+    def slope(x):
+        return np.polyfit(x, phi ** 2, 1)[0]
+
+    assert slope(obs ** 2) < 0.75 and abs(slope(g) - 1.0) < 0.02, (slope(obs ** 2), slope(g))
+    assert abs(np.mean(phi ** 2 - g)) < 0.002
+    np.testing.assert_allclose(expected_phi2(batch, 1e-6), obs ** 2, rtol=1e-6, atol=1e-9)
