@@ -91,7 +91,8 @@ def test_diagnose_does_not_try_the_shrink_its_base_fits_already():
 def test_the_expected_phi2_given_the_observed_bearing_is_not_attenuated():
     """Known answer (regression calibration): phi ~ N(0.1, 0.3^2) rad, observed with N(0, 0.15^2) noise. The true phi^2
     regressed on the observed phi^2 has slope 0.66 (the attenuation that made k low); on ``expected_phi2``, 0.998, and
-    the mean difference 0.0002 rad^2. With a bearing noise of 1e-6 rad it is phi_obs^2."""
+    the mean difference 0.0002 rad^2. With a bearing noise of 1e-6 rad it is phi_obs^2, and with one of 0.35 rad
+    (the true phi's share of the variance 0.42, below ``MIN_LAMBDA``) phi_obs^2 is taken as it is."""
     from types import SimpleNamespace
 
     import numpy as np
@@ -110,3 +111,5 @@ def test_the_expected_phi2_given_the_observed_bearing_is_not_attenuated():
     assert slope(obs ** 2) < 0.75 and abs(slope(g) - 1.0) < 0.02, (slope(obs ** 2), slope(g))
     assert abs(np.mean(phi ** 2 - g)) < 0.002
     np.testing.assert_allclose(expected_phi2(batch, 1e-6), obs ** 2, rtol=1e-6, atol=1e-9)
+    noisy = SimpleNamespace(image_angle=phi + rng.normal(0.0, 0.35, phi.size), used=batch.used)  # lam 0.42 < MIN_LAMBDA
+    np.testing.assert_array_equal(expected_phi2(noisy, 0.35), noisy.image_angle ** 2)
