@@ -106,8 +106,9 @@ STREAM = 4
 #: and ``_columns``' temporaries (112); per frame, a lowered model's displacements (24); central differences add the
 #: second pass's output and its copy (80 per sighting). Measured (tracemalloc) at 1,000,000 frames (509,246
 #: sightings), model without effects: 126 MiB, 132 MB = 216 x 509,246 + 24 x 1,000,000 to 1%. An effect's lowered
-#: arrays are not counted.
-PASS_BYTES_PER_SIGHTING = 216
+#: arrays are not counted. The robust errors' score weights add 20 (``_Differences.u``, float32; not in that
+#: measurement).
+PASS_BYTES_PER_SIGHTING = 236
 PASS_BYTES_PER_FRAME = 24
 CENTRAL_BYTES_PER_SIGHTING = 80
 #: A never-sighted member of a normalized group is held (undetermined) when the information along its direction,
@@ -316,7 +317,7 @@ class _Differences:
         self.ll0, innov0 = innovations_compiled(model.lower(batch), batch)
         self.base = innov0[rows]
         self.c = _whiten(self.base[:, 2:])
-        self.u = _score_weights(self.base[:, :2], self.c)
+        self.u = _score_weights(self.base[:, :2], self.c).astype(np.float32)  # block sums need no more
         self.starts = block_starts(batch, rows)
         self.plus = innov0  # the passes' output (S, 5), reused; a second one only for central differences
         self.steps = np.broadcast_to(np.asarray(step, dtype=float), x0.shape)
