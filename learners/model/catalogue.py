@@ -411,7 +411,7 @@ def _size_fit(model: "Model", batch: Batch, post: Posterior, skip: EffectModel):
 class OffCenterShrink(EffectModel):
     """The size measurement shrinks away from the image centre: size x (1 - k phi^2), phi the sighting's position in
     the image (rad: bearing - head pan, ``Batch.image_angle``; phi^2 taken as its expectation given the observed
-bearing, ``expected_phi2``, which undoes the attenuation the bearing's noise would bring). On a
+    bearing, ``expected_phi2``, which undoes about half of the attenuation the bearing's noise brings). On a
     camera's landmark heights: lens falloff. On a range computed from a landmark's apparent size (MRCLAM's): the depth
     along the camera's axis, d cos(phi) ~ d (1 - phi^2 / 2), not the distance d; ``aibo learn`` therefore fits it on
     every range sensor (``EMOptions.range_shrink``). A camera fixed to the body (no head pan) has phi = the bearing.
