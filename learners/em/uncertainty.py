@@ -142,7 +142,7 @@ class Uncertainty:
     held: np.ndarray | None = None  # (all coordinates,) bool: which coordinates ``fixed`` are
     passes: int = 0  # forward passes of the filter spent on the derivatives (one per coordinate, two if central)
     null: np.ndarray | None = None  # (p, r) orthonormal directions over ``names`` held at their values (unseen group members)
-    #: file key -> robust (sandwich) SE, shaped as ``standard_errors`` (``parameter_uncertainty``)
+    #: file key -> robust SE (the larger of the Fisher and the sandwich one), shaped as ``standard_errors``
     robust_standard_errors: dict[str, Any] = field(default_factory=dict)
     robust_covariance: np.ndarray | None = None  # (p, p) I^-1 J I^-1 over ``names`` (packed units)
     blocks: int = 0  # batch-means blocks behind J
@@ -426,12 +426,12 @@ def _file_jacobian(model: Model, x0: np.ndarray, fixed: frozenset[str], step: fl
 
 
 def _errors(jac: dict[str, np.ndarray], shapes: dict[str, tuple], free: np.ndarray, held: np.ndarray,
-            cov: np.ndarray, null: np.ndarray) -> dict[str, Any]:
+            cov: np.ndarray, null: np.ndarray, floor: np.ndarray | None = None) -> dict[str, Any]:
     """SE per file key (nested lists like the file; None for entries depending on an undetermined
     coordinate, neither ``free`` nor ``held``, and for entries moved along the held directions ``null``
     (over the free coordinates) and along no other: an unseen group member's own factor; 0.0 for entries
     only ``held`` coordinates move: fixed by the model); keys no coordinate moves (fixed parameters) are
-    left out."""
+    left out. ``floor``: a second covariance, each entry's error then the larger of the two (the robust errors)."""
     out = {}
     undetermined = ~free & ~held
     for key, J in jac.items():
@@ -440,6 +440,8 @@ def _errors(jac: dict[str, np.ndarray], shapes: dict[str, tuple], free: np.ndarr
             continue
         Jf = J[:, free]
         var = np.einsum("ik,kl,il->i", Jf, cov, Jf)
+        if floor is not None:
+            var = np.maximum(var, np.einsum("ik,kl,il->i", Jf, floor, Jf))
         se = np.sqrt(np.maximum(var, 0.0))
         silent = np.zeros(len(J), dtype=bool)
         if null.shape[1]:
@@ -560,24 +562,9 @@ def parameter_uncertainty(model: Model, batch: Batch, fixed: frozenset[str] = fr
     return Uncertainty(errors, free_names, info, cov, lo, cond, weakest,
                        [n for n, f, h in zip(names, free, held) if not f and not h] + unseen, newton, free, g,
                        fixed=[n for n, h in zip(names, held) if h], held=held, passes=passes, null=null,
-                       robust_standard_errors=_larger(errors, _errors(jac, shapes, free, held, robust, null)),
+                       robust_standard_errors=_errors(jac, shapes, free, held, robust, null, floor=cov),
                        robust_covariance=robust,
                        blocks=blocks_c.shape[1])
-
-
-def _larger(fisher: dict[str, Any], sandwich_errors: dict[str, Any]) -> dict[str, Any]:
-    """Per file key and entry, the larger of the Fisher and the sandwich standard error (None where either is): the
-    robust errors reported (module docstring)."""
-    out = {}
-    for key, se in fisher.items():
-        a = np.array(se, dtype=object)
-        b = np.array(sandwich_errors.get(key), dtype=object)
-        if a.shape != b.shape:
-            out[key] = None if a.shape == () else np.full(a.shape, None).tolist()
-            continue
-        flat = [None if x is None or y is None else max(float(x), float(y)) for x, y in zip(a.ravel(), b.ravel())]
-        out[key] = flat[0] if a.shape == () else np.array(flat, dtype=object).reshape(a.shape).tolist()
-    return out
 
 
 def sandwich(cov: np.ndarray, block_sums: np.ndarray) -> np.ndarray:

@@ -452,10 +452,11 @@ def expected_phi2(batch: Batch, sigma_bearing: float) -> np.ndarray:
     the bearing noise (a false alarm at k 0.25 on an effect-free ``paper-sim`` log, +9.4 nats, where phi_obs^2 gives
     +0.3): g is then phi_obs^2 itself."""
     phi = batch.image_angle
+    if not len(phi):
+        return phi ** 2
     s2 = float(sigma_bearing) ** 2
     used = phi[batch.used] if batch.used.any() else phi
-    m = float(np.mean(used)) if len(used) else 0.0
-    v = max(float(np.var(used)) - s2, 0.0) if len(used) else 0.0
+    m, v = float(np.mean(used)), max(float(np.var(used)) - s2, 0.0)
     lam = v / (v + s2) if v + s2 > 0 else 1.0
     if lam < MIN_LAMBDA:
         return phi ** 2
