@@ -206,3 +206,52 @@ def test_a_landmark_never_sighted_leaves_its_height_scale_undetermined_and_the_o
     # the curve held: the normalization determines the unseen scale (1 / the others' product)
     held = parameter_uncertainty(model, batch, frozenset({"sensor.coef"}))
     assert not held.undetermined and all(s > 0 for s in held.standard_errors["effects.beacon_height_scale.scale"])
+
+
+def test_the_height_scales_m_step_is_the_constrained_maximum():
+    """``geometric_mean_one``: the factors maximizing sum_b (2 num_b s_b - den_b s_b^2) at a given product. When the
+    unconstrained optimum num / den already has that product it is returned as is; otherwise the product holds to
+    rounding and no other factors with the same product (moved along random contrasts) do better."""
+    from learners.model.effects import geometric_mean_one
+
+    rng = np.random.default_rng(4)
+    den = rng.uniform(1.0, 50.0, 6)
+    free = np.array([1.1, 0.9, 1.05, 0.97, 1.2, 1.0])
+    free /= np.exp(np.mean(np.log(free)))
+    np.testing.assert_allclose(geometric_mean_one(free * den, den, 0.0), free, rtol=1e-12)
+
+    num = den * free * 1.07  # a common factor 1.07 the constraint must take out, unequally (den differs)
+    s = geometric_mean_one(num, den, 0.0)
+    assert np.sum(np.log(s)) == pytest.approx(0.0, abs=1e-12)
+
+    def objective(x):
+        return float(np.sum(2 * num * x - den * x * x))
+
+    H = helmert(6)
+    for _ in range(200):
+        other = s * np.exp(H @ rng.normal(0, 0.02, 5))  # H (6, 5): the contrasts, orthogonal to the common factor
+        assert np.sum(np.log(other)) == pytest.approx(0.0, abs=1e-9)
+        assert objective(other) <= objective(s) + 1e-9
+    assert not np.allclose(s, num / den / np.exp(np.mean(np.log(num / den))))  # not the plain normalization
+
+
+def test_a_range_curve_held_at_the_distance_stays_held_with_height_scales():
+    """A wheeled log (range sensor, 8 landmarks) with per-landmark range factors at geometric mean 1: ``aibo
+    learn``'s fit of a range sensor holds the curve at range = distance (``EMOptions.range_curve``), and with
+    ``beacon_height_scale`` it stays exactly there; the factors come back. (The effect's M-step used to move the
+    unconstrained factors' common factor into the curve: on MRCLAM robot 4's first half the held curve drifted to
+    1.069 x distance, and the forward speed with it.)"""
+    from aibo_gym.collect_wheeled import collect_wheeled
+
+    true = np.array([1.04, 0.97, 1.02, 0.96, 1.03, 0.99, 1.01, 0.985])
+    true /= np.exp(np.mean(np.log(true)))
+    tr = collect_wheeled({"effects": {"beacon_height_scale": {"scale": true.tolist()}}}, 3000, seed=5)
+    plain = EMLearner(EMOptions(seed=0)).fit([tr], action_model="unicycle")
+    start = plain.params.with_effect(BeaconHeightScale(np.ones(len(true))))
+    res = EMLearner(EMOptions(seed=0)).fit([tr], init=start)
+    np.testing.assert_array_equal(res.params.sensor.coef, plain.params.sensor.coef)
+    assert list(plain.params.sensor.coef[:2]) == [0.0, 1.0]
+    scale = res.params.effect("beacon_height_scale").scale
+    se = np.array(res.info["standard_errors"]["effects.beacon_height_scale.scale"], dtype=float)
+    assert np.sum(np.log(scale)) == pytest.approx(0.0, abs=1e-9)
+    assert np.all(np.abs(scale - true) < 4 * se) and np.all(se < 0.01), (scale, se)

@@ -232,13 +232,42 @@ def smoothed_innovations(lo: Lowered, batch: Batch, post: Posterior) -> tuple[np
     return idx, belief_innovations(lo, batch, idx, *joint_belief(lo, post, idx, pose, smoothed=True))
 
 
+def geometric_mean_one(num: np.ndarray, den: np.ndarray, log_product: float) -> np.ndarray:
+    """Factors s (B,) maximizing -sum_b (den_b s_b^2 - 2 num_b s_b) (a weighted least squares of sizes on the curve
+    per landmark: den_b = sum f^2, num_b = sum f z, both > 0) subject to sum_b log s_b = ``log_product``. Lagrange:
+    den_b s_b^2 - num_b s_b + lam = 0, so s_b(lam) = (num_b + sqrt(num_b^2 - 4 den_b lam)) / (2 den_b), the larger
+    root (the maximum); sum log s_b falls with lam, which is found by bisection on (-inf, min num_b^2 / (4 den_b)].
+    lam = 0 gives the unconstrained s_b = num_b / den_b."""
+    def factors(lam: float) -> np.ndarray:
+        return (num + np.sqrt(np.maximum(num * num - 4.0 * den * lam, 0.0))) / (2.0 * den)
+
+    def excess(lam: float) -> float:
+        return float(np.sum(np.log(factors(lam)))) - log_product
+
+    hi = float(np.min(num * num / (4.0 * den)))
+    if excess(hi) >= 0.0:  # even the smallest factors are too large (a common shrink of ~2x): the nearest point
+        return factors(hi)
+    lo_ = -abs(hi) - 1.0
+    while excess(lo_) < 0.0:
+        lo_ *= 2.0
+    for _ in range(200):
+        mid = 0.5 * (lo_ + hi)
+        if excess(mid) > 0.0:
+            lo_ = mid
+        else:
+            hi = mid
+        if hi - lo_ <= 1e-15 * max(1.0, abs(hi)):
+            break
+    return factors(0.5 * (lo_ + hi))
+
+
 @register_effect
 @dataclass(frozen=True)
 class BeaconHeightScale(EffectModel):
     """Beacons differ in physical height: the size of landmark b is ``scale[b] * f(d)``.
 
     ``scale`` (one factor per landmark) is normalized to geometric mean 1: a common factor is
-    absorbed by the sensor curve. It is packed (SQUAREM, standard errors) as the B - 1 contrasts of its
+    the sensor curve's. It is packed (SQUAREM, standard errors) as the B - 1 contrasts of its
     logs (transform ``"logcontrast"``), so the common factor is the curve's alone. Residual signature
     without it: size residuals depend on the landmark's identity.
     """
@@ -264,12 +293,14 @@ class BeaconHeightScale(EffectModel):
         return [f"scale[{b}]" for b in np.flatnonzero(~seen)]
 
     def maximize(self, model: "Model", batch: Batch, post: Posterior, mu_star: np.ndarray) -> "Model":
-        """Closed form given the curve: scale[b] = sum f z / sum f^2 over landmark b's sightings
-        (cubature points, weights 1 / size_var_factor); then normalized, the common factor moved
-        into the curve's coefficients (f(d) g scale/g is the same prediction). A landmark never sighted
-        keeps its factor (its start, 1: the data say nothing of it) and the sighted ones keep the product
-        they had, so the group stays at geometric mean 1 without that factor drifting with the curve's
-        (``learners.em.uncertainty`` reports it as undetermined)."""
+        """The conditional maximum given the curve (ECM), the factors held at geometric mean 1: per landmark the
+        weighted least squares of the sizes on f(d) (cubature points, weights 1 / size_var_factor; sums num_b =
+        sum f z, den_b = sum f^2) under sum log scale = 0 (``geometric_mean_one``). The common level is the curve's,
+        fitted in its own step: this one never moves the curve. (It used to move the unconstrained factors' common
+        factor into the curve's coefficients, which broke a curve held at range = distance (``EMOptions.range_curve``):
+        on MRCLAM robot 4's first half the held range curve drifted to 1.069 x distance, the forward speed trading
+        with it.) A landmark never sighted keeps its factor (its start, 1: the data say nothing of it) and the sighted
+        ones keep the product they had (``learners.em.uncertainty`` reports it as undetermined)."""
         lo = model.lower(batch)
         idx, d = cubature_distances(batch, post)
         f = model.sensor.mean(d) * (lo.size_scale[idx] / self.scale[batch.sight_landmark[idx]])[:, None]
@@ -280,15 +311,9 @@ class BeaconHeightScale(EffectModel):
         num = np.bincount(lm, weights=(w * f * z).sum(axis=1), minlength=B)
         den = np.bincount(lm, weights=(w * f * f).sum(axis=1), minlength=B)
         seen = den > 0
-        scale = np.where(seen, num / np.where(seen, den, 1.0), self.scale)
-        if np.any(scale <= 0) or not seen.any():
+        if not seen.any() or np.any(num[seen] <= 0):
             return model
-        if seen.all():
-            g = float(np.exp(np.mean(np.log(scale))))
-            scale = scale / g
-        else:
-            g = float(np.exp(np.mean(np.log(scale[seen])) - np.mean(np.log(self.scale[seen]))))
-            scale = np.where(seen, scale / g, self.scale)
-        sensor = model.sensor.with_values(coef=np.asarray(model.sensor.coef) * g)
-        return model.with_effect(BeaconHeightScale(scale)).with_(sensor=sensor)
+        scale = self.scale.copy()
+        scale[seen] = geometric_mean_one(num[seen], den[seen], float(np.sum(np.log(self.scale[seen]))))
+        return model.with_effect(BeaconHeightScale(scale))
 
