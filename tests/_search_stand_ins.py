@@ -46,6 +46,7 @@ class StandInContext:
     heldout_ll: dict = field(default_factory=dict)
     logs: tuple = ()
     n_tests: int = 1
+    factor: float = 1.0  # what ``overstatement`` returns: the Fisher information's overstatement of the data's
 
     def fit(self, init, opts=None):
         return init
@@ -55,6 +56,9 @@ class StandInContext:
 
     def heldout(self, model):
         return self.heldout_ll[frozenset(e.name for e in model.effects)]
+
+    def overstatement(self, model, name):
+        return self.factor
 
     def test(self, gain, held_gain, dof):
         return lr_test(gain, held_gain, dof, self.n_tests)

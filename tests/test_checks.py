@@ -116,3 +116,17 @@ def test_a_candidate_row_carries_its_whole_trail():
     assert [v["name"] for v in row["checks"]] == ["likelihood ratio", "given its own base"]
     assert row["checks"][1] == {"name": "given its own base", "passed": False, "decides": True,
                                 "gains": {"train": 0.5}, "p": 0.3, "note": "keeps the gain"}
+
+
+def test_the_robust_likelihood_ratio_divides_the_gain_by_the_informations_overstatement():
+    """20 nats of one parameter (p 2.6e-10) hold when the information is the data's (c = 1) and when it overstates
+    them 2x (10 nats, p 7.7e-6 < 0.01); at 8x the gain counts as 2.5 nats (p 0.025 > 0.01): not significant, and the
+    note says by how much. A grid's candidate (a lag: profiled, not estimated) is not tested."""
+    check = checks.RobustLikelihoodRatio()
+    c = _candidate(gain_train=20.0)
+    assert check.applies(_Context({}), c) and not check.applies(_Context({}), _candidate("actuation_lag"))
+    for factor, passed in ((1.0, True), (2.0, True), (8.0, False)):
+        v = check.run(_Context({}, factor=factor), c)
+        assert v.passed is passed and v.decides and v.gains["train"] == pytest.approx(20.0 / factor)
+        assert f"x{factor:.2f}" in v.note and ("not significant" in v.note) is (not passed)
+    assert check.run(_Context({}, factor=8.0), c).p == pytest.approx(0.0253, abs=2e-4)

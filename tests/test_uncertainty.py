@@ -172,3 +172,23 @@ def test_the_scores_block_sums_add_up_to_the_score():
     coords = np.arange(len(packed(model, SENSOR_ONLY)))
     _, score, blocks = _information(diff, coords, 2**30)
     np.testing.assert_allclose(blocks.sum(axis=1), score, rtol=1e-4, atol=1e-3 * np.abs(score).max())
+
+
+def test_the_informations_overstatement_is_the_mean_eigenvalue_of_fisher_inverse_times_sandwich():
+    """Over a block with Fisher covariance diag(1, 4) and sandwich diag(2, 12) the ratios are 2 and 3: c = 2.5,
+    whatever the other coordinates; rotated (a correlated block) the same; never below 1; 1 for no coordinate."""
+    from types import SimpleNamespace
+
+    from learners.em.uncertainty import information_overstatement
+
+    F = np.diag([1.0, 4.0, 9.0])
+    R = np.diag([2.0, 12.0, 3.0])
+    unc = SimpleNamespace(names=["effects.e.a", "effects.e.b", "action.weights[0]"], covariance=F, robust_covariance=R)
+    assert information_overstatement(unc, "effects.e.") == pytest.approx(2.5)
+    th = 0.3
+    Q = np.eye(3)
+    Q[:2, :2] = [[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]]
+    rot = SimpleNamespace(names=unc.names, covariance=Q @ F @ Q.T, robust_covariance=Q @ R @ Q.T)
+    assert information_overstatement(rot, "effects.e.") == pytest.approx(2.5)
+    assert information_overstatement(unc, "action.") == pytest.approx(1.0)  # 3 / 9 < 1: floored
+    assert information_overstatement(unc, "sensor.") == 1.0

@@ -114,6 +114,17 @@ class SearchContext:
         """``model``'s held-out log-likelihood (nats; ``learners.discrepancy.score``)."""
         return score(model, self.logs).heldout_loglik
 
+    def overstatement(self, model: Model, name: str) -> float:
+        """How many times the Fisher information of ``model`` on the training halves overstates what they carry about
+        effect ``name``'s parameters (``learners.em.uncertainty.information_overstatement``; its standard errors with
+        the coordinates the fit held, held)."""
+        from learners.em.accel import Packer
+        from learners.em.learner import fit_options
+        from learners.em.uncertainty import information_overstatement, parameter_uncertainty
+
+        fixed = Packer(fit_options(self.opts, self.batch, model)[0]).fixed
+        return information_overstatement(parameter_uncertainty(model, self.batch, fixed), f"effects.{name}.")
+
     def test(self, gain: float, held_gain: float, dof: int) -> tuple[float, bool]:
         """:func:`lr_test` as one of this round's ``n_tests``."""
         return lr_test(gain, held_gain, dof, self.n_tests)

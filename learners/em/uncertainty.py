@@ -567,6 +567,25 @@ def parameter_uncertainty(model: Model, batch: Batch, fixed: frozenset[str] = fr
                        blocks=blocks_c.shape[1])
 
 
+def information_overstatement(unc: Uncertainty, prefix: str) -> float:
+    """How many times the Fisher information overstates what the data carry about the coordinates whose names start
+    with ``prefix`` (e.g. ``"effects.velocity_fade."``): c = tr(V_F^-1 V_R) / d over their block of the Fisher
+    covariance V_F = I^-1 and the sandwich V_R = I^-1 J I^-1 (the mean of the d eigenvalues of V_F^-1 V_R: Satorra &
+    Bentler 1994's scaling of a likelihood-ratio statistic, which under a model that is not the data's is the sum of
+    those eigenvalues times independent chi-square(1)s; Kent 1982). At least 1, as the robust errors are at least the
+    Fisher ones (``ROBUST_BLOCK_S``); 1 when no coordinate matches or there is no sandwich."""
+    idx = [i for i, n in enumerate(unc.names) if n.startswith(prefix)]
+    if not idx or unc.robust_covariance is None:
+        return 1.0
+    fisher = unc.covariance[np.ix_(idx, idx)]
+    robust = unc.robust_covariance[np.ix_(idx, idx)]
+    rank = np.linalg.matrix_rank(fisher, hermitian=True)
+    if rank == 0:
+        return 1.0
+    c = float(np.trace(np.linalg.pinv(fisher, hermitian=True) @ robust)) / rank
+    return max(1.0, c) if math.isfinite(c) else 1.0
+
+
 def sandwich(cov: np.ndarray, block_sums: np.ndarray) -> np.ndarray:
     """The robust covariance I^-1 J I^-1 (Huber 1967; White 1982): ``cov`` = I^-1 (p, p), J the variance of the score
     estimated by batch means, sum over blocks of (B_b - mean B)(B_b - mean B)^T x m / (m - 1), ``block_sums`` (p, m)
