@@ -4,7 +4,9 @@ likelihoods the test assigns per set of effect names."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
+from typing import Any
 
 from learners.discrepancy.fitting import lr_test
 
@@ -47,6 +49,8 @@ class StandInContext:
     logs: tuple = ()
     n_tests: int = 1
     factor: float = 1.0  # what ``overstatement`` returns: the Fisher information's overstatement of the data's
+    current: Any = None  # the round's current model
+    null_ll: float = math.nan
 
     def fit(self, init, opts=None):
         return init

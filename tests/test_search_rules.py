@@ -3,10 +3,12 @@ plausibility of a fitted bias, and the warning of a fit in a world that does not
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import pytest
 
 from learners.discrepancy import search as search_module
-from learners.discrepancy.candidate import Candidate
+from learners.discrepancy.candidate import Candidate, Verdict
 from learners.discrepancy.grid import PAST_PEAK_NATS, walk_profile
 from learners.discrepancy.search import prune
 from learners.em.learner import MAX_OFF_FIELD, field_warnings
@@ -243,3 +245,53 @@ def test_a_final_estimate_outside_its_interval_from_the_value_when_named_is_said
     arr = {"scale": {"value": [1.0, 1.1], "se": [0.01, 0.01], "interval_95": [[0.98, 1.08], [1.02, 1.12]]}}
     assert moved_since_named("beacon_height_scale", arr, {"scale": [1.0, 1.2]}) != ""  # one element outside
     assert moved_since_named("x", {"a": {"value": 1.0, "interval_95": None}}, {"a": 5.0}) == ""  # no interval
+
+
+def test_an_effect_made_implausible_by_the_next_one_goes_before_the_next_round(monkeypatch):
+    """Scripted rounds (stand-ins, MRCLAM robot 2's sequence): 'bias' named in round 1, 'lag' in round 2, whose refit
+    leaves 'bias' implausible (a bias that holds 104 s). 'bias' is dropped at once, and round 3 runs on the model
+    without it and names 'scale', which 'bias' had stood in for; before, it was dropped only after the last round."""
+    from learners.em.options import EMOptions
+
+    s = frozenset
+    train = {s(): -1100.0, s({"bias"}): -1000.0, s({"bias", "lag"}): -900.0, s({"lag"}): -950.0,
+             s({"lag", "scale"}): -880.0, s({"scale"}): -1000.0}
+    held = {s({"lag", "scale"}): -800.0, s({"lag"}): -850.0, s({"scale"}): -900.0}
+    seen = []
+
+    class Ctx(_Context):
+        def fit(self, init, opts=None):  # the refit with 'lag' makes 'bias' implausible
+            names = {e.name for e in init.effects}
+            if names == {"bias", "lag"}:
+                return _Model((_Effect("bias", why_implausible="tau_s 104 s is no pass-to-pass bias"), _Effect("lag")))
+            return init
+
+    def rounds(trials, pool, jobs=1):
+        ctx = trials[0].ctx
+        have = tuple(e.name for e in ctx.current.effects)
+        seen.append(have)
+        pick = {(): "bias", ("bias",): "lag", ("lag",): "scale"}.get(tuple(sorted(have)))
+        out = []
+        for t in trials:
+            c = Candidate(t.name, {}, 50.0 if t.name == pick else 0.0, 10.0, 1, 1e-12 if t.name == pick else 1.0,
+                          model=_Model(ctx.current.effects + (_Effect(t.name),)))
+            c.checks.append(Verdict("likelihood ratio", t.name == pick))
+            out.append(c)
+        return out
+
+    monkeypatch.setattr(search_module, "base_fit", lambda logs, opts, action_model=None: _Model(()))
+    monkeypatch.setattr(search_module, "drop_outliers", lambda model, logs: (logs, 0))
+    monkeypatch.setattr(search_module, "training_log", lambda tr: tr)
+    monkeypatch.setattr(search_module, "applicable", lambda name, logs: True)
+    monkeypatch.setattr(search_module, "SearchContext", lambda tr, logs, opts: Ctx(train, held))
+    monkeypatch.setattr(search_module, "with_null", lambda ctx, current, n: replace(ctx, current=current,
+                                                                                  null_ll=ctx.loglik(current)))
+    monkeypatch.setattr(search_module, "run_round", rounds)
+    monkeypatch.setattr(search_module, "last_round_checks", lambda tried, ctx, pool: None)
+    monkeypatch.setattr(search_module, "none_of_the_above", lambda *a: [])
+    monkeypatch.setattr(search_module.MotionSide, "run", lambda self, ctx, c: Verdict("motion side", True, False))
+    said = []
+    out = search_module.search([], ["bias", "lag", "scale"], EMOptions(), jobs=1, progress=said.append)
+    assert seen == [(), ("bias",), ("lag",)], seen
+    assert [c.name for c in out["named"]] == ["lag", "scale"]
+    assert "dropped: bias (given the others, tau_s 104 s is no pass-to-pass bias)" in said
