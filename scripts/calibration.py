@@ -91,7 +91,7 @@ def one(effect: str, i: int, minutes: float) -> dict[str, Any]:
     from aibo_core.trajectory import blind
     from aibo_gym.collect import collect
     from aibo_gym.collect_wheeled import collect_wheeled
-    from learners.discrepancy.final import diagnosed
+    from learners.discrepancy.final import plausible_diagnosis
     from learners.discrepancy.search import search
     from learners.em.options import EMOptions
     from learners.model.effects import EFFECT_MODELS
@@ -112,7 +112,8 @@ def one(effect: str, i: int, minutes: float) -> dict[str, Any]:
            "outliers": int(tr.n_sightings - sum(t.n_sightings for t in found["logs"]))}
     row["seconds_search"] = time.perf_counter() - t0
     if found["named"]:
-        final = diagnosed(found, opts)
+        found, final = plausible_diagnosis(found, opts, progress=lambda s: None)  # as ``aibo diagnose``
+        row["named"] = [c.name for c in found["named"]]
         row["effects"] = final.effects
         row["final_pruned"] = int(final.result.pruned_observations)
         row["warnings"] = list(final.result.info.get("warnings", []))

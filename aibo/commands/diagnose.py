@@ -17,7 +17,7 @@ from aibo_core.atomic import atomic_folder, write_json
 from aibo_core.compat import check_compatible
 from learners.arrays.batch import make_batch
 from learners.discrepancy.effect_sizes import base_shift, holds_off, moved_since_named
-from learners.discrepancy.final import diagnosed
+from learners.discrepancy.final import plausible_diagnosis
 from learners.discrepancy.score import (
     GAP_METRIC,
     MOTION_GAP_METRIC,
@@ -84,11 +84,13 @@ def run(args) -> int:
         found = search(logs, names, opts, jobs=args.jobs, progress=say, action_model=args.action_model)
     logs = found["logs"]  # outliers set aside, as in every score of the search
     seconds = {"search": time.perf_counter() - t0}
+    # the whole-log fit and the named effects' intervals (learners.discrepancy.final), without an effect it made
+    # implausible (then the search's model without it is the one scored below)
+    found, final = plausible_diagnosis(found, opts, say)
+    seconds.update(final.seconds)
     before, after = score(found["base"], logs), score(found["model"], logs)
     motion = motion_gaps(found["base"], found["model"], logs)
     sig_before, sig_after = signatures(found["base"], logs), signatures(found["model"], logs)
-    final = diagnosed(found, opts)  # the whole-log fit and the named effects' intervals (learners.discrepancy.final)
-    seconds.update(final.seconds)
     report = _report(found, final.effects, before, after, sig_before)
     report.update(motion)
     say("")
@@ -133,6 +135,8 @@ def run(args) -> int:
             + (f", p = {u['signature']['p_value']:.2g}" if u["signature"] else ""))
     report["warnings"] = list(final.result.info.get("warnings", []))  # e.g. a fit that may be a wrong world: said loudly
     report["warnings"] += [f"{e.name}: {e.implausible()}" for e in final.result.params.effects if e.implausible()]
+    report["warnings"] += [f"{d['name']}: named by the search, dropped from the diagnosed model: in the final fit on the "
+                           f"whole log(s), {d['why']}" for d in found["dropped_in_final"]]
     report["warnings"] += negligible_when_final(final.result.params, report["effects"], logs)
     report["warnings"] += off_held(report["effects"], logs)
     report["warnings"] += [w for e in report["effects"]

@@ -332,9 +332,9 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
            progress: Callable[[str], None] = print, action_model: str | None = None) -> dict[str, Any]:
     """The whole search (module docstring): returns the base fit, every round's candidates, the named
     effects in order, and the current model after each addition (all fitted on the training half),
-    the logs without outliers that every score uses, and the candidates the logs cannot support
-    (``"skipped"``: name -> what the log lacks). ``action_model``: of the base fit (``aibo learn
-    --action-model``)."""
+    the logs without outliers that every score uses, the candidates the logs cannot support
+    (``"skipped"``: name -> what the log lacks) and the fits' context (``"context"``: a refit on the training
+    halves). ``action_model``: of the base fit (``aibo learn --action-model``)."""
     t0 = time.perf_counter()
     opts = opts.comparable()  # every fit of the search is compared with another: converged to 0.1 nats (EMOptions)
     base = base_fit(logs, opts, action_model)
@@ -404,7 +404,7 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
         probes = none_of_the_above(current, last if last is not None and last.current is current else None, ctx,
                                    workers, progress)
     return {"base": base, "rounds": rounds, "named": named, "model": current, "logs": logs, "skipped": skipped,
-            "escapes": escapes, "probes": probes}
+            "escapes": escapes, "probes": probes, "context": ctx}
 
 
 def none_of_the_above(current: Model, last: SearchContext | None, ctx: SearchContext, pool: Any,
