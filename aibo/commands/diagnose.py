@@ -32,6 +32,7 @@ from learners.discrepancy.signatures import probe_signature, signatures
 from learners.discrepancy.statistics import plain_reading
 from learners.em.learner import feature_map_for
 from learners.em.options import EMOptions
+from learners.em.support import TESTS_BIAS
 from learners.model.effects import EFFECT_MODELS
 from learners.model.io import save_result
 from learners.model.model import Model
@@ -133,7 +134,8 @@ def run(args) -> int:
         say(f"none of the above: {u['describes']} (train +{u['gain_train']:.1f} nats, held-out {u['gain_heldout']:+.1f} "
             f"nats, p = {u['p_value']:.2g}); {u['why_not_named']}; its signature: {u['statistic']}"
             + (f", p = {u['signature']['p_value']:.2g}" if u["signature"] else ""))
-    report["warnings"] = list(final.result.info.get("warnings", []))  # e.g. a fit that may be a wrong world: said loudly
+    report["warnings"] = [w.replace(TESTS_BIAS, bias_tried(found))  # e.g. a fit that may be a wrong world: said loudly
+                          for w in final.result.info.get("warnings", [])]
     report["warnings"] += [f"{e.name}: {e.implausible()}" for e in final.result.params.effects if e.implausible()]
     report["warnings"] += [f"{d['name']}: named by the search, dropped from the diagnosed model: in the final fit on the "
                            f"whole log(s), {d['why']}" for d in found["dropped_in_final"]]
@@ -167,6 +169,17 @@ def write_outputs(out: Path, final, report: dict, lines: list[str], sig_before, 
         fig.html_page(tmp / "report.html", report, "\n".join(lines), [tmp / f for f in FIGURES])
         written = [f for f in ("report.html", "report.json", "model.json", *FIGURES) if (tmp / f).exists()]
     return written
+
+
+def bias_tried(found: dict) -> str:
+    """What the search found of ``landmark_bias``, for the end of the final fit's warning that the size errors drift
+    (``learners.em.support.correlated_size_warnings``, which tells an ``aibo learn`` user to run this command)."""
+    dropped = [d["why"] for d in found.get("dropped_in_final", []) if d["name"] == "landmark_bias"]
+    if dropped:
+        return f"landmark_bias was named and dropped from the diagnosed model (in the final fit, {dropped[0]})"
+    if any(c.name == "landmark_bias" for rnd in found["rounds"] for c in rnd):
+        return "landmark_bias was tried and not named (its rows in the candidates table say why)"
+    return TESTS_BIAS
 
 
 def named_signatures(report: dict) -> dict[str, str]:

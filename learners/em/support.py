@@ -198,6 +198,8 @@ def weak_command_warnings(model: Model, se_velocities: np.ndarray | None) -> lis
 #: 0.07 with per-beacon height factors of 4-8% (no drift, a constant per landmark).
 CORRELATED_SIZE_LAG1 = 0.15
 MIN_PAIRS = 30  # fewer pairs of consecutive sightings of one landmark: no verdict
+#: the end of that warning: what to run (``aibo diagnose`` replaces it with what its search found)
+TESTS_BIAS = "`aibo diagnose` on the log(s) tests landmark_bias (bias states)"
 
 
 def correlated_size_warnings(model: Model, batch: Batch) -> list[str]:
@@ -213,4 +215,4 @@ def correlated_size_warnings(model: Model, batch: Batch) -> list[str]:
         return []
     return [f"the size errors of one landmark correlate from sighting to sighting (lag-1 autocorrelation {r:.2f} over "
             f"{n} pairs; white errors give about 0): they drift per landmark, which this model does not hold; "
-            "`aibo diagnose` on the log(s) tests landmark_bias (bias states)"]
+            + TESTS_BIAS]
