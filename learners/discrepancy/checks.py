@@ -183,7 +183,7 @@ class RobustLikelihoodRatio(Check):
     sandwich I^-1 J I^-1 against I^-1 on the candidate's fit, scores summed over 10 s blocks, c >= 1). When the model
     is not the data's (real logs: errors correlated over seconds, noise not Gaussian) 2 gain is not chi-square(dof)
     but a sum of chi-square(1)s weighted by that ratio's eigenvalues (Kent 1982); dividing by their mean is Satorra &
-    Bentler's (1994) scaling. About 1 where the model is the data's; on the MRCLAM robots the effects' c reach 2-18,
+    Bentler's (1994) scaling. 1.0-4.4 on simulated logs; on the MRCLAM robots' half logs the effects' c are 1.8-17,
     and effects named on the strength of a few tens of nats do not hold on the other half of the log (evidence:
     docs/results.md#the-searchs-checks). Applies to a significant candidate with estimated parameters: a grid's
     (a lag) are profiled, not estimated (``flat grid profile``)."""

@@ -247,18 +247,18 @@ def geometric_mean_one(num: np.ndarray, den: np.ndarray, log_product: float) -> 
     hi = float(np.min(num * num / (4.0 * den)))
     if excess(hi) >= 0.0:  # even the smallest factors are too large (a common shrink of ~2x): the nearest point
         return factors(hi)
-    lo_ = -abs(hi) - 1.0
-    while excess(lo_) < 0.0:
-        lo_ *= 2.0
+    low = -abs(hi) - 1.0
+    while excess(low) < 0.0:
+        low *= 2.0
     for _ in range(200):
-        mid = 0.5 * (lo_ + hi)
+        mid = 0.5 * (low + hi)
         if excess(mid) > 0.0:
-            lo_ = mid
+            low = mid
         else:
             hi = mid
-        if hi - lo_ <= 1e-15 * max(1.0, abs(hi)):
+        if hi - low <= 1e-15 * max(1.0, abs(hi)):
             break
-    return factors(0.5 * (lo_ + hi))
+    return factors(0.5 * (low + hi))
 
 
 @register_effect
