@@ -236,8 +236,8 @@ def geometric_mean_one(num: np.ndarray, den: np.ndarray, log_product: float) -> 
     """Factors s (B,) maximizing -sum_b (den_b s_b^2 - 2 num_b s_b) (a weighted least squares of sizes on the curve
     per landmark: den_b = sum f^2, num_b = sum f z, both > 0) subject to sum_b log s_b = ``log_product``. Lagrange:
     den_b s_b^2 - num_b s_b + lam = 0, so s_b(lam) = (num_b + sqrt(num_b^2 - 4 den_b lam)) / (2 den_b), the larger
-    root (the maximum); sum log s_b falls with lam, which is found by bisection on (-inf, min num_b^2 / (4 den_b)].
-    lam = 0 gives the unconstrained s_b = num_b / den_b."""
+    root (the maximum); sum log s_b falls with lam, whose root is bracketed in (-inf, min num_b^2 / (4 den_b)] and
+    found by Brent's method (lam = 0 gives the unconstrained s_b = num_b / den_b)."""
     def factors(lam: float) -> np.ndarray:
         return (num + np.sqrt(np.maximum(num * num - 4.0 * den * lam, 0.0))) / (2.0 * den)
 
@@ -250,15 +250,9 @@ def geometric_mean_one(num: np.ndarray, den: np.ndarray, log_product: float) -> 
     low = -abs(hi) - 1.0
     while excess(low) < 0.0:
         low *= 2.0
-    for _ in range(200):
-        mid = 0.5 * (low + hi)
-        if excess(mid) > 0.0:
-            low = mid
-        else:
-            hi = mid
-        if hi - low <= 1e-15 * max(1.0, abs(hi)):
-            break
-    return factors(0.5 * (low + hi))
+    from scipy.optimize import brentq  # here, not at import (SciPy's load costs every command)
+
+    return factors(brentq(excess, low, hi, xtol=1e-15 * max(1.0, abs(hi)), rtol=4 * np.finfo(float).eps))
 
 
 @register_effect
