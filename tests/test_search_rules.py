@@ -328,12 +328,13 @@ def test_an_effect_the_final_fit_makes_implausible_is_dropped_and_the_model_refi
 
 def test_the_drifting_size_warning_says_what_the_search_found_of_landmark_bias():
     """``aibo learn``'s warning ends "`aibo diagnose` ... tests landmark_bias"; in the diagnosis it says instead that
-    the search dropped it (and why) or tried it and did not name it; untried, the advice stays."""
+    the search dropped it (its own warning says why: not twice) or tried it and did not name it; untried, the advice
+    stays."""
     from aibo.commands.diagnose import bias_tried
     from learners.em.support import TESTS_BIAS
 
     tried = {"rounds": [[Candidate("landmark_bias", {}, 0.0, 0.0, 2, 1.0)]], "dropped_in_final": []}
     assert "tried and not named" in bias_tried(tried)
     dropped = dict(tried, dropped_in_final=[{"name": "landmark_bias", "why": "tau_s 462 s is no pass-to-pass bias"}])
-    assert bias_tried(dropped).endswith("(in the final fit, tau_s 462 s is no pass-to-pass bias)")
+    assert bias_tried(dropped).endswith("dropped from the diagnosed model (its own warning says why)")
     assert bias_tried({"rounds": [[]]}) == TESTS_BIAS
