@@ -278,6 +278,6 @@ def _not_identifiable(name: str) -> str:
 CANDIDATE_CHECKS: tuple[Check, ...] = (GivenNuisance(), Reparameterisation(), GivenItsOwnBase(), Plausibility(),
                                        RobustLikelihoodRatio(), FlatGridProfile())
 #: a "none of the above" probe's checks, in order
-PROBE_CHECKS: tuple[Check, ...] = (GivenNuisance(), GivenItsOwnBase())
+PROBE_CHECKS: tuple[Check, ...] = (GivenNuisance(), GivenItsOwnBase(), RobustLikelihoodRatio())
 #: run on the last round's candidates only (they change no decision)
 LAST_ROUND_CHECKS: tuple[Check, ...] = (FrozenProbe(),)

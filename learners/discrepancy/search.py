@@ -11,8 +11,8 @@ repeats until nothing is significant (at most ``MAX_ROUNDS``). Two rules act on 
   model and the round is repeated from it (at most ``MAX_ESCAPES`` times), the escaped-from candidate fitted from its
   own fit of the round too;
 - the backward check (:func:`prune`, stepwise selection's elimination step): once two or more effects are named,
-  each must still earn its place given the others (the same test, the level shared by the named effects); the
-  weakest that fails is dropped and the check repeats;
+  each must still earn its place given the others (the robust likelihood-ratio test that named it, the level shared
+  by the named effects); the weakest that fails is dropped and the check repeats;
 - after each naming, an effect the new one made implausible (:func:`drop_implausible`) is dropped at once, so that
   the rounds left try what it had stood in for.
 
@@ -285,14 +285,16 @@ def prune(named: list[Candidate], current: Model, current_ll: float, ctx: Search
             return current, current_ll
         refits = _map(pool, _drop_job, [(c.name, current, ctx) for c in named])
         heldout = ctx.heldout(current)
+        factors = robust_factors(current, [c.name for c in named], ctx)
         tests = []
         for c, (reduced, ll) in zip(named, refits):
-            gain = max(current_ll - ll, 0.0)
+            gain = max(current_ll - ll, 0.0) / factors[c.name]
             dof = current.effect(c.name).dof()
             held_gain = heldout - ctx.heldout(reduced)
             p, keep = lr_test(gain, held_gain, dof, len(named))
-            progress(f"  given the others, {c.name:15s} train +{gain:8.1f} nats, held-out {held_gain:+8.1f} nats, "
-                     f"p = {p:.2g}{'' if keep else '  NOT NEEDED'}")
+            scaled = f" (/ {factors[c.name]:.2f}, robust)" if factors[c.name] > 1.0 else ""
+            progress(f"  given the others, {c.name:15s} train +{gain:8.1f} nats{scaled}, held-out {held_gain:+8.1f} "
+                     f"nats, p = {p:.2g}{'' if keep else '  NOT NEEDED'}")
             tests.append((keep, p, c, reduced, ll))
         dropped = [t for t in tests if not t[0]]
         if not dropped:
@@ -300,6 +302,15 @@ def prune(named: list[Candidate], current: Model, current_ll: float, ctx: Search
         _, _, c, current, current_ll = max(dropped, key=lambda t: t[1])
         named.remove(c)
         progress(f"dropped: {c.name} (the other named effects explain what it did)")
+
+
+def robust_factors(model: Model, names: list[str], ctx: SearchContext) -> dict[str, float]:
+    """Per named effect, the factor its training gain is divided by in the backward check: the robust likelihood
+    ratio's (``checks.RobustLikelihoodRatio``: the Fisher information's overstatement of what the training halves
+    carry about its parameters, on ``model``, the model holding them all), so that an effect is kept given the others
+    by the test that named it; 1 for a grid effect (profiled, not estimated) or one without parameters."""
+    scaled = [n for n in names if model.effect(n).dof() > 0 and not model.effect(n).GRID]
+    return {n: 1.0 for n in names} | (ctx.overstatements(model, scaled) if scaled else {})
 
 
 def with_null(ctx: SearchContext, current: Model, n_tests: int) -> SearchContext:
