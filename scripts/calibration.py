@@ -2,6 +2,7 @@
 
     python scripts/calibration.py [--logs 100] [--effects a,b,...] [--minutes 5] [--first-log 0] [--out runs/calibration]
     python scripts/calibration.py --out runs/calibration --table      # print the table of the rows so far
+    python scripts/calibration.py --effects actuation_lag --strength actuation_lag.lag_s=0.15 --out runs/calibration-lag15
 
 For each effect of the catalogue at one strength (``STRENGTH``) and each log i = ``--first-log`` .. ``--logs`` - 1:
 a 5-minute blind log simulated with the effect (``aibo_gym.collect.collect``, seed ``SEED + i``, noise preset
@@ -26,6 +27,10 @@ per component) and noise preset, over the logs where the effect was named:
   over the logs / sqrt(n) / SE); spread / SE: the spread of the estimates over the logs against the mean reported
   standard error (1 when the standard errors are right);
 - missing: named logs whose interval is None.
+
+``--strength EFFECT.PARAM=VALUE`` (repeatable; VALUE a number or a JSON list) simulates an effect at another strength
+than ``STRENGTH``'s, e.g. a lag between the grid's values; its rows go to their own ``--out`` (a folder holding rows of
+the effect at another strength is refused: the table pools an effect's rows).
 
 Targets (issue 34): coverage 90-98%, |bias| / SE < 1/3. Truths are compared in the learner's parametrization:
 ``beacon_height_scale`` normalized to geometric mean 1 and ``landmark_bearing_offset`` to mean 0 (their constraints).
@@ -84,6 +89,22 @@ def truth(effect: str, params: dict[str, Any]) -> dict[str, Any]:
     if effect == "landmark_bearing_offset":
         out["offset_rad"] = out["offset_rad"] - np.mean(out["offset_rad"])
     return {k: np.asarray(v).tolist() for k, v in out.items()}
+
+
+def set_strength(items: list[str]) -> None:
+    """Apply ``--strength EFFECT.PARAM=VALUE`` items to ``STRENGTH`` (module docstring); ValueError naming the item."""
+    import json
+
+    for item in items:
+        key, sep, value = item.partition("=")
+        effect, dot, pname = key.partition(".")
+        if not (sep and dot) or effect not in STRENGTH or pname not in STRENGTH[effect]:
+            raise ValueError(f"--strength {item!r}: expected EFFECT.PARAM=VALUE with a parameter of "
+                             f"{', '.join(f'{e}.{p}' for e in STRENGTH for p in STRENGTH[e])}")
+        try:
+            STRENGTH[effect] = {**STRENGTH[effect], pname: json.loads(value)}
+        except json.JSONDecodeError:
+            raise ValueError(f"--strength {item!r}: VALUE must be a number or a JSON list") from None
 
 
 def one(effect: str, i: int, minutes: float) -> dict[str, Any]:
@@ -207,6 +228,8 @@ def main() -> None:
     ap.add_argument("--minutes", type=float, default=5.0, help="log length (default 5: 9000 frames)")
     ap.add_argument("--out", default="runs/calibration")
     ap.add_argument("--table", action="store_true", help="only print the table of the rows in OUT")
+    ap.add_argument("--strength", action="append", default=[], metavar="EFFECT.PARAM=VALUE",
+                    help="simulate an effect at another strength (repeatable; its own --out)")
     ap.add_argument("--fisher", action="store_true",
                     help="tabulate the Fisher intervals where the rows have them beside the robust ones (OUT/table-fisher.md)")
     args = ap.parse_args()
@@ -219,6 +242,14 @@ def main() -> None:
         unknown = [e for e in effects if e not in STRENGTH]
         if unknown:
             ap.error(f"--effects: no strength for {unknown[0]!r} (valid: {', '.join(STRENGTH)})")
+        try:
+            set_strength(args.strength)
+        except ValueError as err:
+            ap.error(str(err))
+        other = next((r for r in rows if r["effect"] in effects and r["params"] != STRENGTH[r["effect"]]), None)
+        if other is not None:
+            ap.error(f"--out {out}: holds rows of {other['effect']} at {other['params']}, not "
+                     f"{STRENGTH[other['effect']]}: give this strength its own --out")
         # log by log, each effect in turn: a study stopped early has as many logs of every effect
         done = {(r["effect"], r["log"], r["minutes"]) for r in rows}
         keys = [{"effect": e, "log": i, "minutes": args.minutes} for i in range(args.first_log, args.logs) for e in effects

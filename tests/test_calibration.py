@@ -135,3 +135,14 @@ def test_diagnosed_is_the_final_fit_of_the_searched_model_with_each_named_effect
     assert fade["parameters_when_named"] == {"fade_per_min": 0.004}
     assert lag["intervals"]["lag_s"]["interval_95"] == [0.0, 0.3]  # within 1.92 nats: 0.1 and 0.2, widened by a step
     assert lag["parameters_when_named"] == {"lag_s": 0.1}
+
+
+def test_strength_overrides_set_one_parameter_and_refuse_what_is_not_one():
+    cal = _load()
+    cal.set_strength(["actuation_lag.lag_s=0.15", "beacon_height_scale.scale=[1.04, 0.96, 1.0, 1.0]"])
+    assert cal.STRENGTH["actuation_lag"] == {"lag_s": 0.15}
+    assert cal.STRENGTH["beacon_height_scale"]["scale"] == [1.04, 0.96, 1.0, 1.0]
+    assert cal.STRENGTH["landmark_bias"] == {"sigma_rel": 0.05, "tau_s": 8.0}  # the others as they were
+    for bad in ("actuation_lag.lag=0.15", "actuation_lag.lag_s", "nothing.x=1", "actuation_lag.lag_s=fast"):
+        with pytest.raises(ValueError, match="--strength"):
+            cal.set_strength([bad])
