@@ -39,6 +39,7 @@ Targets (issue 34): coverage 90-98%, |bias| / SE < 1/3. Truths are compared in t
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 import time
@@ -81,9 +82,13 @@ SEED = 8000  # log i has seed SEED + i (the power study's logs are 1000-5009)
 Z95 = 1.959963984540054
 
 
-def truth(effect: str, params: dict[str, Any]) -> dict[str, Any]:
-    """The simulated parameters in the learner's parametrization (module docstring)."""
+def truth(effect: str, params: dict[str, Any], dt: float | None = None) -> dict[str, Any]:
+    """The simulated parameters in the learner's parametrization (module docstring). ``dt``: the frame (s) of a log of
+    discrete commands, where a lag acts in whole frames (``ActuationLag``: ceil(lag_s / dt) frames, in the simulator
+    and the learner alike), so every lag in ((n - 1) dt, n dt] is the same model as n dt: that is the truth."""
     out = {k: (np.asarray(v, float) if np.ndim(v) else float(v)) for k, v in params.items()}
+    if effect == "actuation_lag" and dt is not None:
+        out["lag_s"] = math.ceil(out["lag_s"] / dt - 1e-9) * dt
     if effect == "beacon_height_scale":
         out["scale"] = out["scale"] / np.exp(np.mean(np.log(out["scale"])))
     if effect == "landmark_bearing_offset":
@@ -128,7 +133,7 @@ def one(effect: str, i: int, minutes: float) -> dict[str, Any]:
     found = search([tr], [effect], opts, jobs=1, progress=lambda s: None)
     tried = [c for rnd in found["rounds"] for c in rnd if c.name == effect]
     row = {"effect": effect, "log": i, "seed": seed, "preset": preset, "minutes": minutes, "params": params,
-           "truth": truth(effect, params), "named": [c.name for c in found["named"]],
+           "truth": truth(effect, params, None if preset == WHEELED else tr.dt), "named": [c.name for c in found["named"]],
            "candidate": tried[0].as_dict() if tried else None, "n_sightings": int(sum(t.n_sightings for t in found["logs"])),
            "outliers": int(tr.n_sightings - sum(t.n_sightings for t in found["logs"]))}
     row["seconds_search"] = time.perf_counter() - t0

@@ -52,6 +52,10 @@ def test_truths_are_compared_in_the_learners_parametrization():
     offsets = cal.truth("landmark_bearing_offset", {"offset_rad": [0.02, 0.0, 0.0, 0.0]})["offset_rad"]
     assert np.allclose(offsets, [0.015, -0.005, -0.005, -0.005])  # mean 0, as the contrast group
     assert cal.truth("landmark_bias", {"sigma_rel": 0.05, "tau_s": 8.0}) == {"sigma_rel": 0.05, "tau_s": 8.0}
+    # a lag of discrete commands acts in whole frames: 0.15 s at 30 frames/s is 5 frames, the same model as 1/6 s
+    assert cal.truth("actuation_lag", {"lag_s": 0.15}, dt=1 / 30)["lag_s"] == pytest.approx(1 / 6)
+    assert cal.truth("actuation_lag", {"lag_s": 0.1}, dt=1 / 30)["lag_s"] == pytest.approx(0.1)  # 3 frames exactly
+    assert cal.truth("actuation_lag", {"lag_s": 0.15})["lag_s"] == 0.15  # continuous commands: as simulated
 
 
 def test_the_table_counts_the_named_logs_and_reports_array_parameters_per_component_and_preset():
