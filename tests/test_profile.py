@@ -9,7 +9,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from learners.discrepancy.profile import BISECTIONS, profile_bounds, profile_where_wald_fails, profiled_parameter
+from learners.discrepancy.profile import (BISECTIONS, profile_bounds, profile_where_wald_fails, profiled_parameter,
+                                         step_walk)
 
 Z95 = 1.959963984540054
 
@@ -47,6 +48,53 @@ def test_only_effects_with_one_scalar_parameter_and_no_batch_state_are_profiled(
     assert profiled_parameter("landmark_bias") is None  # two parameters
     assert profiled_parameter("actuation_lag") is None  # a grid: profiled by the search
     assert profiled_parameter("floor_drift") is None  # a vector
+
+
+def test_a_lattice_walk_keeps_the_steps_within_the_drop_and_stops_past_it():
+    calls = []
+
+    def ll(k):
+        calls.append(k)
+        return -0.5 * (k - 5) ** 2  # -0.5 at 4 and 6, -2 at 3 and 7 (outside)
+
+    (lo, hi), open_ends, points, best = step_walk(ll, 5, 0.0, 0, 15)
+    assert (lo, hi) == (4, 6) and open_ends == [False, False] and best == 0.0
+    assert sorted(calls) == [3, 4, 6, 7] and [k for k, _ in points] == [3, 4, 5, 6, 7]  # the start is the free fit's
+    # a sharp profile: the start alone; at the lattice's end the walk stops there, open
+    assert step_walk(lambda k: -10.0 * abs(k - 5), 5, 0.0, 0, 15)[0] == [5, 5]
+    (lo, hi), open_ends, _, _ = step_walk(lambda k: -0.1 * abs(k - 1), 1, 0.0, 0, 3)
+    assert (lo, hi) == (0, 3) and open_ends == [True, True]
+
+
+def test_a_lattice_point_better_than_the_free_fit_raises_the_reference():
+    """The held fit at 4 is 3 nats more likely than the free fit at 5: the free fit falls out of the interval."""
+    (lo, hi), _, _, best = step_walk(lambda k: {3: -10.0, 4: 3.0, 6: -10.0}[k], 5, 0.0, 0, 15)
+    assert best == 3.0 and (lo, hi) == (4, 4)
+
+
+@pytest.mark.parametrize("preset, seed, frames", [("aibo", 8000, (4, 5)), ("paper-sim", 8001, (4, 6))])
+def test_a_lag_between_the_grids_values_gets_its_interval_in_frames(preset, seed, frames):
+    """A 0.15 s lag of discrete commands at 30 frames/s acts as 5 frames (every lag in (4/30, 5/30] s is the same
+    model): ``aibo diagnose``'s final fit states 5 frames and an interval of whole frames around it, where the
+    search's grid interval is [0.1, 0.3] (logs of scripts/calibration.py). On the `paper-sim` log the final fit's
+    polish (the rest held) kept 6 frames; the profile (the rest refitted) found 5 more likely by 3 nats, and the final
+    fit was made again from there."""
+    from aibo_core.trajectory import blind
+    from aibo_gym.collect import collect
+    from learners.discrepancy.final import plausible_diagnosis
+    from learners.discrepancy.search import search
+    from learners.em.options import EMOptions
+
+    log = blind(collect({"noise": preset, "effects": {"actuation_lag": {"lag_s": 0.15}}}, 9000, seed=seed))
+    opts = EMOptions(seed=0, lag_search=False)
+    found = search([log], ["actuation_lag"], opts, jobs=1, progress=lambda s: None)
+    _, final = plausible_diagnosis(found, opts, progress=lambda s: None)
+    entry = final.effects[0]["intervals"]["lag_s"]
+    assert entry["grid_interval_95"] == [0.1, 0.3] and entry["grid_step"] == pytest.approx(1 / 30)
+    assert entry["value"] == pytest.approx(5 / 30)
+    assert entry["interval_95"] == pytest.approx([frames[0] / 30, frames[1] / 30])
+    assert final.result.params.effect("actuation_lag").lag_s == entry["value"]  # the value stated is the model's
+    assert "own step" in entry["method"] and entry["note"] == ""
 
 
 def test_on_a_simulated_fade_the_profile_interval_agrees_with_the_wald_one():

@@ -16,7 +16,9 @@ the profile-likelihood one, from the search's profile on the training half: the 
 the entry), so it holds the true profile interval to the grid's step, and is wider than the whole log's would be
 (half the sightings). The value is the final fit's, refined between the grid's values where the effect polishes
 (``ActuationLag.polish``: the lag maximizing the whole logs' likelihood within a grid step of the search's, the rest
-held)."""
+held). Where the logs resolve the parameter finer than its grid (a lag of discrete commands acts in whole frames),
+``aibo diagnose`` then replaces that interval by the whole logs' profile in those steps
+(``profile.refine_grid_intervals``; the grid one kept as ``grid_interval_95``)."""
 
 from __future__ import annotations
 

@@ -184,6 +184,106 @@ def conditional_interval(final: Model, logs: list[Trajectory], name: str, se: fl
             "points": [[float(v), float(ll)] for v, ll in sorted(points)], "note": "; ".join(notes)}
 
 
+def step_walk(loglik: Callable[[int], float], start: int, best: float, low: int,
+              high: int) -> tuple[list[int], list[bool], list[tuple[int, float]], float]:
+    """([lowest, highest] index whose profile is within 1.92 nats of the best, [lower, upper] open: the walk reached
+    ``low`` / ``high`` still inside, the (index, loglik) points, ``start``'s (``best``, the free fit's) among them, the
+    best log-likelihood seen) of a
+    parameter that takes values on a lattice (index k: a lag of k frames): from ``start`` one step at a time on each
+    side until the profile drops more than 1.92 nats below ``best`` (raised when a point beats it) or the lattice
+    ends. Every index between the ends is taken to be inside (the profile of a lag is unimodal near its best)."""
+    points: list[tuple[int, float]] = [(start, best)]
+    open_ends: list[bool] = []
+    for side, bound in ((-1, low), (1, high)):
+        k, inside = start, start
+        while True:
+            k += side
+            if (k - bound) * side > 0:
+                break
+            out = loglik(k)
+            points.append((k, out))
+            best = max(best, out)
+            if out < best - HALF_CHI2_1_95:
+                break
+            inside = k
+        open_ends.append(inside == bound)
+    # a point inside may fall out once a later one raised the best: the ends are those still within 1.92 nats
+    kept = [k for k, ll in points if ll >= best - HALF_CHI2_1_95]
+    return [min(kept), max(kept)], open_ends, sorted(points), best
+
+
+def lattice_interval(final: Model, logs: list[Trajectory], name: str, pname: str, resolution: float,
+                     opts: EMOptions) -> dict:
+    """The 95% profile-likelihood interval of grid parameter ``pname`` of effect ``name`` in the diagnosed model
+    ``final`` (fitted on ``logs``; ``opts``: its fit's options) at the step ``resolution`` below which the parameter
+    does not change the model (``EffectModel.grid_resolution``: a lag of discrete commands acts in whole frames):
+    each value k x resolution fitted with the effect held there (the rest refitted, warm-started from ``final``),
+    walked out from the estimate (``step_walk``). A value k x resolution stands for every value in
+    ((k - 1) resolution, k x resolution], so the interval is [(k_lo - 1) resolution, k_hi resolution] (0 at least).
+    Keys: "interval_95", "open", "method", "points", "note" (as ``profile_interval``'s) and "better": the value whose
+    held fit is more likely than ``final`` by ``BEATEN_NATS`` (None when none is)."""
+    from learners.discrepancy.fitting import SEARCH_PATIENCE, fit, held, train_loglik, with_values
+
+    param = EFFECT_MODELS[name].PARAMS[pname]
+    value = float(np.asarray(final.effect(name).values()[pname]))
+    held_opts = held(replace(opts.comparable(), patience=SEARCH_PATIENCE), name)
+    failed: list[str] = []
+
+    def loglik(k: int) -> float:
+        try:
+            v = k * resolution
+            return train_loglik(fit(logs, final.with_effect(with_values(final.effect(name), {pname: v})), held_opts), logs)
+        except (FloatingPointError, np.linalg.LinAlgError, ValueError) as err:  # counted as beyond the interval
+            failed.append(f"the fit with {pname} held at {k * resolution:.3g} failed ({err})")
+            return -math.inf
+
+    free = train_loglik(final, logs)
+    top = max(EFFECT_MODELS[name].GRID[pname])
+    high = math.floor(min(param.high, top) / resolution + 1e-9)
+    (k_lo, k_hi), open_ends, points, best = step_walk(loglik, round(value / resolution), free, 0, high)
+    notes = [f"the profile stays within {HALF_CHI2_1_95:.2f} nats of its best up to the grid's end {top:g}"] \
+        if open_ends[1] else []
+    notes += failed
+    better = None
+    if best > free + BEATEN_NATS:
+        better = float(max(points, key=lambda p: p[1])[0] * resolution)
+        notes.append(f"a fit with {pname} held at {better:.3g} is {best - free:.1f} nats more likely than the diagnosed "
+                     "model: its fit may not be the maximum")
+    return {"interval_95": [max(k_lo - 1, 0) * resolution, k_hi * resolution], "open": [False, open_ends[1]], "better": better,
+            "method": (f"profile likelihood at the model's own step ({resolution:.4g}: a value k steps stands for every "
+                       "value in ((k - 1) steps, k steps]), whole logs"),
+            "points": [[float(k * resolution), float(ll)] for k, ll in sorted(points)], "note": "; ".join(notes)}
+
+
+def refine_grid_intervals(effects: list[dict], final: Model, logs: list[Trajectory],
+                          opts: EMOptions) -> tuple[list[str], dict[str, dict[str, float]]]:
+    """For each named effect of ``report.json["effects"]`` with a grid parameter the logs resolve finer than its grid
+    (``EffectModel.grid_resolution``: a lag of discrete commands, in frames): its interval replaced, in place, by the
+    whole logs' profile at that step (``lattice_interval``; the search's grid interval kept as
+    ``grid_interval_95``, ``grid_step`` the step now; ``profile``: the points). Returns the names refined and, per
+    effect, the parameters whose profile found a more likely value than ``final``'s (that value)."""
+    from learners.arrays.batch import make_batch
+
+    done: list[str] = []
+    better: dict[str, dict[str, float]] = {}
+    batch = None
+    for e in effects:
+        effect = final.effect(e["name"])
+        for pname in effect.GRID:
+            entry = e["intervals"].get(pname)
+            batch = batch if batch is not None else make_batch(logs)
+            resolution = effect.grid_resolution(pname, batch)
+            if entry is None or resolution is None or entry.get("interval_95") is None:
+                continue
+            p = lattice_interval(final, logs, e["name"], pname, resolution, opts)
+            entry.update(grid_interval_95=entry["interval_95"], interval_95=p["interval_95"], open=p["open"],
+                         grid_step=float(resolution), method=p["method"], profile=p["points"], note=p["note"])
+            done.append(e["name"])
+            if p["better"] is not None:
+                better.setdefault(e["name"], {})[pname] = p["better"]
+    return done, better
+
+
 def profile_where_wald_fails(effects: list[dict], final: Model, logs: list[Trajectory], opts: EMOptions) -> list[str]:
     """For each named effect of ``report.json["effects"]`` (each with its ``intervals``) whose one scalar parameter's
     Wald interval is clipped at its domain or missing (``wants_profile``): its interval replaced, in place, by the

@@ -173,6 +173,10 @@ class ActuationLag(EffectModel):
                                          options={"xatol": 1e-3}).x)
         return ActuationLag(float(best)) if ll(best) > ll(self.lag_s) else self
 
+    def grid_resolution(self, pname: str, batch: Batch) -> float | None:
+        """Discrete commands: the frame (every lag in ((n - 1) dt, n dt] is the same model as n dt); continuous: None."""
+        return batch.dt if batch.controls is None else None
+
     def commands(self, commands: np.ndarray, batch: Batch) -> np.ndarray:
         frames = self.lag_s / batch.dt
         if np.asarray(commands).ndim == 1:  # discrete: whole frames

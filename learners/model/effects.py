@@ -119,6 +119,12 @@ class EffectModel(Component):
         parameters slowly along a ridge of the likelihood (``landmark_bias``: docs/results.md, calibration)."""
         return self
 
+    def grid_resolution(self, pname: str, batch: Batch) -> float | None:
+        """The step below which grid parameter ``pname`` does not change the model on ``batch`` (a lag of discrete
+        commands acts in whole frames: the frame, s), so that its profile at that step is the exact one; None where
+        it acts continuously (its interval is then the search's grid one, with the grid's step). Default: None."""
+        return None
+
     def commands(self, commands: np.ndarray, batch: Batch) -> np.ndarray:
         """The commands in force per frame (e.g. delayed by a lag); default: as logged."""
         return commands
