@@ -9,8 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from learners.discrepancy.profile import (BISECTIONS, profile_bounds, profile_where_wald_fails, profiled_parameter,
-                                         step_walk)
+from learners.discrepancy.profile import BISECTIONS, profile_bounds, profile_where_wald_fails, profiled_parameter, step_walk
 
 Z95 = 1.959963984540054
 

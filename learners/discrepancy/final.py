@@ -6,9 +6,9 @@ uses them), and each named effect's parameters get a standard error and a 95% in
 (``effect_sizes.effect_intervals``: Wald from the Fisher information; a grid parameter's from the search's profile),
 replaced by the profile or conditional likelihood interval where the Wald one fails
 (``profile.profile_where_wald_fails``), and a grid parameter's by the whole logs' profile at the step the logs resolve
-where that is finer than the grid (``profile.refine_grid_intervals``: a lag of discrete commands, in frames). ``aibo diagnose`` (``aibo/commands/diagnose.py``) and the calibration study
-(``scripts/calibration.py``) both call :func:`diagnosed`, so that the study measures the intervals the command
-reports.
+where that is finer than the grid (``profile.refine_grid_intervals``: a lag of discrete commands, in frames).
+``aibo diagnose`` (``aibo/commands/diagnose.py``) and the calibration study (``scripts/calibration.py``) both call
+:func:`diagnosed`, so that the study measures the intervals the command reports.
 """
 
 from __future__ import annotations
