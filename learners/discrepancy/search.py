@@ -288,12 +288,13 @@ def prune(named: list[Candidate], current: Model, current_ll: float, ctx: Search
         factors = robust_factors(current, [c.name for c in named], ctx)
         tests = []
         for c, (reduced, ll) in zip(named, refits):
-            gain = max(current_ll - ll, 0.0) / factors[c.name]
+            raw = max(current_ll - ll, 0.0)
+            gain = raw / factors[c.name]
             dof = current.effect(c.name).dof()
             held_gain = heldout - ctx.heldout(reduced)
             p, keep = lr_test(gain, held_gain, dof, len(named))
-            scaled = f" (/ {factors[c.name]:.2f}, robust)" if factors[c.name] > 1.0 else ""
-            progress(f"  given the others, {c.name:15s} train +{gain:8.1f} nats{scaled}, held-out {held_gain:+8.1f} "
+            scaled = f" (/ {factors[c.name]:.2f}: +{gain:.1f}, robust)" if factors[c.name] > 1.0 else ""
+            progress(f"  given the others, {c.name:15s} train +{raw:8.1f} nats{scaled}, held-out {held_gain:+8.1f} "
                      f"nats, p = {p:.2g}{'' if keep else '  NOT NEEDED'}")
             tests.append((keep, p, c, reduced, ll))
         dropped = [t for t in tests if not t[0]]
