@@ -103,11 +103,11 @@ def test_diagnosed_is_the_final_fit_of_the_searched_model_with_each_named_effect
     """``learners.discrepancy.final.diagnosed`` (what ``aibo diagnose`` and the calibration study call): the final fit
     warm-started from ``found["model"]`` on ``found["logs"]`` with the search's stop rule; a named effect's parameters
     are the final fit's, its Wald intervals come from that fit's standard errors, a grid parameter's from the search's
-    profile, and ``parameters_when_named`` from the candidate."""
+    profile (refined in frames for discrete commands), and ``parameters_when_named`` from the candidate."""
     from learners.arrays.batch import make_batch
     from learners.discrepancy.candidate import Candidate
     from learners.discrepancy.effect_sizes import ROBUST_WALD, Z95
-    from learners.discrepancy.final import FINAL_FIT_STAGE, diagnosed, final_options
+    from learners.discrepancy.final import FINAL_FIT_STAGE, PROFILE_STAGE, diagnosed, final_options
     from learners.discrepancy.fitting import SEARCH_PATIENCE
     from learners.em.learner import EMLearner
     from learners.em.options import EMOptions
@@ -126,7 +126,8 @@ def test_diagnosed_is_the_final_fit_of_the_searched_model_with_each_named_effect
              Candidate("actuation_lag", {"lag_s": 0.1}, 9.0, 2.0, 1, 1e-5, model=model, profile={"lag_s": profile})]
     out = diagnosed({"model": model, "logs": [tr], "named": named}, opts)
     assert [e["name"] for e in out.effects] == ["velocity_fade", "actuation_lag"]
-    assert list(out.seconds) == [FINAL_FIT_STAGE] and out.profiled == []
+    # the lag of these discrete commands gets the whole log's profile in frames (``profile.refine_grid_intervals``)
+    assert list(out.seconds) == [FINAL_FIT_STAGE, PROFILE_STAGE] and out.profiled == ["actuation_lag"]
     fade, lag = out.effects
     fisher = out.result.info["standard_errors"]["effects.velocity_fade.fade_per_min"]
     se = out.result.info["robust_standard_errors"]["effects.velocity_fade.fade_per_min"]
@@ -137,7 +138,10 @@ def test_diagnosed_is_the_final_fit_of_the_searched_model_with_each_named_effect
     assert se >= fisher and iv["se_fisher"] == pytest.approx(fisher)  # the larger of Fisher and sandwich; Fisher kept
     assert iv["interval_95_fisher"] == pytest.approx([value - Z95 * fisher, value + Z95 * fisher])
     assert fade["parameters_when_named"] == {"fade_per_min": 0.004}
-    assert lag["intervals"]["lag_s"]["interval_95"] == [0.0, 0.3]  # within 1.92 nats: 0.1 and 0.2, widened by a step
+    lag_iv = lag["intervals"]["lag_s"]
+    assert lag_iv["grid_interval_95"] == [0.0, 0.3]  # the search's: within 1.92 nats 0.1 and 0.2, widened by a step
+    assert lag_iv["grid_step"] == pytest.approx(tr.dt) and lag_iv["interval_95"][0] <= lag_iv["value"] <= lag_iv["interval_95"][1]
+    assert lag_iv["value"] == out.result.params.effect("actuation_lag").lag_s  # the value stated is the model's
     assert lag["parameters_when_named"] == {"lag_s": 0.1}
 
 
