@@ -140,7 +140,8 @@ def _scalar_interval(name: str, iv: dict[str, Any], num) -> str:
     """``lag_s [0.1, 0.3] (profile)``; an open end (the profile never fell 1.92 nats below its best up to it: the
     interval reaches at least that far) as ``<=`` / ``>=`` with ``open below`` / ``open above``."""
     (lo, hi), (open_lo, open_hi) = iv["interval_95"], iv.get("open") or (False, False)
-    how = (f"profile in the model's own steps of {iv['grid_step']:.3g}" if "grid_interval_95" in iv
+    how = (f"profile in the model's own steps of {iv['grid_step']:.3g}" if "grid_interval_95" in iv and "grid_step" in iv
+           else "profile, whole logs" if "grid_interval_95" in iv
            else f"profile over a grid of step {iv['grid_step']:g}" if "grid_step" in iv
            else "profile" if str(iv.get("method", "")).startswith("profile") else None)
     notes = ([how] if how else []) + \

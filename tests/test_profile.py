@@ -164,3 +164,23 @@ def test_false_sightings_rate_gets_a_conditional_likelihood_interval_around_its_
     assert profile_where_wald_fails(entry, fitted, [tr], EMOptions()) == ["false_sightings"]
     assert entry[0]["intervals"]["rate"]["interval_95"] == out["interval_95"]
     assert entry[0]["intervals"]["rate"]["method"].startswith("conditional likelihood")
+
+
+def test_a_lag_of_continuous_commands_gets_a_profile_interval_below_the_grid():
+    """A 0.15 s lag on a wheeled robot's 5-minute log (continuous commands: the lag acts continuously): the interval is
+    the parabola's through held fits about the value (as ``aibo learn``'s), holding the truth and narrower than the
+    search's grid interval [0.1, 0.3] (seed 0: [0.130, 0.172])."""
+    from aibo_gym.collect_wheeled import collect_wheeled
+    from learners.discrepancy.final import plausible_diagnosis
+    from learners.discrepancy.search import search
+    from learners.em.options import EMOptions
+
+    log = collect_wheeled({"effects": {"actuation_lag": {"lag_s": 0.15}}, "start_pose": "random"}, 3000, 0)
+    opts = EMOptions(seed=0, lag_search=False)
+    found = search([log], ["actuation_lag"], opts, jobs=1, progress=lambda s: None)
+    _, final = plausible_diagnosis(found, opts, progress=lambda s: None)
+    entry = final.effects[0]["intervals"]["lag_s"]
+    lo, hi = entry["interval_95"]
+    assert entry["grid_interval_95"] == [0.1, 0.3] and "grid_step" not in entry and "parabola" in entry["method"]
+    assert lo < 0.15 < hi and hi - lo < 0.06 and lo <= entry["value"] <= hi and entry["note"] == ""
+    assert final.result.params.effect("actuation_lag").lag_s == entry["value"]

@@ -5,8 +5,8 @@ is refitted on the whole logs (the logs without the base fit's outliers, ``found
 uses them), and each named effect's parameters get a standard error and a 95% interval from that fit
 (``effect_sizes.effect_intervals``: Wald from the Fisher information; a grid parameter's from the search's profile),
 replaced by the profile or conditional likelihood interval where the Wald one fails
-(``profile.profile_where_wald_fails``), and a grid parameter's by the whole logs' profile at the step the logs resolve
-where that is finer than the grid (``profile.refine_grid_intervals``: a lag of discrete commands, in frames).
+(``profile.profile_where_wald_fails``), and a grid parameter's by the whole logs' profile (``profile.refine_grid_intervals``:
+a lag of discrete commands in frames, of continuous commands a parabola through held fits about the value).
 ``aibo diagnose`` (``aibo/commands/diagnose.py``) and the calibration study (``scripts/calibration.py``) both call
 :func:`diagnosed`, so that the study measures the intervals the command reports.
 """
@@ -92,8 +92,8 @@ def _values(effect) -> dict[str, Any]:
 def diagnosed(found: dict[str, Any], opts: EMOptions, again: bool = True) -> Diagnosed:
     """The final fit of the search's model ``found["model"]`` on ``found["logs"]`` (``found``: what ``search``
     returned when given ``opts``) and each named effect's entry: its parameters in the final fit, their intervals
-    (``effect_intervals``; profiled where Wald fails, ``profile_where_wald_fails``; a grid parameter at the logs'
-    own step, ``refine_grid_intervals``) and ``parameters_when_named`` (the candidate's fit in its round). Where that
+    (``effect_intervals``; profiled where Wald fails, ``profile_where_wald_fails``; a grid parameter's on the whole logs,
+    ``refine_grid_intervals``) and ``parameters_when_named`` (the candidate's fit in its round). Where that
     grid profile finds a value more likely than the final fit's (the final fit refines a lag with the rest held: on
     `paper-sim` logs of a 0.15 s lag it kept 6 frames where 5, the rest refitted, were 3 nats more likely), the final
     fit is made once ``again`` from the search's model with that value, so that the value stated is the model's."""
@@ -113,7 +113,7 @@ def diagnosed(found: dict[str, Any], opts: EMOptions, again: bool = True) -> Dia
     seconds = {FINAL_FIT_STAGE: time.perf_counter() - t0}
     t0 = time.perf_counter()
     profiled = profile_where_wald_fails(effects, final.params, logs, fopts)  # a rate near its bound
-    refined, better = refine_grid_intervals(effects, final.params, logs, fopts)  # a lag of discrete commands, in frames
+    refined, better = refine_grid_intervals(effects, final.params, logs, fopts)  # a lag: below the search's grid
     profiled += refined
     if profiled:
         seconds[PROFILE_STAGE] = time.perf_counter() - t0
