@@ -250,8 +250,11 @@ def lattice_interval(final: Model, logs: list[Trajectory], name: str, pname: str
     free = train_loglik(final, logs)
     top = max(EFFECT_MODELS[name].GRID[pname])
     high = math.floor(min(param.high, top) / resolution + 1e-9)
-    (k_lo, k_hi), open_ends, points, best = step_walk(lambda k: held_ll(k * resolution), round(value / resolution),
-                                                      free, 0, high)
+    k0 = round(value / resolution)
+    (k_lo, k_hi), open_ends, points, best = step_walk(lambda k: held_ll(k * resolution), k0, free, 0, high)
+    # the value stated stays inside its interval even where a held fit beat it (said in the note): on a `paper-sim`
+    # log of a 0.15 s lag the final fit made again from the better frame (4) ended at 5 frames, 200 nats below it
+    k_lo, k_hi = min(k_lo, k0), max(k_hi, k0)
     notes = [f"the profile stays within {HALF_CHI2_1_95:.2f} nats of its best up to the grid's end {top:g}"] \
         if open_ends[1] else []
     notes += failed
