@@ -13,8 +13,13 @@ fit (the search's stop rule, at most ``fitting.HELD_MAX_ITER`` iterations); a si
 the E-step's on the logs' sightings (``fitting.train_loglik``), the same for every point.
 
 Only effects with exactly one scalar parameter and no per-batch state qualify (``profiled_parameter``): freezing is
-per effect (``EMOptions.frozen``), so holding one of several parameters would need per-parameter freezing. Grid
-parameters (a lag) have their grid profile already.
+per effect (``EMOptions.frozen``), so holding one of several parameters would need per-parameter freezing.
+
+A grid parameter (a lag: ``EffectModel.GRID``) has the search's grid profile on the training halves; its interval is
+redone on the whole logs below the grid (``refine_grid_intervals``): where the logs resolve it in steps (a lag of
+discrete commands acts in whole frames) the fits held at each step are walked out from the value (``step_walk``,
+``lattice_interval``); where it acts continuously, a parabola through fits held at the value +- half and one grid
+step (``parabola_interval``, ``aibo learn``'s lag interval).
 
 An effect with one scalar parameter AND per-batch state (``false_sightings``' rate and its responsibilities: held, the
 state would go stale) gets the conditional likelihood interval instead (``conditional_interval``): the values v whose
@@ -118,23 +123,15 @@ def profile_bounds(loglik: Callable[[float], float], value: float, best: float, 
     return ends, open_ends, points, best
 
 
-def profile_interval(final: Model, logs: list[Trajectory], name: str, se: float | None, opts: EMOptions) -> dict:
-    """The 95% profile-likelihood interval of effect ``name``'s one scalar parameter in the diagnosed model
-    ``final`` (fitted on ``logs``; ``opts``: its fit's options): {"interval_95", "open", "method", "points", "note"}
-    (module docstring, ``profile_bounds``)."""
+def held_loglik(final: Model, logs: list[Trajectory], name: str, pname: str, opts: EMOptions,
+                failed: list[str]) -> Callable[[float], float]:
+    """v -> the log-likelihood of ``logs`` (``fitting.train_loglik``) under ``final`` refitted with parameter ``pname``
+    of effect ``name`` held at v (the rest refitted, warm-started: one start and no alias search, ``fitting.fit``; the
+    search's stop rule, ``fitting.held``); a fit that fails numerically is -inf (beyond any interval) and said in
+    ``failed``."""
     from learners.discrepancy.fitting import SEARCH_PATIENCE, fit, held, train_loglik, with_values
 
-    pname = profiled_parameter(name)
-    if pname is None:
-        raise ValueError(f"{name}: no single scalar parameter to profile")
-    param = EFFECT_MODELS[name].PARAMS[pname]
-    value = float(np.asarray(final.effect(name).values()[pname]))
-    scale = float(np.max(np.atleast_1d(param.scale)))
-    step = se if se is not None and math.isfinite(se) and se > 0 else 0.1 * max(abs(value), scale)
-    # warm-started, so one start and no alias search (``fitting.fit``)
     held_opts = held(replace(opts.comparable(), patience=SEARCH_PATIENCE), name)
-
-    failed: list[str] = []
 
     def loglik(v: float) -> float:
         try:
@@ -143,6 +140,24 @@ def profile_interval(final: Model, logs: list[Trajectory], name: str, se: float 
             failed.append(f"the fit with {pname} held at {v:.3g} failed ({err})")
             return -math.inf
 
+    return loglik
+
+
+def profile_interval(final: Model, logs: list[Trajectory], name: str, se: float | None, opts: EMOptions) -> dict:
+    """The 95% profile-likelihood interval of effect ``name``'s one scalar parameter in the diagnosed model
+    ``final`` (fitted on ``logs``; ``opts``: its fit's options): {"interval_95", "open", "method", "points", "note"}
+    (module docstring, ``profile_bounds``)."""
+    from learners.discrepancy.fitting import train_loglik
+
+    pname = profiled_parameter(name)
+    if pname is None:
+        raise ValueError(f"{name}: no single scalar parameter to profile")
+    param = EFFECT_MODELS[name].PARAMS[pname]
+    value = float(np.asarray(final.effect(name).values()[pname]))
+    scale = float(np.max(np.atleast_1d(param.scale)))
+    step = se if se is not None and math.isfinite(se) and se > 0 else 0.1 * max(abs(value), scale)
+    failed: list[str] = []
+    loglik = held_loglik(final, logs, name, pname, opts, failed)
     free = train_loglik(final, logs)
     ends, open_ends, points, best = profile_bounds(loglik, value, free, step, param.low, param.high)
     notes = [f"the profile stays within {HALF_CHI2_1_95:.2f} nats of its best up to "
@@ -210,25 +225,6 @@ def step_walk(loglik: Callable[[int], float], start: int, best: float, low: int,
     # a point inside may fall out once a later one raised the best: the ends are those still within 1.92 nats
     kept = [k for k, ll in points if ll >= best - HALF_CHI2_1_95]
     return [min(kept), max(kept)], open_ends, sorted(points), best
-
-
-def held_loglik(final: Model, logs: list[Trajectory], name: str, pname: str, opts: EMOptions,
-                failed: list[str]) -> Callable[[float], float]:
-    """v -> the log-likelihood of ``logs`` (``fitting.train_loglik``) under ``final`` refitted with parameter ``pname``
-    of effect ``name`` held at v (the rest refitted, warm-started; the search's stop rule, ``fitting.held``); a fit
-    that fails numerically is -inf (beyond any interval) and said in ``failed``."""
-    from learners.discrepancy.fitting import SEARCH_PATIENCE, fit, held, train_loglik, with_values
-
-    held_opts = held(replace(opts.comparable(), patience=SEARCH_PATIENCE), name)
-
-    def loglik(v: float) -> float:
-        try:
-            return train_loglik(fit(logs, final.with_effect(with_values(final.effect(name), {pname: v})), held_opts), logs)
-        except (FloatingPointError, np.linalg.LinAlgError, ValueError) as err:  # counted as beyond the interval
-            failed.append(f"the fit with {pname} held at {v:.3g} failed ({err})")
-            return -math.inf
-
-    return loglik
 
 
 def lattice_interval(final: Model, logs: list[Trajectory], name: str, pname: str, resolution: float,
