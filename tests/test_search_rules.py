@@ -256,6 +256,10 @@ def test_a_final_estimate_outside_its_interval_from_the_value_when_named_is_said
     arr = {"scale": {"value": [1.0, 1.1], "se": [0.01, 0.01], "interval_95": [[0.98, 1.08], [1.02, 1.12]]}}
     assert moved_since_named("beacon_height_scale", arr, {"scale": [1.0, 1.2]}) != ""  # one element outside
     assert moved_since_named("x", {"a": {"value": 1.0, "interval_95": None}}, {"a": 5.0}) == ""  # no interval
+    # a lag named on the search's 0.1 s grid is known to 0.05 s: MRCLAM robot 1's 0.2 agrees with 0.224 [0.217, 0.233]
+    lag = {"lag_s": {"value": 0.224, "se": None, "interval_95": [0.217, 0.233]}}
+    assert moved_since_named("actuation_lag", lag, {"lag_s": 0.2}) == ""
+    assert "lag_s 0.1 when named" in moved_since_named("actuation_lag", lag, {"lag_s": 0.1})
 
 
 def test_an_effect_made_implausible_by_the_next_one_goes_before_the_next_round(monkeypatch):
