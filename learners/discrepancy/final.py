@@ -89,18 +89,25 @@ def _values(effect) -> dict[str, Any]:
     return {k: np.asarray(v).tolist() for k, v in effect.values().items()}
 
 
-def diagnosed(found: dict[str, Any], opts: EMOptions, again: bool = True) -> Diagnosed:
+def final_fit(found: dict[str, Any], opts: EMOptions) -> LearnResult:
+    """The final fit: EM on the whole logs ``found["logs"]`` from the search's model ``found["model"]``, with
+    :func:`final_options` of the search's ``opts`` (standard errors included)."""
+    return EMLearner(final_options(opts), check_field=False).fit(found["logs"], init=found["model"])
+
+
+def diagnosed(found: dict[str, Any], opts: EMOptions, again: bool = True, final: LearnResult | None = None) -> Diagnosed:
     """The final fit of the search's model ``found["model"]`` on ``found["logs"]`` (``found``: what ``search``
     returned when given ``opts``) and each named effect's entry: its parameters in the final fit, their intervals
     (``effect_intervals``; profiled where Wald fails, ``profile_where_wald_fails``; a grid parameter's on the whole logs,
     ``refine_grid_intervals``) and ``parameters_when_named`` (the candidate's fit in its round). Where that
     grid profile finds a value more likely than the final fit's (the final fit refines a lag with the rest held: on
     `paper-sim` logs of a 0.15 s lag it kept 6 frames where 5, the rest refitted, were 3 nats more likely), the final
-    fit is made once ``again`` from the search's model with that value, so that the value stated is the model's."""
+    fit is made once ``again`` from the search's model with that value, so that the value stated is the model's.
+    ``final``: the final fit when made already (:func:`final_fit`; its time is then the caller's to count)."""
     logs = found["logs"]
     t0 = time.perf_counter()
     fopts = final_options(opts)
-    final = EMLearner(fopts, check_field=False).fit(logs, init=found["model"])
+    final = final if final is not None else final_fit(found, opts)
     se = dict(final.info.get("standard_errors", {}))
     conditional = _conditional_errors(final.params, logs, [c.name for c in found["named"]], se)
     effects = [{"name": c.name, "parameters": _values(final.params.effect(c.name)),
@@ -128,24 +135,27 @@ def diagnosed(found: dict[str, Any], opts: EMOptions, again: bool = True) -> Dia
 
 
 def plausible_diagnosis(found: dict[str, Any], opts: EMOptions, progress=print) -> tuple[dict[str, Any], Diagnosed]:
-    """(``found`` as the final fit leaves it, the final fit): :func:`diagnosed`, and while the final fit on the whole
-    logs holds a named effect at values its class finds implausible (``EffectModel.implausible``, the search's own
-    rule, which the search checked on the training halves), that effect dropped, the search's model refitted without
-    it on the training halves (``found["context"]``) and the final fit made again. ``found["dropped_in_final"]``: the
-    effects dropped, with why. MRCLAM robot 4's first half: ``landmark_bias`` named at a correlation time of 50 s went
-    to 459 s in the final fit, a per-landmark constant whose common part traded with the forward speed (7.4 mm/s
-    against Vicon on the other half; 5.4 without it, ``aibo learn`` 5.8)."""
-    final = diagnosed(found, opts)
+    """(``found`` as the final fit leaves it, the final fit with its intervals): while the final fit on the whole logs
+    (:func:`final_fit`) holds a named effect at values its class finds implausible (``EffectModel.implausible``, the
+    search's own rule, which the search checked on the training halves), that effect dropped, the search's model
+    refitted without it on the training halves (``found["context"]``) and the final fit made again; then
+    :func:`diagnosed` of the fit kept (the intervals of a discarded fit are never computed: its held fits with MRCLAM
+    robots' bias states cost 7-12 s). ``found["dropped_in_final"]``: the effects dropped, with why. MRCLAM robot 4's
+    first half: ``landmark_bias`` named at a correlation time of 50 s went to 459 s in the final fit, a per-landmark
+    constant whose common part traded with the forward speed (7.4 mm/s against Vicon on the other half; 5.4 without
+    it, ``aibo learn`` 5.8)."""
+    t0 = time.perf_counter()
+    fit = final_fit(found, opts)
     found = dict(found, dropped_in_final=[])
-    spent = 0.0
-    while bad := [c for c in found["named"] if final.result.params.effect(c.name).implausible()]:
+    while bad := [c for c in found["named"] if fit.params.effect(c.name).implausible()]:
         c = bad[0]
-        why = final.result.params.effect(c.name).implausible()
+        why = fit.params.effect(c.name).implausible()
         progress(f"dropped: {c.name} (in the final fit on the whole log(s), {why})")
         model = found["context"].fit(found["model"].without_effect(c.name))
         found = dict(found, named=[n for n in found["named"] if n is not c], model=model,
                      dropped_in_final=found["dropped_in_final"] + [{"name": c.name, "why": why}])
-        spent += sum(final.seconds.values())
-        final = diagnosed(found, opts)
+        fit = final_fit(found, opts)
+    spent = time.perf_counter() - t0
+    final = diagnosed(found, opts, final=fit)  # the intervals of the fit kept only
     final.seconds[FINAL_FIT_STAGE] += spent
     return found, final
