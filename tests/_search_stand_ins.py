@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any
 
 from learners.discrepancy.fitting import lr_test
 
@@ -17,7 +17,6 @@ class StandInEffect:
     k: int = 1  # dof
     why_negligible: str = ""
     why_implausible: str = ""
-    GRID: ClassVar[tuple] = ()  # profiled over a grid (none of the stand-ins)
 
     def dof(self) -> int:
         return self.k
@@ -64,9 +63,6 @@ class StandInContext:
 
     def overstatement(self, model, name):
         return self.factor
-
-    def overstatements(self, model, names):
-        return {n: self.factor for n in names}
 
     def test(self, gain, held_gain, dof):
         return lr_test(gain, held_gain, dof, self.n_tests)

@@ -129,4 +129,5 @@ def test_the_robust_likelihood_ratio_divides_the_gain_by_the_informations_overst
         v = check.run(_Context({}, factor=factor), c)
         assert v.passed is passed and v.decides and v.gains["train"] == pytest.approx(20.0 / factor)
         assert f"x{factor:.2f}" in v.note and ("not significant" in v.note) is (not passed)
+        assert v.overstatement == factor and v.as_dict()["overstatement"] == factor  # the backward check reuses it
     assert check.run(_Context({}, factor=8.0), c).p == pytest.approx(0.0253, abs=2e-4)

@@ -18,12 +18,15 @@ from tests._search_stand_ins import StandInEffect as _Effect
 from tests._search_stand_ins import StandInModel as _Model
 
 
-def _run(names, train_ll, heldout_ll, factor=1.0):
-    """prune() on stand-ins (``factor``: the Fisher information's overstatement of every effect's parameters)."""
+def _run(names, train_ll, heldout_ll, factor=None):
+    """prune() on stand-ins (``factor``: the Fisher information's overstatement of every effect's parameters that its
+    robust likelihood ratio measured when it was named; None: that check did not run)."""
     named = [Candidate(n, {}, 0.0, 0.0, 1, 0.0) for n in names]
+    if factor is not None:
+        for c in named:
+            c.checks.append(Verdict("robust likelihood ratio", True, overstatement=factor))
     full = _Model(tuple(_Effect(n) for n in names))
-    ctx = _Context(train_ll, heldout_ll, factor=factor)
-    model, ll = prune(named, full, train_ll[frozenset(names)], ctx, None, lambda s: None)
+    model, ll = prune(named, full, train_ll[frozenset(names)], _Context(train_ll, heldout_ll), None, lambda s: None)
     return [c.name for c in named], model, ll
 
 
@@ -47,8 +50,9 @@ def test_the_backward_check_keeps_two_effects_that_both_matter():
 
 
 def test_the_backward_check_is_the_robust_test_that_named_the_effects():
-    """'a' gains 10 nats given 'b' (p 6e-6: kept by the plain test at 0.01 / 2) but the information overstates the
-    data's by 4: 2.5 nats count (p 0.025), dropped; 'b''s 30 count as 7.5 (p 1e-4), kept."""
+    """'a' gains 10 nats given 'b' (p 6e-6: kept by the plain test at 0.01 / 2) but its robust test found, when it was
+    named, that the information overstates the data's by 4: 2.5 nats count (p 0.025), dropped; 'b''s 30 count as 7.5
+    (p 1e-4), kept."""
     s = frozenset
     train = {s({"a", "b"}): -1000.0, s({"b"}): -1010.0, s({"a"}): -1030.0}
     held = {s({"a", "b"}): -900.0, s({"b"}): -905.0, s({"a"}): -920.0}

@@ -20,8 +20,10 @@ class Verdict:
     ``decides``: whether ``passed`` counts towards the candidate's significance (an annotating check only informs);
     ``identifiable``: False when the check found that the data cannot tell the effect from the base model;
     ``gains``: the check's likelihood gains in nats (``train``, ``heldout``); ``p``: its test's p-value (None without
-    a test); ``escape``: a base model without the effect that the check fitted, with its training log-likelihood (the
-    search may continue from it; not reported)."""
+    a test); ``overstatement``: the factor by which the Fisher information overstated the data's information about the
+    effect's parameters, where the check measured it (``checks.RobustLikelihoodRatio``); ``escape``: a base model
+    without the effect that the check fitted, with its training log-likelihood (the search may continue from it; not
+    reported)."""
 
     name: str
     passed: bool
@@ -30,11 +32,13 @@ class Verdict:
     p: float | None = None
     note: str = ""
     identifiable: bool = True
+    overstatement: float | None = None
     escape: tuple[Model, float] | None = field(default=None, repr=False)
 
     def as_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "passed": self.passed, "decides": self.decides, "gains": dict(self.gains),
-                "p": self.p, "note": self.note}
+        out = {"name": self.name, "passed": self.passed, "decides": self.decides, "gains": dict(self.gains),
+               "p": self.p, "note": self.note}
+        return out | ({"overstatement": self.overstatement} if self.overstatement is not None else {})
 
 
 @dataclass

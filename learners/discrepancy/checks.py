@@ -199,7 +199,7 @@ class RobustLikelihoodRatio(Check):
         p, ok = ctx.test(gain, c.gain_heldout, c.dof)
         note = (f"the Fisher information overstates the data's by x{factor:.2f} (sandwich, 10 s blocks): train "
                 f"+{c.gain_train:.1f} nats count as +{gain:.1f}, p = {p:.2g}" + ("" if ok else ": not significant"))
-        return self.verdict(ok, gains={"train": gain}, p=p, note=note)
+        return self.verdict(ok, gains={"train": gain}, p=p, note=note, overstatement=factor)
 
 
 class FlatGridProfile(Check):

@@ -116,20 +116,14 @@ class SearchContext:
 
     def overstatement(self, model: Model, name: str) -> float:
         """How many times the Fisher information of ``model`` on the training halves overstates what they carry about
-        effect ``name``'s parameters (:meth:`overstatements`)."""
-        return self.overstatements(model, [name])[name]
-
-    def overstatements(self, model: Model, names: list[str]) -> dict[str, float]:
-        """Per effect of ``names``: how many times the Fisher information of ``model`` on the training halves
-        overstates what they carry about its parameters (``learners.em.uncertainty.information_overstatement``; the
-        standard errors with the coordinates the fit held, held), from one computation of ``model``'s errors."""
+        effect ``name``'s parameters (``learners.em.uncertainty.information_overstatement``; its standard errors with
+        the coordinates the fit held, held)."""
         from learners.em.accel import Packer
         from learners.em.learner import fit_options
         from learners.em.uncertainty import information_overstatement, parameter_uncertainty
 
         fixed = Packer(fit_options(self.opts, self.batch, model)[0]).fixed
-        unc = parameter_uncertainty(model, self.batch, fixed)
-        return {name: information_overstatement(unc, f"effects.{name}.") for name in names}
+        return information_overstatement(parameter_uncertainty(model, self.batch, fixed), f"effects.{name}.")
 
     def test(self, gain: float, held_gain: float, dof: int) -> tuple[float, bool]:
         """:func:`lr_test` as one of this round's ``n_tests``."""

@@ -41,7 +41,7 @@ from learners.model.model import Model
 from learners.model.probes import PROBES
 
 from .candidate import Candidate, Verdict
-from .checks import CANDIDATE_CHECKS, LAST_ROUND_CHECKS, PROBE_CHECKS, MotionSide, run_checks, tested
+from .checks import CANDIDATE_CHECKS, LAST_ROUND_CHECKS, PROBE_CHECKS, MotionSide, RobustLikelihoodRatio, run_checks, tested
 from .fitting import SEARCH_PATIENCE, SearchContext, fit, lr_test
 from .grid import GridWalk, candidate_start, grid_point, profiled
 from .split import training_log
@@ -285,7 +285,7 @@ def prune(named: list[Candidate], current: Model, current_ll: float, ctx: Search
             return current, current_ll
         refits = _map(pool, _drop_job, [(c.name, current, ctx) for c in named])
         heldout = ctx.heldout(current)
-        factors = robust_factors(current, [c.name for c in named], ctx)
+        factors = robust_factors(named)
         tests = []
         for c, (reduced, ll) in zip(named, refits):
             raw = max(current_ll - ll, 0.0)
@@ -305,13 +305,14 @@ def prune(named: list[Candidate], current: Model, current_ll: float, ctx: Search
         progress(f"dropped: {c.name} (the other named effects explain what it did)")
 
 
-def robust_factors(model: Model, names: list[str], ctx: SearchContext) -> dict[str, float]:
-    """Per named effect, the factor its training gain is divided by in the backward check: the robust likelihood
-    ratio's (``checks.RobustLikelihoodRatio``: the Fisher information's overstatement of what the training halves
-    carry about its parameters, on ``model``, the model holding them all), so that an effect is kept given the others
-    by the test that named it; 1 for a grid effect (profiled, not estimated) or one without parameters."""
-    scaled = [n for n in names if model.effect(n).dof() > 0 and not model.effect(n).GRID]
-    return {n: 1.0 for n in names} | (ctx.overstatements(model, scaled) if scaled else {})
+def robust_factors(named: list[Candidate]) -> dict[str, float]:
+    """Per named effect, the factor its training gain is divided by in the backward check: the Fisher information's
+    overstatement that its robust likelihood ratio measured when it was named (``checks.RobustLikelihoodRatio``), so
+    that an effect is kept given the others by the test that named it; 1 where that check did not run (a grid effect,
+    profiled, not estimated; one without parameters). Measured once: the sandwich of the model holding them all cost
+    43 s of MRCLAM robot 1's whole log (bias states and 15 height factors), its factors 3.49 and 1.92."""
+    return {c.name: (v.overstatement if (v := c.verdict(RobustLikelihoodRatio.name)) is not None
+                     and v.overstatement is not None else 1.0) for c in named}
 
 
 def with_null(ctx: SearchContext, current: Model, n_tests: int) -> SearchContext:
