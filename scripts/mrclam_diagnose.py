@@ -8,8 +8,9 @@ DATA defaults to ../shared/data/mrclam7 (never copied into the repository). Per 
 RMS against Vicon over 1 s windows, the gated smoothed pose RMS (``learners.scoring``), the lag-1 autocorrelation
 of the normalized range innovations (``learners.em.whiteness``), the gap (held-out NLL per sighting) of diagnose's
 base model and of its model (``report.json``), the named effects, any "none of the above", the warnings, and the
-wall time with its stages. Finished robots are kept in OUT/robots.jsonl (a rerun skips them); OUT/table.md is
-rewritten after each.
+wall time with its stages, measured after an untimed run on the first minute of the first robot (``warm_up``:
+numba compiles the kernels on their first use in a fresh clone). Finished robots are kept in OUT/robots.jsonl (a
+rerun skips them); OUT/table.md is rewritten after each.
 """
 
 from __future__ import annotations
@@ -57,8 +58,8 @@ def _named(rec: dict) -> str:
 
 def table(records: list[dict]) -> str:
     head = ("| robot | forward mm/s: face / diagnosed | turn rad/s: face / diagnosed | pose mm: face / diagnosed | "
-            "autocorr.: face / diagnosed | gap: base -> model | s (search / final / calibrated) | named | none of the "
-            "above | warnings |\n|" + "---|" * 10)
+            "autocorr.: face / diagnosed | gap: base -> model | s (by stage: report.json's seconds_by_stage) | named | "
+            "none of the above | warnings |\n|" + "---|" * 10)
     rows = []
     for r in records:
         if "error" in r:
@@ -68,9 +69,20 @@ def table(records: list[dict]) -> str:
         rows.append(f"| {r['robot']} | {f['vx_rms']:.1f} / {d['vx_rms']:.1f} | {f['vtheta_rms']:.4f} / "
                     f"{d['vtheta_rms']:.4f} | {f['pose_rms']:.0f} / {d['pose_rms']:.0f} | {f['ac1']:.2f} / {d['ac1']:.2f} | "
                     f"{r['gap_before']:.2f} -> {r['gap_after']:.2f} | {r['wall_s']:.0f} ("
-                    + " / ".join(f"{v:.0f}" for v in st.values()) + f") | {_named(r)} | "
+                    + ", ".join(f"{k} {v:.0f}" for k, v in st.items()) + f") | {_named(r)} | "
                     f"{'; '.join(r['none_of_the_above']) or '-'} | {len(r['warnings'])} |")
     return head + "\n" + "\n".join(rows) + "\n"
+
+
+def warm_up(data: Path, robot: int, out: Path) -> None:
+    """``aibo diagnose`` on the robot's first minute, untimed: the compiled kernels' first use in a fresh clone compiles
+    them (numba's cache), 40-50 s that would otherwise count in the first robot's wall time."""
+    folder = out / "warm_up"
+    log = folder / "first_minute.npz"
+    folder.mkdir(parents=True, exist_ok=True)
+    trajectory.save(import_robot(data, robot, seconds=60.0), log)
+    print("warming numba's cache: aibo diagnose on the first minute (not timed)", flush=True)
+    run_aibo(["diagnose", str(log), "--out", str(folder / "diagnosis")])
 
 
 def main(argv=None) -> int:
@@ -78,6 +90,7 @@ def main(argv=None) -> int:
     data = data_folder("mrclam_diagnose", args.data)
     if data is None:
         return 2
+    warm_up(data, robots(args.robots)[0], Path(args.out))
     resume(Path(args.out), "robots.jsonl", [{"robot": r} for r in robots(args.robots)],
            lambda k: diagnose_robot(data, k["robot"], Path(args.out)),
            lambda rows: table(sorted(rows, key=lambda r: r["robot"])), lambda _, md: print(md.splitlines()[-1], flush=True))
