@@ -201,12 +201,12 @@ def conditional_interval(final: Model, logs: list[Trajectory], name: str, se: fl
 
 def step_walk(loglik: Callable[[int], float], start: int, best: float, low: int,
               high: int) -> tuple[list[int], list[bool], list[tuple[int, float]], float]:
-    """([lowest, highest] index whose profile is within 1.92 nats of the best, [lower, upper] open: the walk reached
-    ``low`` / ``high`` still inside, the (index, loglik) points, ``start``'s (``best``, the free fit's) among them, the
-    best log-likelihood seen) of a
-    parameter that takes values on a lattice (index k: a lag of k frames): from ``start`` one step at a time on each
-    side until the profile drops more than 1.92 nats below ``best`` (raised when a point beats it) or the lattice
-    ends. Every index between the ends is taken to be inside (the profile of a lag is unimodal near its best)."""
+    """The profile of a parameter that takes values on a lattice (index k: a lag of k frames), walked from ``start``
+    one step at a time on each side until it drops more than 1.92 nats below ``best`` (raised when a point beats it)
+    or the lattice ends (``low``, ``high``). Returns ([lowest, highest] index within 1.92 nats of the best, [lower,
+    upper] open: the walk reached that end still inside, the (index, loglik) points with ``start``'s (``best``, the
+    free fit's) among them, the best log-likelihood seen). Every index between the ends is taken to be inside (the
+    profile of a lag is unimodal near its best)."""
     points: list[tuple[int, float]] = [(start, best)]
     open_ends: list[bool] = []
     for side, bound in ((-1, low), (1, high)):
@@ -225,6 +225,17 @@ def step_walk(loglik: Callable[[int], float], start: int, best: float, low: int,
     # a point inside may fall out once a later one raised the best: the ends are those still within 1.92 nats
     kept = [k for k, ll in points if ll >= best - HALF_CHI2_1_95]
     return [min(kept), max(kept)], open_ends, sorted(points), best
+
+
+def beaten(points: list[tuple[float, float]], free: float, pname: str, notes: list[str]) -> float | None:
+    """The value of the most likely held fit of ``points`` ((value, loglik)) when it beats the final fit's ``free`` by
+    ``BEATEN_NATS`` (said in ``notes``, in place), else None."""
+    value, best = max(points, key=lambda p: p[1])
+    if best <= free + BEATEN_NATS:
+        return None
+    notes.append(f"a fit with {pname} held at {value:.3g} is {best - free:.1f} nats more likely than the diagnosed "
+                 "model: its fit may not be the maximum")
+    return float(value)
 
 
 def lattice_interval(final: Model, logs: list[Trajectory], name: str, pname: str, resolution: float,
@@ -247,19 +258,16 @@ def lattice_interval(final: Model, logs: list[Trajectory], name: str, pname: str
     top = max(EFFECT_MODELS[name].GRID[pname])
     high = math.floor(min(param.high, top) / resolution + 1e-9)
     k0 = round(value / resolution)
-    (k_lo, k_hi), open_ends, points, best = step_walk(lambda k: held_ll(k * resolution), k0, free, 0, high)
+    (k_lo, k_hi), open_ends, points, _ = step_walk(lambda k: held_ll(k * resolution), k0, free, 0, high)
     # the value stated stays inside its interval even where a held fit beat it (said in the note): on a `paper-sim`
     # log of a 0.15 s lag the final fit made again from the better frame (4) ended at 5 frames, 200 nats below it
     k_lo, k_hi = min(k_lo, k0), max(k_hi, k0)
     notes = [f"the profile stays within {HALF_CHI2_1_95:.2f} nats of its best up to the grid's end {top:g}"] \
         if open_ends[1] else []
     notes += failed
-    better = None
-    if best > free + BEATEN_NATS:
-        better = float(max(points, key=lambda p: p[1])[0] * resolution)
-        notes.append(f"a fit with {pname} held at {better:.3g} is {best - free:.1f} nats more likely than the diagnosed "
-                     "model: its fit may not be the maximum")
-    return {"interval_95": [max(k_lo - 1, 0) * resolution, k_hi * resolution], "open": [False, open_ends[1]], "better": better,
+    better = beaten([(k * resolution, ll) for k, ll in points], free, pname, notes)
+    return {"interval_95": [max(k_lo - 1, 0) * resolution, k_hi * resolution], "open": [False, open_ends[1]],
+            "better": better,
             "method": (f"profile likelihood at the model's own step ({resolution:.4g}: a value k steps stands for every "
                        "value in ((k - 1) steps, k steps]), whole logs"),
             "points": [[float(k * resolution), float(ll)] for k, ll in sorted(points)], "note": "; ".join(notes)}
@@ -285,13 +293,8 @@ def parabola_interval(final: Model, logs: list[Trajectory], name: str, pname: st
                                 if v >= param.low]
     finite = [(v, ll) for v, ll in points if math.isfinite(ll)]
     _, (lo, hi), note = refine(sorted(finite), value, step)
-    v_best, best = max(points, key=lambda p: p[1])
     notes = ([note] if note else []) + failed
-    better = None
-    if best > free + BEATEN_NATS:
-        better = float(v_best)
-        notes.append(f"a fit with {pname} held at {better:.3g} is {best - free:.1f} nats more likely than the diagnosed "
-                     "model: its fit may not be the maximum")
+    better = beaten(points, free, pname, notes)
     return {"interval_95": [min(lo, value), max(hi, value)], "open": [False, False], "better": better,
             "method": (f"profile likelihood, whole logs: a parabola through the fits with {pname} held at the value and "
                        f"+-{step / 2:g}, +-{step:g} (the rest refitted)"),
