@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from learners.em.uncertainty import CHI2_1_95, Z95, file_values
+from learners.model.effects import EFFECT_MODELS
 from learners.model.model import Model
 
 
@@ -127,8 +128,6 @@ def moved_since_named(name: str, intervals: dict[str, dict[str, Any]], when_name
     error, and the reported value is the final fit's (``model.json``'s). A grid parameter (a lag) was named at a grid
     value, known to half the grid's step: its interval is widened by that much for the comparison (MRCLAM robot 1: a
     lag named at 0.2 on the 0.1 s grid, 0.224 [0.217, 0.233] in the final fit, agrees)."""
-    from learners.model.effects import EFFECT_MODELS
-
     grid = EFFECT_MODELS[name].GRID if name in EFFECT_MODELS else {}
     moved = []
     for pname, iv in intervals.items():

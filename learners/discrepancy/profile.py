@@ -265,12 +265,13 @@ def lattice_interval(final: Model, logs: list[Trajectory], name: str, pname: str
     notes = [f"the profile stays within {HALF_CHI2_1_95:.2f} nats of its best up to the grid's end {top:g}"] \
         if open_ends[1] else []
     notes += failed
-    better = beaten([(k * resolution, ll) for k, ll in points], free, pname, notes)
+    valued = [(k * resolution, ll) for k, ll in points]  # (value, loglik), in order
+    better = beaten(valued, free, pname, notes)
     return {"interval_95": [max(k_lo - 1, 0) * resolution, k_hi * resolution], "open": [False, open_ends[1]],
             "better": better,
             "method": (f"profile likelihood at the model's own step ({resolution:.4g}: a value k steps stands for every "
                        "value in ((k - 1) steps, k steps]), whole logs"),
-            "points": [[float(k * resolution), float(ll)] for k, ll in sorted(points)], "note": "; ".join(notes)}
+            "points": [[float(v), float(ll)] for v, ll in valued], "note": "; ".join(notes)}
 
 
 def parabola_interval(final: Model, logs: list[Trajectory], name: str, pname: str, step: float,
