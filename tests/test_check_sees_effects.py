@@ -42,8 +42,6 @@ NOT_YET = {
     "landmark_bias": "sigma_rel 0.03, tau 10 s: no statistic disagrees (innovation whiteness is within the replicas')",
     "response_time": "tau 0.15 s on a 5-minute wheeled log (commands held 1 s): no statistic disagrees, while EM "
                      "recovers it (tests/test_response_time.py)",
-    "landmark_bearing_offset": "10 / -10 / 5 / -5 mrad on the 4 beacons: no statistic disagrees ('bearing vs landmark' "
-                               "within the replicas'); on MRCLAM robots 1 and 4 that statistic sees their offsets",
 }
 
 
