@@ -192,3 +192,36 @@ def test_the_informations_overstatement_is_the_mean_eigenvalue_of_fisher_inverse
     assert information_overstatement(rot, "effects.e.") == pytest.approx(2.5)
     assert information_overstatement(unc, "action.") == pytest.approx(1.0)  # 3 / 9 < 1: floored
     assert information_overstatement(unc, "sensor.") == 1.0
+
+
+def test_the_overstatement_over_longer_blocks_sees_a_drift_the_short_blocks_miss():
+    """One coordinate whose 400 blocks of 10 s each carry information 1 (Fisher covariance 1/400). Block sums that are
+    independent N(0, 1): c about 1 over the 10 s blocks and over 30 s ones. An AR(1) of unit variance and lag-1
+    correlation 0.9 (a drift much slower than a block): each 10 s block's sum has the variance the information says
+    (c = 1), but three of them together have (3 + 2 (2 x 0.9 + 0.81)) / 3 = 2.74 times it, which the merged blocks see
+    (2.4 on this series)."""
+    from types import SimpleNamespace
+
+    from learners.em.uncertainty import information_overstatement, merged_blocks, sandwich
+
+    rng = np.random.default_rng(0)
+    m = 400
+    t = 10.0 * np.arange(m)
+
+    def unc_of(sums: np.ndarray) -> SimpleNamespace:
+        cov = np.array([[1.0 / m]])
+        return SimpleNamespace(names=["effects.e.a"], covariance=cov, robust_covariance=sandwich(cov, sums[None]),
+                               block_sums=sums[None], block_time=t, block_log=np.zeros(m, int))
+
+    white = unc_of(rng.normal(size=m))
+    assert merged_blocks(white, 30.0).shape == (1, 134)  # blocks [0, 30), [30, 60), ... of the 3,990 s
+    np.testing.assert_allclose(merged_blocks(white, 30.0)[0, :3], [white.block_sums[0, 3 * k: 3 * k + 3].sum()
+                                                                   for k in range(3)])
+    assert information_overstatement(white, "effects.e.") == pytest.approx(1.0, abs=0.2)
+    assert information_overstatement(white, "effects.e.", 30.0) == pytest.approx(1.0, abs=0.3)
+    x = np.zeros(m)
+    for k in range(1, m):
+        x[k] = 0.9 * x[k - 1] + np.sqrt(1 - 0.81) * rng.normal()
+    drift = unc_of(x)
+    short, long_ = information_overstatement(drift, "effects.e."), information_overstatement(drift, "effects.e.", 30.0)
+    assert short == pytest.approx(1.0, abs=0.2) and long_ == pytest.approx(2.74, abs=0.6), (short, long_)

@@ -180,7 +180,7 @@ class Plausibility(Check):
 class RobustLikelihoodRatio(Check):
     """The likelihood-ratio test again with the training gain divided by c, the factor by which the Fisher information
     overstates what the training halves carry about the effect's parameters (``SearchContext.overstatement``: the
-    sandwich I^-1 J I^-1 against I^-1 on the candidate's fit, scores summed over 10 s blocks, c >= 1). When the model
+    sandwich I^-1 J I^-1 against I^-1 on the candidate's fit, scores summed over 30 s blocks, c >= 1). When the model
     is not the data's (real logs: errors correlated over seconds, noise not Gaussian) 2 gain is not chi-square(dof)
     but a sum of chi-square(1)s weighted by that ratio's eigenvalues (Kent 1982); dividing by their mean is Satorra &
     Bentler's (1994) scaling. 1.0-4.4 on simulated logs; on the MRCLAM robots' half logs the effects' c are 1.8-17,
@@ -197,7 +197,7 @@ class RobustLikelihoodRatio(Check):
         factor = ctx.overstatement(c.model, c.name)
         gain = c.gain_train / factor
         p, ok = ctx.test(gain, c.gain_heldout, c.dof)
-        note = (f"the Fisher information overstates the data's by x{factor:.2f} (sandwich, 10 s blocks): train "
+        note = (f"the Fisher information overstates the data's by x{factor:.2f} (sandwich, 30 s blocks): train "
                 f"+{c.gain_train:.1f} nats count as +{gain:.1f}, p = {p:.2g}" + ("" if ok else ": not significant"))
         return self.verdict(ok, gains={"train": gain}, p=p, note=note, overstatement=factor)
 

@@ -116,14 +116,15 @@ class SearchContext:
 
     def overstatement(self, model: Model, name: str) -> float:
         """How many times the Fisher information of ``model`` on the training halves overstates what they carry about
-        effect ``name``'s parameters (``learners.em.uncertainty.information_overstatement``; its standard errors with
-        the coordinates the fit held, held)."""
+        effect ``name``'s parameters (``learners.em.uncertainty.information_overstatement`` over blocks of
+        ``OVERSTATEMENT_BLOCK_S``; its standard errors with the coordinates the fit held, held)."""
         from learners.em.accel import Packer
         from learners.em.learner import fit_options
-        from learners.em.uncertainty import information_overstatement, parameter_uncertainty
+        from learners.em.uncertainty import OVERSTATEMENT_BLOCK_S, information_overstatement, parameter_uncertainty
 
         fixed = Packer(fit_options(self.opts, self.batch, model)[0]).fixed
-        return information_overstatement(parameter_uncertainty(model, self.batch, fixed), f"effects.{name}.")
+        return information_overstatement(parameter_uncertainty(model, self.batch, fixed), f"effects.{name}.",
+                                         OVERSTATEMENT_BLOCK_S)
 
     def test(self, gain: float, held_gain: float, dof: int) -> tuple[float, bool]:
         """:func:`lr_test` as one of this round's ``n_tests``."""

@@ -121,6 +121,14 @@ NULL_RATIO = 1e-8
 #: 10-20 s; the simulated pairs stay at z about 1 for every length.
 ROBUST_BLOCK_S = 10.0
 MIN_BLOCKS = 30
+#: The blocks of the likelihood-ratio test's overstatement (``information_overstatement``, the search's robust
+#: likelihood ratio): the robust errors' blocks merged into blocks of this many seconds, at least
+#: ``OVERSTATEMENT_MIN_BLOCKS`` of them. An effect's score can follow slower errors than the standard errors' do (a
+#: fade's is the residual times the elapsed time): on MRCLAM robot 4's second half the fade's c was 5.0 / 9.6 / 11.0
+#: with 10 / 30 / 60 s blocks, and 1.0 at every length on simulated logs with a true fade (docs/results.md, "The
+#: search's checks").
+OVERSTATEMENT_BLOCK_S = 30.0
+OVERSTATEMENT_MIN_BLOCKS = 10
 
 
 @dataclass
@@ -146,6 +154,9 @@ class Uncertainty:
     robust_standard_errors: dict[str, Any] = field(default_factory=dict)
     robust_covariance: np.ndarray | None = None  # (p, p) I^-1 J I^-1 over ``names`` (packed units)
     blocks: int = 0  # batch-means blocks behind J
+    block_sums: np.ndarray | None = None  # (p, blocks) the score over ``names`` summed over each block
+    block_time: np.ndarray | None = None  # (blocks,) s: the time of each block's first sighting in its log
+    block_log: np.ndarray | None = None  # (blocks,) the log of each block
 
     def summary(self) -> dict[str, Any]:
         """The JSON-ready part for a model file's ``info``."""
@@ -339,6 +350,10 @@ class _Differences:
         d[:, 1] = np.angle(np.exp(1j * d[:, 1]))  # bearings: wrapped difference
         d /= span
         return _columns(d[:, :2], d[:, 2:], self.c, out), (llp - llm) / span
+
+    def block_time(self) -> np.ndarray:
+        """(blocks,) s: the time of each block's first sighting."""
+        return self.batch.frame_time[self.batch.sight_frame[self.rows[self.starts]]]
 
     def block_scores(self, cols: np.ndarray) -> np.ndarray:
         """(blocks,) a coordinate's score summed over each block of consecutive sightings (``block_starts``), from its
@@ -564,26 +579,44 @@ def parameter_uncertainty(model: Model, batch: Batch, fixed: frozenset[str] = fr
                        fixed=[n for n, h in zip(names, held) if h], held=held, passes=passes, null=null,
                        robust_standard_errors=_errors(jac, shapes, free, held, robust, null, floor=cov),
                        robust_covariance=robust,
-                       blocks=blocks_c.shape[1])
+                       blocks=blocks_c.shape[1], block_sums=block_sums[free], block_time=diff.block_time(),
+                       block_log=batch.sight_log[rows[diff.starts]])
 
 
-def information_overstatement(unc: Uncertainty, prefix: str) -> float:
+def information_overstatement(unc: Uncertainty, prefix: str, block_s: float | None = None) -> float:
     """How many times the Fisher information overstates what the data carry about the coordinates whose names start
     with ``prefix`` (e.g. ``"effects.velocity_fade."``): c = tr(V_F^-1 V_R) / d over their block of the Fisher
     covariance V_F = I^-1 and the sandwich V_R = I^-1 J I^-1 (the mean of the d eigenvalues of V_F^-1 V_R: Satorra &
     Bentler 1994's scaling of a likelihood-ratio statistic, which under a model that is not the data's is the sum of
     those eigenvalues times independent chi-square(1)s; Kent 1982). At least 1, as the robust errors are at least the
-    Fisher ones (``ROBUST_BLOCK_S``); 1 when no coordinate matches or there is no sandwich."""
+    Fisher ones (``ROBUST_BLOCK_S``); 1 when no coordinate matches or there is no sandwich. ``block_s``: J from the
+    robust errors' blocks merged into blocks of that many seconds (``merged_blocks``); None: the robust errors' own."""
     idx = [i for i, n in enumerate(unc.names) if n.startswith(prefix)]
     if not idx or unc.robust_covariance is None:
         return 1.0
     fisher = unc.covariance[np.ix_(idx, idx)]
-    robust = unc.robust_covariance[np.ix_(idx, idx)]
+    if block_s is None or unc.block_sums is None:
+        robust = unc.robust_covariance[np.ix_(idx, idx)]
+    else:
+        robust = sandwich(unc.covariance, merged_blocks(unc, block_s))[np.ix_(idx, idx)]
     rank = np.linalg.matrix_rank(fisher, hermitian=True)
     if rank == 0:
         return 1.0
     c = float(np.trace(np.linalg.pinv(fisher, hermitian=True) @ robust)) / rank
     return max(1.0, c) if math.isfinite(c) else 1.0
+
+
+def merged_blocks(unc: Uncertainty, block_s: float) -> np.ndarray:
+    """(p, m) ``unc``'s block sums of the score merged into blocks of ``block_s`` seconds of each log (shorter when
+    the logs hold fewer than ``OVERSTATEMENT_MIN_BLOCKS`` of them, never shorter than the blocks merged)."""
+    t, logs = unc.block_time, unc.block_log
+    span = sum(float(np.ptp(t[logs == k])) for k in np.unique(logs))
+    length = min(block_s, span / OVERSTATEMENT_MIN_BLOCKS)
+    if length <= 0:
+        return unc.block_sums
+    key = logs.astype(np.int64) * 10**9 + np.floor(t / length).astype(np.int64)
+    starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+    return np.add.reduceat(unc.block_sums, starts, axis=1)
 
 
 def sandwich(cov: np.ndarray, block_sums: np.ndarray) -> np.ndarray:
