@@ -125,11 +125,12 @@ def test_an_extrapolated_step_outside_a_domain_is_projected_back_onto_it():
 
 UNICYCLE_HELD = ["action_model.weights[0][1]", "action_model.weights[1][0]", "action_model.weights[1][1]",
                  "action_model.weights[2][1]", "action_model.weights[3][0]", "action_model.weights[3][1]",
-                 "action_model.weights[4][0]", "action_model.weights[4][1]"]
+                 "action_model.weights[4][0]", "action_model.weights[4][1]", "action_model.weights[4][2]"]
 
 
 def test_weights_the_unicycle_holds_at_zero_are_reported_as_fixed_not_estimated():
-    """``unicycle`` holds its lateral weights and its forward speed's omega, |omega| and constant terms at exactly 0
+    """``unicycle`` holds its lateral weights, its forward speed's omega, |omega| and constant terms and its turn rate's
+    constant at exactly 0
     (``ZERO_OUTPUTS``, ``ZERO_CELLS``). They are no parameters: before, the information took them as free (26
     parameters, the weakest direction made of lateral weights, a standard error for each, the forward weights'
     errors inflated by them) and the scoring finish moved them off 0. Now: listed as ``fixed`` (not
@@ -141,12 +142,12 @@ def test_weights_the_unicycle_holds_at_zero_are_reported_as_fixed_not_estimated(
     res = EMLearner(EMOptions(finish="scoring")).fit([tr], action_model="unicycle")
     w, info = res.params.action.weights, res.info["information"]
     held = np.zeros((5, 3), dtype=bool)
-    held[:, 1], held[[1, 3, 4], 0] = True, True  # ZERO_OUTPUTS: dy; ZERO_CELLS: omega, |omega|, 1 in dx
+    held[:, 1], held[[1, 3, 4], 0], held[4, 2] = True, True, True  # ZERO_OUTPUTS: dy; ZERO_CELLS: in dx, in dtheta
     np.testing.assert_array_equal(res.params.action.zero_cells(), held)
     assert np.all(w[held] == 0.0), w  # the finish did not move them
     assert info["fixed"] == UNICYCLE_HELD
-    # 7 free weights, 3 curve nodes + 2 sigmas + 6 log-Cholesky, the range's shrink k (EMOptions.range_shrink)
-    assert info["parameters"] == 15 - 8 + 12
+    # 6 free weights, 3 curve nodes + 2 sigmas + 6 log-Cholesky, the range's shrink k (EMOptions.range_shrink)
+    assert info["parameters"] == 15 - 9 + 12
     assert not set(UNICYCLE_HELD) & set(info["undetermined"] + info["weakest_direction"]), info
     se = np.array(res.info["standard_errors"]["action_model.weights"], dtype=float)
     assert np.all(se[held] == 0.0) and np.all(np.isfinite(se)) and np.all(se[~held] > 0), se

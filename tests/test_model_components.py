@@ -129,9 +129,9 @@ def test_continuous_commands_and_range_sensor_from_another_generator():
 
 
 def test_unicycle_regression_holds_lateral_weights_at_zero():
-    """``unicycle``: the diff_drive least squares with the dy column exactly 0 and the turn column unchanged (one
-    shared design matrix, so the constrained solution is the unconstrained one, dy zeroed); the forward column is the
-    least squares on its features other than omega, |omega| and the constant (``ZERO_CELLS``)."""
+    """``unicycle``: the diff_drive least squares with the dy column exactly 0; the forward column is the least squares
+    on its features other than omega, |omega| and the constant, the turn column on those other than the constant
+    (``ZERO_CELLS``)."""
     rng = np.random.default_rng(0)
     commands = np.column_stack([rng.uniform(-100, 400, 500), rng.uniform(-1.2, 1.2, 500)])
     mu = velocity(commands) * 0.1 + rng.normal(0, [2.0, 2.0, 0.005], (500, 3))
@@ -139,7 +139,9 @@ def test_unicycle_regression_holds_lateral_weights_at_zero():
     held = ActionModel.zeros(5, 0.1, "unicycle", ("v_mm_s", "omega_rad_s"))
     w = held.regress(commands, mu)
     assert np.all(w[:, 1] == 0.0) and np.any(free[:, 1] != 0.0)
-    np.testing.assert_allclose(w[:, 2], free[:, 2], rtol=0, atol=1e-12)
+    turn = held.features(commands)[:, :4]
+    np.testing.assert_allclose(w[:4, 2], np.linalg.lstsq(turn, mu[:, 2], rcond=None)[0], rtol=1e-9, atol=1e-12)
+    assert w[4, 2] == 0.0 and free[4, 2] != 0.0
     # the forward column holds omega, |omega| and the constant (rows 1, 3, 4) at 0: least squares on [v, v |omega|]
     phi = held.features(commands)[:, [0, 2]]
     assert np.all(w[[1, 3, 4], 0] == 0.0) and np.any(free[[1, 3, 4], 0] != 0.0)

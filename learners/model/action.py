@@ -17,7 +17,8 @@ name           command                features (F)
                                       sideways; and the forward (dx) column's omega, |omega| and
                                       constant rows held at 0 (``ZERO_CELLS``: no forward motion
                                       from turning in place, which EM used to trade heading for
-                                      speed, nor without a command). Sigma_A
+                                      speed, nor without a command), and the turn (dtheta)
+                                      column's constant (no turn without a command). Sigma_A
                                       keeps its dy variance (slip, and the path curving within
                                       one frame)
 ``linear``     any k numbers          [c_1, ..., c_k, 1]
