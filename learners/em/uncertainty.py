@@ -267,8 +267,13 @@ def block_starts(batch: Batch, rows: np.ndarray) -> np.ndarray:
     (``parameter_uncertainty``): the sightings of each ``block_seconds(batch)`` of a log."""
     if not len(rows):
         return np.zeros(0, dtype=int)
-    frames = batch.sight_frame[rows]
-    key = batch.sight_log[rows] * 10**9 + np.floor(batch.frame_time[frames] / block_seconds(batch)).astype(np.int64)
+    return _bin_starts(batch.sight_log[rows], batch.frame_time[batch.sight_frame[rows]], block_seconds(batch))
+
+
+def _bin_starts(logs: np.ndarray, times: np.ndarray, length: float) -> np.ndarray:
+    """Start indices of the runs of consecutive entries (in time order, ``times`` s) in one ``length``-second bin of one
+    log (``logs``): the blocks of ``block_starts`` and of ``merged_blocks``."""
+    key = logs.astype(np.int64) * 10**9 + np.floor(times / length).astype(np.int64)
     return np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
 
 
@@ -614,9 +619,7 @@ def merged_blocks(unc: Uncertainty, block_s: float) -> np.ndarray:
     length = min(block_s, span / OVERSTATEMENT_MIN_BLOCKS)
     if length <= 0:
         return unc.block_sums
-    key = logs.astype(np.int64) * 10**9 + np.floor(t / length).astype(np.int64)
-    starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
-    return np.add.reduceat(unc.block_sums, starts, axis=1)
+    return np.add.reduceat(unc.block_sums, _bin_starts(logs, t, length), axis=1)
 
 
 def sandwich(cov: np.ndarray, block_sums: np.ndarray) -> np.ndarray:
