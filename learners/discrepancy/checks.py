@@ -29,6 +29,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from learners.em.uncertainty import OVERSTATEMENT_BLOCK_S
 from learners.model.effects import EFFECT_MODELS
 
 from .candidate import Candidate, Verdict
@@ -197,8 +198,8 @@ class RobustLikelihoodRatio(Check):
         factor = ctx.overstatement(c.model, c.name)
         gain = c.gain_train / factor
         p, ok = ctx.test(gain, c.gain_heldout, c.dof)
-        note = (f"the Fisher information overstates the data's by x{factor:.2f} (sandwich, 30 s blocks): train "
-                f"+{c.gain_train:.1f} nats count as +{gain:.1f}, p = {p:.2g}" + ("" if ok else ": not significant"))
+        note = (f"the Fisher information overstates the data's by x{factor:.2f} (sandwich, {OVERSTATEMENT_BLOCK_S:g} s "
+                f"blocks): train +{c.gain_train:.1f} nats count as +{gain:.1f}, p = {p:.2g}" + ("" if ok else ": not significant"))
         return self.verdict(ok, gains={"train": gain}, p=p, note=note, overstatement=factor)
 
 
