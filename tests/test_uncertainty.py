@@ -225,3 +225,29 @@ def test_the_overstatement_over_longer_blocks_sees_a_drift_the_short_blocks_miss
     drift = unc_of(x)
     short, long_ = information_overstatement(drift, "effects.e."), information_overstatement(drift, "effects.e.", 30.0)
     assert short == pytest.approx(1.0, abs=0.2) and long_ == pytest.approx(2.74, abs=0.6), (short, long_)
+
+
+def test_the_conditional_errors_robust_form_sees_sightings_that_share_an_error():
+    """An effect's own likelihood (``conditional_errors``): a mean of unit-variance scores, the observed information
+    n (se 1 / sqrt(n)). Independent scores: the robust error is the observed information's (the larger of the two, the
+    sandwich's about equal). Each value shared by 4 neighbouring sightings (inside one 10 s block): the sum's variance
+    is 4 n, so the robust error is twice the observed information's (1.95 on this series)."""
+    from types import SimpleNamespace
+
+    from learners.em.uncertainty import conditional_errors
+    from learners.model.effects import ConditionalInformation
+
+    rng = np.random.default_rng(3)
+    n = 12_000  # one sighting per frame of 0.1 s: 120 blocks of 10 s, 100 sightings each
+    batch = SimpleNamespace(n_frames=n, dt=0.1, frame_time=0.1 * np.arange(n), sight_frame=np.arange(n),
+                            sight_log=np.zeros(n, int))
+
+    def errors(scores: np.ndarray) -> tuple[float, float]:
+        info = ConditionalInformation(("mean",), np.array([[1.0 / n]]), scores[:, None], np.arange(n))
+        se, robust = conditional_errors(info, batch)
+        return se["mean"], robust["mean"]
+
+    se, robust = errors(rng.normal(size=n))
+    assert se == pytest.approx(1 / np.sqrt(n)) and robust / se == pytest.approx(1.0, abs=0.15)
+    se, robust = errors(np.repeat(rng.normal(size=n // 4), 4))
+    assert robust / se == pytest.approx(2.0, abs=0.3), robust / se

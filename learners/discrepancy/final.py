@@ -23,6 +23,7 @@ from aibo_core.trajectory import Trajectory
 from learners.base import LearnResult
 from learners.em.learner import EMLearner
 from learners.em.options import EMOptions
+from learners.em.uncertainty import conditional_errors
 from learners.model.model import Model
 
 from .effect_sizes import effect_intervals
@@ -59,13 +60,16 @@ class Diagnosed:
     seconds: dict[str, float] = field(default_factory=dict)  # by stage: FINAL_FIT_STAGE, PROFILE_STAGE when profiled
 
 
-#: ``method`` of an interval from an effect's own likelihood, the filter held (``EffectModel.conditional_errors``)
-CONDITIONAL_WALD = "wald, from the effect's own likelihood of the sightings with the forward filter held (the rest at the final fit)"
+#: ``method`` of an interval from an effect's own likelihood, the filter held (``EffectModel.conditional_information``)
+CONDITIONAL_WALD = ("wald, robust (the larger of the observed information's and the sandwich standard error), from the "
+                    "effect's own likelihood of the sightings with the forward filter held (the rest at the final fit)")
 
 
-def _conditional_errors(model: Model, logs: list[Trajectory], names: list[str], se: dict[str, Any]) -> dict[str, list[str]]:
-    """Fill ``se`` (file key -> standard error), in place, for the named effects' parameters the EKF's information left
-    undetermined, from each effect's ``conditional_errors``; returns the parameters filled, by effect."""
+def _conditional_errors(model: Model, logs: list[Trajectory], names: list[str], se: dict[str, Any],
+                        robust: dict[str, Any]) -> dict[str, list[str]]:
+    """Fill ``se`` and ``robust`` (file key -> standard error), in place, for the named effects' parameters the EKF's
+    information left undetermined, from each effect's ``conditional_information`` (``uncertainty.conditional_errors``);
+    returns the parameters filled, by effect."""
     from learners.arrays.batch import make_batch
     from learners.em.estep import e_step
 
@@ -77,10 +81,13 @@ def _conditional_errors(model: Model, logs: list[Trajectory], names: list[str], 
     post = e_step(model, batch, "compiled")
     done: dict[str, list[str]] = {}
     for name, params in missing.items():
-        errors = model.effect(name).conditional_errors(model, batch, post)
+        info = model.effect(name).conditional_information(model, batch, post)
+        errors, robust_errors = conditional_errors(info, batch) if info is not None else ({}, {})
         for p in params:
             if p in errors:
                 se[f"effects.{name}.{p}"] = errors[p]
+                if p in robust_errors:
+                    robust[f"effects.{name}.{p}"] = robust_errors[p]
                 done.setdefault(name, []).append(p)
     return done
 
@@ -109,10 +116,10 @@ def diagnosed(found: dict[str, Any], opts: EMOptions, again: bool = True, final:
     fopts = final_options(opts)
     final = final if final is not None else final_fit(found, opts)
     se = dict(final.info.get("standard_errors", {}))
-    conditional = _conditional_errors(final.params, logs, [c.name for c in found["named"]], se)
+    robust = dict(final.info.get("robust_standard_errors") or {})
+    conditional = _conditional_errors(final.params, logs, [c.name for c in found["named"]], se, robust)
     effects = [{"name": c.name, "parameters": _values(final.params.effect(c.name)),
-                "intervals": effect_intervals(final.params, c.name, se, c.profile,
-                                              final.info.get("robust_standard_errors")),
+                "intervals": effect_intervals(final.params, c.name, se, c.profile, robust or None),
                 "parameters_when_named": c.as_dict()["parameters"]} for c in found["named"]]
     for e in effects:
         for pname in conditional.get(e["name"], ()):

@@ -72,6 +72,7 @@ import numpy as np
 
 from learners.arrays.batch import Batch
 from learners.inference.kernels import innovations_compiled
+from learners.model.effects import ConditionalInformation
 from learners.model.io import model_to_json
 from learners.model.model import Model
 from learners.model.parameters import helmert
@@ -633,3 +634,19 @@ def sandwich(cov: np.ndarray, block_sums: np.ndarray) -> np.ndarray:
     J = (c @ c.T) * (m / max(m - 1, 1))
     out = cov @ J @ cov
     return 0.5 * (out + out.T)
+
+
+def conditional_errors(info: ConditionalInformation, batch: Batch) -> tuple[dict[str, float], dict[str, float]]:
+    """(standard errors, robust standard errors) of an effect's parameters from its own likelihood with the filter held
+    (``EffectModel.conditional_information``), by parameter name; {} where the information does not determine them.
+    The robust ones are the larger of the observed information's and the sandwich's, the scores summed over the blocks
+    of ``block_starts`` (the rule of the EKF's robust errors): neighbouring sightings share the predicted pose's error,
+    so their scores are correlated, and the observed information overstates what the log holds (``heavy_tailed_noise``'s
+    scale: docs/results.md, "A scale mixture of the noise")."""
+    k = len(info.names)
+    se = np.sqrt(np.maximum(np.diag(info.cov)[:k], 0.0))
+    if not (np.all(np.isfinite(se)) and np.all(se > 0)):
+        return {}, {}
+    sums = np.add.reduceat(info.scores, block_starts(batch, info.rows), axis=0).T if len(info.rows) else None
+    robust = se if sums is None else np.maximum(se, np.sqrt(np.maximum(np.diag(sandwich(info.cov, sums))[:k], 0.0)))
+    return dict(zip(info.names, se.tolist())), dict(zip(info.names, robust.tolist()))

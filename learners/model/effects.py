@@ -34,6 +34,19 @@ if TYPE_CHECKING:
     from learners.model.model import Model
 
 
+@dataclass(frozen=True)
+class ConditionalInformation:
+    """An effect's own likelihood of the sightings with the forward filter held, about its maximum
+    (``EffectModel.conditional_information``): the inverse observed information over ``coordinates`` (the effect's
+    parameters ``names`` first, then nuisances estimated with them), and each applied sighting's score (its log density's
+    gradient over the same coordinates) in the order of ``rows`` (batch sighting indices, in time order)."""
+
+    names: tuple[str, ...]  # the effect's parameters, the first len(names) coordinates (scalars)
+    cov: np.ndarray  # (k, k) inverse of the observed information (nats^-1, the coordinates' units squared)
+    scores: np.ndarray  # (n, k) d log density / d coordinate of each sighting of ``rows``
+    rows: np.ndarray  # (n,) the sightings (indices into the batch), in time order
+
+
 class EffectModel(Component):
     """Base of the effect components (module docstring). Every hook is optional."""
 
@@ -144,12 +157,13 @@ class EffectModel(Component):
         of each frame net of the previous world offset, the prior's pull included: ``learners.inference``)."""
         return model
 
-    def conditional_errors(self, model: "Model", batch: Batch, post: Posterior) -> dict[str, float]:
-        """Standard errors of this effect's parameters (by parameter name) where the Fisher information of the EKF's
-        innovations (``learners.em.uncertainty``) cannot see them: a mixture's rate and width change each sighting's
-        density, not the filter. From the observed information of the effect's own likelihood given ``post`` (the
-        forward filter held); {} by default (the filter's information is the one)."""
-        return {}
+    def conditional_information(self, model: "Model", batch: Batch, post: Posterior) -> "ConditionalInformation | None":
+        """Where the Fisher information of the EKF's innovations (``learners.em.uncertainty``) cannot see this effect's
+        parameters (a mixture's rate and width change each sighting's density, not the filter): the observed
+        information of the effect's own likelihood given ``post`` (the forward filter held) and each sighting's score,
+        from which the caller makes the standard errors and their robust (sandwich) form. None by default (the
+        filter's information is the one)."""
+        return None
 
     def predictive(self) -> "EffectModel":
         """The effect as it enters a sighting's OWN predictive density (default: itself). An effect whose

@@ -21,7 +21,7 @@ M-step: rate, scale and the core's two variances maximizing the mixture's likeli
 forward filter held (each sighting's innovation against the filter's prediction of its frame: ``fit_scale_mixture``,
 L-BFGS-B from the current values); then each sighting's expected precision at the smoothed path for the filter. EM's
 own closed-form steps crawl along the rate-scale ridge (docs/results.md, "A scale mixture of the noise"). Standard
-errors: ``conditional_errors`` (the EKF's Fisher information cannot see a mixture's parameters). Not named below a rate
+errors: ``conditional_information`` (the EKF's Fisher information cannot see a mixture's parameters). Not named below a rate
 of ``MIN_RATE`` (outliers) or a scale of ``MIN_SCALE`` (a slightly mis-specified Gaussian); not a default candidate:
 on the MRCLAM robots it traded robot 4's forward speed for robot 1's with the range held at the distance, and with the
 range's shrink in the base it is named on 1 of 10 halves (docs/results.md).
@@ -40,7 +40,7 @@ from learners.arrays.innovations import Innovations, belief_innovations, frame_p
 from learners.arrays.lowered import Lowered
 from learners.arrays.posterior import Posterior
 from learners.model.catalogue_more import MAX_RATE, W_FLOOR, WeighedSightings, sighting_key
-from learners.model.effects import EffectModel, register_effect, smoothed_innovations
+from learners.model.effects import ConditionalInformation, EffectModel, register_effect, smoothed_innovations
 from learners.model.parameters import Param
 
 if TYPE_CHECKING:
@@ -115,7 +115,7 @@ class HeavyTailedNoise(WeighedSightings, EffectModel):
         """(rate, scale, the core's variances) maximizing the mixture's likelihood of the sightings with the forward
         filter held, then each sighting's expected precision at the smoothed path for the filter (module
         docstring); sets the sensor's sigmas to the core's."""
-        pred, vf, lo0 = self._one_step(model, batch, post)
+        pred, vf, lo0, _ = self._one_step(model, batch, post)
         rate, c2 = self._mixture()
         rate, scale, var = fit_scale_mixture(pred, vf, rate, math.sqrt(c2),
                                              np.array([lo0.sigma_size ** 2, lo0.sigma_bearing ** 2]))
@@ -127,24 +127,30 @@ class HeavyTailedNoise(WeighedSightings, EffectModel):
         new = replace(self, rate=rate, scale=scale, w=w_all, key=sighting_key(batch))
         return model.with_effect(new).with_(sensor=sensor)
 
-    def _one_step(self, model: "Model", batch: Batch, post: Posterior) -> tuple[Innovations, np.ndarray, Lowered]:
+    def _one_step(self, model: "Model", batch: Batch,
+                  post: Posterior) -> tuple[Innovations, np.ndarray, Lowered, np.ndarray]:
         """(the applied sightings' innovations against ``post``'s forward prediction of their frame, with the noise of
-        the model without this effect; their other effects' variance factors (n, 2); that model's lowered arrays)."""
+        the model without this effect; their other effects' variance factors (n, 2); that model's lowered arrays; the
+        sightings' batch indices, in time order)."""
         lo0 = replace(model, effects=tuple(e for e in model.effects if e.name != self.name)).lower(batch)
         idx = np.flatnonzero(batch.used & np.isfinite(post.mahal2))
         pred = belief_innovations(lo0, batch, idx, *frame_prediction(model.lower(batch), batch, post, idx))
-        return pred, np.stack([lo0.size_var_factor[idx], lo0.bearing_var_factor[idx]], axis=1), lo0
+        return pred, np.stack([lo0.size_var_factor[idx], lo0.bearing_var_factor[idx]], axis=1), lo0, idx
 
-    def conditional_errors(self, model: "Model", batch: Batch, post: Posterior) -> dict[str, float]:
-        """Standard errors of rate and scale from the observed information of the mixture's likelihood of the
-        sightings, the forward filter held, the core's two variances estimated with them (central differences)."""
-        pred, vf, _ = self._one_step(model, batch, post)
+    def conditional_information(self, model: "Model", batch: Batch, post: Posterior) -> ConditionalInformation | None:
+        """The mixture's likelihood of the sightings with the forward filter held, about the fit: its observed
+        information over (rate, scale, the core's two log variances) by central differences, inverted, and each
+        sighting's score (``EffectModel.conditional_information``)."""
+        pred, vf, _, idx = self._one_step(model, batch, post)
         var = np.array([model.sensor.sigma_size ** 2, model.sensor.sigma_bearing ** 2])
         x0 = np.array([self.rate, self.scale, 0.0, 0.0])
         h = np.array([1e-3 * max(self.rate, 1e-3), 1e-3 * self.scale, 1e-3, 1e-3])
 
+        def logdens(x: np.ndarray) -> np.ndarray:
+            return mixture_logdens(pred, vf, float(x[0]), float(x[1]), var * np.exp(x[2:]))
+
         def nll(x: np.ndarray) -> float:
-            return mixture_nll(pred, vf, float(x[0]), float(x[1]), var * np.exp(x[2:]))
+            return -float(np.sum(logdens(x)))
 
         H = np.empty((4, 4))
         for i in range(4):
@@ -155,9 +161,9 @@ class HeavyTailedNoise(WeighedSightings, EffectModel):
         try:
             cov = np.linalg.inv(H)
         except np.linalg.LinAlgError:
-            return {}
-        se = np.sqrt(np.diag(cov)[:2])
-        return {"rate": float(se[0]), "scale": float(se[1])} if np.all(np.isfinite(se)) and np.all(se > 0) else {}
+            return None
+        scores = np.stack([(logdens(x0 + e) - logdens(x0 - e)) / (2.0 * h[k]) for k, e in enumerate(np.diag(h))], axis=1)
+        return ConditionalInformation(("rate", "scale"), cov, scores, idx)
 
     def to_json(self) -> dict[str, Any]:
         return {"name": self.name, "parameters": {"rate": float(self.rate), "scale": float(self.scale)}}
@@ -182,10 +188,15 @@ def expected_precision(noise: Innovations, rate: float, c2: float) -> np.ndarray
     return (1.0 - q) + q / c2
 
 
-def mixture_nll(inn: Innovations, vf: np.ndarray, rate: float, scale: float, var: np.ndarray) -> float:
-    """-sum log((1 - rate) N(v; HPH^T + R) + rate N(v; HPH^T + scale^2 R)) over the sightings ``inn``, R = diag(var) x
+def mixture_logdens(inn: Innovations, vf: np.ndarray, rate: float, scale: float, var: np.ndarray) -> np.ndarray:
+    """(n,) log((1 - rate) N(v; HPH^T + R) + rate N(v; HPH^T + scale^2 R)) of each sighting of ``inn``, R = diag(var) x
     ``vf`` (nats)."""
-    return -float(np.sum(np.logaddexp(*mixture_terms(replace(inn, r=var * vf), rate, scale ** 2))))
+    return np.logaddexp(*mixture_terms(replace(inn, r=var * vf), rate, scale ** 2))
+
+
+def mixture_nll(inn: Innovations, vf: np.ndarray, rate: float, scale: float, var: np.ndarray) -> float:
+    """-sum of ``mixture_logdens`` over the sightings ``inn`` (nats)."""
+    return -float(np.sum(mixture_logdens(inn, vf, rate, scale, var)))
 
 
 def fit_scale_mixture(inn: Innovations, vf: np.ndarray, rate: float, scale: float,
