@@ -154,3 +154,35 @@ def test_strength_overrides_set_one_parameter_and_refuse_what_is_not_one():
     for bad in ("actuation_lag.lag=0.15", "actuation_lag.lag_s", "nothing.x=1", "actuation_lag.lag_s=fast"):
         with pytest.raises(ValueError, match="--strength"):
             cal.set_strength([bad])
+
+
+def test_the_final_fit_starts_from_learns_model_of_the_same_logs_with_the_searchs_effects(monkeypatch):
+    """``final_fit``: the action model, sensor model and start poses of ``found["learned"]`` (``aibo learn``'s model of
+    the same logs), the effects of the search's model; without ``found["learned"]``, the search's model itself."""
+    from learners.arrays.batch import make_batch
+    from learners.discrepancy import final
+    from learners.em.learner import EMLearner
+    from learners.em.options import EMOptions
+    from learners.model.catalogue import VelocityFade
+    from tests._logs import sim_log
+
+    tr = sim_log(1500)
+    learned = EMLearner(EMOptions(max_iter=5, lag_search=False)).fit([tr]).params
+    searched = EMLearner(EMOptions(max_iter=2, lag_search=False)).fit([tr]).params
+    searched = searched.with_effect(VelocityFade.start(make_batch([tr])))
+    assert not np.allclose(learned.action.weights, searched.action.weights)
+    starts = []
+
+    class Recording(EMLearner):
+        def fit(self, logs, init=None, **kw):
+            starts.append(init)
+            return super().fit(logs, init=init, **kw)
+
+    monkeypatch.setattr(final, "EMLearner", Recording)
+    opts = EMOptions(seed=0, lag_search=False, max_iter=3)
+    final.final_fit({"model": searched, "logs": [tr], "learned": learned}, opts)
+    final.final_fit({"model": searched, "logs": [tr]}, opts)
+    (from_learned, from_search) = starts
+    assert from_learned.action is learned.action and from_learned.sensor is learned.sensor
+    assert from_learned.init is learned.init and from_learned.effects == searched.effects
+    assert from_search is searched

@@ -418,7 +418,7 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
         probes = none_of_the_above(current, last if last is not None and last.current is current else None, ctx,
                                    workers, progress)
     return {"base": base, "rounds": rounds, "named": named, "model": current, "logs": logs, "skipped": skipped,
-            "escapes": escapes, "probes": probes, "context": ctx}
+            "escapes": escapes, "probes": probes, "context": ctx, "action_model": action_model}
 
 
 def none_of_the_above(current: Model, last: SearchContext | None, ctx: SearchContext, pool: Any,
