@@ -341,7 +341,8 @@ def test_an_effect_the_final_fit_makes_implausible_is_dropped_and_the_model_refi
     monkeypatch.setattr(final_module, "final_fit", final_fit)
     monkeypatch.setattr(final_module, "diagnosed", diagnosed)
     named = [Candidate(n, {}, 0.0, 0.0, 1, 0.0) for n in ("lag", "bias")]
-    found = {"named": named, "model": _Model((_Effect("lag"), _Effect("bias"))), "context": _Context({})}
+    found = {"named": named, "model": _Model((_Effect("lag"), _Effect("bias"))), "context": _Context({}),
+             "learned": None}  # learn's model of the logs: made already (none here: the stand-in final fit needs none)
     said = []
     found2, final = plausible_diagnosis(found, None, said.append)
     assert calls == [("lag", "bias"), ("lag",)] and interval_calls == [("lag",)]  # the kept fit's intervals only
