@@ -156,11 +156,13 @@ def test_strength_overrides_set_one_parameter_and_refuse_what_is_not_one():
             cal.set_strength([bad])
 
 
-def test_the_final_fit_starts_from_learns_model_of_the_same_logs_with_the_searchs_effects(monkeypatch):
-    """``final_fit``: the action model, sensor model and start poses of ``found["learned"]`` (``aibo learn``'s model of
-    the same logs), the effects of the search's model; without ``found["learned"]``, the search's model itself."""
+def test_the_final_fit_starts_from_the_searchs_model_and_from_learns_and_keeps_the_more_likely(monkeypatch):
+    """``final_fit``: one fit from the search's model and one from ``found["learned"]``'s (``aibo learn``'s model of the
+    same logs) action model, sensor model and start poses with the search's effects; the more likely kept. Without
+    ``found["learned"]``, the search's model alone."""
     from learners.arrays.batch import make_batch
     from learners.discrepancy import final
+    from learners.discrepancy.fitting import train_loglik
     from learners.em.learner import EMLearner
     from learners.em.options import EMOptions
     from learners.model.catalogue import VelocityFade
@@ -171,18 +173,23 @@ def test_the_final_fit_starts_from_learns_model_of_the_same_logs_with_the_search
     searched = EMLearner(EMOptions(max_iter=2, lag_search=False)).fit([tr]).params
     searched = searched.with_effect(VelocityFade.start(make_batch([tr])))
     assert not np.allclose(learned.action.weights, searched.action.weights)
-    starts = []
+    starts, fits = [], []
 
     class Recording(EMLearner):
         def fit(self, logs, init=None, **kw):
             starts.append(init)
-            return super().fit(logs, init=init, **kw)
+            fits.append(super().fit(logs, init=init, **kw))
+            return fits[-1]
 
     monkeypatch.setattr(final, "EMLearner", Recording)
     opts = EMOptions(seed=0, lag_search=False, max_iter=3)
-    final.final_fit({"model": searched, "logs": [tr], "learned": learned}, opts)
-    final.final_fit({"model": searched, "logs": [tr]}, opts)
-    (from_learned, from_search) = starts
+    kept = final.final_fit({"model": searched, "logs": [tr], "learned": learned}, opts)
+    from_search, from_learned = starts
+    assert from_search is searched
     assert from_learned.action is learned.action and from_learned.sensor is learned.sensor
     assert from_learned.init is learned.init and from_learned.effects == searched.effects
-    assert from_search is searched
+    ll = [train_loglik(f.params, [tr]) for f in fits]
+    assert ll[0] != ll[1] and kept is fits[int(np.argmax(ll))]
+    starts.clear()
+    final.final_fit({"model": searched, "logs": [tr]}, opts)
+    assert starts == [searched]

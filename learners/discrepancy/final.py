@@ -98,26 +98,43 @@ def _values(effect) -> dict[str, Any]:
 
 def learned(logs: list[Trajectory], opts: EMOptions, action_model: str | None = None) -> Model:
     """``aibo learn``'s model of ``logs`` (EM from the paper's start with the user's options ``opts``, no standard
-    errors): where the final fit starts its action model, sensor model and start poses (:func:`final_fit`)."""
+    errors): the second start of the final fit's action model, sensor model and start poses (:func:`final_starts`)."""
     return EMLearner(replace(opts, uncertainty=False), check_field=False).fit(logs, action_model=action_model).params
 
 
 def final_fit(found: dict[str, Any], opts: EMOptions) -> LearnResult:
-    """The final fit: EM on the whole logs ``found["logs"]``, with :func:`final_options` of the search's ``opts``
-    (standard errors included), from the search's effects ``found["model"].effects`` on ``found["learned"]``'s action
-    model, sensor model and start poses (``aibo learn``'s model of the same logs, :func:`learned`) where the search
-    made one, else from the search's model itself. Why learn's: the velocities lie on ridges the logs hardly
-    determine (the arc loss, v |omega|, on MRCLAM halves), EM stops on a ridge where its creep falls below the stop
-    rule, and a start from the search's model (fitted on the training halves) stopped elsewhere on it than learn's
-    fit of the same logs: forward speed against Vicon on the other half 8-28% worse than learn's on 3 of 10 MRCLAM
-    halves. From learn's point, what the final fit moves is what the named effects move: no worse than learn's within
-    3% on 8 of the 10 halves (robot 4's first half 6.5 -> 5.75 mm/s, learn 5.77), the 10 forward errors summing to
-    54.9 mm/s against 56.1 from the search's model and learn's 55.1 (docs/results.md, "MRCLAM, half to half")."""
-    start = found["model"]
+    """The final fit: EM on the whole logs ``found["logs"]`` with :func:`final_options` of the search's ``opts``
+    (standard errors included) from each of :func:`final_starts`, the more likely kept (the E-step's likelihood of
+    the whole logs, ungated; the search's start on a tie).
+
+    Why two starts: the velocities lie on ridges the logs hardly determine (the arc loss, v |omega|, on MRCLAM
+    halves) and EM stops on one where its creep falls below the stop rule. From the search's model alone (fitted on
+    the training halves) the final fit stopped elsewhere on the ridge than ``aibo learn``'s fit of the same logs:
+    robot 4's first half, with learn's structure (the lag alone), scored 6.5 mm/s against Vicon on the other half
+    where learn's model scored 5.8. From learn's model alone it ended 20-1,200 nats below the search's start on 14 of
+    17 final fits of the MRCLAM halves (the effects' values were fitted beside other velocities and sensor curve, and
+    the search's stop rule ends the fit long before it recovers). Kept by likelihood: learn's start on 3 of 17
+    (robot 4's first half by 1.1 nats: 5.75 mm/s; robot 2's first half by 2.6), forward speed no worse than learn's
+    within 3% on 8 of the 10 halves (docs/results.md, "MRCLAM, half to half")."""
+    from .fitting import train_loglik
+
+    learner = EMLearner(final_options(opts), check_field=False)
+    fits = [learner.fit(found["logs"], init=start) for start in final_starts(found)]
+    if len(fits) == 1:
+        return fits[0]
+    ll = [train_loglik(f.params, found["logs"]) for f in fits]
+    return fits[int(np.argmax(ll))]
+
+
+def final_starts(found: dict[str, Any]) -> list[Model]:
+    """Where the final fit starts: the search's model ``found["model"]``, and, where the search made one
+    (``found["learned"]``: ``aibo learn``'s model of the same logs, :func:`learned`), its action model, sensor model
+    and start poses with the search's effects."""
+    starts = [found["model"]]
     if found.get("learned") is not None:
         base = found["learned"]
-        start = start.with_(action=base.action, sensor=base.sensor, init=base.init)
-    return EMLearner(final_options(opts), check_field=False).fit(found["logs"], init=start)
+        starts.append(found["model"].with_(action=base.action, sensor=base.sensor, init=base.init))
+    return starts
 
 
 def diagnosed(found: dict[str, Any], opts: EMOptions, again: bool = True, final: LearnResult | None = None) -> Diagnosed:
