@@ -111,11 +111,12 @@ def final_fit(found: dict[str, Any], opts: EMOptions) -> LearnResult:
     halves) and EM stops on one where its creep falls below the stop rule. From the search's model alone (fitted on
     the training halves) the final fit stopped elsewhere on the ridge than ``aibo learn``'s fit of the same logs:
     robot 4's first half, with learn's structure (the lag alone), scored 6.5 mm/s against Vicon on the other half
-    where learn's model scored 5.8. From learn's model alone it ended 20-1,200 nats below the search's start on 14 of
-    17 final fits of the MRCLAM halves (the effects' values were fitted beside other velocities and sensor curve, and
-    the search's stop rule ends the fit long before it recovers). Kept by likelihood: learn's start on 3 of 17
-    (robot 4's first half by 1.1 nats: 5.75 mm/s; robot 2's first half by 2.6), forward speed no worse than learn's
-    within 3% on 8 of the 10 halves (docs/results.md, "MRCLAM, half to half")."""
+    where learn's model scored 5.8. From learn's model alone it ended 17-1,225 nats below the search's start on 12 of
+    the 15 final fits of the MRCLAM halves (the effects' values were fitted beside other velocities and sensor curve,
+    and the search's stop rule ends the fit long before it recovers). Kept by likelihood: learn's start on 3 of 15
+    (robot 4's first half by 1.1 nats: 5.75 mm/s; robot 2's first half by 2.6 and robot 5's second by 110, their
+    scores unchanged), forward speed no worse than learn's within 3% on 8 of the 10 halves (docs/results.md, "MRCLAM,
+    half to half")."""
     from .fitting import train_loglik
 
     learner = EMLearner(final_options(opts), check_field=False)

@@ -37,7 +37,7 @@ if TYPE_CHECKING:
 @dataclass(frozen=True)
 class ConditionalInformation:
     """An effect's own likelihood of the sightings with the forward filter held, about its maximum
-    (``EffectModel.conditional_information``): the inverse observed information over ``coordinates`` (the effect's
+    (``EffectModel.conditional_information``): the inverse observed information over k coordinates (the effect's
     parameters ``names`` first, then nuisances estimated with them), and each applied sighting's score (its log density's
     gradient over the same coordinates) in the order of ``rows`` (batch sighting indices, in time order)."""
 
