@@ -27,7 +27,7 @@ from learners.em.uncertainty import conditional_errors
 from learners.model.model import Model
 
 from .effect_sizes import effect_intervals
-from .fitting import SEARCH_PATIENCE, with_values
+from .fitting import SEARCH_PATIENCE, train_loglik, with_values
 from .profile import profile_where_wald_fails, refine_grid_intervals
 
 #: ``Diagnosed.seconds``' keys (``report.json["seconds_by_stage"]``)
@@ -117,8 +117,6 @@ def final_fit(found: dict[str, Any], opts: EMOptions) -> LearnResult:
     (robot 4's first half by 1.1 nats: 5.75 mm/s; robot 2's first half by 2.6 and robot 5's second by 110, their
     scores unchanged), forward speed no worse than learn's within 3% on 8 of the 10 halves (docs/results.md, "MRCLAM,
     half to half")."""
-    from .fitting import train_loglik
-
     learner = EMLearner(final_options(opts), check_field=False)
     fits = [learner.fit(found["logs"], init=start) for start in final_starts(found)]
     if len(fits) == 1:
