@@ -163,6 +163,18 @@ def shift_text(shift: dict[str, Any]) -> str:
             f"{shift['sensor_distances_mm'][0]:.0f}-{shift['sensor_distances_mm'][1]:.0f} mm")
 
 
+def starts_text(starts: list[dict[str, Any]]) -> str:
+    """Which start the final fit on the whole log(s) kept (``report.json["final_fit_starts"]``), one phrase."""
+    kept = next((s for s in starts if s["kept"]), None)
+    if kept is None:
+        return "the final fit's start: not recorded"
+    others = [s for s in starts if not s["kept"] and s["loglik"] is not None]
+    if kept["loglik"] is None or not others:
+        return f"the final fit on the whole log(s) started from {kept['start']}"
+    return (f"the final fit on the whole log(s) kept the fit from {kept['start']}, more likely by "
+            + ", ".join(f"{kept['loglik'] - s['loglik']:.1f} nats than from {s['start']}" for s in others))
+
+
 def _img(path: Path) -> str:
     data = base64.b64encode(path.read_bytes()).decode()
     return f'<img src="data:image/png;base64,{data}" style="max-width:100%">'
@@ -275,6 +287,8 @@ pre{{background:#f6f6f6;padding:1em;overflow:auto}}</style></head><body>
 <p>Gap ({html.escape(report['gap_metric'])}: how unlikely the held-out half of the log is under the model, in nats per
 sighting; lower is better): <b>{report['gap_before']:.4f}</b> before, <b>{report['gap_after']:.4f}</b> after
 {f"the named effects: {change} nats per sighting" if report["effects"] else "(nothing named: the same model)"}.</p>
+<p>The diagnosed model (model.json): {html.escape(starts_text(report.get("final_fit_starts", [])))} (the likelihood of
+the whole log(s), ungated).</p>
 {_motion(report)}
 <p>The residual signatures below show where the base model's residuals drift: sighting innovations against predicted
 quantities, motion residuals within each command. Each p-value allows for the residuals' serial correlation and is

@@ -183,13 +183,17 @@ def test_the_final_fit_starts_from_the_searchs_model_and_from_learns_and_keeps_t
 
     monkeypatch.setattr(final, "EMLearner", Recording)
     opts = EMOptions(seed=0, lag_search=False, max_iter=3)
-    kept = final.final_fit({"model": searched, "logs": [tr], "learned": learned}, opts)
+    kept, record = final.final_fit({"model": searched, "logs": [tr], "learned": learned}, opts)
     from_search, from_learned = starts
     assert from_search is searched
     assert from_learned.action is learned.action and from_learned.sensor is learned.sensor
     assert from_learned.init is learned.init and from_learned.effects == searched.effects
     ll = [train_loglik(f.params, [tr]) for f in fits]
     assert ll[0] != ll[1] and kept is fits[int(np.argmax(ll))]
+    # the record report.json["final_fit_starts"] states: each start's likelihood, the more likely marked kept
+    assert [r["start"] for r in record] == list(final.START_NAMES)
+    assert [r["loglik"] for r in record] == pytest.approx(ll)
+    assert [r["kept"] for r in record] == [v == max(ll) for v in ll]
     starts.clear()
-    final.final_fit({"model": searched, "logs": [tr]}, opts)
-    assert starts == [searched]
+    _, record = final.final_fit({"model": searched, "logs": [tr]}, opts)
+    assert starts == [searched] and record == [{"start": final.START_NAMES[0], "loglik": None, "kept": True}]

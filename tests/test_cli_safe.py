@@ -578,6 +578,11 @@ def test_diagnose_reports_candidates_the_log_cannot_support(blind_log, tmp_path,
     report = json.loads((out / "report.json").read_text())
     assert list(report["not_tried"]) == ["wall_contact"]
     assert [c["name"] for c in report["candidates"]] == ["floor_drift"]
+    # which start the final fit kept: both fits' likelihoods, the larger one's marked
+    starts = report["final_fit_starts"]
+    assert [s["start"] for s in starts] == ["the search's model", "aibo learn's model with the search's effects"]
+    assert [s["kept"] for s in starts] == [s["loglik"] == max(t["loglik"] for t in starts) for s in starts]
+    assert "the final fit on the whole log(s) kept the fit from" in text
 
 
 def test_diagnose_says_when_every_replica_failed(blind_log, tmp_path, monkeypatch, capsys):
@@ -606,6 +611,11 @@ def test_report_page_leads_with_the_verdict(tmp_path):
     assert verdict < page.index("better by 0.5000 nats per sighting") < page.index("adjusted for every pair tried")
     html_page(tmp_path / "n.html", {**report, "effects": []}, "text", [])
     assert "Verdict: <b>no missing effect found</b>" in (tmp_path / "n.html").read_text()
+    starts = [{"start": "the search's model", "loglik": -1000.0, "kept": False},
+              {"start": "aibo learn's model with the search's effects", "loglik": -987.5, "kept": True}]
+    html_page(tmp_path / "s.html", {**report, "final_fit_starts": starts}, "text", [])
+    assert ("kept the fit from aibo learn&#x27;s model with the search&#x27;s effects, more likely by 12.5 nats than "
+            "from the search&#x27;s model") in (tmp_path / "s.html").read_text()
 
 
 def test_report_page_states_units_the_grid_step_and_which_candidate_was_named(tmp_path):

@@ -94,6 +94,7 @@ def run(args) -> int:
     sig_before, sig_after = signatures(found["base"], logs), signatures(found["model"], logs)
     report = _report(found, final.effects, before, after, sig_before)
     report.update(motion)
+    report["final_fit_starts"] = final.starts
     say("")
     say(f"named effects, in order: {', '.join(e['name'] for e in report['effects']) or 'none'}")
     for e in report["effects"]:
@@ -102,6 +103,7 @@ def run(args) -> int:
         say(f"  {e['name']}: {fig.short(e['parameters'])}{step}{'; ' + interval if interval else ''}")
     if report["base_change"]:
         say(f"  {fig.shift_text(report['base_change'])}")
+    say(f"  {fig.starts_text(final.starts)}")
     for name, note in {c["name"]: c["note"] for c in report["candidates"] if not c["identifiable"]}.items():
         say(f"  {name}: present or not, {note}")
     for name, why in report["not_tried"].items():

@@ -58,6 +58,8 @@ class Diagnosed:
     effects: list[dict[str, Any]]
     profiled: list[str]  # the effects whose interval is a profile (or conditional) likelihood one
     seconds: dict[str, float] = field(default_factory=dict)  # by stage: FINAL_FIT_STAGE, PROFILE_STAGE when profiled
+    #: the final fit's starts (:func:`final_fit`): {"start", "loglik", "kept"} each (``report.json["final_fit_starts"]``)
+    starts: list[dict[str, Any]] = field(default_factory=list)
 
 
 #: ``method`` of an interval from an effect's own likelihood, the filter held (``EffectModel.conditional_information``)
@@ -102,10 +104,11 @@ def learned(logs: list[Trajectory], opts: EMOptions, action_model: str | None = 
     return EMLearner(replace(opts, uncertainty=False), check_field=False).fit(logs, action_model=action_model).params
 
 
-def final_fit(found: dict[str, Any], opts: EMOptions) -> LearnResult:
+def final_fit(found: dict[str, Any], opts: EMOptions) -> tuple[LearnResult, list[dict[str, Any]]]:
     """The final fit: EM on the whole logs ``found["logs"]`` with :func:`final_options` of the search's ``opts``
     (standard errors included) from each of :func:`final_starts`, the more likely kept (the E-step's likelihood of
-    the whole logs, ungated; the search's start on a tie).
+    the whole logs, ungated; the search's start on a tie). Returns (the fit kept, one record per start:
+    {"start": :data:`START_NAMES`' name, "loglik": nats, "kept": bool}; "loglik" None for a single start).
 
     Why two starts: the velocities lie on ridges the logs hardly determine (the arc loss, v |omega|, on MRCLAM
     halves) and EM stops on one where its creep falls below the stop rule. From the search's model alone (fitted on
@@ -120,9 +123,15 @@ def final_fit(found: dict[str, Any], opts: EMOptions) -> LearnResult:
     learner = EMLearner(final_options(opts), check_field=False)
     fits = [learner.fit(found["logs"], init=start) for start in final_starts(found)]
     if len(fits) == 1:
-        return fits[0]
+        return fits[0], [{"start": START_NAMES[0], "loglik": None, "kept": True}]
     ll = [train_loglik(f.params, found["logs"]) for f in fits]
-    return fits[int(np.argmax(ll))]
+    best = int(np.argmax(ll))
+    return fits[best], [{"start": name, "loglik": float(v), "kept": k == best}
+                        for k, (name, v) in enumerate(zip(START_NAMES, ll))]
+
+
+#: the final fit's starts, in :func:`final_starts`' order
+START_NAMES = ("the search's model", "aibo learn's model with the search's effects")
 
 
 def final_starts(found: dict[str, Any]) -> list[Model]:
@@ -148,7 +157,9 @@ def diagnosed(found: dict[str, Any], opts: EMOptions, again: bool = True, final:
     logs = found["logs"]
     t0 = time.perf_counter()
     fopts = final_options(opts)
-    final = final if final is not None else final_fit(found, opts)
+    starts: list[dict[str, Any]] = []
+    if final is None:
+        final, starts = final_fit(found, opts)
     se = dict(final.info.get("standard_errors", {}))
     robust = dict(final.info.get("robust_standard_errors") or {})
     conditional = _conditional_errors(final.params, logs, [c.name for c in found["named"]], se, robust)
@@ -172,7 +183,7 @@ def diagnosed(found: dict[str, Any], opts: EMOptions, again: bool = True, final:
         redone = diagnosed(dict(found, model=model), opts, again=False)
         redone.seconds = {k: seconds.get(k, 0.0) + redone.seconds.get(k, 0.0) for k in seconds | redone.seconds}
         return redone
-    return Diagnosed(final, effects, profiled, seconds)
+    return Diagnosed(final, effects, profiled, seconds, starts)
 
 
 def plausible_diagnosis(found: dict[str, Any], opts: EMOptions, progress=print) -> tuple[dict[str, Any], Diagnosed]:
@@ -188,7 +199,7 @@ def plausible_diagnosis(found: dict[str, Any], opts: EMOptions, progress=print) 
     t0 = time.perf_counter()
     if "learned" not in found:
         found = dict(found, learned=learned(found["logs"], opts, found.get("action_model")))
-    fit = final_fit(found, opts)
+    fit, starts = final_fit(found, opts)
     found = dict(found, dropped_in_final=[])
     while bad := [c for c in found["named"] if fit.params.effect(c.name).implausible()]:
         c = bad[0]
@@ -197,8 +208,9 @@ def plausible_diagnosis(found: dict[str, Any], opts: EMOptions, progress=print) 
         model = found["context"].fit(found["model"].without_effect(c.name))
         found = dict(found, named=[n for n in found["named"] if n is not c], model=model,
                      dropped_in_final=found["dropped_in_final"] + [{"name": c.name, "why": why}])
-        fit = final_fit(found, opts)
+        fit, starts = final_fit(found, opts)
     spent = time.perf_counter() - t0
     final = diagnosed(found, opts, final=fit)  # the intervals of the fit kept only
     final.seconds[FINAL_FIT_STAGE] += spent
+    final.starts = final.starts or starts  # made again from a held fit (``diagnosed``): that fit's starts
     return found, final
