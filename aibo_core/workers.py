@@ -13,7 +13,7 @@ import os
 import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
-from typing import Any
+from typing import Any, Callable
 
 #: Seconds between two checks of a worker's parent.
 POLL_S = 0.5
@@ -36,3 +36,8 @@ def process_pool(jobs: int, mp_context: Any = None) -> ProcessPoolExecutor:
     """A ``ProcessPoolExecutor`` of ``jobs`` workers that exit when this process dies."""
     return ProcessPoolExecutor(max_workers=jobs, mp_context=mp_context, initializer=exit_with_parent,
                                initargs=(os.getpid(),))
+
+
+def pool_map(pool: ProcessPoolExecutor | None, fn: Callable[[Any], Any], args: list[Any]) -> list[Any]:
+    """``fn`` over ``args``, in the worker pool when there is one, else in this process; results in order."""
+    return list(pool.map(fn, args)) if pool is not None else [fn(a) for a in args]

@@ -194,6 +194,12 @@ def test_the_final_fit_starts_from_the_searchs_model_and_from_learns_and_keeps_t
     assert [r["start"] for r in record] == list(final.START_NAMES)
     assert [r["loglik"] for r in record] == pytest.approx(ll)
     assert [r["kept"] for r in record] == [v == max(ll) for v in ll]
+    # in a worker pool (``aibo diagnose``'s, the starts side by side): the same fits, the same start kept
+    from aibo_core.workers import process_pool
+
+    with process_pool(2) as pool:
+        pooled, pooled_record = final.final_fit({"model": searched, "logs": [tr], "learned": learned}, opts, pool)
+    assert pooled_record == record and np.array_equal(pooled.params.action.weights, kept.params.action.weights)
     starts.clear()
     _, record = final.final_fit({"model": searched, "logs": [tr]}, opts)
     assert starts == [searched] and record == [{"start": final.START_NAMES[0], "loglik": None, "kept": True}]

@@ -328,7 +328,7 @@ def test_an_effect_the_final_fit_makes_implausible_is_dropped_and_the_model_refi
 
     calls, interval_calls = [], []
 
-    def final_fit(found, opts):
+    def final_fit(found, opts, pool=None):
         calls.append(tuple(e.name for e in found["model"].effects))
         effects = tuple(_Effect(e.name, why_implausible="tau_s 459 s is no pass-to-pass bias" if e.name == "bias"
                                 else "") for e in found["model"].effects)

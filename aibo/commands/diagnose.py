@@ -15,6 +15,7 @@ from aibo.paths import check_files, check_replaceable, declared_inputs
 from aibo_core import trajectory
 from aibo_core.atomic import atomic_folder, write_json
 from aibo_core.compat import check_compatible
+from aibo_core.workers import process_pool
 from learners.arrays.batch import make_batch
 from learners.discrepancy.effect_sizes import base_shift, holds_off, moved_since_named
 from learners.discrepancy.final import plausible_diagnosis
@@ -81,13 +82,15 @@ def run(args) -> int:
         lines.append(line)
 
     say(f"diagnosing {len(logs)} log(s), {sum(tr.n_frames for tr in logs)} frames; candidates: {', '.join(names)}")
-    with naming_files(args.logs):
-        found = search(logs, names, opts, jobs=args.jobs, progress=say, action_model=args.action_model)
-    logs = found["logs"]  # outliers set aside, as in every score of the search
-    seconds = {"search": time.perf_counter() - t0}
-    # the whole-log fit and the named effects' intervals (learners.discrepancy.final), without an effect it made
-    # implausible (then the search's model without it is the one scored below)
-    found, final = plausible_diagnosis(found, opts, say)
+    with process_pool(args.jobs) as pool:  # the search's workers, then the final fit's starts side by side
+        with naming_files(args.logs):
+            found = search(logs, names, opts, jobs=args.jobs, progress=say, action_model=args.action_model,
+                           pool=pool)
+        logs = found["logs"]  # outliers set aside, as in every score of the search
+        seconds = {"search": time.perf_counter() - t0}
+        # the whole-log fit and the named effects' intervals (learners.discrepancy.final), without an effect it made
+        # implausible (then the search's model without it is the one scored below)
+        found, final = plausible_diagnosis(found, opts, say, pool if args.jobs > 1 else None)
     seconds.update(final.seconds)
     before, after = score(found["base"], logs), score(found["model"], logs)
     motion = motion_gaps(found["base"], found["model"], logs)

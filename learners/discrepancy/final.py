@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from aibo_core.trajectory import Trajectory
+from aibo_core.workers import pool_map
 from learners.base import LearnResult
 from learners.em.learner import EMLearner
 from learners.em.options import EMOptions
@@ -104,11 +105,18 @@ def learned(logs: list[Trajectory], opts: EMOptions, action_model: str | None = 
     return EMLearner(replace(opts, uncertainty=False), check_field=False).fit(logs, action_model=action_model).params
 
 
-def final_fit(found: dict[str, Any], opts: EMOptions) -> tuple[LearnResult, list[dict[str, Any]]]:
+def _final_job(args: tuple[EMOptions, list[Trajectory], Model]) -> LearnResult:
+    """One start's final fit (a worker's job): EM with the final fit's options on the logs from the start."""
+    fopts, logs, start = args
+    return EMLearner(fopts, check_field=False).fit(logs, init=start)
+
+
+def final_fit(found: dict[str, Any], opts: EMOptions, pool: Any = None) -> tuple[LearnResult, list[dict[str, Any]]]:
     """The final fit: EM on the whole logs ``found["logs"]`` with :func:`final_options` of the search's ``opts``
     (standard errors included) from each of :func:`final_starts`, the more likely kept (the E-step's likelihood of
     the whole logs, ungated; the search's start on a tie). Returns (the fit kept, one record per start:
-    {"start": :data:`START_NAMES`' name, "loglik": nats, "kept": bool}; "loglik" None for a single start).
+    {"start": :data:`START_NAMES`' name, "loglik": nats, "kept": bool}; "loglik" None for a single start). ``pool``:
+    a worker pool (``aibo_core.workers.process_pool``) to fit the starts side by side, else one after the other.
 
     Why two starts: the velocities lie on ridges the logs hardly determine (the arc loss, v |omega|, on MRCLAM
     halves) and EM stops on one where its creep falls below the stop rule. From the search's model alone (fitted on
@@ -120,8 +128,8 @@ def final_fit(found: dict[str, Any], opts: EMOptions) -> tuple[LearnResult, list
     (robot 4's first half by 1.1 nats: 5.75 mm/s; robot 2's first half by 2.6 and robot 5's second by 110, their
     scores unchanged), forward speed no worse than learn's within 3% on 8 of the 10 halves (docs/results.md, "MRCLAM,
     half to half")."""
-    learner = EMLearner(final_options(opts), check_field=False)
-    fits = [learner.fit(found["logs"], init=start) for start in final_starts(found)]
+    fopts = final_options(opts)
+    fits = pool_map(pool, _final_job, [(fopts, found["logs"], start) for start in final_starts(found)])
     if len(fits) == 1:
         return fits[0], [{"start": START_NAMES[0], "loglik": None, "kept": True}]
     ll = [train_loglik(f.params, found["logs"]) for f in fits]
@@ -186,7 +194,8 @@ def diagnosed(found: dict[str, Any], opts: EMOptions, again: bool = True, final:
     return Diagnosed(final, effects, profiled, seconds, starts)
 
 
-def plausible_diagnosis(found: dict[str, Any], opts: EMOptions, progress=print) -> tuple[dict[str, Any], Diagnosed]:
+def plausible_diagnosis(found: dict[str, Any], opts: EMOptions, progress=print,
+                        pool: Any = None) -> tuple[dict[str, Any], Diagnosed]:
     """(``found`` as the final fit leaves it, the final fit with its intervals): while the final fit on the whole logs
     (:func:`final_fit`) holds a named effect at values its class finds implausible (``EffectModel.implausible``, the
     search's own rule, which the search checked on the training halves), that effect dropped, the search's model
@@ -195,11 +204,11 @@ def plausible_diagnosis(found: dict[str, Any], opts: EMOptions, progress=print) 
     robots' bias states cost 7-12 s). ``found["dropped_in_final"]``: the effects dropped, with why. MRCLAM robot 4's
     first half: ``landmark_bias`` named at a correlation time of 50 s went to 459 s in the final fit, a per-landmark
     constant whose common part traded with the forward speed (7.4 mm/s against Vicon on the other half; 5.4 without
-    it, ``aibo learn`` 5.8)."""
+    it, ``aibo learn`` 5.8). ``pool``: the worker pool the final fits' starts run in (:func:`final_fit`)."""
     t0 = time.perf_counter()
     if "learned" not in found:
         found = dict(found, learned=learned(found["logs"], opts, found.get("action_model")))
-    fit, starts = final_fit(found, opts)
+    fit, starts = final_fit(found, opts, pool)
     found = dict(found, dropped_in_final=[])
     while bad := [c for c in found["named"] if fit.params.effect(c.name).implausible()]:
         c = bad[0]
@@ -208,7 +217,7 @@ def plausible_diagnosis(found: dict[str, Any], opts: EMOptions, progress=print) 
         model = found["context"].fit(found["model"].without_effect(c.name))
         found = dict(found, named=[n for n in found["named"] if n is not c], model=model,
                      dropped_in_final=found["dropped_in_final"] + [{"name": c.name, "why": why}])
-        fit, starts = final_fit(found, opts)
+        fit, starts = final_fit(found, opts, pool)
     spent = time.perf_counter() - t0
     final = diagnosed(found, opts, final=fit)  # the intervals of the fit kept only
     final.seconds[FINAL_FIT_STAGE] += spent

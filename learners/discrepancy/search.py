@@ -25,13 +25,14 @@ from __future__ import annotations
 
 import time
 from concurrent.futures import FIRST_COMPLETED, Future, wait
+from contextlib import nullcontext
 from dataclasses import dataclass, replace
 from typing import Any, Callable
 
 import numpy as np
 
 from aibo_core.trajectory import Trajectory
-from aibo_core.workers import process_pool
+from aibo_core.workers import pool_map, process_pool
 from learners.arrays.batch import make_batch
 from learners.em.estep import e_step
 from learners.em.options import DEFAULT_GATE, EMOptions
@@ -175,7 +176,7 @@ def run_round(trials: list[Trial], pool: Any, jobs: int = 1) -> list[Candidate]:
                 except (FloatingPointError, np.linalg.LinAlgError, ValueError) as err:
                     out[i] = _failed(t.name, err)
     if not walks:
-        return [out[i] if i in out else c for i, c in enumerate(_map(pool, run_trial, trials))]
+        return [out[i] if i in out else c for i, c in enumerate(pool_map(pool, run_trial, trials))]
     pending: dict[Future, tuple[str, int, int]] = {}  # future -> (kind, trial, grid index)
     settled: set[int] = set()  # walks whose candidate is made (late points are dropped)
     began = time.perf_counter()
@@ -217,11 +218,6 @@ def run_round(trials: list[Trial], pool: Any, jobs: int = 1) -> list[Candidate]:
     return [out[i] for i in range(len(trials))]
 
 
-def _map(pool: Any, fn: Callable[[Any], Any], args: list[Any]) -> list[Any]:
-    """``fn`` over ``args``, in the worker pool when there is one, else in this process; results in order."""
-    return list(pool.map(fn, args)) if pool is not None else [fn(a) for a in args]
-
-
 def _last_round_job(args: tuple[SearchContext, Candidate]) -> list[Verdict]:
     ctx, c = args
     return [check.run(ctx, c) for check in LAST_ROUND_CHECKS if check.applies(ctx, c)]
@@ -232,7 +228,7 @@ def last_round_checks(tried: list[Candidate], ctx: SearchContext, pool: Any) -> 
     the earlier rounds, whose candidates are tried again, skip them (on MRCLAM robot 3 with bias states these fits
     cost 2-4 s each, four to six per round)."""
     todo = [c for c in tried if any(check.applies(ctx, c) for check in LAST_ROUND_CHECKS)]
-    for c, verdicts in zip(todo, _map(pool, _last_round_job, [(ctx, c) for c in todo])):
+    for c, verdicts in zip(todo, pool_map(pool, _last_round_job, [(ctx, c) for c in todo])):
         c.checks += verdicts
 
 
@@ -283,7 +279,7 @@ def prune(named: list[Candidate], current: Model, current_ll: float, ctx: Search
         current, current_ll = drop_implausible(named, current, current_ll, ctx, progress)
         if len(named) < 2:
             return current, current_ll
-        refits = _map(pool, _drop_job, [(c.name, current, ctx) for c in named])
+        refits = pool_map(pool, _drop_job, [(c.name, current, ctx) for c in named])
         heldout = ctx.heldout(current)
         factors = robust_factors(named)
         tests = []
@@ -343,12 +339,14 @@ def _say_round(tried: list[Candidate], progress: Callable[[str], None]) -> None:
 
 
 def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs: int = 2,
-           progress: Callable[[str], None] = print, action_model: str | None = None) -> dict[str, Any]:
+           progress: Callable[[str], None] = print, action_model: str | None = None,
+           pool: Any = None) -> dict[str, Any]:
     """The whole search (module docstring): returns the base fit, every round's candidates, the named
     effects in order, and the current model after each addition (all fitted on the training half),
     the logs without outliers that every score uses, the candidates the logs cannot support
     (``"skipped"``: name -> what the log lacks) and the fits' context (``"context"``: a refit on the training
-    halves). ``action_model``: of the base fit (``aibo learn --action-model``)."""
+    halves). ``action_model``: of the base fit (``aibo learn --action-model``). ``pool``: a worker pool of ``jobs``
+    workers to run in (``aibo_core.workers.process_pool``; the caller's, left open), else one of its own."""
     t0 = time.perf_counter()
     opts = opts.comparable()  # every fit of the search is compared with another: converged to 0.1 nats (EMOptions)
     base = base_fit(logs, opts, action_model)
@@ -374,7 +372,7 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
     escapes: list[dict[str, Any]] = []
     previous: dict[str, Model] = {}  # a repeated round's second start: the escaped-from candidate's fit
     last: SearchContext | None = None  # the last round's context (its null: ``current``'s when nothing was named)
-    with process_pool(max(jobs, 1)) as pool:
+    with process_pool(max(jobs, 1)) if pool is None else nullcontext(pool) as pool:
         workers = pool if jobs > 1 else None
         while len(rounds) < MAX_ROUNDS and remaining:
             last = round_ctx = with_null(ctx, current, len(remaining))
@@ -430,7 +428,7 @@ def none_of_the_above(current: Model, last: SearchContext | None, ctx: SearchCon
     above"."""
     probe_ctx = (replace(last, n_tests=len(PROBES)) if last is not None
                  else with_null(ctx, current, len(PROBES)))
-    tried = _map(pool, run_trial, [Trial(n, probe_ctx, probe=True) for n in PROBES])
+    tried = pool_map(pool, run_trial, [Trial(n, probe_ctx, probe=True) for n in PROBES])
     progress("none of the above? (effects outside the catalogue, on the final model)")
     _say_round(tried, progress)
     return tried
