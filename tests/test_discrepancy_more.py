@@ -309,3 +309,32 @@ def test_a_gain_that_the_base_keeps_without_the_effect_is_not_the_effects():
     repeated = any("better than the null: the round is repeated" in s for s in said)
     assert repeated == bool(found["escapes"]), said
 
+
+
+def test_distance_noise_m_step_takes_the_squared_size_residuals_expectation_under_the_smoothed_pose():
+    """``DistanceDependentNoise.maximize``'s sigma_size is the weighted mean of each sighting's EXPECTED squared size
+    residual under its smoothed pose (the mean over the 6 cubature points, as the sensor M-step's): with the pose's
+    covariance shrunk to nothing it is the residual at the smoothed mean, computed here by hand; with the covariance it
+    is larger (the pose's spread adds about f'(d)^2 var(d))."""
+    from dataclasses import replace as dc_replace
+
+    from learners.model.catalogue import REFERENCE_DISTANCE_MM, DistanceDependentNoise, implied_distance
+
+    tr = sim_log(3000, noise="aibo")
+    noise = DistanceDependentNoise(exponent=0.5)
+    model = EMLearner(EMOptions(max_iter=10, lag_search=False)).fit([tr]).params.with_effect(noise)
+    batch = make_batch([tr])
+    post = e_step(model, batch, "compiled")
+    sharp = dc_replace(post, cov_gamma=post.cov_gamma * 1e-12)
+    at_mean = noise.maximize(model, batch, sharp, None)
+    spread = noise.maximize(model, batch, post, None)
+    # by hand, at the smoothed means, for the exponent the step chose
+    lo = model.lower(batch)
+    idx = np.flatnonzero(batch.used)
+    pose = post.mu_gamma[batch.sight_pose[idx]]
+    d = np.hypot(*(batch.sight_xy[idx] - pose[:, :2]).T)
+    r2 = (batch.sight_value[idx, 0] - lo.size_offset[idx] - model.sensor.mean(d) * lo.size_scale[idx]) ** 2
+    e = at_mean.effect("distance_dependent_noise").exponent
+    v = (implied_distance(lo, batch)[idx] / REFERENCE_DISTANCE_MM) ** (2 * e)
+    assert at_mean.sensor.sigma_size == pytest.approx(np.sqrt(np.mean(r2 / v)), rel=1e-6)
+    assert spread.sensor.sigma_size > at_mean.sensor.sigma_size * 1.01

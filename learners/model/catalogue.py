@@ -45,6 +45,17 @@ if TYPE_CHECKING:
 REFERENCE_DISTANCE_MM = 2500.0  # distance_dependent_noise: the factor is 1 at this distance (as the simulator)
 
 
+def _cubature_distances(batch: Batch, post: Posterior, idx: np.ndarray) -> np.ndarray:
+    """(len(idx), 6) the distance (mm) from each sighting's smoothed pose to its landmark at the 2n = 6 cubature points
+    mu +- sqrt(3) L e_j (L L^T the smoothed covariance), weight 1/6 each: the points the sensor M-step takes its
+    expectations over (``learners.inference.sensor_stats.sensor_points``, method "cubature")."""
+    pose = batch.sight_pose[idx]
+    s3L = np.sqrt(3.0) * np.swapaxes(np.linalg.cholesky(post.cov_gamma[pose]), 1, 2)  # row j = sqrt(3) L e_j
+    mu = post.mu_gamma[pose][:, None, :]
+    pts = np.concatenate([mu + s3L, mu - s3L], axis=1)  # (n, 6, 3)
+    return np.hypot(batch.sight_xy[idx, None, 0] - pts[..., 0], batch.sight_xy[idx, None, 1] - pts[..., 1])
+
+
 def _sight_geometry(model: "Model", batch: Batch, post: Posterior):
     """Used sightings: (indices, distance (mm), predicted bearing without offsets (rad)) at smoothed means."""
     idx = np.flatnonzero(batch.used)
@@ -497,10 +508,17 @@ class DistanceDependentNoise(EffectModel):
             lo.size_var_factor = lo.size_var_factor * self.factor(lo, batch)
 
     def maximize(self, model: "Model", batch: Batch, post: Posterior, mu_star: np.ndarray) -> "Model":
-        """The exponent (and sigma_size) maximizing the Gaussian likelihood of the size residuals."""
+        """The exponent (and sigma_size) maximizing the expected Gaussian log-likelihood of the size residuals: each
+        squared residual's expectation under the smoothed pose (the mean over its cubature points, as the sensor
+        M-step takes sigma_size's), not its value at the smoothed mean, which leaves out the pose's own spread
+        (largest near a landmark, where the size changes fastest with the distance) and made this step disagree
+        with the sensor M-step's sigma_size (docs/results.md, "Calibration": the exponent's calibration before and
+        after)."""
         lo = model.lower(batch)
-        idx, d, _ = _sight_geometry(model, batch, post)
-        r2 = (batch.sight_value[idx, 0] - lo.size_offset[idx] - model.sensor.mean(d) * lo.size_scale[idx]) ** 2
+        idx = np.flatnonzero(batch.used)
+        d = _cubature_distances(batch, post, idx)  # (n, 6)
+        pred = model.sensor.mean(d.ravel()).reshape(d.shape) * lo.size_scale[idx, None]
+        r2 = np.mean((batch.sight_value[idx, 0, None] - lo.size_offset[idx, None] - pred) ** 2, axis=1)
         other = lo.size_var_factor[idx] / self.factor(lo, batch)[idx]
         logd = np.log(implied_distance(lo, batch)[idx] / REFERENCE_DISTANCE_MM)
 
