@@ -5,7 +5,8 @@ is refitted on the whole logs (the logs without the base fit's outliers, ``found
 uses them), and each named effect's parameters get a standard error and a 95% interval from that fit
 (``effect_sizes.effect_intervals``: Wald from the Fisher information; a grid parameter's from the search's profile),
 replaced by the profile or conditional likelihood interval where the Wald one fails
-(``profile.profile_where_wald_fails``), and a grid parameter's by the whole logs' profile (``profile.refine_grid_intervals``:
+(``profile.profile_where_wald_fails``; an interval a fit held at one of its ends shows too narrow,
+``profile.check_wald_intervals``), and a grid parameter's by the whole logs' profile (``profile.refine_grid_intervals``:
 a lag of discrete commands in frames, of continuous commands a parabola through held fits about the value).
 ``aibo diagnose`` (``aibo/commands/diagnose.py``) and the calibration study (``scripts/calibration.py``) both call
 :func:`diagnosed`, so that the study measures the intervals the command reports.
@@ -29,7 +30,7 @@ from learners.model.model import Model
 
 from .effect_sizes import effect_intervals
 from .fitting import SEARCH_PATIENCE, train_loglik, with_values
-from .profile import profile_where_wald_fails, refine_grid_intervals
+from .profile import check_wald_intervals, profile_where_wald_fails, refine_grid_intervals
 
 #: ``Diagnosed.seconds``' keys (``report.json["seconds_by_stage"]``)
 FINAL_FIT_STAGE = "final fit with standard errors"
@@ -156,11 +157,13 @@ def final_starts(found: dict[str, Any]) -> list[Model]:
 def diagnosed(found: dict[str, Any], opts: EMOptions, again: bool = True, final: LearnResult | None = None) -> Diagnosed:
     """The final fit of the search's model ``found["model"]`` on ``found["logs"]`` (``found``: what ``search``
     returned when given ``opts``) and each named effect's entry: its parameters in the final fit, their intervals
-    (``effect_intervals``; profiled where Wald fails, ``profile_where_wald_fails``; a grid parameter's on the whole logs,
-    ``refine_grid_intervals``) and ``parameters_when_named`` (the candidate's fit in its round). Where that
-    grid profile finds a value more likely than the final fit's (the final fit refines a lag with the rest held: on
-    `paper-sim` logs of a 0.15 s lag it kept 6 frames where 5, the rest refitted, were 3 nats more likely), the final
-    fit is made once ``again`` from the search's model with that value, so that the value stated is the model's.
+    (``effect_intervals``; profiled where Wald fails, ``profile_where_wald_fails``, or where fits held at its ends
+    show it too narrow, ``check_wald_intervals``; a grid parameter's on the whole logs, ``refine_grid_intervals``) and
+    ``parameters_when_named`` (the candidate's fit in its round). Where a held fit of those finds a value more likely
+    than the final fit's (the final fit refines a lag with the rest held: on `paper-sim` logs of a 0.15 s lag it kept
+    6 frames where 5, the rest refitted, were 3 nats more likely; a distance-noise exponent stopped on a ridge at 0.27
+    where 0.5 was 46 nats more likely), the final fit is made once ``again`` from the search's model with that value,
+    so that the value stated is the model's.
     ``final``: the final fit when made already (:func:`final_fit`; its time is then the caller's to count)."""
     logs = found["logs"]
     t0 = time.perf_counter()
@@ -180,12 +183,16 @@ def diagnosed(found: dict[str, Any], opts: EMOptions, again: bool = True, final:
     seconds = {FINAL_FIT_STAGE: time.perf_counter() - t0}
     t0 = time.perf_counter()
     profiled = profile_where_wald_fails(effects, final.params, logs, fopts)  # a rate near its bound
+    # the other scalar parameters: fits held at the Wald ends (a final fit stopped on a ridge; a flatter profile)
+    checked, held_start = check_wald_intervals(effects, final.params, logs, fopts, skip=profiled)
     refined, better = refine_grid_intervals(effects, final.params, logs, fopts)  # a lag: below the search's grid
-    profiled += refined
-    if profiled:
+    profiled += checked + refined
+    if profiled or any("wald_check" in i for e in effects for i in e["intervals"].values()):
         seconds[PROFILE_STAGE] = time.perf_counter() - t0
-    if better and again:
-        model = found["model"]
+    if (better or held_start is not None) and again:
+        # from the search's model, or from the held fit that beat the final fit most (a ridge: EM from the search's
+        # model crept back to where it stopped; the held fit is where the likelihood is higher, and EM keeps its best)
+        model = found["model"] if held_start is None else held_start
         for name, values in better.items():
             model = model.with_effect(with_values(model.effect(name), values))
         redone = diagnosed(dict(found, model=model), opts, again=False)
