@@ -793,3 +793,18 @@ def test_a_named_effect_the_final_fit_takes_to_nothing_is_warned_about():
     tiny = negligible_when_final(model.with_effect(FalseSightings(0.0003)), named, [tr])
     assert len(tiny) == 1 and tiny[0].startswith("false_sightings: named, but in the final fit") and "negligible" in tiny[0]
     assert negligible_when_final(model.with_effect(FalseSightings(0.2)), named, [tr]) == []
+
+
+def test_diagnose_warns_when_a_held_fit_beat_the_diagnosed_model():
+    """A parameter whose interval records a fit held elsewhere more likely than the diagnosed model by more than
+    1.92 nats (``beaten_by_nats``: the value stated is outside its own profile interval) becomes a warning naming the
+    effect, the parameter and the nats; by less (the stop rules' slack) or none, no warning."""
+    from aibo.commands.diagnose import short_of_maximum
+
+    effects = [{"name": "distance_dependent_noise", "intervals": {"exponent": {"value": 0.31, "beaten_by_nats": 37.3}}},
+               {"name": "actuation_lag", "intervals": {"lag_s": {"value": 0.2, "beaten_by_nats": 1.2}}},
+               {"name": "velocity_fade", "intervals": {"fade_per_min": {"value": 0.02}}}]
+    assert short_of_maximum(effects) == [
+        "distance_dependent_noise: exponent 0.31 is not the likelihood's maximum: a fit with it held elsewhere is 37.3 "
+        "nats more likely (more than the 95% interval's 1.92); the value stated may be off by more than its interval "
+        "says"]
