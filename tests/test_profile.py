@@ -265,3 +265,16 @@ def test_a_final_fit_stopped_short_of_the_maximum_is_found_by_the_fits_held_at_i
     found = held_start.effect("velocity_fade").fade_per_min  # the held fit the final fit is to be made again from
     assert abs(found - value) < 1.5 * se < abs(short - value)
     assert "may not be the maximum" in entry["note"]
+
+
+def test_a_robust_drop_puts_a_quadratic_profiles_ends_at_the_robust_wald_ones():
+    """``robust_drop``: 1.92 x (robust SE / Fisher SE)^2, at least 1.92; on a quadratic profile of the Fisher curvature
+    (sd 0.4) the ends at that drop are the robust Wald interval's (SE 0.5)."""
+    from learners.discrepancy.profile import HALF_CHI2_1_95, robust_drop
+
+    assert robust_drop({"se": 0.5, "se_fisher": 0.4}) == pytest.approx(HALF_CHI2_1_95 * 1.5625)
+    assert robust_drop({"se": 0.5}) == HALF_CHI2_1_95 == robust_drop({"se": 0.3, "se_fisher": 0.4})
+    assert robust_drop({"se": None, "se_fisher": 0.4}) == HALF_CHI2_1_95
+    (lo, hi), _, _, _ = profile_bounds(quadratic(2.0, 0.4), 2.0, 0.0, 0.4, -np.inf, np.inf,
+                                       robust_drop({"se": 0.5, "se_fisher": 0.4}))
+    assert [lo, hi] == pytest.approx([2.0 - Z95 * 0.5, 2.0 + Z95 * 0.5], abs=2 * 0.4 / 2 ** BISECTIONS)

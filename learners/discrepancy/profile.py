@@ -85,11 +85,13 @@ def wants_profile(entry: dict) -> bool:
 
 
 def profile_bounds(loglik: Callable[[float], float], value: float, best: float, step: float, low: float,
-                   high: float) -> tuple[list[float], list[bool], list[tuple[float, float]], float]:
+                   high: float, drop: float = HALF_CHI2_1_95) -> tuple[list[float], list[bool], list[tuple[float, float]],
+                                                                      float]:
     """([lower, upper] ends of the 95% profile interval around ``value``, [lower, upper] open: the profile stayed
     within 1.92 nats up to that end (the domain's bound, or the farthest of MAX_STEPS doubling steps), the
     (v, loglik) points evaluated, the best log-likelihood seen; a failed point is -inf, beyond the interval).
-    ``loglik(v)``: the profile at v; ``best``: its maximum so far (the free fit's), raised when a point beats it."""
+    ``loglik(v)``: the profile at v; ``best``: its maximum so far (the free fit's), raised when a point beats it;
+    ``drop``: the nats below the best that bound the interval (1.92; a robust interval's larger, ``robust_drop``)."""
     points: list[tuple[float, float]] = []
 
     def ll(v: float) -> float:
@@ -109,7 +111,7 @@ def profile_bounds(loglik: Callable[[float], float], value: float, best: float, 
             v = value + side * d
             if (v - bound) * side >= 0:  # at or past the domain's end: try the end itself
                 v = bound
-            if ll(v) < best - HALF_CHI2_1_95:
+            if ll(v) < best - drop:
                 outside = v
                 break
             inside = v
@@ -122,7 +124,7 @@ def profile_bounds(loglik: Callable[[float], float], value: float, best: float, 
             continue
         for _ in range(BISECTIONS):
             mid = 0.5 * (inside + outside)
-            if ll(mid) < best - HALF_CHI2_1_95:
+            if ll(mid) < best - drop:
                 outside = mid
             else:
                 inside = mid
@@ -154,10 +156,11 @@ def held_loglik(final: Model, logs: list[Trajectory], name: str, pname: str, opt
     return loglik
 
 
-def profile_interval(final: Model, logs: list[Trajectory], name: str, se: float | None, opts: EMOptions) -> dict:
+def profile_interval(final: Model, logs: list[Trajectory], name: str, se: float | None, opts: EMOptions,
+                     drop: float = HALF_CHI2_1_95) -> dict:
     """The 95% profile-likelihood interval of effect ``name``'s one scalar parameter in the diagnosed model
-    ``final`` (fitted on ``logs``; ``opts``: its fit's options): {"interval_95", "open", "method", "points", "note"}
-    (module docstring, ``profile_bounds``)."""
+    ``final`` (fitted on ``logs``; ``opts``: its fit's options): {"interval_95", "open", "method", "points", "note",
+    "beaten_by_nats"} (module docstring, ``profile_bounds``; ``drop``: its nats, ``robust_drop``)."""
     from learners.discrepancy.fitting import train_loglik
 
     pname = profiled_parameter(name)
@@ -170,14 +173,16 @@ def profile_interval(final: Model, logs: list[Trajectory], name: str, se: float 
     failed: list[str] = []
     loglik = held_loglik(final, logs, name, pname, opts, failed)
     free = train_loglik(final, logs)
-    ends, open_ends, points, best = profile_bounds(loglik, value, free, step, param.low, param.high)
-    notes = [f"the profile stays within {HALF_CHI2_1_95:.2f} nats of its best up to "
+    ends, open_ends, points, best = profile_bounds(loglik, value, free, step, param.low, param.high, drop)
+    notes = [f"the profile stays within {drop:.2f} nats of its best up to "
              f"{'the domain bound ' if e in (param.low, param.high) else ''}{e:.3g}" for e, o in zip(ends, open_ends) if o]
     notes += failed
     if best > free + BEATEN_NATS:  # the fit held elsewhere is more likely: the diagnosed fit is not the maximum
         notes.append(f"a fit with {pname} held at another value is {best - free:.1f} nats more likely than the diagnosed "
                      f"model: {NOT_THE_MAXIMUM}")
-    return {"interval_95": ends, "open": open_ends, "method": "profile likelihood, whole logs",
+    method = "profile likelihood, whole logs" + ("" if drop == HALF_CHI2_1_95 else
+                                                 f", robust (the drop {drop:.2f} nats: 1.92 x (robust / Fisher SE)^2)")
+    return {"interval_95": ends, "open": open_ends, "method": method,
             "points": [[float(v), float(ll)] for v, ll in sorted(points)], "note": "; ".join(notes),
             "beaten_by_nats": max(0.0, float(best - free))}
 
@@ -374,15 +379,27 @@ def climb(loglik: Callable[[float], float], start: float, step: float, best: flo
     return value, best
 
 
+def robust_drop(entry: dict) -> float:
+    """The nats below the best that bound a 95% interval with the robust standard error's width: 1.92 x (robust SE /
+    Fisher SE)^2 (a Wald entry's ``se`` and ``se_fisher``; 1.92 where they are one). Under a quadratic profile of the
+    Fisher curvature it puts the ends at the robust Wald ones, so that a profile interval keeps the sandwich's
+    allowance for a misspecified model (the adjusted likelihood-ratio interval, e.g. Royall & Tsou 2003)."""
+    se, fisher = entry.get("se"), entry.get("se_fisher")
+    if se is None or fisher is None or not fisher > 0:
+        return HALF_CHI2_1_95
+    return HALF_CHI2_1_95 * max(float(se) / float(fisher), 1.0) ** 2
+
+
 def wald_ends(final: Model, logs: list[Trajectory], name: str, entry: dict, opts: EMOptions) -> dict:
     """The check of a Wald interval ``entry`` (``effect_sizes.effect_intervals``) of effect ``name``'s one scalar
     parameter (``profiled_parameter``) in the diagnosed model ``final``: fits with the parameter held at the
     interval's two ends, the rest refitted (``held_loglik``). Under the quadratic log-likelihood Wald assumes, each is
-    1.92 nats below the final fit. Returns {"points": [[v, loglik], ...] (the ends; a beaten side's climb after them),
-    "free": the final fit's, "inside": whether an end is within 1.92 nats of the best (the profile is flatter on
-    that side than the interval says), "better": where an end's fit beats the final fit by ``BEATEN_NATS`` (the final
-    fit stopped short of the maximum: a ridge EM creeps along), the most likely value of the walk on from that end in
-    steps of the interval's half-width (``climb``), else None, "held": that value's (log-likelihood, held fit)}."""
+    ``robust_drop`` below the final fit (1.92 nats for Fisher errors). Returns {"points": [[v, loglik], ...] (the
+    ends; a beaten side's climb after them), "free": the final fit's, "inside": whether an end is less than that
+    below the best (the profile is flatter on that side than the interval says), "better": where an end's fit beats
+    the final fit by ``BEATEN_NATS`` (the final fit stopped short of the maximum: a ridge EM creeps along), the most
+    likely value of the walk on from that end in steps of the interval's half-width (``climb``), else None, "held":
+    that value's (log-likelihood, held fit)}."""
     from learners.discrepancy.fitting import train_loglik
 
     pname = profiled_parameter(name)
@@ -408,7 +425,7 @@ def wald_ends(final: Model, logs: list[Trajectory], name: str, entry: dict, opts
         better, _ = climb(logged, top_v, half if top_v > value else -half, top, bound)
         points += walked
     best = max([free] + [ll for _, ll in points])
-    inside = any(ll >= best - HALF_CHI2_1_95 for _, ll in points[:2])
+    inside = any(ll >= best - robust_drop(entry) for _, ll in points[:2])
     return {"points": [[float(v), float(ll)] for v, ll in points], "free": float(free), "inside": bool(inside),
             "better": better, "held": None if better is None else fits[better], "failed": failed}
 
@@ -417,8 +434,9 @@ def check_wald_intervals(effects: list[dict], final: Model, logs: list[Trajector
                          skip: list[str]) -> tuple[list[str], Model | None]:
     """For each named effect of ``report.json["effects"]`` not in ``skip`` (profiled already) whose one scalar
     parameter (``profiled_parameter``) has a Wald interval: ``wald_ends``, kept in the entry as ``wald_check``
-    ({"points", "free"}). Where an end's fit is within 1.92 nats of the best, the interval is replaced, in place, by
-    the profile-likelihood one (``profile_interval``; the Wald one kept as ``wald_interval_95``). Returns the names
+    ({"points", "free"}). Where an end's fit is within ``robust_drop`` of the best, the interval is replaced, in
+    place, by the profile-likelihood one to that drop (``profile_interval``; the Wald one kept as
+    ``wald_interval_95``). Returns the names
     profiled and, where held fits beat ``final`` (the climb's best, ``wald_ends``), the most likely of them: the
     final fit is then made again from it (``final.diagnosed``), whose likelihood it starts at.
 
@@ -446,7 +464,7 @@ def check_wald_intervals(effects: list[dict], final: Model, logs: list[Trajector
                 f"a fit with {pname} held at {check['better']:.3g} is more likely than the diagnosed model by "
                 f"{max(ll for _, ll in check['points']) - check['free']:.1f} nats: {NOT_THE_MAXIMUM}"])
         elif check["inside"]:
-            p = profile_interval(final, logs, e["name"], entry.get("se"), opts)
+            p = profile_interval(final, logs, e["name"], entry.get("se"), opts, robust_drop(entry))
             entry.update(wald_interval_95=entry["interval_95"], interval_95=p["interval_95"], open=p["open"],
                          method=p["method"], profile=p["points"], note=p["note"], beaten_by_nats=p["beaten_by_nats"])
             done.append(e["name"])
