@@ -326,8 +326,8 @@ def short_of_maximum(effects: list[dict]) -> list[str]:
     """A warning per named effect's parameter for which a fit held at another value beat the diagnosed model by more
     than 1.92 nats (its interval's ``beaten_by_nats``, ``learners.discrepancy.profile``): the value stated is then
     outside its own 95% profile interval, not the likelihood's maximum. (By less, only the interval's note says so:
-    of 75 simulated logs that named ``distance_dependent_noise``, a held fit beat the final fit by 0.6-1.8 nats on
-    17, the stop rules' slack, and by 2.0-19.5 on 6; scripts/calibration.py, docs/results.md.)"""
+    of 75 simulated logs that named ``distance_dependent_noise``, a held fit beat the final fit by 0.5-1.8 nats on
+    20, the stop rules' slack, and by 2.0-19.5 on 6; scripts/calibration.py, docs/results.md.)"""
     return [f"{e['name']}: {pname} {iv['value']:.3g} is not the likelihood's maximum: a fit with it held elsewhere is "
             f"{iv['beaten_by_nats']:.1f} nats more likely (more than the 95% interval's {HALF_CHI2_1_95:.2f}); "
             "the value stated may be off by more than its interval says"
