@@ -18,6 +18,24 @@ def quadratic(mean: float, sd: float):
     return lambda v: -0.5 * ((v - mean) / sd) ** 2
 
 
+def fade_fit():
+    """(log, options, the free fit of ``velocity_fade``, its Wald intervals): a simulated 5-minute `aibo` log of a fade
+    of 0.03 per minute, fitted with the effect from the base model (the Fisher errors alone)."""
+    from experiments.loop import simulate
+    from learners.arrays.batch import make_batch
+    from learners.discrepancy.effect_sizes import effect_intervals
+    from learners.em.learner import EMLearner
+    from learners.em.options import EMOptions
+    from learners.model.catalogue import VelocityFade
+
+    log = simulate({"noise": "aibo", "effects": {"velocity_fade": {"fade_per_min": 0.03}}}, 9000, 1)
+    opts = EMOptions(seed=0, lag_search=False).comparable()
+    base = EMLearner(opts).fit([log]).params
+    start = base.with_effect(VelocityFade.start(make_batch([log])))
+    fit = EMLearner(replace(opts, starts=1, alias_search=False), check_field=False).fit([log], init=start)
+    return log, opts, fit, effect_intervals(fit.params, "velocity_fade", fit.info["standard_errors"])
+
+
 def test_the_ends_of_a_quadratic_profile_are_the_wald_ones():
     (lo, hi), open_ends, points, best = profile_bounds(quadratic(2.0, 0.5), 2.0, 0.0, 0.5, -np.inf, np.inf)
     tol = 2 * 0.5 / 2 ** BISECTIONS  # the bracket's last step, halved BISECTIONS times
@@ -97,19 +115,7 @@ def test_a_lag_between_the_grids_values_gets_its_interval_in_frames(preset, seed
 
 
 def test_on_a_simulated_fade_the_profile_interval_agrees_with_the_wald_one():
-    from experiments.loop import simulate
-    from learners.arrays.batch import make_batch
-    from learners.discrepancy.effect_sizes import effect_intervals
-    from learners.em.learner import EMLearner
-    from learners.em.options import EMOptions
-    from learners.model.catalogue import VelocityFade
-
-    log = simulate({"noise": "aibo", "effects": {"velocity_fade": {"fade_per_min": 0.03}}}, 9000, 1)
-    opts = EMOptions(seed=0, lag_search=False).comparable()
-    base = EMLearner(opts).fit([log]).params
-    start = base.with_effect(VelocityFade.start(make_batch([log])))
-    fit = EMLearner(replace(opts, starts=1, alias_search=False), check_field=False).fit([log], init=start)
-    intervals = effect_intervals(fit.params, "velocity_fade", fit.info["standard_errors"])
+    log, opts, fit, intervals = fade_fit()
     wald = intervals["fade_per_min"]
     assert wald["method"] == "wald" and not wald["clipped"]  # the Fisher errors alone (no robust ones given)
     effects = [{"name": "velocity_fade", "intervals": intervals}]
@@ -226,22 +232,11 @@ def test_a_final_fit_stopped_short_of_the_maximum_is_found_by_the_fits_held_at_i
     Fisher information says), so the interval becomes the profile one, wider on both sides. A fit stopped 4 standard
     errors short (the rest refitted to it: a ridge EM stopped on) is beaten at the end towards the maximum, and the
     climb returns a value near the free fit's."""
-    from experiments.loop import simulate
-    from learners.arrays.batch import make_batch
-    from learners.discrepancy.effect_sizes import effect_intervals
     from learners.discrepancy.fitting import SEARCH_PATIENCE, held, with_values
     from learners.discrepancy.fitting import fit as held_fit
     from learners.discrepancy.profile import check_wald_intervals
-    from learners.em.learner import EMLearner
-    from learners.em.options import EMOptions
-    from learners.model.catalogue import VelocityFade
 
-    log = simulate({"noise": "aibo", "effects": {"velocity_fade": {"fade_per_min": 0.03}}}, 9000, 1)
-    opts = EMOptions(seed=0, lag_search=False).comparable()
-    base = EMLearner(opts).fit([log]).params
-    start = base.with_effect(VelocityFade.start(make_batch([log])))
-    free = EMLearner(replace(opts, starts=1, alias_search=False), check_field=False).fit([log], init=start)
-    intervals = effect_intervals(free.params, "velocity_fade", free.info["standard_errors"])
+    log, opts, free, intervals = fade_fit()
     wald = intervals["fade_per_min"]
     effects = [{"name": "velocity_fade", "intervals": intervals}]
     value, se, (wlo, whi) = wald["value"], wald["se"], wald["interval_95"]
