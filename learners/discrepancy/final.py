@@ -128,7 +128,8 @@ def final_fit(found: dict[str, Any], opts: EMOptions, pool: Any = None) -> tuple
     and the search's stop rule ends the fit long before it recovers). Kept by likelihood: learn's start on 3 of 15
     (robot 4's first half by 1.1 nats: 5.75 mm/s; robot 2's first half by 2.6 and robot 5's second by 110, their
     scores unchanged), forward speed no worse than learn's within 3% on 8 of the 10 halves (docs/results.md, "MRCLAM,
-    half to half")."""
+    half to half"; rerun after ``distance_dependent_noise``'s M-step, 8 of 10 again, robot 4's first half now keeping
+    the search's start by 0.03 nats, inside EM's stop rule, at 6.2 mm/s)."""
     fopts = final_options(opts)
     fits = pool_map(pool, _final_job, [(fopts, found["logs"], start) for start in final_starts(found)])
     if len(fits) == 1:
@@ -162,8 +163,9 @@ def diagnosed(found: dict[str, Any], opts: EMOptions, again: bool = True, final:
     ``parameters_when_named`` (the candidate's fit in its round). Where a held fit of those finds a value more likely
     than the final fit's (the final fit refines a lag with the rest held: on `paper-sim` logs of a 0.15 s lag it kept
     6 frames where 5, the rest refitted, were 3 nats more likely; a distance-noise exponent stopped on a ridge at 0.27
-    where 0.5 was 46 nats more likely), the final fit is made once ``again`` from the search's model with that value,
-    so that the value stated is the model's.
+    where 0.5 was 46 nats more likely), the final fit is made once ``again``: from the search's model with that value
+    (a lag's frame), or from the held fit itself (``check_wald_intervals``: EM from the search's model crept back to
+    0.31), so that the value stated is the model's.
     ``final``: the final fit when made already (:func:`final_fit`; its time is then the caller's to count)."""
     logs = found["logs"]
     t0 = time.perf_counter()
