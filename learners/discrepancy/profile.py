@@ -459,10 +459,10 @@ def check_wald_intervals(effects: list[dict], final: Model, logs: list[Trajector
         entry["wald_check"] = {"points": check["points"], "free": check["free"]}
         if check["better"] is not None:
             better = max(better or check["held"], check["held"], key=lambda h: h[0])
-            entry["beaten_by_nats"] = beaten_by([tuple(p) for p in check["points"]], check["free"])
+            entry["beaten_by_nats"] = beaten_by(check["points"], check["free"])
             entry["note"] = "; ".join(check["failed"] + [
                 f"a fit with {pname} held at {check['better']:.3g} is more likely than the diagnosed model by "
-                f"{max(ll for _, ll in check['points']) - check['free']:.1f} nats: {NOT_THE_MAXIMUM}"])
+                f"{entry['beaten_by_nats']:.1f} nats: {NOT_THE_MAXIMUM}"])
         elif check["inside"]:
             p = profile_interval(final, logs, e["name"], entry.get("se"), opts, robust_drop(entry))
             entry.update(wald_interval_95=entry["interval_95"], interval_95=p["interval_95"], open=p["open"],
