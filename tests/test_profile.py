@@ -58,6 +58,39 @@ def test_a_point_better_than_the_free_fit_raises_the_reference():
     assert hi == pytest.approx(2.0 + Z95 * 0.5, abs=0.07)
 
 
+class Batched:
+    """A profile ``loglik`` with ``many`` (as ``profile.HeldFits``'s) that records the points asked for together."""
+
+    def __init__(self, fn):
+        self.fn, self.batches = fn, []
+
+    def many(self, values):
+        self.batches.append(list(values))
+        return [self.fn(v) for v in values]
+
+    def __call__(self, v):
+        return self.many([v])[0]
+
+
+def test_the_two_sides_of_a_profile_are_asked_for_together_and_end_where_one_side_at_a_time_ends():
+    """The walks run side by side (each round one point per unfinished side, a worker pool's batch) and find what
+    the walk of one side after the other finds: on a quadratic with a known answer, and on a lattice."""
+    ll = Batched(quadratic(2.0, 0.5))
+    ends, open_ends, points, best = profile_bounds(ll, 2.0, 0.0, 0.5, -np.inf, np.inf)
+    alone = profile_bounds(quadratic(2.0, 0.5), 2.0, 0.0, 0.5, -np.inf, np.inf)  # a plain function: one at a time
+    assert ends == alone[0] and open_ends == alone[1] and sorted(points) == sorted(alone[2]) and best == alone[3]
+    assert all(len(b) == 2 for b in ll.batches) and len(ll.batches) == len(points) // 2  # symmetric: always both
+    assert ends == pytest.approx([2.0 - Z95 * 0.5, 2.0 + Z95 * 0.5], abs=0.5 / 2 ** BISECTIONS)
+    # a side that ends first leaves the other to go on alone
+    lop = Batched(lambda v: -0.5 * ((v - 2.0) / (0.5 if v < 2.0 else 2.0)) ** 2)
+    (lo, hi), _, points, _ = profile_bounds(lop, 2.0, 0.0, 0.5, -np.inf, np.inf)
+    assert [len(b) for b in lop.batches][0] == 2 and [len(b) for b in lop.batches][-1] == 1
+    assert lo == pytest.approx(2.0 - Z95 * 0.5, abs=0.1) and hi == pytest.approx(2.0 + Z95 * 2.0, abs=0.3)
+    lattice = Batched(lambda k: -2.0 * abs(k - 5))
+    assert step_walk(lattice, 5, 0.0, 0, 15)[:2] == step_walk(lambda k: -2.0 * abs(k - 5), 5, 0.0, 0, 15)[:2]
+    assert lattice.batches[0] == [4, 6]
+
+
 def test_only_effects_with_one_scalar_parameter_and_no_batch_state_are_profiled():
     assert profiled_parameter("velocity_fade") == "fade_per_min"
     assert profiled_parameter("off_center_shrink") == "k"
@@ -141,6 +174,22 @@ def test_on_a_simulated_fade_the_profile_interval_agrees_with_the_wald_one():
     assert lls[(vs >= lo) & (vs <= hi)].min() > best - 1.92 - 0.05
 
 
+def test_held_fits_in_a_worker_pool_give_the_intervals_one_process_gives():
+    """``aibo diagnose`` runs the held fits of the Wald-end check and the profile side by side in its worker pool: the
+    same fits (deterministic), so the same points, ends and interval as in one process."""
+    from aibo_core.workers import process_pool
+    from learners.discrepancy.profile import profile_interval, wald_ends
+
+    log, opts, fit, intervals = fade_fit()
+    entry = intervals["fade_per_min"]
+    with process_pool(2) as pool:
+        ends = [wald_ends(fit.params, [log], "velocity_fade", entry, opts, pool=p) for p in (None, pool)]
+        profiles = [profile_interval(fit.params, [log], "velocity_fade", entry["se"], opts, pool=p)
+                    for p in (None, pool)]
+    assert ends[0]["points"] == ends[1]["points"] and len(ends[0]["points"]) >= 2
+    assert profiles[0] == profiles[1] and len(profiles[0]["points"]) >= 4
+
+
 def test_false_sightings_rate_gets_a_conditional_likelihood_interval_around_its_estimate():
     """A parameter with batch state (the rate, with its responsibilities) cannot be held in a refit; its interval is
     the conditional likelihood one on the whole log: it holds the estimate, is two-sided, and is as wide as the
@@ -204,7 +253,7 @@ def test_a_frame_interval_holds_the_value_stated_even_where_a_held_fit_beat_it(m
     dt = 1 / 30
     lls = {3: -10115.0, 4: -10091.0, 5: -10291.0, 6: -10093.0, 7: -10400.0}
     monkeypatch.setattr(fitting, "train_loglik", lambda model, logs: lls[5])
-    monkeypatch.setattr(profile, "held_loglik", lambda *a: (lambda v: lls[round(v / dt)]))
+    monkeypatch.setattr(profile, "held_loglik", lambda *a, **k: (lambda v: lls[round(v / dt)]))
     final = Model(action=None, sensor=None, init=(), effects=(ActuationLag(5 * dt),))
     p = profile.lattice_interval(final, [], "actuation_lag", "lag_s", dt, EMOptions())
     assert p["interval_95"] == pytest.approx([3 * dt, 5 * dt])  # frame 4 alone within 1.92 nats of 4; 5 stated

@@ -155,7 +155,8 @@ def final_starts(found: dict[str, Any]) -> list[Model]:
     return starts
 
 
-def diagnosed(found: dict[str, Any], opts: EMOptions, again: bool = True, final: LearnResult | None = None) -> Diagnosed:
+def diagnosed(found: dict[str, Any], opts: EMOptions, again: bool = True, final: LearnResult | None = None,
+              pool: Any = None) -> Diagnosed:
     """The final fit of the search's model ``found["model"]`` on ``found["logs"]`` (``found``: what ``search``
     returned when given ``opts``) and each named effect's entry: its parameters in the final fit, their intervals
     (``effect_intervals``; profiled where Wald fails, ``profile_where_wald_fails``, or where fits held at its ends
@@ -166,13 +167,15 @@ def diagnosed(found: dict[str, Any], opts: EMOptions, again: bool = True, final:
     where 0.5 was 46 nats more likely), the final fit is made once ``again``: from the search's model with that value
     (a lag's frame), or from the held fit itself (``check_wald_intervals``: EM from the search's model crept back to
     0.31), so that the value stated is the model's.
-    ``final``: the final fit when made already (:func:`final_fit`; its time is then the caller's to count)."""
+    ``final``: the final fit when made already (:func:`final_fit`; its time is then the caller's to count).
+    ``pool``: a worker pool for the final fit's starts and the held fits (``profile.HeldFits``: the two sides of a
+    profile, the two ends of a Wald interval, side by side); the intervals are the same without it."""
     logs = found["logs"]
     t0 = time.perf_counter()
     fopts = final_options(opts)
     starts: list[dict[str, Any]] = []
     if final is None:
-        final, starts = final_fit(found, opts)
+        final, starts = final_fit(found, opts, pool)
     se = dict(final.info.get("standard_errors", {}))
     robust = dict(final.info.get("robust_standard_errors") or {})
     conditional = _conditional_errors(final.params, logs, [c.name for c in found["named"]], se, robust)
@@ -184,10 +187,10 @@ def diagnosed(found: dict[str, Any], opts: EMOptions, again: bool = True, final:
             e["intervals"][pname]["method"] = CONDITIONAL_WALD
     seconds = {FINAL_FIT_STAGE: time.perf_counter() - t0}
     t0 = time.perf_counter()
-    profiled = profile_where_wald_fails(effects, final.params, logs, fopts)  # a rate near its bound
+    profiled = profile_where_wald_fails(effects, final.params, logs, fopts, pool)  # a rate near its bound
     # the other scalar parameters: fits held at the Wald ends (a final fit stopped on a ridge; a flatter profile)
-    checked, held_start = check_wald_intervals(effects, final.params, logs, fopts, skip=profiled)
-    refined, better = refine_grid_intervals(effects, final.params, logs, fopts)  # a lag: below the search's grid
+    checked, held_start = check_wald_intervals(effects, final.params, logs, fopts, skip=profiled, pool=pool)
+    refined, better = refine_grid_intervals(effects, final.params, logs, fopts, pool)  # a lag: below the search's grid
     profiled += checked + refined
     if profiled or any("wald_check" in i for e in effects for i in e["intervals"].values()):
         seconds[PROFILE_STAGE] = time.perf_counter() - t0
@@ -197,7 +200,7 @@ def diagnosed(found: dict[str, Any], opts: EMOptions, again: bool = True, final:
         model = found["model"] if held_start is None else held_start
         for name, values in better.items():
             model = model.with_effect(with_values(model.effect(name), values))
-        redone = diagnosed(dict(found, model=model), opts, again=False)
+        redone = diagnosed(dict(found, model=model), opts, again=False, pool=pool)
         redone.seconds = {k: seconds.get(k, 0.0) + redone.seconds.get(k, 0.0) for k in seconds | redone.seconds}
         return redone
     return Diagnosed(final, effects, profiled, seconds, starts)
@@ -213,7 +216,8 @@ def plausible_diagnosis(found: dict[str, Any], opts: EMOptions, progress=print,
     robots' bias states cost 7-12 s). ``found["dropped_in_final"]``: the effects dropped, with why. MRCLAM robot 4's
     first half: ``landmark_bias`` named at a correlation time of 50 s went to 459 s in the final fit, a per-landmark
     constant whose common part traded with the forward speed (7.4 mm/s against Vicon on the other half; 5.4 without
-    it, ``aibo learn`` 5.8). ``pool``: the worker pool the final fits' starts run in (:func:`final_fit`)."""
+    it, ``aibo learn`` 5.8). ``pool``: the worker pool the final fits' starts and the intervals' held fits run in
+    (:func:`final_fit`, :func:`diagnosed`)."""
     t0 = time.perf_counter()
     if "learned" not in found:
         found = dict(found, learned=learned(found["logs"], opts, found.get("action_model")))
@@ -228,7 +232,7 @@ def plausible_diagnosis(found: dict[str, Any], opts: EMOptions, progress=print,
                      dropped_in_final=found["dropped_in_final"] + [{"name": c.name, "why": why}])
         fit, starts = final_fit(found, opts, pool)
     spent = time.perf_counter() - t0
-    final = diagnosed(found, opts, final=fit)  # the intervals of the fit kept only
+    final = diagnosed(found, opts, final=fit, pool=pool)  # the intervals of the fit kept only
     final.seconds[FINAL_FIT_STAGE] += spent
     final.starts = final.starts or starts  # made again from a held fit (``diagnosed``): that fit's starts
     return found, final

@@ -10,7 +10,10 @@ chi-square(1, 0.95) / 2 = 1.92 nats of the best fit.
 or a tenth of the value's scale without one) until the profile drops more than 1.92 nats or the domain ends, then
 bisects the last step ``BISECTIONS`` times: an end is good to 1/2**BISECTIONS of its bracket. Each point is one EM
 fit (the search's stop rule, at most ``fitting.HELD_MAX_ITER`` iterations); a side costs 2-8 fits. The likelihood compared is
-the E-step's on the logs' sightings (``fitting.train_loglik``), the same for every point.
+the E-step's on the logs' sightings (``fitting.train_loglik``), the same for every point. The two sides walk side by
+side (``walk_in_step``), each round's points fitted at once in ``aibo diagnose``'s worker pool (``HeldFits``), as are
+a Wald interval's two ends and a parabola's four points: the fits are deterministic, so the pool changes the wall
+time, not the interval (a side reads the best of both sides' points so far).
 
 A Wald interval inside the domain is checked (``check_wald_intervals``): two fits held at its ends (``wald_ends``).
 Where one is less than 1.92 nats below the best the profile is flatter than the information says and the interval
@@ -38,11 +41,12 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import replace
-from typing import Callable
+from typing import Any, Callable, Generator
 
 import numpy as np
 
 from aibo_core.trajectory import Trajectory
+from aibo_core.workers import pool_map
 from learners.discrepancy.effect_sizes import CHI2_1_95
 from learners.em.options import EMOptions
 from learners.model.effects import EFFECT_MODELS
@@ -84,83 +88,157 @@ def wants_profile(entry: dict) -> bool:
     return entry.get("se") is None or bool(entry.get("clipped"))
 
 
+def bracket_side(value: float, side: float, step: float, bound: float,
+                 drop: float) -> Generator[float, tuple[float, float], tuple[float, bool]]:
+    """One side of ``profile_bounds`` as a walk (``walk_in_step``): from ``value`` towards ``bound`` (``side`` -1 or
+    +1) in steps from ``step`` that double until a point drops more than ``drop`` below the best or the domain ends,
+    then ``BISECTIONS`` bisections of the last step. Returns (the end, open: still within ``drop`` there)."""
+    inside, outside, d = value, None, step
+    for _ in range(MAX_STEPS):
+        v = value + side * d
+        if (v - bound) * side >= 0:  # at or past the domain's end: try the end itself
+            v = bound
+        ll, best = yield v
+        if ll < best - drop:
+            outside = v
+            break
+        inside = v
+        if v == bound:
+            break
+        d *= 2.0
+    if outside is None:
+        return inside, True
+    for _ in range(BISECTIONS):
+        mid = 0.5 * (inside + outside)
+        ll, best = yield mid
+        if ll < best - drop:
+            outside = mid
+        else:
+            inside = mid
+    return 0.5 * (inside + outside), False
+
+
 def profile_bounds(loglik: Callable[[float], float], value: float, best: float, step: float, low: float,
                    high: float, drop: float = HALF_CHI2_1_95) -> tuple[list[float], list[bool], list[tuple[float, float]],
                                                                       float]:
     """([lower, upper] ends of the 95% profile interval around ``value``, [lower, upper] open: the profile stayed
     within 1.92 nats up to that end (the domain's bound, or the farthest of MAX_STEPS doubling steps), the
     (v, loglik) points evaluated, the best log-likelihood seen; a failed point is -inf, beyond the interval).
-    ``loglik(v)``: the profile at v; ``best``: its maximum so far (the free fit's), raised when a point beats it;
-    ``drop``: the nats below the best that bound the interval (1.92; a robust interval's larger, ``robust_drop``)."""
-    points: list[tuple[float, float]] = []
-
-    def ll(v: float) -> float:
-        nonlocal best
-        out = loglik(v)
-        points.append((v, out))
-        best = max(best, out)
-        return out
-
-    ends: list[float] = []
-    open_ends: list[bool] = []
-    for side in (-1.0, 1.0):
-        bound = low if side < 0 else high
-        inside, outside = value, None
-        d = step
-        for _ in range(MAX_STEPS):
-            v = value + side * d
-            if (v - bound) * side >= 0:  # at or past the domain's end: try the end itself
-                v = bound
-            if ll(v) < best - drop:
-                outside = v
-                break
-            inside = v
-            if v == bound:
-                break
-            d *= 2.0
-        open_ends.append(outside is None)
-        if outside is None:
-            ends.append(inside)
-            continue
-        for _ in range(BISECTIONS):
-            mid = 0.5 * (inside + outside)
-            if ll(mid) < best - drop:
-                outside = mid
-            else:
-                inside = mid
-        ends.append(0.5 * (inside + outside))
-    return ends, open_ends, points, best
+    ``loglik(v)``: the profile at v (with ``many``, ``HeldFits``: the two sides' points side by side); ``best``: its
+    maximum so far (the free fit's), raised when a point beats it; ``drop``: the nats below the best that bound the
+    interval (1.92; a robust interval's larger, ``robust_drop``)."""
+    sides, points, best = walk_in_step(loglik, [bracket_side(value, -1.0, step, low, drop),
+                                                bracket_side(value, 1.0, step, high, drop)], best)
+    return [e for e, _ in sides], [o for _, o in sides], points, best
 
 
-def held_loglik(final: Model, logs: list[Trajectory], name: str, pname: str, opts: EMOptions,
-                failed: list[str], fits: dict[float, tuple[float, Model]] | None = None) -> Callable[[float], float]:
+def _held_fit(job: tuple[Model, list[Trajectory], str, str, float, EMOptions, bool]) -> tuple[float, Model | None, str]:
+    """One held fit (a worker's job, ``HeldFits``): (its log-likelihood, the fit when asked for, else None, "" or why
+    the fit failed numerically: then -inf, beyond any interval)."""
+    from learners.discrepancy.fitting import fit, train_loglik, with_values
+
+    final, logs, name, pname, v, held_opts, keep = job
+    try:
+        model = fit(logs, final.with_effect(with_values(final.effect(name), {pname: v})), held_opts)
+    except (FloatingPointError, np.linalg.LinAlgError, ValueError) as err:  # counted as beyond the interval
+        return -math.inf, None, f"the fit with {pname} held at {v:.3g} failed ({err})"
+    return train_loglik(model, logs), (model if keep else None), ""
+
+
+class HeldFits:
     """v -> the log-likelihood of ``logs`` (``fitting.train_loglik``) under ``final`` refitted with parameter ``pname``
     of effect ``name`` held at v (the rest refitted, warm-started: one start and no alias search, ``fitting.fit``; the
     search's stop rule, ``fitting.held``); a fit that fails numerically is -inf (beyond any interval) and said in
-    ``failed``. ``fits``: where given, each fit made is kept in it (v -> (log-likelihood, model))."""
-    from learners.discrepancy.fitting import SEARCH_PATIENCE, fit, held, train_loglik, with_values
+    ``failed``. ``fits``: where given, each fit made is kept in it (v -> (log-likelihood, model)). ``many(values)``
+    makes several at once, side by side in ``pool`` (a worker pool, ``aibo_core.workers.process_pool``) where there is
+    one: the walks below ask for both sides' next points together. The fits are deterministic, so the pool changes
+    when a profile is done, not what it finds."""
 
-    held_opts = held(replace(opts.comparable(), patience=SEARCH_PATIENCE), name)
+    def __init__(self, final: Model, logs: list[Trajectory], name: str, pname: str, opts: EMOptions,
+                 failed: list[str], fits: dict[float, tuple[float, Model]] | None = None, pool: Any = None) -> None:
+        from learners.discrepancy.fitting import SEARCH_PATIENCE, held
 
-    def loglik(v: float) -> float:
-        try:
-            model = fit(logs, final.with_effect(with_values(final.effect(name), {pname: v})), held_opts)
-        except (FloatingPointError, np.linalg.LinAlgError, ValueError) as err:  # counted as beyond the interval
-            failed.append(f"the fit with {pname} held at {v:.3g} failed ({err})")
-            return -math.inf
-        out = train_loglik(model, logs)
-        if fits is not None:
-            fits[v] = (out, model)
+        self.final, self.logs, self.name, self.pname = final, logs, name, pname
+        self.held_opts = held(replace(opts.comparable(), patience=SEARCH_PATIENCE), name)
+        self.failed, self.fits, self.pool = failed, fits, pool
+
+    def many(self, values: list[float]) -> list[float]:
+        """The log-likelihoods of the fits held at ``values``, in order."""
+        keep = self.fits is not None
+        jobs = [(self.final, self.logs, self.name, self.pname, float(v), self.held_opts, keep) for v in values]
+        out = []
+        for v, (ll, model, why) in zip(values, pool_map(self.pool if len(jobs) > 1 else None, _held_fit, jobs)):
+            if why:
+                self.failed.append(why)
+            elif keep:
+                self.fits[float(v)] = (ll, model)
+            out.append(ll)
         return out
 
-    return loglik
+    def __call__(self, v: float) -> float:
+        return self.many([v])[0]
+
+
+def held_loglik(final: Model, logs: list[Trajectory], name: str, pname: str, opts: EMOptions,
+                failed: list[str], fits: dict[float, tuple[float, Model]] | None = None, pool: Any = None) -> HeldFits:
+    """The held fits of ``pname`` of effect ``name`` about ``final`` (``HeldFits``)."""
+    return HeldFits(final, logs, name, pname, opts, failed, fits, pool)
+
+
+def batched(loglik: Callable[[float], float]) -> Callable[[list[float]], list[float]]:
+    """``loglik``'s ``many`` (``HeldFits``: several points side by side), else one point after the other."""
+    return getattr(loglik, "many", None) or (lambda values: [loglik(v) for v in values])
+
+
+class Scaled:
+    """``loglik`` of a lattice index k at the value k x ``resolution`` (``step_walk`` of a lag in frames), its
+    ``many`` kept (``batched``)."""
+
+    def __init__(self, loglik: Callable[[float], float], resolution: float) -> None:
+        self.loglik, self.resolution = loglik, resolution
+
+    def many(self, ks: list[int]) -> list[float]:
+        return batched(self.loglik)([k * self.resolution for k in ks])
+
+    def __call__(self, k: int) -> float:
+        return self.many([k])[0]
+
+
+def walk_in_step(loglik: Callable[[float], float], walks: list[Generator[float, tuple[float, float], Any]],
+                 best: float) -> tuple[list[Any], list[tuple[float, float]], float]:
+    """Run ``walks`` side by side: each is a generator that yields the next point it needs and is sent (that point's
+    log-likelihood, the best log-likelihood so far). Each round evaluates every unfinished walk's next point together
+    (``batched``: in a worker pool where ``loglik`` has one) and raises ``best`` by them before any walk reads it.
+    Returns (each walk's return value, the (v, loglik) points in the order evaluated, the best)."""
+    points: list[tuple[float, float]] = []
+    results: list[Any] = [None] * len(walks)
+    pending: dict[int, float] = {}
+    for i, w in enumerate(walks):
+        try:
+            pending[i] = next(w)
+        except StopIteration as stop:  # nothing to evaluate (at the domain's end already)
+            results[i] = stop.value
+    many = batched(loglik)
+    while pending:
+        ids = list(pending)
+        values = many([pending[i] for i in ids])
+        points += [(pending[i], ll) for i, ll in zip(ids, values)]
+        best = max([best, *values])
+        for i, ll in zip(ids, values):
+            try:
+                pending[i] = walks[i].send((ll, best))
+            except StopIteration as stop:
+                results[i] = stop.value
+                del pending[i]
+    return results, points, best
 
 
 def profile_interval(final: Model, logs: list[Trajectory], name: str, se: float | None, opts: EMOptions,
-                     drop: float = HALF_CHI2_1_95) -> dict:
+                     drop: float = HALF_CHI2_1_95, pool: Any = None) -> dict:
     """The 95% profile-likelihood interval of effect ``name``'s one scalar parameter in the diagnosed model
     ``final`` (fitted on ``logs``; ``opts``: its fit's options): {"interval_95", "open", "method", "points", "note",
-    "beaten_by_nats"} (module docstring, ``profile_bounds``; ``drop``: its nats, ``robust_drop``)."""
+    "beaten_by_nats"} (module docstring, ``profile_bounds``; ``drop``: its nats, ``robust_drop``; ``pool``: where the
+    held fits run, ``HeldFits``)."""
     from learners.discrepancy.fitting import train_loglik
 
     pname = profiled_parameter(name)
@@ -171,7 +249,7 @@ def profile_interval(final: Model, logs: list[Trajectory], name: str, se: float 
     scale = float(np.max(np.atleast_1d(param.scale)))
     step = se if se is not None and math.isfinite(se) and se > 0 else 0.1 * max(abs(value), scale)
     failed: list[str] = []
-    loglik = held_loglik(final, logs, name, pname, opts, failed)
+    loglik = held_loglik(final, logs, name, pname, opts, failed, pool=pool)
     free = train_loglik(final, logs)
     ends, open_ends, points, best = profile_bounds(loglik, value, free, step, param.low, param.high, drop)
     notes = [f"the profile stays within {drop:.2f} nats of its best up to "
@@ -216,29 +294,31 @@ def conditional_interval(final: Model, logs: list[Trajectory], name: str, se: fl
             "points": [[float(v), float(ll)] for v, ll in sorted(points)], "note": "; ".join(notes)}
 
 
+def lattice_side(start: int, side: int, bound: int) -> Generator[int, tuple[float, float], bool]:
+    """One side of ``step_walk`` as a walk (``walk_in_step``): from ``start`` one step at a time towards ``bound``
+    until a point drops more than 1.92 nats below the best or the lattice ends. Returns whether it reached ``bound``
+    still inside."""
+    k, inside = start, start
+    while (k + side - bound) * side <= 0:
+        k += side
+        ll, best = yield k
+        if ll < best - HALF_CHI2_1_95:
+            break
+        inside = k
+    return inside == bound
+
+
 def step_walk(loglik: Callable[[int], float], start: int, best: float, low: int,
               high: int) -> tuple[list[int], list[bool], list[tuple[int, float]], float]:
     """The profile of a parameter that takes values on a lattice (index k: a lag of k frames), walked from ``start``
     one step at a time on each side until it drops more than 1.92 nats below ``best`` (raised when a point beats it)
-    or the lattice ends (``low``, ``high``). Returns ([lowest, highest] index within 1.92 nats of the best, [lower,
-    upper] open: the walk reached that end still inside, the (index, loglik) points with ``start``'s (``best``, the
-    free fit's) among them, the best log-likelihood seen). Every index between the ends is taken to be inside (the
-    profile of a lag is unimodal near its best)."""
+    or the lattice ends (``low``, ``high``); both sides side by side (``walk_in_step``). Returns ([lowest, highest]
+    index within 1.92 nats of the best, [lower, upper] open: the walk reached that end still inside, the (index,
+    loglik) points with ``start``'s (``best``, the free fit's) among them, the best log-likelihood seen). Every index
+    between the ends is taken to be inside (the profile of a lag is unimodal near its best)."""
     points: list[tuple[int, float]] = [(start, best)]
-    open_ends: list[bool] = []
-    for side, bound in ((-1, low), (1, high)):
-        k, inside = start, start
-        while True:
-            k += side
-            if (k - bound) * side > 0:
-                break
-            out = loglik(k)
-            points.append((k, out))
-            best = max(best, out)
-            if out < best - HALF_CHI2_1_95:
-                break
-            inside = k
-        open_ends.append(inside == bound)
+    open_ends, walked, best = walk_in_step(loglik, [lattice_side(start, -1, low), lattice_side(start, 1, high)], best)
+    points += walked
     # a point inside may fall out once a later one raised the best: the ends are those still within 1.92 nats
     kept = [k for k, ll in points if ll >= best - HALF_CHI2_1_95]
     return [min(kept), max(kept)], open_ends, sorted(points), best
@@ -262,7 +342,7 @@ def beaten(points: list[tuple[float, float]], free: float, pname: str, notes: li
 
 
 def lattice_interval(final: Model, logs: list[Trajectory], name: str, pname: str, resolution: float,
-                     opts: EMOptions) -> dict:
+                     opts: EMOptions, pool: Any = None) -> dict:
     """The 95% profile-likelihood interval of grid parameter ``pname`` of effect ``name`` in the diagnosed model
     ``final`` (fitted on ``logs``; ``opts``: its fit's options) at the step ``resolution`` below which the parameter
     does not change the model (``EffectModel.grid_resolution``: a lag of discrete commands acts in whole frames):
@@ -276,12 +356,13 @@ def lattice_interval(final: Model, logs: list[Trajectory], name: str, pname: str
     param = EFFECT_MODELS[name].PARAMS[pname]
     value = float(np.asarray(final.effect(name).values()[pname]))
     failed: list[str] = []
-    held_ll = held_loglik(final, logs, name, pname, opts, failed)
+    held_ll = held_loglik(final, logs, name, pname, opts, failed, pool=pool)
     free = train_loglik(final, logs)
     top = max(EFFECT_MODELS[name].GRID[pname])
     high = math.floor(min(param.high, top) / resolution + 1e-9)
     k0 = round(value / resolution)
-    (k_lo, k_hi), open_ends, points, _ = step_walk(lambda k: held_ll(k * resolution), k0, free, 0, high)
+    frames = Scaled(held_ll, resolution)
+    (k_lo, k_hi), open_ends, points, _ = step_walk(frames, k0, free, 0, high)
     # the value stated stays inside its interval even where a held fit beat it (said in the note): on a `paper-sim`
     # log of a 0.15 s lag the final fit made again from the better frame (4) ended at 5 frames, 200 nats below it
     k_lo, k_hi = min(k_lo, k0), max(k_hi, k0)
@@ -298,7 +379,7 @@ def lattice_interval(final: Model, logs: list[Trajectory], name: str, pname: str
 
 
 def parabola_interval(final: Model, logs: list[Trajectory], name: str, pname: str, step: float,
-                      opts: EMOptions) -> dict:
+                      opts: EMOptions, pool: Any = None) -> dict:
     """The 95% profile-likelihood interval of grid parameter ``pname`` of effect ``name`` where it acts continuously
     (a lag of continuous commands): the fits with it held at the final value +- ``step`` / 2 and +- ``step`` (the
     search's grid step; the rest refitted, warm-started from ``final``) and the final fit itself, a parabola through
@@ -311,10 +392,10 @@ def parabola_interval(final: Model, logs: list[Trajectory], name: str, pname: st
     param = EFFECT_MODELS[name].PARAMS[pname]
     value = float(np.asarray(final.effect(name).values()[pname]))
     failed: list[str] = []
-    held_ll = held_loglik(final, logs, name, pname, opts, failed)
+    held_ll = held_loglik(final, logs, name, pname, opts, failed, pool=pool)
     free = train_loglik(final, logs)
-    points = [(value, free)] + [(v, held_ll(v)) for v in (value - step, value - step / 2, value + step / 2, value + step)
-                                if v >= param.low]
+    values = [v for v in (value - step, value - step / 2, value + step / 2, value + step) if v >= param.low]
+    points = [(value, free)] + list(zip(values, batched(held_ll)(values)))
     finite = [(v, ll) for v, ll in points if math.isfinite(ll)]
     _, (lo, hi), note = refine(sorted(finite), value, step)
     notes = ([note] if note else []) + failed
@@ -326,8 +407,8 @@ def parabola_interval(final: Model, logs: list[Trajectory], name: str, pname: st
             "points": [[float(v), float(ll)] for v, ll in sorted(points)], "note": "; ".join(notes)}
 
 
-def refine_grid_intervals(effects: list[dict], final: Model, logs: list[Trajectory],
-                          opts: EMOptions) -> tuple[list[str], dict[str, dict[str, float]]]:
+def refine_grid_intervals(effects: list[dict], final: Model, logs: list[Trajectory], opts: EMOptions,
+                          pool: Any = None) -> tuple[list[str], dict[str, dict[str, float]]]:
     """For each named effect of ``report.json["effects"]`` with a grid parameter: its interval (the search's grid one,
     kept as ``grid_interval_95``) replaced, in place, by the whole logs' profile: at the step the logs resolve where
     that is finer than the grid (``EffectModel.grid_resolution``: a lag of discrete commands, in frames;
@@ -348,10 +429,10 @@ def refine_grid_intervals(effects: list[dict], final: Model, logs: list[Trajecto
                 continue
             resolution = effect.grid_resolution(pname, batch)
             if resolution is not None:
-                p = lattice_interval(final, logs, e["name"], pname, resolution, opts)
+                p = lattice_interval(final, logs, e["name"], pname, resolution, opts, pool)
                 entry["grid_step"] = float(resolution)
             else:
-                p = parabola_interval(final, logs, e["name"], pname, float(entry.get("grid_step", 0.1)), opts)
+                p = parabola_interval(final, logs, e["name"], pname, float(entry.get("grid_step", 0.1)), opts, pool)
                 entry.pop("grid_step", None)
             entry.update(grid_interval_95=entry["interval_95"], interval_95=p["interval_95"], open=p["open"],
                          method=p["method"], profile=p["points"], note=p["note"], beaten_by_nats=p["beaten_by_nats"])
@@ -390,7 +471,7 @@ def robust_drop(entry: dict) -> float:
     return HALF_CHI2_1_95 * max(float(se) / float(fisher), 1.0) ** 2
 
 
-def wald_ends(final: Model, logs: list[Trajectory], name: str, entry: dict, opts: EMOptions) -> dict:
+def wald_ends(final: Model, logs: list[Trajectory], name: str, entry: dict, opts: EMOptions, pool: Any = None) -> dict:
     """The check of a Wald interval ``entry`` (``effect_sizes.effect_intervals``) of effect ``name``'s one scalar
     parameter (``profiled_parameter``) in the diagnosed model ``final``: fits with the parameter held at the
     interval's two ends, the rest refitted (``held_loglik``). Under the quadratic log-likelihood Wald assumes, each is
@@ -407,10 +488,10 @@ def wald_ends(final: Model, logs: list[Trajectory], name: str, entry: dict, opts
     value = float(np.asarray(entry["value"]))
     failed: list[str] = []
     fits: dict[float, tuple[float, Model]] = {}
-    loglik = held_loglik(final, logs, name, pname, opts, failed, fits)
+    loglik = held_loglik(final, logs, name, pname, opts, failed, fits, pool)
     free = train_loglik(final, logs)
-    ends = [min(max(float(e), param.low), param.high) for e in entry["interval_95"]]
-    points = [(e, loglik(e)) for e in ends if e != value]
+    ends = [e for e in (min(max(float(e), param.low), param.high) for e in entry["interval_95"]) if e != value]
+    points = list(zip(ends, batched(loglik)(ends)))  # side by side in the pool
     better = None
     top_v, top = max(points, key=lambda p: p[1], default=(value, free))
     if top > free + BEATEN_NATS:
@@ -431,7 +512,7 @@ def wald_ends(final: Model, logs: list[Trajectory], name: str, entry: dict, opts
 
 
 def check_wald_intervals(effects: list[dict], final: Model, logs: list[Trajectory], opts: EMOptions,
-                         skip: list[str]) -> tuple[list[str], Model | None]:
+                         skip: list[str], pool: Any = None) -> tuple[list[str], Model | None]:
     """For each named effect of ``report.json["effects"]`` not in ``skip`` (profiled already) whose one scalar
     parameter (``profiled_parameter``) has a Wald interval: ``wald_ends``, kept in the entry as ``wald_check``
     ({"points", "free"}). Where an end's fit is within ``robust_drop`` of the best, the interval is replaced, in
@@ -455,7 +536,7 @@ def check_wald_intervals(effects: list[dict], final: Model, logs: list[Trajector
         entry = e["intervals"].get(pname)
         if entry is None or entry.get("interval_95") is None or wants_profile(entry):
             continue
-        check = wald_ends(final, logs, e["name"], entry, opts)
+        check = wald_ends(final, logs, e["name"], entry, opts, pool)
         entry["wald_check"] = {"points": check["points"], "free": check["free"]}
         if check["better"] is not None:
             better = max(better or check["held"], check["held"], key=lambda h: h[0])
@@ -464,14 +545,15 @@ def check_wald_intervals(effects: list[dict], final: Model, logs: list[Trajector
                 f"a fit with {pname} held at {check['better']:.3g} is more likely than the diagnosed model by "
                 f"{entry['beaten_by_nats']:.1f} nats: {NOT_THE_MAXIMUM}"])
         elif check["inside"]:
-            p = profile_interval(final, logs, e["name"], entry.get("se"), opts, robust_drop(entry))
+            p = profile_interval(final, logs, e["name"], entry.get("se"), opts, robust_drop(entry), pool)
             entry.update(wald_interval_95=entry["interval_95"], interval_95=p["interval_95"], open=p["open"],
                          method=p["method"], profile=p["points"], note=p["note"], beaten_by_nats=p["beaten_by_nats"])
             done.append(e["name"])
     return done, None if better is None else better[1]
 
 
-def profile_where_wald_fails(effects: list[dict], final: Model, logs: list[Trajectory], opts: EMOptions) -> list[str]:
+def profile_where_wald_fails(effects: list[dict], final: Model, logs: list[Trajectory], opts: EMOptions,
+                             pool: Any = None) -> list[str]:
     """For each named effect of ``report.json["effects"]`` (each with its ``intervals``) whose one scalar parameter's
     Wald interval is clipped at its domain or missing (``wants_profile``): its interval replaced, in place, by the
     profile-likelihood one (for a parameter with batch state the conditional likelihood one, ``conditional_interval``;
@@ -482,7 +564,7 @@ def profile_where_wald_fails(effects: list[dict], final: Model, logs: list[Traje
         if pname is None or not wants_profile(e["intervals"][pname]):
             continue
         entry = e["intervals"][pname]
-        p = (profile_interval(final, logs, e["name"], entry["se"], opts) if profiled_parameter(e["name"])
+        p = (profile_interval(final, logs, e["name"], entry["se"], opts, pool=pool) if profiled_parameter(e["name"])
              else conditional_interval(final, logs, e["name"], entry["se"]))
         entry.update(wald_interval_95=entry["interval_95"], interval_95=p["interval_95"], open=p["open"],
                      method=p["method"], profile=p["points"], note=p["note"])
