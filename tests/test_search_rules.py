@@ -334,7 +334,7 @@ def test_an_effect_the_final_fit_makes_implausible_is_dropped_and_the_model_refi
                                 else "") for e in found["model"].effects)
         return SimpleNamespace(params=_Model(effects)), [{"start": "the search's model", "loglik": None, "kept": True}]
 
-    def diagnosed(found, opts, final=None):
+    def diagnosed(found, opts, final=None, pool=None):
         interval_calls.append(tuple(e.name for e in final.params.effects))
         return Diagnosed(final, [], [], {FINAL_FIT_STAGE: 10.0})
 
