@@ -24,6 +24,9 @@ from aibo.options import MAX_SEEDS, MAX_STARTS, finite, integer, json_object, pa
 
 #: What an interrupt leaves, for commands that do not resume: every output is written whole, at the end.
 NOTHING_WRITTEN = "no output was written or changed (each is written whole, at the end)"
+#: ``aibo diagnose --rounds``' default: ``learners.discrepancy.search.MAX_ROUNDS``, not imported (``--help`` loads no
+#: NumPy; a test checks the two agree)
+DIAGNOSE_ROUNDS = 3
 
 
 class _Parser(argparse.ArgumentParser):
@@ -146,6 +149,9 @@ def build_parser() -> argparse.ArgumentParser:
                     "landmark_bearing_offset, response_time and heavy_tailed_noise, which are tried only when named "
                     "here)")
     dg.add_argument("--jobs", type=workers, default=2, help="worker processes for the candidates (default 2)")
+    dg.add_argument("--rounds", type=integer(1), default=DIAGNOSE_ROUNDS,
+                    help=f"rounds of the search at most, each naming at most one effect (default {DIAGNOSE_ROUNDS}); "
+                         "the report says when a candidate was still significant in the last")
     dg.add_argument("--seed", type=integer(0), default=0, help="seed of the fits and of the replicas (default 0)")
     dg.add_argument("--action-model", choices=["table", "features", "unicycle"], default=None,
                     help="the base fit's action model, as in 'aibo learn' (default: table for discrete logs, unicycle "

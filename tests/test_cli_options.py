@@ -34,6 +34,7 @@ BAD = [
     (["reproduce", "--seed", "-1", "--out", "r"], "--seed", ">= 0"),
     (["diagnose", "log.npz", "--out", "d", "--jobs", "100000"], "--jobs", "worker processes on"),
     (["diagnose", "log.npz", "--out", "d", "--replicas", "1000000000"], "--replicas", "must be <= 1,000"),
+    (["diagnose", "log.npz", "--out", "d", "--rounds", "0"], "--rounds", ">= 1"),
     (LEARN + ["--starts", "1000000"], "--starts", "must be <= 64"),
     (["experiment", "policies", "--out", "d", "--seeds", "1000000000"], "--seeds", "must be <= 10,000"),
     (["experiment", "policies", "--out", "d", "--jobs", "100000"], "--jobs", "worker processes on"),

@@ -86,7 +86,7 @@ def run(args) -> int:
     with process_pool(args.jobs) as pool:  # the search's workers, then the final fit's starts side by side
         with naming_files(args.logs):
             found = search(logs, names, opts, jobs=args.jobs, progress=say, action_model=args.action_model,
-                           pool=pool)
+                           pool=pool, max_rounds=args.rounds)
         logs = found["logs"]  # outliers set aside, as in every score of the search
         seconds = {"search": time.perf_counter() - t0}
         # the whole-log fit and the named effects' intervals (learners.discrepancy.final), without an effect it made
@@ -151,6 +151,7 @@ def run(args) -> int:
     report["warnings"] += [w for e in report["effects"]
                            if (w := moved_since_named(e["name"], e["intervals"], e["parameters_when_named"]))]
     report["warnings"] += motion_warning(report)
+    report["warnings"] += round_limit(report["search_rounds"], report["candidates"])
     for w in report["warnings"]:
         print(f"aibo: warning: the diagnosed model: {w}", file=sys.stderr)
         lines.append(f"warning: {w}")
@@ -251,6 +252,19 @@ def motion_warning(report: dict) -> list[str]:
             f"predicted open loop get worse ({at} nats per sighting, +- s.e.); for driving a simulator over seconds, "
             "the base model (aibo learn's) may be the better motion model"]
 
+def round_limit(rounds: dict, candidates: list[dict]) -> list[str]:
+    """A warning when the search stopped at its limit of rounds (``--rounds``) with candidates still significant in the
+    last: they were neither named nor refused, and another round would have tried them again."""
+    left = [c for c in candidates if c["name"] in rounds["left_at_cap"] and c["round"] == len(rounds["winners"])]
+    if not left:
+        return []
+    n = rounds["max_rounds"]
+    return [f"the search stopped at its limit of {n} round{'s' if n != 1 else ''} with "
+            + ", ".join(f"{c['name']} (held-out {c['gain_heldout']:+.1f} nats, p = {c['p_value']:.2g})" for c in left)
+            + f" still significant: neither named nor refused; --rounds {n + 1} tries "
+            + ("it" if len(left) == 1 else "them") + " again"]
+
+
 def off_held(effects: list[dict], logs: list) -> list[str]:
     """A warning per named effect whose every 95% interval holds the value that switches it off
     (``effect_sizes.holds_off``; effects whose start is that value, ``EffectModel.STARTS_OFF``)."""
@@ -281,7 +295,7 @@ def unexplained(report: dict) -> list[dict]:
         matches = [name for name, cls in sorted(EFFECT_MODELS.items()) if cls.SIGNATURE and cls.SIGNATURE in d["statistic"]]
         for name in (n for n in matches if n not in named):
             c = tried.get(name)
-            why = (not_tried(name) if c is None else c["note"] or
+            why = (not_tried(name) if c is None else passed_over(c, report.get("search_rounds", {})) or c["note"] or
                    f"training gain {c['gain_train']:.1f} nats, p = {c['p_value']:.2g}; held-out gain {c['gain_heldout']:+.1f} nats")
             out.append({"statistic": d["statistic"], "z": d["z"], "effect": name, "why_not_named": why, "reading": reading})
         if not matches or all(n in named for n in matches):
@@ -289,6 +303,30 @@ def unexplained(report: dict) -> list[dict]:
                    else "no effect of the catalogue leaves this signature")
             out.append({"statistic": d["statistic"], "z": d["z"], "effect": None, "why_not_named": why, "reading": reading})
     return out
+
+
+def passed_over(c: dict, rounds: dict) -> str:
+    """Why candidate ``c`` (a ``report.json["candidates"]`` entry, its last try) is not in the diagnosed model although
+    the search found it significant or named it ("" when neither: its note or gains say why): named and dropped from
+    the final fit; or another candidate won its round (and was perhaps dropped later), the round being the last the
+    search runs (``rounds``: ``report.json["search_rounds"]``). Not its test's note, which annotates a verdict the
+    candidate passed (MRCLAM robot 2: ``distance_dependent_noise`` significant, held-out +397 nats, in the third and
+    last round, where ``beacon_height_scale`` was named, was reported "not named" beside its sandwich note)."""
+    dropped = {d["name"]: d["why"] for d in rounds.get("dropped_in_final", [])}
+    winners, n = rounds.get("winners", []), rounds.get("max_rounds")
+    k = c.get("round", 0) - 1
+    winner = winners[k] if 0 <= k < len(winners) else None
+    if c["name"] == winner and c["name"] in dropped:
+        return f"named in round {k + 1}, then dropped from the diagnosed model: in the final fit, {dropped[c['name']]}"
+    if not c.get("significant") or winner is None or c["name"] == winner:
+        return ""
+    why = f"{winner} had the larger held-out gain in that round"
+    if winner in dropped:
+        why += f" and was then dropped from the diagnosed model ({dropped[winner]})"
+    if c["name"] in rounds.get("left_at_cap", []):
+        why += f"; that round was the search's last (--rounds {n}): --rounds {n + 1} tries {c['name']} again"
+    return (f"significant in round {k + 1} (training gain {c['gain_train']:.1f} nats, p = {c['p_value']:.2g}; held-out "
+            f"{c['gain_heldout']:+.1f} nats) but not named: {why}")
 
 
 def not_tried(name: str) -> str:
@@ -375,4 +413,7 @@ def _report(found: dict, effects: list[dict], before, after, sig_before) -> dict
         # rounds repeated from a better base model found by a candidate's fit (learners.discrepancy.search)
         "base_escapes": found.get("escapes", []),
         "base_change": base_shift(found["base"], found["model"]) if effects else None,
+        # each round's winner, the limit, what it left significant, what the final fit dropped (``passed_over``)
+        "search_rounds": {"max_rounds": found["max_rounds"], "winners": found["winners"],
+                          "left_at_cap": found["left_at_cap"], "dropped_in_final": found.get("dropped_in_final", [])},
     }

@@ -4,7 +4,8 @@ A round fits every remaining candidate warm-started from the current model on th
 grid parameter, e.g. a lag, by profile likelihood over its grid), scores it on the held-out half and runs its checks
 (``learners.discrepancy.checks``: the likelihood-ratio test against the refitted null, then the checks that may refuse
 it). The significant candidate with the best held-out gain is named and becomes the current model; the search
-repeats until nothing is significant (at most ``MAX_ROUNDS``). Two rules act on the round, not on one candidate:
+repeats until nothing is significant (at most ``MAX_ROUNDS``, ``aibo diagnose --rounds``; a candidate still significant
+in the last round is reported as left by that limit). Two rules act on the round, not on one candidate:
 
 - an escape: a candidate's check fitted a base model WITHOUT the effect that beats the round's null by
   ``ESCAPE_NATS`` (EM from the paper's start had stopped at a poorer optimum of the base): it becomes the current
@@ -340,9 +341,11 @@ def _say_round(tried: list[Candidate], progress: Callable[[str], None]) -> None:
 
 def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs: int = 2,
            progress: Callable[[str], None] = print, action_model: str | None = None,
-           pool: Any = None) -> dict[str, Any]:
-    """The whole search (module docstring): returns the base fit, every round's candidates, the named
-    effects in order, and the current model after each addition (all fitted on the training half),
+           pool: Any = None, max_rounds: int = MAX_ROUNDS) -> dict[str, Any]:
+    """The whole search (module docstring), at most ``max_rounds`` rounds: returns the base fit, every round's
+    candidates, the named effects in order (``"winners"``: each round's, pruned ones included; ``"left_at_cap"``: the
+    candidates still significant in the last round when the search stopped at ``max_rounds``, which another round
+    would have tried again), and the current model after each addition (all fitted on the training half),
     the logs without outliers that every score uses, the candidates the logs cannot support
     (``"skipped"``: name -> what the log lacks) and the fits' context (``"context"``: a refit on the training
     halves). ``action_model``: of the base fit (``aibo learn --action-model``). ``pool``: a worker pool of ``jobs``
@@ -360,7 +363,7 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
     progress(f"base model fitted on the training half in {time.perf_counter() - t0:.1f} s; {n_out} outlier "
              "sightings set aside")
     current, current_ll = base, base_ll
-    rounds, named = [], []
+    rounds, named, winners = [], [], []
     in_base = {e.name for e in base.effects}  # fitted by the base itself (a range's shrink: EMOptions.range_shrink)
     remaining = [c for c in candidates if applicable(c, logs) and c not in in_base]
     skipped = {c: "in the base model already (aibo learn fits it on this sensor)" if c in in_base else
@@ -374,7 +377,7 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
     last: SearchContext | None = None  # the last round's context (its null: ``current``'s when nothing was named)
     with process_pool(max(jobs, 1)) if pool is None else nullcontext(pool) as pool:
         workers = pool if jobs > 1 else None
-        while len(rounds) < MAX_ROUNDS and remaining:
+        while len(rounds) < max_rounds and remaining:
             last = round_ctx = with_null(ctx, current, len(remaining))
             progress(f"  (null: the current model refitted as the candidates are, train "
                      f"+{round_ctx.null_ll - current_ll:.1f} nats)")
@@ -384,7 +387,7 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
             escaping = escape.escape_ll > round_ctx.null_ll + ESCAPE_NATS and len(escapes) < MAX_ESCAPES
             best = None if escaping else max((c for c in tried if c.significant), key=lambda c: c.gain_heldout,
                                              default=None)
-            if not escaping and (best is None or len(rounds) == MAX_ROUNDS or remaining == [best.name]):
+            if not escaping and (best is None or len(rounds) == max_rounds or remaining == [best.name]):
                 last_round_checks(tried, round_ctx, workers)  # the last round: its candidates are reported
             _say_round(tried, progress)
             if escaping:
@@ -403,6 +406,7 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
                 break
             best.checks.append(MotionSide().run(round_ctx, best))
             named.append(best)
+            winners.append(best.name)
             current = ctx.fit(best.model)
             current_ll = ctx.loglik(current)
             remaining = [n for n in remaining if n != best.name]
@@ -412,11 +416,17 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
             # (MRCLAM robot 2: landmark_bias named at tau 50 s, 104 s once the lag was in, and dropped only after the
             # last round, which had found beacon_height_scale's gain taken by it)
             current, current_ll = drop_implausible(named, current, current_ll, ctx, progress)
+        capped = len(rounds) == max_rounds and len(winners) == len(rounds) and len(remaining) > 0
+        left = [c.name for c in rounds[-1] if c.significant and c.name != winners[-1]] if capped else []
+        if left:
+            progress(f"stopped: the search runs at most {max_rounds} round{'s' if max_rounds != 1 else ''} (--rounds), and "
+                     f"{', '.join(left)} {'was' if len(left) == 1 else 'were'} still significant in the last")
         current, current_ll = prune(named, current, current_ll, ctx, workers, progress)
         probes = none_of_the_above(current, last if last is not None and last.current is current else None, ctx,
                                    workers, progress)
     return {"base": base, "rounds": rounds, "named": named, "model": current, "logs": logs, "skipped": skipped,
-            "escapes": escapes, "probes": probes, "context": ctx, "action_model": action_model}
+            "escapes": escapes, "probes": probes, "context": ctx, "action_model": action_model,
+            "max_rounds": max_rounds, "winners": winners, "left_at_cap": left}
 
 
 def none_of_the_above(current: Model, last: SearchContext | None, ctx: SearchContext, pool: Any,
