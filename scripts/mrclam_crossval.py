@@ -3,10 +3,11 @@ with their defaults, as a user runs them) fitted on one half of the log and scor
 in both directions, beside the commands at face value.
 
     python scripts/mrclam_crossval.py [DATA] [--out /tmp/mrclam_crossval] [--robots 1,2,3,4,5] [--jobs 2]
-                                      [--candidates a,b,...]
+                                      [--candidates a,b,...] [--rounds N]
 
 ``--candidates``: what ``aibo diagnose`` tries (default: its own default candidates), e.g. the defaults plus
-``response_time`` to see an effect that is not tried by default on the halves it was not fitted to.
+``response_time`` to see an effect that is not tried by default on the halves it was not fitted to; ``--rounds``: its
+search's rounds at most (default: its own).
 
 DATA defaults to ../shared/data/mrclam7 (never copied into the repository). A half is the first or the second
 half of the robot's time (``aibo import mrclam --seconds`` / ``--start``). Scores on the held-out half: forward speed
@@ -23,7 +24,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from study import data_folder, mrclam_parser, resume, robots, run_aibo  # noqa: E402
+from study import add_diagnose_options, data_folder, diagnose_options, mrclam_parser, resume, robots, run_aibo  # noqa: E402
 
 from aibo_core import trajectory  # noqa: E402
 from aibo_core.mrclam import import_robot  # noqa: E402
@@ -47,16 +48,16 @@ def run(args: list[str]) -> float:
     return seconds
 
 
-def row(data: Path, robot: int, direction: str, out: Path, jobs: int, candidates: str | None = None) -> dict:
-    """Fit on one half, score on the other (module docstring)."""
+def row(data: Path, robot: int, direction: str, out: Path, jobs: int, options: list[str] | None = None) -> dict:
+    """Fit on one half, score on the other (module docstring). ``options``: more ``aibo diagnose`` arguments
+    (``study.diagnose_options``)."""
     h1, h2 = halves(data, robot)
     fit, test = (h1, h2) if direction == "first->second" else (h2, h1)
     log = out / f"r{robot}_{direction.split('->')[0]}.npz"
     trajectory.save(fit, log)
     learned, diag = out / f"{log.stem}_learn.json", out / f"{log.stem}_diagnose"
     t_learn = run(["learn", str(log), "--out", str(learned), "--no-resume"])
-    t_diag = run(["diagnose", str(log), "--out", str(diag), "--jobs", str(jobs)]
-                 + (["--candidates", candidates] if candidates else []))
+    t_diag = run(["diagnose", str(log), "--out", str(diag), "--jobs", str(jobs)] + (options or []))
     models = {"learn": load_model(learned), "diagnose": load_model(diag / "model.json")}
     face = face_value_model(models["learn"])
     f = velocity_scores(face, [test])
@@ -89,14 +90,14 @@ def table(rows: list[dict]) -> str:
 def main(argv=None) -> int:
     ap = mrclam_parser(__doc__, "/tmp/mrclam_crossval")
     ap.add_argument("--jobs", type=int, default=2, help="aibo diagnose --jobs (default 2)")
-    ap.add_argument("--candidates", default=None, help="aibo diagnose --candidates (default: its default candidates)")
+    add_diagnose_options(ap)
     args = ap.parse_args(argv)
     data = data_folder("mrclam_crossval", args.data)
     if data is None:
         return 2
     keys = [{"robot": r, "direction": d} for r in robots(args.robots) for d in ("first->second", "second->first")]
     resume(Path(args.out), "rows.jsonl", keys,
-           lambda k: row(data, k["robot"], k["direction"], Path(args.out), args.jobs, args.candidates),
+           lambda k: row(data, k["robot"], k["direction"], Path(args.out), args.jobs, diagnose_options(args)),
            lambda rows: table(sorted(rows, key=lambda r: (r["robot"], r["direction"]))),
            lambda _, md: print(md.splitlines()[-1], flush=True))
     return 0

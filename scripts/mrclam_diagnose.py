@@ -3,6 +3,7 @@ it (defaults, 2 workers, wall time), and the ``model.json`` it writes scored aga
 face value (with the diagnosed model's noise) and ``aibo learn``'s model (``scripts/mrclam_bias.py``'s base column).
 
     python scripts/mrclam_diagnose.py [DATA] [--out /tmp/mrclam_diagnose] [--robots 1,2,3,4,5]
+                                      [--candidates a,b,...] [--rounds N]
 
 DATA defaults to ../shared/data/mrclam7 (never copied into the repository). Per robot: forward speed and turn rate
 RMS against Vicon over 1 s windows, the gated smoothed pose RMS (``learners.scoring``), the lag-1 autocorrelation
@@ -28,16 +29,17 @@ from learners.scoring import face_value_model  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from mrclam_bias import model_row  # noqa: E402
-from study import data_folder, mrclam_parser, resume, robots, run_aibo  # noqa: E402
+from study import add_diagnose_options, data_folder, diagnose_options, mrclam_parser, resume, robots, run_aibo  # noqa: E402
 
 
-def diagnose_robot(data: Path, robot: int, out: Path) -> dict:
-    """The record of one robot (module docstring)."""
+def diagnose_robot(data: Path, robot: int, out: Path, options: list[str] | None = None) -> dict:
+    """The record of one robot (module docstring); ``options``: more ``aibo diagnose`` arguments
+    (``study.diagnose_options``: ``--candidates``, ``--rounds``)."""
     tr = import_robot(data, robot)
     log = out / f"r{robot}.npz"
     trajectory.save(tr, log)
     folder = out / f"diagnose_r{robot}"
-    wall, run = run_aibo(["diagnose", str(log), "--out", str(folder)])
+    wall, run = run_aibo(["diagnose", str(log), "--out", str(folder)] + (options or []))
     if run.returncode != 0:
         return {"robot": robot, "error": run.stderr.strip().splitlines()[-1:], "wall_s": wall}
     report = json.loads((folder / "report.json").read_text())
@@ -92,13 +94,15 @@ def warm_up(data: Path, robot: int, out: Path) -> None:
 
 
 def main(argv=None) -> int:
-    args = mrclam_parser(__doc__, "/tmp/mrclam_diagnose").parse_args(argv)
+    ap = mrclam_parser(__doc__, "/tmp/mrclam_diagnose")
+    add_diagnose_options(ap)
+    args = ap.parse_args(argv)
     data = data_folder("mrclam_diagnose", args.data)
     if data is None:
         return 2
     warm_up(data, robots(args.robots)[0], Path(args.out))
     resume(Path(args.out), "robots.jsonl", [{"robot": r} for r in robots(args.robots)],
-           lambda k: diagnose_robot(data, k["robot"], Path(args.out)),
+           lambda k: diagnose_robot(data, k["robot"], Path(args.out), diagnose_options(args)),
            lambda rows: table(sorted(rows, key=lambda r: r["robot"])), lambda _, md: print(md.splitlines()[-1], flush=True))
     return 0
 

@@ -31,6 +31,18 @@ def mrclam_parser(doc: str, out: str) -> argparse.ArgumentParser:
     return ap
 
 
+def add_diagnose_options(ap: argparse.ArgumentParser) -> None:
+    """``--candidates`` and ``--rounds``, passed on to ``aibo diagnose`` (default: the command's own)."""
+    ap.add_argument("--candidates", default=None, help="aibo diagnose --candidates (default: its default candidates)")
+    ap.add_argument("--rounds", type=int, default=None, help="aibo diagnose --rounds (default: its default)")
+
+
+def diagnose_options(args: argparse.Namespace) -> list[str]:
+    """The ``aibo diagnose`` arguments of ``add_diagnose_options``' options that were given."""
+    return ((["--candidates", args.candidates] if args.candidates else [])
+            + (["--rounds", str(args.rounds)] if args.rounds else []))
+
+
 def robots(arg: str) -> list[int]:
     """The robot numbers of ``--robots``."""
     return [int(x) for x in arg.split(",")]
