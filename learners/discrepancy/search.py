@@ -48,6 +48,11 @@ from .fitting import SEARCH_PATIENCE, SearchContext, fit, lr_test
 from .grid import GridWalk, candidate_start, grid_point, profiled
 from .split import training_log
 
+#: Rounds at most (``aibo diagnose --rounds``). Measured on the five MRCLAM robots' whole logs (2026-11-27): with the
+#: limit at 10 instead, robots 1, 3 and 4 name the same; robot 2 adds distance_dependent_noise in a 4th round (forward
+#: error against Vicon 6.1 -> 6.4 mm/s, 8 disagreements of the calibrated check either way) and robot 5
+#: landmark_bias, dropped in the final fit (gap 1.78 -> 2.07, disagreements 8 -> 11): no robot better with more
+#: (docs/results.md, "The limit of rounds").
 MAX_ROUNDS = 3
 #: A candidate's base refit (``checks.GivenItsOwnBase``) this many nats above the round's null replaces the current
 #: model and the round is repeated from it, at most ``MAX_ESCAPES`` times per search.
