@@ -399,6 +399,8 @@ def test_why_a_significant_candidate_is_not_in_the_diagnosed_model():
                                                                  "gain in that round")  # not the last round
     assert passed_over(_tried("floor_drift", 3, significant=False), rounds) == ""  # its gains and note say why
     assert passed_over(_tried("floor_drift", 3), {}) == ""  # a report without the search's rounds
+    robust = dict(_tried("beacon_height_scale", 3), checks=[{"name": "robust likelihood ratio", "p": 4.2e-27}])
+    assert "(training gain 100.0 nats, robust p = 4.2e-27; held-out" in passed_over(robust, rounds)
     (warning,) = round_limit(rounds, [_tried("beacon_height_scale", 3), _tried("landmark_bias", 3)])
     assert warning.startswith("the search stopped at its limit of 3 rounds with beacon_height_scale (held-out +100.0 "
                               "nats, p = 1e-20) still significant") and warning.endswith("--rounds 4 tries it again")
