@@ -316,17 +316,17 @@ def test_an_effect_made_implausible_by_the_next_one_goes_before_the_next_round(m
     assert "dropped: bias (given the others, tau_s 104 s is no pass-to-pass bias)" in said
 
 
-def test_an_effect_the_final_fit_makes_implausible_is_dropped_and_the_model_refitted(monkeypatch):
+def test_an_effect_the_final_fit_makes_implausible_is_dropped_and_the_search_run_again_without_it(monkeypatch):
     """The final fit on the whole logs takes 'bias' to values its class finds implausible (MRCLAM robot 4's first half:
-    landmark_bias at 50 s when named, 459 s in the final fit): dropped, the search's model refitted without it on the
-    training halves, the final fit made again from that; only the fit kept gets its intervals; the time of both final
-    fits counted."""
+    landmark_bias at 50 s when named, 459 s in the final fit): dropped, the search run again without it from the round
+    that named it (its runner-up 'scale' named there), the final fit made again from that; only the fit kept gets its
+    intervals; the time of both final fits counted."""
     from types import SimpleNamespace
 
     from learners.discrepancy import final as final_module
     from learners.discrepancy.final import FINAL_FIT_STAGE, Diagnosed, plausible_diagnosis
 
-    calls, interval_calls = [], []
+    calls, interval_calls, again = [], [], []
 
     def final_fit(found, opts, pool=None):
         calls.append(tuple(e.name for e in found["model"].effects))
@@ -338,16 +338,24 @@ def test_an_effect_the_final_fit_makes_implausible_is_dropped_and_the_model_refi
         interval_calls.append(tuple(e.name for e in final.params.effects))
         return Diagnosed(final, [], [], {FINAL_FIT_STAGE: 10.0})
 
+    def search_without(found, name, pool=None, progress=print):
+        again.append(name)
+        named = [c for c in found["named"] if c.name != name] + [Candidate("scale", {}, 0.0, 0.0, 1, 0.0)]
+        return dict(found, named=named, model=_Model(tuple(_Effect(c.name) for c in named)),
+                    winners=["lag", "scale"])
+
     monkeypatch.setattr(final_module, "final_fit", final_fit)
     monkeypatch.setattr(final_module, "diagnosed", diagnosed)
+    monkeypatch.setattr(final_module, "search_without", search_without)
     named = [Candidate(n, {}, 0.0, 0.0, 1, 0.0) for n in ("lag", "bias")]
     found = {"named": named, "model": _Model((_Effect("lag"), _Effect("bias"))), "context": _Context({}),
+             "winners": ["lag", "bias"],
              "learned": None}  # learn's model of the logs: made already (none here: the stand-in final fit needs none)
     said = []
     found2, final = plausible_diagnosis(found, None, said.append)
-    assert calls == [("lag", "bias"), ("lag",)] and interval_calls == [("lag",)]  # the kept fit's intervals only
-    assert [c.name for c in found2["named"]] == ["lag"] and [e.name for e in found2["model"].effects] == ["lag"]
-    assert found2["dropped_in_final"] == [{"name": "bias", "why": "tau_s 459 s is no pass-to-pass bias"}]
+    assert again == ["bias"] and calls == [("lag", "bias"), ("lag", "scale")] and interval_calls == [("lag", "scale")]
+    assert [c.name for c in found2["named"]] == ["lag", "scale"]
+    assert found2["dropped_in_final"] == [{"name": "bias", "why": "tau_s 459 s is no pass-to-pass bias", "round": 2}]
     assert said == ["dropped: bias (in the final fit on the whole log(s), tau_s 459 s is no pass-to-pass bias)"]
     assert final.seconds[FINAL_FIT_STAGE] >= 10.0 and [c.name for c in found["named"]] == ["lag", "bias"]
 
@@ -380,31 +388,30 @@ def _tried(name, round_, significant=True, gain=100.0):
 
 def test_why_a_significant_candidate_is_not_in_the_diagnosed_model():
     """MRCLAM robot 2 (whole log, defaults): distance_dependent_noise significant (held-out +397 nats) in the third
-    and last round, which named beacon_height_scale; robot 3: beacon_height_scale significant in round 3, which named
-    landmark_bias, dropped in the final fit. The reason given is the round's, not the test's note (a verdict it
-    passed)."""
+    and last round, which named beacon_height_scale; robot 3: landmark_bias named in round 3, dropped in the final fit.
+    The reason given is the round's, not the test's note (a verdict it passed)."""
     from aibo.commands.diagnose import passed_over, round_limit
 
-    rounds = {"max_rounds": 3, "winners": ["actuation_lag", "distance_dependent_noise", "landmark_bias"],
-              "left_at_cap": ["beacon_height_scale"],
-              "dropped_in_final": [{"name": "landmark_bias", "why": "tau_s 734 s is no pass-to-pass bias"}]}
-    why = passed_over(_tried("beacon_height_scale", 3), rounds)
+    rounds = {"max_rounds": 3, "winners": ["actuation_lag", "distance_dependent_noise", "beacon_height_scale"],
+              "left_at_cap": ["floor_drift"],
+              "dropped_in_final": [{"name": "landmark_bias", "why": "tau_s 734 s is no pass-to-pass bias", "round": 3}]}
+    why = passed_over(_tried("floor_drift", 3), rounds)
     assert why.startswith("significant in round 3 (training gain 100.0 nats, p = 1e-20; held-out +100.0 nats) but not "
-                          "named: landmark_bias had the larger held-out gain in that round and was then dropped from the "
-                          "diagnosed model (tau_s 734 s is no pass-to-pass bias)")
-    assert why.endswith("that round was the search's last (--rounds 3): --rounds 4 tries beacon_height_scale again")
-    assert passed_over(_tried("landmark_bias", 3), rounds) == ("named in round 3, then dropped from the diagnosed "
-                                                               "model: in the final fit, tau_s 734 s is no pass-to-pass bias")
+                          "named: beacon_height_scale had the larger held-out gain in that round; ")
+    assert why.endswith("that round was the search's last (--rounds 3): --rounds 4 tries floor_drift again")
+    assert passed_over(_tried("landmark_bias", 2), rounds) == (
+        "named in round 3, then dropped from the diagnosed model: in the final fit, tau_s 734 s is no pass-to-pass bias; "
+        "the search ran again from that round without it")
     assert passed_over(_tried("floor_drift", 2), rounds).endswith("distance_dependent_noise had the larger held-out "
                                                                  "gain in that round")  # not the last round
     assert passed_over(_tried("floor_drift", 3, significant=False), rounds) == ""  # its gains and note say why
     assert passed_over(_tried("floor_drift", 3), {}) == ""  # a report without the search's rounds
-    robust = dict(_tried("beacon_height_scale", 3), checks=[{"name": "robust likelihood ratio", "p": 4.2e-27}])
+    robust = dict(_tried("floor_drift", 3), checks=[{"name": "robust likelihood ratio", "p": 4.2e-27}])
     assert "(training gain 100.0 nats, robust p = 4.2e-27; held-out" in passed_over(robust, rounds)
-    (warning,) = round_limit(rounds, [_tried("beacon_height_scale", 3), _tried("landmark_bias", 3)])
-    assert warning.startswith("the search stopped at its limit of 3 rounds with beacon_height_scale (held-out +100.0 "
+    (warning,) = round_limit(rounds, [_tried("floor_drift", 3), _tried("velocity_fade", 3, significant=False)])
+    assert warning.startswith("the search stopped at its limit of 3 rounds with floor_drift (held-out +100.0 "
                               "nats, p = 1e-20) still significant") and warning.endswith("--rounds 4 tries it again")
-    assert round_limit(dict(rounds, left_at_cap=[]), [_tried("beacon_height_scale", 3)]) == []
+    assert round_limit(dict(rounds, left_at_cap=[]), [_tried("floor_drift", 3)]) == []
 
 
 def test_aibo_diagnose_says_which_candidates_its_last_round_left_significant(tmp_path, capsys):
@@ -431,3 +438,32 @@ def test_aibo_diagnose_says_which_candidates_its_last_round_left_significant(tmp
     assert lag["significant"] and not lag["named"]
     assert any(w.startswith("the search stopped at its limit of 1 round with actuation_lag") for w in report["warnings"])
     assert "stopped: the search runs at most 1 round (--rounds), and actuation_lag was still significant" in text
+
+
+def test_the_search_run_again_without_a_named_effect_names_what_a_search_without_that_candidate_names():
+    """``search_without`` resumes from the state the round that named the effect started from (a better base model its
+    escapes found kept: here two, one from the left-out effect's fit): it names what a search that never had the
+    effect among its candidates names, and never tries the effect again."""
+    from aibo_core.trajectory import blind
+    from aibo_gym.collect import collect
+    from learners.discrepancy.search import search, search_without
+    from learners.em.options import EMOptions
+
+    log = blind(collect({"noise": "aibo", "effects": {"actuation_lag": {"lag_s": 0.2},
+                                                    "beacon_height_scale": {"scale": [1.08, 0.94, 1.04, 0.95]}}},
+                        9000, seed=3))
+    candidates = ["actuation_lag", "beacon_height_scale", "velocity_fade"]
+    found = search([log], candidates, EMOptions(seed=0), jobs=1, progress=lambda s: None)
+    assert found["winners"] == ["beacon_height_scale", "actuation_lag"]
+    assert [e["from"] for e in found["escapes"]] == ["velocity_fade", "actuation_lag"]  # both in round 2
+    said = []
+    again = search_without(found, "actuation_lag", progress=said.append)
+    alone = search([log], ["beacon_height_scale", "velocity_fade"], EMOptions(seed=0), jobs=1, progress=lambda s: None)
+    assert said[0] == "the search again from round 2, without actuation_lag"
+    assert again["winners"] == alone["winners"] == ["beacon_height_scale"]
+    assert [c.name for c in again["named"]] == [c.name for c in alone["named"]] == ["beacon_height_scale"]
+    assert again["rounds"][0] is found["rounds"][0]  # round 1 as it was
+    assert [c.name for c in again["rounds"][1]] == ["velocity_fade"]
+    assert again["state"].starts[1][1] == found["state"].starts[1][1]  # from the state round 2 started from
+    assert [e["from"] for e in again["escapes"]] == ["velocity_fade", "actuation_lag"]
+    assert found["winners"] == ["beacon_height_scale", "actuation_lag"]  # the search it resumed is left as it was

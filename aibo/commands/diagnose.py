@@ -309,22 +309,23 @@ def unexplained(report: dict) -> list[dict]:
 def passed_over(c: dict, rounds: dict) -> str:
     """Why candidate ``c`` (a ``report.json["candidates"]`` entry, its last try) is not in the diagnosed model although
     the search found it significant or named it ("" when neither: its note or gains say why): named and dropped from
-    the final fit; or another candidate won its round (and was perhaps dropped later), the round being the last the
-    search runs (``rounds``: ``report.json["search_rounds"]``). Not its test's note, which annotates a verdict the
-    candidate passed (MRCLAM robot 2: ``distance_dependent_noise`` significant, held-out +397 nats, in the third and
-    last round, where ``beacon_height_scale`` was named, was reported "not named" beside its sandwich note)."""
-    dropped = {d["name"]: d["why"] for d in rounds.get("dropped_in_final", [])}
+    the final fit (the search then ran again from that round without it, ``search.search_without``); or another
+    candidate won its round, perhaps the last the search runs (``rounds``: ``report.json["search_rounds"]``). Not its
+    test's note, which annotates a verdict the candidate passed (MRCLAM robot 2: ``distance_dependent_noise``
+    significant, held-out +397 nats, in the third and last round, where ``beacon_height_scale`` was named, was
+    reported "not named" beside its sandwich note)."""
+    dropped = {d["name"]: d for d in rounds.get("dropped_in_final", [])}
+    if c["name"] in dropped:
+        d = dropped[c["name"]]
+        return (f"named in round {d.get('round', '?')}, then dropped from the diagnosed model: in the final fit, "
+                f"{d['why']}; the search ran again from that round without it")
     winners, n = rounds.get("winners", []), rounds.get("max_rounds")
     k = c.get("round", 0) - 1
     winner = winners[k] if 0 <= k < len(winners) else None
-    if c["name"] == winner and c["name"] in dropped:
-        return f"named in round {k + 1}, then dropped from the diagnosed model: in the final fit, {dropped[c['name']]}"
     if not c.get("significant") or winner is None or c["name"] == winner:
         return ""
     why = f"{winner} had the larger held-out gain in that round"
-    if winner in dropped:
-        why += f" and was then dropped from the diagnosed model ({dropped[winner]})"
-    if c["name"] in rounds.get("left_at_cap", []):
+    if c["name"] in rounds.get("left_at_cap", []) and k + 1 == len(winners):
         why += f"; that round was the search's last (--rounds {n}): --rounds {n + 1} tries {c['name']} again"
     return (f"significant in round {k + 1} (training gain {c['gain_train']:.1f} nats, {decisive_p(c)}; held-out "
             f"{c['gain_heldout']:+.1f} nats) but not named: {why}")

@@ -31,6 +31,7 @@ from learners.model.model import Model
 from .effect_sizes import effect_intervals
 from .fitting import SEARCH_PATIENCE, train_loglik, with_values
 from .profile import check_wald_intervals, profile_where_wald_fails, refine_grid_intervals
+from .search import search_without
 
 #: ``Diagnosed.seconds``' keys (``report.json["seconds_by_stage"]``)
 FINAL_FIT_STAGE = "final fit with standard errors"
@@ -210,8 +211,9 @@ def plausible_diagnosis(found: dict[str, Any], opts: EMOptions, progress=print,
                         pool: Any = None) -> tuple[dict[str, Any], Diagnosed]:
     """(``found`` as the final fit leaves it, the final fit with its intervals): while the final fit on the whole logs
     (:func:`final_fit`) holds a named effect at values its class finds implausible (``EffectModel.implausible``, the
-    search's own rule, which the search checked on the training halves), that effect dropped, the search's model
-    refitted without it on the training halves (``found["context"]``) and the final fit made again; then
+    search's own rule, which the search checked on the training halves), that effect dropped, the search run again
+    without it from the round that named it (``search.search_without``: its runner-up gets its chance) and the final
+    fit made again; then
     :func:`diagnosed` of the fit kept (the intervals of a discarded fit are never computed: its held fits with MRCLAM
     robots' bias states cost 7-12 s). ``found["dropped_in_final"]``: the effects dropped, with why. MRCLAM robot 4's
     first half: ``landmark_bias`` named at a correlation time of 50 s went to 459 s in the final fit, a per-landmark
@@ -227,9 +229,8 @@ def plausible_diagnosis(found: dict[str, Any], opts: EMOptions, progress=print,
         c = bad[0]
         why = fit.params.effect(c.name).implausible()
         progress(f"dropped: {c.name} (in the final fit on the whole log(s), {why})")
-        model = found["context"].fit(found["model"].without_effect(c.name))
-        found = dict(found, named=[n for n in found["named"] if n is not c], model=model,
-                     dropped_in_final=found["dropped_in_final"] + [{"name": c.name, "why": why}])
+        dropped = found["dropped_in_final"] + [{"name": c.name, "why": why, "round": found["winners"].index(c.name) + 1}]
+        found = dict(search_without(found, c.name, pool, progress), dropped_in_final=dropped)
         fit, starts = final_fit(found, opts, pool)
     spent = time.perf_counter() - t0
     final = diagnosed(found, opts, final=fit, pool=pool)  # the intervals of the fit kept only

@@ -27,7 +27,7 @@ from __future__ import annotations
 import time
 from concurrent.futures import FIRST_COMPLETED, Future, wait
 from contextlib import nullcontext
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable
 
 import numpy as np
@@ -344,6 +344,88 @@ def _say_round(tried: list[Candidate], progress: Callable[[str], None]) -> None:
                  f"{'  (not identifiable)' if not c.identifiable else ''}  [{c.seconds:.1f} s]")
 
 
+@dataclass
+class SearchState:
+    """Where the search stands: the current model, the candidates left, every round's tries and winner, and the state
+    each round started from (``starts``: current model, its training log-likelihood, the named effects, the candidates
+    left), from which :func:`search_without` runs the search again without an effect."""
+
+    current: Model
+    current_ll: float
+    remaining: list[str]
+    rounds: list[list[Candidate]] = field(default_factory=list)
+    named: list[Candidate] = field(default_factory=list)
+    winners: list[str] = field(default_factory=list)
+    escapes: list[dict[str, Any]] = field(default_factory=list)
+    starts: list[tuple[Model, float, list[Candidate], list[str]]] = field(default_factory=list)
+    last: SearchContext | None = None  # the last round's context (its null: ``current``'s when nothing was named)
+
+
+def run_rounds(st: SearchState, ctx: SearchContext, workers: Any, jobs: int, max_rounds: int,
+               progress: Callable[[str], None]) -> None:
+    """The rounds (module docstring) from ``st`` on, until nothing is significant or ``max_rounds`` rounds are run;
+    ``st`` is updated in place. ``workers``: the worker pool (None: this process)."""
+    previous: dict[str, Model] = {}  # a repeated round's second start: the escaped-from candidate's fit
+    while len(st.rounds) < max_rounds and st.remaining:
+        st.starts.append((st.current, st.current_ll, list(st.named), list(st.remaining)))
+        st.last = round_ctx = with_null(ctx, st.current, len(st.remaining))
+        progress(f"  (null: the current model refitted as the candidates are, train "
+                 f"+{round_ctx.null_ll - st.current_ll:.1f} nats)")
+        tried = run_round([Trial(n, round_ctx, previous.get(n)) for n in st.remaining], workers, jobs)
+        st.rounds.append(tried)
+        escape = max(tried, key=lambda c: c.escape_ll)
+        escaping = escape.escape_ll > round_ctx.null_ll + ESCAPE_NATS and len(st.escapes) < MAX_ESCAPES
+        best = None if escaping else max((c for c in tried if c.significant), key=lambda c: c.gain_heldout,
+                                         default=None)
+        if not escaping and (best is None or len(st.rounds) == max_rounds or st.remaining == [best.name]):
+            last_round_checks(tried, round_ctx, workers)  # the last round: its candidates are reported
+        _say_round(tried, progress)
+        if escaping:
+            # a better base model than the null, found from a candidate's fit: the round is repeated from it
+            st.escapes.append({"round": len(st.rounds), "from": escape.name,
+                               "nats": escape.escape_ll - round_ctx.null_ll,
+                               "candidates": [c.as_dict() for c in st.rounds.pop()]})
+            st.starts.pop()
+            st.current, st.current_ll = escape.escape, escape.escape_ll
+            previous = {escape.name: escape.model}  # a grid candidate's profile ignores it (``fit_candidate``)
+            progress(f"  the base model refitted from {escape.name}'s fit without it is "
+                     f"{escape.escape_ll - round_ctx.null_ll:.1f} nats better than the null: the round is "
+                     "repeated from it")
+            continue
+        previous = {}
+        if best is None:
+            break
+        best.checks.append(MotionSide().run(round_ctx, best))
+        st.named.append(best)
+        st.winners.append(best.name)
+        st.current = ctx.fit(best.model)
+        st.current_ll = ctx.loglik(st.current)
+        st.remaining = [n for n in st.remaining if n != best.name]
+        progress(f"named: {best.name} {best.as_dict()['parameters']}"
+                 + (f" ({best.checks[-1].note})" if best.checks[-1].note else ""))
+        # an effect the new one made implausible goes now, so that the next rounds try what it had stood in for
+        # (MRCLAM robot 2: landmark_bias named at tau 50 s, 104 s once the lag was in, and dropped only after the
+        # last round, which had found beacon_height_scale's gain taken by it)
+        st.current, st.current_ll = drop_implausible(st.named, st.current, st.current_ll, ctx, progress)
+
+
+def finish(st: SearchState, ctx: SearchContext, workers: Any, max_rounds: int,
+           progress: Callable[[str], None]) -> dict[str, Any]:
+    """After the rounds: what the limit of rounds left significant, the backward check (:func:`prune`) and the "none
+    of the above" probes; the keys of :func:`search`'s result that the rounds make."""
+    capped = len(st.rounds) == max_rounds and len(st.winners) == len(st.rounds) and len(st.remaining) > 0
+    left = [c.name for c in st.rounds[-1] if c.significant and c.name != st.winners[-1]] if capped else []
+    if left:
+        progress(f"stopped: the search runs at most {max_rounds} round{'s' if max_rounds != 1 else ''} (--rounds), and "
+                 f"{', '.join(left)} {'was' if len(left) == 1 else 'were'} still significant in the last")
+    named = list(st.named)
+    current, _ = prune(named, st.current, st.current_ll, ctx, workers, progress)
+    last = st.last if st.last is not None and st.last.current is current else None
+    probes = none_of_the_above(current, last, ctx, workers, progress)
+    return {"rounds": st.rounds, "named": named, "model": current, "escapes": st.escapes, "probes": probes,
+            "max_rounds": max_rounds, "winners": st.winners, "left_at_cap": left, "state": st}
+
+
 def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs: int = 2,
            progress: Callable[[str], None] = print, action_model: str | None = None,
            pool: Any = None, max_rounds: int = MAX_ROUNDS) -> dict[str, Any]:
@@ -352,9 +434,10 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
     candidates still significant in the last round when the search stopped at ``max_rounds``, which another round
     would have tried again), and the current model after each addition (all fitted on the training half),
     the logs without outliers that every score uses, the candidates the logs cannot support
-    (``"skipped"``: name -> what the log lacks) and the fits' context (``"context"``: a refit on the training
-    halves). ``action_model``: of the base fit (``aibo learn --action-model``). ``pool``: a worker pool of ``jobs``
-    workers to run in (``aibo_core.workers.process_pool``; the caller's, left open), else one of its own."""
+    (``"skipped"``: name -> what the log lacks), the fits' context (``"context"``: a refit on the training
+    halves) and where the rounds stand (``"state"``, :class:`SearchState`). ``action_model``: of the base fit (``aibo
+    learn --action-model``). ``pool``: a worker pool of ``jobs`` workers to run in
+    (``aibo_core.workers.process_pool``; the caller's, left open), else one of its own."""
     t0 = time.perf_counter()
     opts = opts.comparable()  # every fit of the search is compared with another: converged to 0.1 nats (EMOptions)
     base = base_fit(logs, opts, action_model)
@@ -367,8 +450,6 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
     base_ll = ctx.loglik(base)
     progress(f"base model fitted on the training half in {time.perf_counter() - t0:.1f} s; {n_out} outlier "
              "sightings set aside")
-    current, current_ll = base, base_ll
-    rounds, named, winners = [], [], []
     in_base = {e.name for e in base.effects}  # fitted by the base itself (a range's shrink: EMOptions.range_shrink)
     remaining = [c for c in candidates if applicable(c, logs) and c not in in_base]
     skipped = {c: "in the base model already (aibo learn fits it on this sensor)" if c in in_base else
@@ -377,61 +458,40 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
                for c in candidates if c not in remaining}
     for name, why in skipped.items():
         progress(f"  {name}: not tried ({why})")
-    escapes: list[dict[str, Any]] = []
-    previous: dict[str, Model] = {}  # a repeated round's second start: the escaped-from candidate's fit
-    last: SearchContext | None = None  # the last round's context (its null: ``current``'s when nothing was named)
+    st = SearchState(base, base_ll, remaining)
     with process_pool(max(jobs, 1)) if pool is None else nullcontext(pool) as pool:
         workers = pool if jobs > 1 else None
-        while len(rounds) < max_rounds and remaining:
-            last = round_ctx = with_null(ctx, current, len(remaining))
-            progress(f"  (null: the current model refitted as the candidates are, train "
-                     f"+{round_ctx.null_ll - current_ll:.1f} nats)")
-            tried = run_round([Trial(n, round_ctx, previous.get(n)) for n in remaining], workers, jobs)
-            rounds.append(tried)
-            escape = max(tried, key=lambda c: c.escape_ll)
-            escaping = escape.escape_ll > round_ctx.null_ll + ESCAPE_NATS and len(escapes) < MAX_ESCAPES
-            best = None if escaping else max((c for c in tried if c.significant), key=lambda c: c.gain_heldout,
-                                             default=None)
-            if not escaping and (best is None or len(rounds) == max_rounds or remaining == [best.name]):
-                last_round_checks(tried, round_ctx, workers)  # the last round: its candidates are reported
-            _say_round(tried, progress)
-            if escaping:
-                # a better base model than the null, found from a candidate's fit: the round is repeated from it
-                escapes.append({"round": len(rounds), "from": escape.name,
-                                "nats": escape.escape_ll - round_ctx.null_ll,
-                                "candidates": [c.as_dict() for c in rounds.pop()]})
-                current, current_ll = escape.escape, escape.escape_ll
-                previous = {escape.name: escape.model}  # a grid candidate's profile ignores it (``fit_candidate``)
-                progress(f"  the base model refitted from {escape.name}'s fit without it is "
-                         f"{escape.escape_ll - round_ctx.null_ll:.1f} nats better than the null: the round is "
-                         "repeated from it")
-                continue
-            previous = {}
-            if best is None:
-                break
-            best.checks.append(MotionSide().run(round_ctx, best))
-            named.append(best)
-            winners.append(best.name)
-            current = ctx.fit(best.model)
-            current_ll = ctx.loglik(current)
-            remaining = [n for n in remaining if n != best.name]
-            progress(f"named: {best.name} {best.as_dict()['parameters']}"
-                     + (f" ({best.checks[-1].note})" if best.checks[-1].note else ""))
-            # an effect the new one made implausible goes now, so that the next rounds try what it had stood in for
-            # (MRCLAM robot 2: landmark_bias named at tau 50 s, 104 s once the lag was in, and dropped only after the
-            # last round, which had found beacon_height_scale's gain taken by it)
-            current, current_ll = drop_implausible(named, current, current_ll, ctx, progress)
-        capped = len(rounds) == max_rounds and len(winners) == len(rounds) and len(remaining) > 0
-        left = [c.name for c in rounds[-1] if c.significant and c.name != winners[-1]] if capped else []
-        if left:
-            progress(f"stopped: the search runs at most {max_rounds} round{'s' if max_rounds != 1 else ''} (--rounds), and "
-                     f"{', '.join(left)} {'was' if len(left) == 1 else 'were'} still significant in the last")
-        current, current_ll = prune(named, current, current_ll, ctx, workers, progress)
-        probes = none_of_the_above(current, last if last is not None and last.current is current else None, ctx,
-                                   workers, progress)
-    return {"base": base, "rounds": rounds, "named": named, "model": current, "logs": logs, "skipped": skipped,
-            "escapes": escapes, "probes": probes, "context": ctx, "action_model": action_model,
-            "max_rounds": max_rounds, "winners": winners, "left_at_cap": left}
+        run_rounds(st, ctx, workers, jobs, max_rounds, progress)
+        found = finish(st, ctx, workers, max_rounds, progress)
+    return {"base": base, "logs": logs, "skipped": skipped, "context": ctx, "action_model": action_model, "jobs": jobs,
+            **found}
+
+
+def search_without(found: dict[str, Any], name: str, pool: Any = None,
+                   progress: Callable[[str], None] = print) -> dict[str, Any]:
+    """``found`` (:func:`search`'s result) as the search would have ended without candidate ``name``, which a round
+    named: the rounds before that one are the same (another candidate won each), so the search runs again from the
+    state that round started from, ``name`` left out (a better base model the round's escapes found is kept, though
+    ``name``'s fit may have been the one that found it: it only ever raises the likelihood). ``pool``: a worker pool of
+    the search's ``jobs`` workers (None: this process).
+
+    Why: the final fit on the whole logs can make a named effect implausible (``final.plausible_diagnosis`` drops it);
+    the round that named it then never gave its runner-up a chance. MRCLAM robot 3 (whole log): ``landmark_bias``
+    won round 3 over ``beacon_height_scale`` (held-out +212 nats), then went to a correlation time of 734 s in the
+    final fit; without it as a candidate, ``beacon_height_scale`` is named, the calibrated check's disagreements
+    fall from 9 to 5 and the forward speed against Vicon is within 2% (docs/results.md, "An effect dropped in the
+    final fit")."""
+    st0: SearchState = found["state"]
+    k = st0.winners.index(name)
+    current, current_ll, named, remaining = st0.starts[k]
+    st = SearchState(current, current_ll, [n for n in remaining if n != name], rounds=st0.rounds[:k],
+                     named=list(named), winners=st0.winners[:k], starts=st0.starts[:k],
+                     escapes=[e for e in st0.escapes if e["round"] <= k + 1])  # the round's own: in its start
+    progress(f"the search again from round {k + 1}, without {name}")
+    ctx, jobs = found["context"], found.get("jobs", 1)
+    workers = pool if jobs > 1 else None
+    run_rounds(st, ctx, workers, jobs, found["max_rounds"], progress)
+    return dict(found, **finish(st, ctx, workers, found["max_rounds"], progress))
 
 
 def none_of_the_above(current: Model, last: SearchContext | None, ctx: SearchContext, pool: Any,
