@@ -256,7 +256,7 @@ def motion_warning(report: dict) -> list[str]:
 def round_limit(rounds: dict, candidates: list[dict]) -> list[str]:
     """A warning when the search stopped at its limit of rounds (``--rounds``) with candidates still significant in the
     last: they were neither named nor refused, and another round would have tried them again."""
-    left = [c for c in candidates if c["name"] in rounds["left_at_cap"] and c["round"] == len(rounds["winners"])]
+    left = [c for c in candidates if left_by_limit(c, rounds)]
     if not left:
         return []
     n = rounds["max_rounds"]
@@ -317,7 +317,7 @@ def passed_over(c: dict, rounds: dict) -> str:
     dropped = {d["name"]: d for d in rounds.get("dropped_in_final", [])}
     if c["name"] in dropped:
         d = dropped[c["name"]]
-        return (f"named in round {d.get('round', '?')}, then dropped from the diagnosed model: in the final fit, "
+        return (f"named in round {d['round']}, then dropped from the diagnosed model: in the final fit, "
                 f"{d['why']}; the search ran again from that round without it")
     winners, n = rounds.get("winners", []), rounds.get("max_rounds")
     k = c.get("round", 0) - 1
@@ -325,10 +325,16 @@ def passed_over(c: dict, rounds: dict) -> str:
     if not c.get("significant") or winner is None or c["name"] == winner:
         return ""
     why = f"{winner} had the larger held-out gain in that round"
-    if c["name"] in rounds.get("left_at_cap", []) and k + 1 == len(winners):
+    if left_by_limit(c, rounds):
         why += f"; that round was the search's last (--rounds {n}): --rounds {n + 1} tries {c['name']} again"
     return (f"significant in round {k + 1} (training gain {c['gain_train']:.1f} nats, {decisive_p(c)}; held-out "
             f"{c['gain_heldout']:+.1f} nats) but not named: {why}")
+
+
+def left_by_limit(c: dict, rounds: dict) -> bool:
+    """Whether candidate entry ``c`` is a try of the search's last round that the limit of rounds left significant
+    (``rounds``: ``report.json["search_rounds"]``)."""
+    return c["name"] in rounds.get("left_at_cap", []) and c.get("round") == len(rounds.get("winners", []))
 
 
 def decisive_p(c: dict) -> str:
