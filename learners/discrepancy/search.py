@@ -28,7 +28,7 @@ import time
 from concurrent.futures import FIRST_COMPLETED, Future, wait
 from contextlib import nullcontext
 from dataclasses import dataclass, field, replace
-from typing import Any, Callable
+from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
@@ -344,11 +344,19 @@ def _say_round(tried: list[Candidate], progress: Callable[[str], None]) -> None:
                  f"{'  (not identifiable)' if not c.identifiable else ''}  [{c.seconds:.1f} s]")
 
 
+class RoundStart(NamedTuple):
+    """The state a round of the search started from (``SearchState.starts``)."""
+
+    current: Model
+    current_ll: float  # its training log-likelihood (nats)
+    named: list[Candidate]
+    remaining: list[str]  # the candidates left
+
+
 @dataclass
 class SearchState:
     """Where the search stands: the current model, the candidates left, every round's tries and winner, and the state
-    each round started from (``starts``: current model, its training log-likelihood, the named effects, the candidates
-    left), from which :func:`search_without` runs the search again without an effect."""
+    each round started from (``starts``), from which :func:`search_without` runs the search again without an effect."""
 
     current: Model
     current_ll: float
@@ -357,7 +365,7 @@ class SearchState:
     named: list[Candidate] = field(default_factory=list)
     winners: list[str] = field(default_factory=list)
     escapes: list[dict[str, Any]] = field(default_factory=list)
-    starts: list[tuple[Model, float, list[Candidate], list[str]]] = field(default_factory=list)
+    starts: list[RoundStart] = field(default_factory=list)
     last: SearchContext | None = None  # the last round's context (its null: ``current``'s when nothing was named)
 
 
@@ -367,7 +375,7 @@ def run_rounds(st: SearchState, ctx: SearchContext, workers: Any, jobs: int, max
     ``st`` is updated in place. ``workers``: the worker pool (None: this process)."""
     previous: dict[str, Model] = {}  # a repeated round's second start: the escaped-from candidate's fit
     while len(st.rounds) < max_rounds and st.remaining:
-        st.starts.append((st.current, st.current_ll, list(st.named), list(st.remaining)))
+        st.starts.append(RoundStart(st.current, st.current_ll, list(st.named), list(st.remaining)))
         st.last = round_ctx = with_null(ctx, st.current, len(st.remaining))
         progress(f"  (null: the current model refitted as the candidates are, train "
                  f"+{round_ctx.null_ll - st.current_ll:.1f} nats)")
@@ -483,9 +491,9 @@ def search_without(found: dict[str, Any], name: str, pool: Any = None,
     final fit")."""
     st0: SearchState = found["state"]
     k = st0.winners.index(name)
-    current, current_ll, named, remaining = st0.starts[k]
-    st = SearchState(current, current_ll, [n for n in remaining if n != name], rounds=st0.rounds[:k],
-                     named=list(named), winners=st0.winners[:k], starts=st0.starts[:k],
+    start = st0.starts[k]
+    st = SearchState(start.current, start.current_ll, [n for n in start.remaining if n != name], rounds=st0.rounds[:k],
+                     named=list(start.named), winners=st0.winners[:k], starts=st0.starts[:k],
                      escapes=[e for e in st0.escapes if e["round"] <= k + 1])  # the round's own: in its start
     progress(f"the search again from round {k + 1}, without {name}")
     ctx, jobs = found["context"], found.get("jobs", 1)
