@@ -49,6 +49,20 @@ class EMState:
     record_iteration: int = -1  # last iteration that beat the best by more than min_improvement
     polishes: int = 0  # polish steps taken after convergence (``EMOptions.polish``)
     starts: list = field(default_factory=list)  # the screening report (``learners.em.starts``), JSON-able
+    #: EM steps whose log-likelihood fell: [iteration (0-based) of the model it fell to, the loglik of the model
+    #: stepped from, the one fallen to]
+    #: (``_Loop.step_from``; ``setback_from_best``)
+    setbacks: list = field(default_factory=list)
+    step_ref: float | None = None  # log-likelihood of the model whose M-step gave ``params`` (None: no EM step's)
+
+
+def setback_from_best(state: EMState, within: float = 1.0) -> tuple[float, int]:
+    """(nats, 1-based iteration) of the largest fall of one EM step taken from a model within ``within`` nats of the
+    fit's best ((0.0, 0): none). A fall far from the best is EM finding its way from a poor start (an effect-free
+    5-minute ``aibo`` log fell 994 nats at iteration 7 and ended well); a fall from the best means EM does not hold
+    the model it returns: the fit kept its most likely iterate, which need not be the likelihood's maximum."""
+    falls = [(ref - ll, it + 1) for it, ref, ll in state.setbacks if ref >= state.best_loglik - within]
+    return max(falls, default=(0.0, 0))
 
 
 def m_step(params: Model, batch: Batch, post: Posterior, rng: np.random.Generator, opts: EMOptions,
@@ -125,6 +139,14 @@ class _Loop:
             return False
         return self.state.best_loglik - max(ll[:-SWITCH_WINDOW]) < self.opts.switch_gain
 
+    def step_from(self, ll: float, ref: float | None) -> None:
+        """Books an EM step that went from a model of log-likelihood ``ref`` (None: no EM step, e.g. the first
+        iteration or a polished model) to one of ``ll``. With an exact E-step EM never falls (Dempster, Laird &
+        Rubin 1977); this E-step linearizes (EKF/RTS) and, for a mixture, weighs sightings at the smoothed path, so
+        it can. SQUAREM's rejected jumps are not EM steps and are not booked."""
+        if ref is not None and ll < ref:
+            self.state.setbacks.append([self.state.iteration - 1, ref, ll])
+
     def m(self, params: Model, post: Posterior) -> Model:
         lo = self.lowered[1] if self.lowered[0] is params else None  # lowered by the E-step just run
         return m_step(params, self.batch, post, self.rng, self.opts, lo)
@@ -154,6 +176,7 @@ class _Loop:
         if not changed or loglik(best) <= loglik(st.best) + opts.min_improvement:
             return False
         st.params, st.converged = best, False
+        self.state.step_ref = None  # the polished model is no EM step's
         return True
 
     def loglik(self, params: Model) -> float:
@@ -166,17 +189,23 @@ class _Loop:
         return forward_loglik(self.batch)(params)
 
     def em_cycle(self) -> None:
-        post, _ = self.evaluate(self.state.params)
+        post, ll = self.evaluate(self.state.params)
+        self.step_from(ll, self.state.step_ref)
+        self.state.step_ref = ll
         self.end_cycle(self.m(self.state.params, post))
 
     def squarem_cycle(self, packer: Packer) -> None:
         """Two EM steps, one extrapolated jump, kept only if its likelihood is no worse (safeguard)."""
         p0 = self.state.params
-        post0, _ = self.evaluate(p0)
+        post0, ll0 = self.evaluate(p0)
+        self.step_from(ll0, self.state.step_ref)
+        self.state.step_ref = ll0
         p1 = self.m(p0, post0)
         if self.done():
             return self.end_cycle(p1)
         post1, ll1 = self.evaluate(p1)
+        self.step_from(ll1, ll0)
+        self.state.step_ref = ll1  # p2 = M(p1) is the next model unless a jump is kept
         p2 = self.m(p1, post1)
         x, a = squarem_step(packer.pack(p0), packer.pack(p1), packer.pack(p2))
         if a == -1.0 or self.done():
@@ -186,7 +215,10 @@ class _Loop:
             post_j, ll_j = self.evaluate(jump)
         except (FloatingPointError, np.linalg.LinAlgError, ValueError):
             return self.end_cycle(p2)
-        self.end_cycle(self.m(jump, post_j) if ll_j >= ll1 else p2)
+        if ll_j >= ll1:
+            self.state.step_ref = ll_j
+            return self.end_cycle(self.m(jump, post_j))
+        self.end_cycle(p2)
 
 
 def run(

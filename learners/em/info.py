@@ -46,6 +46,8 @@ class FitInfo:
     warnings: list[str] = field(default_factory=list)
     #: sightings the first gate, judged under the commands at face value, set aside (``learners.em.support``)
     face_value_gate_pruned: int | None = None
+    #: the largest fall of the log-likelihood over one EM step, {"nats", "iteration" (1-based)}; None: it never fell
+    setback: dict | None = None
     timings: FitTimings = field(default_factory=FitTimings)
 
     def to_dict(self, timings: bool = True) -> dict[str, Any]:
@@ -75,6 +77,8 @@ class FitInfo:
         out["warnings"] = self.warnings
         if self.face_value_gate_pruned is not None:
             out["face_value_gate_pruned"] = self.face_value_gate_pruned
+        if self.setback is not None:
+            out["setback"] = self.setback
         return out
 
     # Read access by key, as for the other learners' plain ``info`` dicts (``result.info["best_iteration"]``).

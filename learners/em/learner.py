@@ -17,7 +17,7 @@ from learners.em.accel import Packer
 from learners.em.alias import alias_steps, close_call, search
 from learners.em.estep import e_step
 from learners.em.finish import fisher_scoring
-from learners.em.fit import EMState, initial_state, options_json, run
+from learners.em.fit import EMState, initial_state, options_json, run, setback_from_best
 from learners.em.info import FitInfo, FitTimings
 from learners.em.options import COMPARABLE_IMPROVEMENT, EARLY_STOP, STRICT_PATIENCE, EMOptions
 from learners.em.predictive import has_mixture
@@ -43,6 +43,38 @@ OFF_FIELD_MARGIN_MM = 500.0
 
 class EMDivergedError(RuntimeError):
     """EM converged to a world that does not fit the field (usually a bad starting sensor model)."""
+
+
+def setback_record(state: EMState) -> dict | None:
+    """``FitInfo.setback``, taken when EM stops (before any search or finish replaces its best): the largest fall of
+    one EM step anywhere in the fit and from (within 1 nat of) its best, each as nats and 1-based iteration; None
+    when EM never fell."""
+    if not state.setbacks:
+        return None
+    nats, iteration = max((ref - ll, it + 1) for it, ref, ll in state.setbacks)
+    from_best, at = setback_from_best(state)
+    return {"nats": nats, "iteration": iteration, "from_best_nats": from_best, "from_best_iteration": at,
+            "iterations": state.iteration}
+
+
+#: A fall of one EM step from the fit's best larger than this (nats) is warned of (``setback_warnings``):
+#: chi-square(1, 0.95) / 2, the drop that bounds a 95% likelihood interval, so the model EM settles at and the one
+#: it returns differ by more than an interval's worth of likelihood. None of 40 effect-free 5-minute fits (seeds
+#: 1000-1019, both presets) fell from its best at all; docs/results.md "EM that falls from its best" has the fits
+#: that do.
+SETBACK_WARN_NATS = 1.92
+
+
+def setback_warnings(setback: dict | None) -> list[str]:
+    """A warning when EM fell from its best model by more than ``SETBACK_WARN_NATS`` (``setback_record``): the model
+    returned is the most likely iterate, not a point EM holds, and may fall short of the likelihood's maximum."""
+    if setback is None or setback["from_best_nats"] <= SETBACK_WARN_NATS:
+        return []
+    return [f"EM's likelihood fell by {setback['from_best_nats']:.1f} nats in one step from its most likely model "
+            f"(iteration {setback['from_best_iteration']} of {setback['iterations']}): the E-step is an approximation "
+            "(linearized, or a mixture's weights taken at the smoothed path) that EM does not hold at the model it "
+            "returns; that model may fall short of the likelihood's maximum, and a longer fit from it ('aibo learn "
+            "LOG --init MODEL --patience 200') may be more likely"]
 
 
 def field_warnings(frac: float) -> list[str]:
@@ -280,6 +312,7 @@ class EMLearner:
                 last_saved[0] = st.iteration
 
         state = run(batch, state, self.options, on_iteration, on_cycle, switch=self._switches(batch, start))
+        setback = setback_record(state)  # EM's own: the searches and the finish below may replace its best
         used = batch.with_used(state.used)  # the sightings the fit applied (first-iteration outliers pruned)
         alias = self._alias_search(used, state)
         lag = self._lag_search(used, state)
@@ -294,7 +327,8 @@ class EMLearner:
                        starts=state.starts or None, timings=times,
                        # E-steps of the whole fit: the winner's, and the other starts' screening
                        iterations_all_starts=state.iteration + sum(
-                           r["iterations"] for r in state.starts if not r.get("chosen")))
+                           r["iterations"] for r in state.starts if not r.get("chosen")),
+                       setback=setback)
         for name, record in (("alias_search", alias), ("lag_search", lag)):
             if record is not None:
                 setattr(times, name, record.pop("seconds"))
@@ -313,7 +347,8 @@ class EMLearner:
         info.warnings = curve_warnings(state.best) + face_value_warnings(state.best, batch.controls) + \
             mirror_warnings(state.best, batch.controls) + (
             [split] if split else []) + ([close] if close else []) + field_warnings(info.off_field_fraction) + \
-            weak_command_warnings(state.best, se) + correlated_size_warnings(state.best, used) + (
+            weak_command_warnings(state.best, se) + correlated_size_warnings(state.best, used) + \
+            setback_warnings(None if scoring is not None and scoring.record["converged"] else setback) + (
             [f"{len(undetermined)} parameter(s) not determined by the data (e.g. {undetermined[0]}): kept at their "
              "start values"] if undetermined else [])
         converged = state.converged and (scoring is None or scoring.record["converged"])
