@@ -25,7 +25,6 @@ from aibo_core.workers import pool_map
 from learners.base import LearnResult
 from learners.em.learner import EMLearner
 from learners.em.options import EMOptions
-from learners.em.uncertainty import conditional_errors
 from learners.model.model import Model
 
 from .effect_sizes import effect_intervals
@@ -70,31 +69,15 @@ CONDITIONAL_WALD = ("wald, robust (the larger of the observed information's and 
                     "effect's own likelihood of the sightings with the forward filter held (the rest at the final fit)")
 
 
-def _conditional_errors(model: Model, logs: list[Trajectory], names: list[str], se: dict[str, Any],
-                        robust: dict[str, Any]) -> dict[str, list[str]]:
-    """Fill ``se`` and ``robust`` (file key -> standard error), in place, for the named effects' parameters the EKF's
-    information left undetermined, from each effect's ``conditional_information`` (``uncertainty.conditional_errors``);
-    returns the parameters filled, by effect."""
-    from learners.arrays.batch import make_batch
-    from learners.em.estep import e_step
-
-    missing = {n: [p for p in model.effect(n).PARAMS if se.get(f"effects.{n}.{p}") is None] for n in names}
-    missing = {n: ps for n, ps in missing.items() if ps}
-    if not missing:
-        return {}
-    batch = make_batch(logs)
-    post = e_step(model, batch, "compiled")
-    done: dict[str, list[str]] = {}
-    for name, params in missing.items():
-        info = model.effect(name).conditional_information(model, batch, post)
-        errors, robust_errors = conditional_errors(info, batch) if info is not None else ({}, {})
-        for p in params:
-            if p in errors:
-                se[f"effects.{name}.{p}"] = errors[p]
-                if p in robust_errors:
-                    robust[f"effects.{name}.{p}"] = robust_errors[p]
-                done.setdefault(name, []).append(p)
-    return done
+def _conditional_keys(final: LearnResult, names: list[str]) -> dict[str, list[str]]:
+    """The named effects' parameters whose standard errors the final fit took from their own likelihood, the filter
+    held (``information["conditional"]``: ``learners.em.uncertainty.fill_conditional_errors``), by effect."""
+    out: dict[str, list[str]] = {}
+    for key in (final.info.get("information") or {}).get("conditional", []):
+        _, name, param = key.split(".", 2)
+        if name in names:
+            out.setdefault(name, []).append(param)
+    return out
 
 
 def _values(effect) -> dict[str, Any]:
@@ -179,7 +162,7 @@ def diagnosed(found: dict[str, Any], opts: EMOptions, again: bool = True, final:
         final, starts = final_fit(found, opts, pool)
     se = dict(final.info.get("standard_errors", {}))
     robust = dict(final.info.get("robust_standard_errors") or {})
-    conditional = _conditional_errors(final.params, logs, [c.name for c in found["named"]], se, robust)
+    conditional = _conditional_keys(final, [c.name for c in found["named"]])
     effects = [{"name": c.name, "parameters": _values(final.params.effect(c.name)),
                 "intervals": effect_intervals(final.params, c.name, se, c.profile, robust or None),
                 "parameters_when_named": c.as_dict()["parameters"]} for c in found["named"]]

@@ -650,3 +650,27 @@ def conditional_errors(info: ConditionalInformation, batch: Batch) -> tuple[dict
     sums = np.add.reduceat(info.scores, block_starts(batch, info.rows), axis=0).T if len(info.rows) else None
     robust = se if sums is None else np.maximum(se, np.sqrt(np.maximum(np.diag(sandwich(info.cov, sums))[:k], 0.0)))
     return dict(zip(info.names, se.tolist())), dict(zip(info.names, robust.tolist()))
+
+
+def fill_conditional_errors(model: Model, batch: Batch, se: dict[str, Any], robust: dict[str, Any]) -> list[str]:
+    """Fill ``se`` and ``robust`` (file key -> standard error), in place, for the effects' parameters the EKF's
+    information leaves undetermined (a mixture's rate or scale: the filter's innovations do not depend on them), from
+    each effect's own likelihood with the filter held (``EffectModel.conditional_information``,
+    ``conditional_errors``); returns the file keys filled."""
+    from learners.em.estep import e_step
+
+    missing = {e.name: [p for p in e.PARAMS if se.get(f"effects.{e.name}.{p}") is None] for e in model.effects}
+    missing = {n: ps for n, ps in missing.items() if ps}
+    if not missing:
+        return []
+    post = e_step(model, batch, "compiled")
+    filled = []
+    for name, params in missing.items():
+        info = model.effect(name).conditional_information(model, batch, post)
+        errors, robust_errors = conditional_errors(info, batch) if info is not None else ({}, {})
+        for p in (p for p in params if p in errors):
+            key = f"effects.{name}.{p}"
+            se[key], filled = errors[p], filled + [key]
+            if p in robust_errors:
+                robust[key] = robust_errors[p]
+    return filled

@@ -54,7 +54,7 @@ from learners.arrays.batch import Batch
 from learners.arrays.innovations import Innovations
 from learners.arrays.lowered import Lowered
 from learners.arrays.posterior import Posterior
-from learners.model.effects import EffectModel, register_effect, smoothed_innovations
+from learners.model.effects import ConditionalInformation, EffectModel, register_effect, smoothed_innovations
 from learners.model.parameters import Param
 
 if TYPE_CHECKING:
@@ -81,6 +81,20 @@ def sighting_key(batch: Batch) -> tuple:
 def _frame_key(batch: Batch) -> tuple:
     cmds = batch.actions if batch.actions is not None else batch.controls
     return (batch.n_frames, _digest(batch.frame_start), _digest(cmds))
+
+
+def _real_probability(v: np.ndarray, hph: np.ndarray, var_size: np.ndarray, var_bearing: np.ndarray, rate: float,
+                      log_u: float) -> np.ndarray:
+    """(n,) w: each sighting's probability of being real, (1 - rate) N(v; 0, HPH^T + R) / (that + rate u), R the
+    diagonal (``var_size``, ``var_bearing``, (n,) each) and ``v`` (n, 2) the innovations at the smoothed path. This
+    arithmetic, not ``Innovations.logdens``': EM's path with the mixture is chaotic (SQUAREM's jumps on a likelihood
+    its responsibilities reshape), and last-bit differences moved one fit by 10,000 nats."""
+    s00, s11, s01 = hph[:, 0, 0] + var_size, hph[:, 1, 1] + var_bearing, hph[:, 0, 1]
+    det = s00 * s11 - s01 ** 2
+    m2 = (s11 * v[:, 0] ** 2 - 2 * s01 * v[:, 0] * v[:, 1] + s00 * v[:, 1] ** 2) / det
+    a = math.log1p(-rate) - 0.5 * (m2 + np.log(det)) - math.log(2.0 * math.pi)
+    b = math.log(rate) + log_u
+    return np.exp(a - np.logaddexp(a, b))
 
 
 def spurious_log_density(batch: Batch) -> float:
@@ -165,14 +179,7 @@ class FalseSightings(WeighedSightings, EffectModel):
         var_s, var_b = lo0.sigma_size**2, lo0.sigma_bearing**2
         r = self._rate()
         for _ in range(INNER):  # the mixture's EM at the fixed path (the path-only part converges slowly)
-            # this arithmetic, not Innovations.logdens': EM's path with this mixture is chaotic (SQUAREM's jumps on a
-            # likelihood its responsibilities reshape), and last-bit differences moved one fit by 10,000 nats
-            s00, s11, s01 = hph[:, 0, 0] + var_s * vf, hph[:, 1, 1] + var_b * bvf, hph[:, 0, 1]
-            det = s00 * s11 - s01 ** 2
-            m2 = (s11 * v[:, 0] ** 2 - 2 * s01 * v[:, 0] * v[:, 1] + s00 * v[:, 1] ** 2) / det
-            a = math.log1p(-r) - 0.5 * (m2 + np.log(det)) - math.log(2.0 * math.pi)
-            b = math.log(r) + log_u
-            w = np.exp(a - np.logaddexp(a, b))
+            w = _real_probability(v, hph, var_s * vf, var_b * bvf, r, log_u)
             r = float(np.clip(np.mean(1.0 - w), W_FLOOR, MAX_RATE))
             ws = float(w.sum())
             var_s = float(np.sum(w * e2[:, 0] / vf) / ws)
@@ -183,6 +190,26 @@ class FalseSightings(WeighedSightings, EffectModel):
         sensor = replace(model.sensor, sigma_size=math.sqrt(var_s), sigma_bearing=math.sqrt(var_b))
         new = replace(self, rate=rate, w=w_all, key=sighting_key(batch), log_u=log_u)
         return model.with_effect(new).with_(sensor=sensor)
+
+    def conditional_information(self, model: "Model", batch: Batch, post: Posterior) -> ConditionalInformation | None:
+        """The rate's information in the likelihood its M-step maximizes: the mixture of each sighting's density at
+        the smoothed path (the path and the sensor's sigmas held) and the spurious one. With w_i a sighting's
+        probability of being real, its score is (1 - w_i) / r - w_i / (1 - r) and the observed information the sum
+        of their squares (the second derivative of log((1 - r) N_i + r u) is minus the score squared). It holds
+        the rate's sampling error at the path, not the path's own (``EffectModel.conditional_information``)."""
+        others = replace(model, effects=tuple(e for e in model.effects if e.name != self.name))
+        lo0 = others.lower(batch)
+        log_u = self.log_u if self.log_u is not None else spurious_log_density(batch)
+        idx, inn = smoothed_innovations(lo0, batch, post)
+        r = self._rate()
+        w = _real_probability(inn.v, inn.hph, lo0.sigma_size ** 2 * lo0.size_var_factor[idx],
+                              lo0.sigma_bearing ** 2 * lo0.bearing_var_factor[idx], r, log_u)
+        scores = ((1.0 - w) / r - w / (1.0 - r))[:, None]
+        info = float(np.sum(scores ** 2))
+        if not (math.isfinite(info) and info > 0):
+            return None
+        order = np.argsort(idx, kind="stable")
+        return ConditionalInformation(("rate",), np.array([[1.0 / info]]), scores[order], np.asarray(idx)[order])
 
     def to_json(self) -> dict[str, Any]:
         return {"name": self.name, "parameters": {"rate": float(self.rate)}}
