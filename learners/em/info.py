@@ -46,7 +46,8 @@ class FitInfo:
     warnings: list[str] = field(default_factory=list)
     #: sightings the first gate, judged under the commands at face value, set aside (``learners.em.support``)
     face_value_gate_pruned: int | None = None
-    #: the largest fall of the log-likelihood over one EM step, {"nats", "iteration" (1-based)}; None: it never fell
+    #: EM's falls (``learners.em.learner.setback_record``): the largest over one EM step and the largest from its best,
+    #: {"nats", "iteration", "from_best_nats", "from_best_iteration", "iterations"} (1-based); None: it never fell
     setback: dict | None = None
     timings: FitTimings = field(default_factory=FitTimings)
 

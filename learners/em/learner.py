@@ -95,7 +95,7 @@ def spurious_start(start: Model, batch: Batch) -> Model:
 
 def spurious_checkpoint(path: str | os.PathLike | None, stage: int) -> str | None:
     """The checkpoint of the refit's ``stage`` (1 or 2) with spurious sightings (``EMOptions.spurious_refit``) beside
-    ``path``: the first fit's is kept, so a resumed run ends it at once and resumes the refit."""
+    ``path``: the first fit's is kept, so a resumed run finishes that fit from it and resumes the refit from this."""
     return None if path is None else f"{os.fspath(path)}.spurious-{stage}.npz"
 
 
