@@ -38,7 +38,7 @@ def test_a_fall_far_below_the_best_is_a_way_from_a_poor_start_not_a_fall_from_th
     assert setback_from_best(_state(ll[:4], [[2, -400.0, -700.0]])) == (0.0, 0)
     rec = setback_record(st)
     assert rec == {"nats": 300.0, "iteration": 3, "from_best_nats": 3.0, "from_best_iteration": 5, "iterations": 6}
-    assert 3.0 > SETBACK_WARN_NATS and "fell by 3.0 nats" in setback_warnings(rec)[0]
+    assert 3.0 > SETBACK_WARN_NATS and "fell by 3.00 nats" in setback_warnings(rec)[0]
     assert setback_warnings({**rec, "from_best_nats": SETBACK_WARN_NATS}) == []
     assert setback_record(_state([-3.0, -2.0], [])) is None and setback_warnings(None) == []
 

@@ -76,7 +76,7 @@ def setback_warnings(setback: dict | None) -> list[str]:
     returned is the most likely iterate, not a point EM holds, and may fall short of the likelihood's maximum."""
     if setback is None or setback["from_best_nats"] <= SETBACK_WARN_NATS:
         return []
-    return [f"EM's likelihood fell by {setback['from_best_nats']:.1f} nats in one step from its most likely model "
+    return [f"EM's likelihood fell by {setback['from_best_nats']:.2f} nats in one step from its most likely model "
             f"(iteration {setback['from_best_iteration']} of {setback['iterations']}): the E-step is an approximation "
             "(linearized, or a mixture's weights taken at the smoothed path) that EM does not hold at the model it "
             "returns; that model may fall short of the likelihood's maximum, and a longer fit from it ('aibo learn "
