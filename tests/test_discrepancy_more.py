@@ -152,8 +152,8 @@ def test_a_false_sightings_diagnosis_holds_the_truth_or_says_it_may_be_wrong(tmp
     the smoothed poses off the field, 2026-11-27), so what the search then names is CPU-dependent (docs/results.md,
     "Known limits": on an AMD EPYC a 10-minute log of this kind named nothing). What must hold on every CPU: no silent
     wrong answer. A named rate's interval holds the truth, or the report warns that the fit may be wrong; a report
-    that names nothing says the world is wrong. (Here: `false_sightings` named first at 0.129, its interval [0.126,
-    0.232], with four of those warnings.)"""
+    that names nothing says the world is wrong. (Measured before the rate's interval was a Wald one: `false_sightings`
+    named first at 0.129, the profile interval [0.126, 0.232], with three of those warnings.)"""
     report = diagnose(tmp_path, collect({"noise": "aibo", "effects": {"false_sightings": {"rate": 0.08}}}, 9000,
                                         seed=12), ALL)
     warned = [w for w in report["warnings"] if any(m in w for m in MAY_BE_WRONG)]
