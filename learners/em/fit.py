@@ -59,7 +59,7 @@ class EMState:
 def setback_from_best(state: EMState, within: float = 1.0) -> tuple[float, int]:
     """(nats, 1-based iteration) of the largest fall of one EM step taken from a model within ``within`` nats of the
     fit's best ((0.0, 0): none). A fall far from the best is EM finding its way from a poor start (an effect-free
-    5-minute ``aibo`` log fell 994 nats at iteration 7 and ended well); a fall from the best means EM does not hold
+    5-minute ``aibo`` log fell 994 nats at iteration 6 and ended well); a fall from the best means EM does not hold
     the model it returns: the fit kept its most likely iterate, which need not be the likelihood's maximum."""
     falls = [(ref - ll, it + 1) for it, ref, ll in state.setbacks if ref >= state.best_loglik - within]
     return max(falls, default=(0.0, 0))

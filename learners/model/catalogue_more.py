@@ -164,15 +164,20 @@ class FalseSightings(WeighedSightings, EffectModel):
         log_u = self.log_u if self.log_u is not None else spurious_log_density(batch)
         return np.logaddexp(math.log1p(-r) + base_logdens, math.log(r) + log_u)
 
+    def _at_path(self, model: "Model", batch: Batch, post: Posterior) -> tuple[Lowered, float, np.ndarray, Innovations]:
+        """(the model without this effect, lowered; log u; the applied sightings; their innovations at the smoothed
+        path): what the M-step and the rate's information both read."""
+        lo0 = replace(model, effects=tuple(e for e in model.effects if e.name != self.name)).lower(batch)
+        log_u = self.log_u if self.log_u is not None else spurious_log_density(batch)
+        idx, inn = smoothed_innovations(lo0, batch, post)
+        return lo0, log_u, idx, inn
+
     def maximize(self, model: "Model", batch: Batch, post: Posterior, mu_star: np.ndarray) -> "Model":
         """Responsibilities at the smoothed path: w = (1 - rate) N(z; h(mu), H Sigma H^T + R) / (that + rate u)
         (R without this effect's inflation), rate = mean(1 - w); sigma_size^2 = sum w (r^2 + H Sigma H^T) / vf /
         sum w and sigma_bearing^2 likewise (first order; the sensor M-step's sigmas are not the mixture's),
         iterated ``INNER`` times at the fixed path."""
-        others = replace(model, effects=tuple(e for e in model.effects if e.name != self.name))
-        lo0 = others.lower(batch)
-        log_u = self.log_u if self.log_u is not None else spurious_log_density(batch)
-        idx, inn = smoothed_innovations(lo0, batch, post)
+        lo0, log_u, idx, inn = self._at_path(model, batch, post)
         v, hph = inn.v, inn.hph
         e2 = v ** 2 + np.diagonal(hph, axis1=1, axis2=2)  # expected squared residuals (size, bearing)
         vf, bvf = lo0.size_var_factor[idx], lo0.bearing_var_factor[idx]
@@ -197,10 +202,7 @@ class FalseSightings(WeighedSightings, EffectModel):
         probability of being real, its score is (1 - w_i) / r - w_i / (1 - r) and the observed information the sum
         of their squares (the second derivative of log((1 - r) N_i + r u) is minus the score squared). It holds
         the rate's sampling error at the path, not the path's own (``EffectModel.conditional_information``)."""
-        others = replace(model, effects=tuple(e for e in model.effects if e.name != self.name))
-        lo0 = others.lower(batch)
-        log_u = self.log_u if self.log_u is not None else spurious_log_density(batch)
-        idx, inn = smoothed_innovations(lo0, batch, post)
+        lo0, log_u, idx, inn = self._at_path(model, batch, post)
         r = self._rate()
         w = _real_probability(inn.v, inn.hph, lo0.sigma_size ** 2 * lo0.size_var_factor[idx],
                               lo0.sigma_bearing ** 2 * lo0.bearing_var_factor[idx], r, log_u)
