@@ -192,9 +192,10 @@ def smoothed_poses(model: Model, logs: list[Trajectory], gate: float | None = DE
     """(the E-step's smoothed poses per log, (T+1, 3) [x mm, y mm, theta rad]; the log-likelihood), sightings beyond
     ``gate`` (Mahalanobis^2; by default the fit's gate; None: every sighting applied) not applied."""
     from learners.em.estep import e_step
+    from learners.em.predictive import weighed_on
 
     batch = make_batch(logs)
-    post = e_step(model, batch, "compiled", gate)
+    post = e_step(weighed_on(model, batch), batch, "compiled", gate)  # a mixture's weights on these logs
     return [post.mu_gamma[a:b] for a, b in zip(batch.pose_start[:-1], batch.pose_start[1:])], float(post.loglik)
 
 

@@ -13,7 +13,7 @@ from aibo_core.trajectory import Trajectory
 from learners.arrays.batch import make_batch
 from learners.em.estep import e_step
 from learners.em.options import DEFAULT_GATE
-from learners.em.predictive import model_logdens, own_noise, sightings_logdens
+from learners.em.predictive import model_logdens, own_noise, sightings_logdens, weighed_on
 from learners.em.whiteness import consecutive_pairs, lag1, normalized_size_innovations
 from learners.inference.open_loop import open_loop_innovations
 from learners.inference.predictive import predictive_logdens
@@ -59,6 +59,7 @@ def score(model: Model, logs: list[Trajectory], gate: float | None = None) -> Sc
     predicted for each. ``gate``: leave out sightings whose Mahalanobis^2 exceeds it (default none:
     the caller removed outliers once for all models)."""
     batch = make_batch(logs)
+    model = weighed_on(model, batch)  # a mixture's weights on these logs (its fit's are the training halves')
     held = np.concatenate([heldout_mask(tr) for tr in logs])
     post_all = e_step(model, batch, "compiled", gate)
     nis = np.array(post_all.mahal2, copy=True)
@@ -112,6 +113,7 @@ def motion_score(model: Model, logs: list[Trajectory], horizons_s: tuple[float, 
     forward filter run over all sightings with ``model``, as ``score`` does) and the commands alone, for each
     horizon k; the model's own density of each (a mixture's where an effect says so)."""
     batch = make_batch(logs)
+    model = weighed_on(model, batch)  # as ``score``
     post = e_step(model, batch, "compiled", None)
     lo = model.lower(batch)
     lo_own = own_noise(model, batch, lo)

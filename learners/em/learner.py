@@ -20,7 +20,7 @@ from learners.em.finish import fisher_scoring
 from learners.em.fit import EMState, initial_state, options_json, run, setback_from_best
 from learners.em.info import FitInfo, FitTimings
 from learners.em.options import COMPARABLE_IMPROVEMENT, DEFAULT_DEGREE, EARLY_STOP, STRICT_PATIENCE, EMOptions
-from learners.em.predictive import has_mixture
+from learners.em.predictive import has_mixture, weighed_on
 from learners.em.start import initial_state_for
 from learners.em.starts import disagreement, pruned_warning, screen
 from learners.em.support import (
@@ -287,7 +287,10 @@ class EMLearner:
         if not np.isclose(start.action.dt, tr.dt):
             weights = start.action.weights / start.action.dt * tr.dt
             start = replace(start, action=replace(start.action, weights=weights, dt=tr.dt))
-        return start
+        # a noise mixture's weights of another batch (a model fitted on the training halves, warm-starting the fit
+        # on the whole logs) are computed on this one: without them the first E-step takes every sighting at full
+        # weight and spurious ones drag the path (docs/results.md, "Spurious sightings: the search's second start")
+        return start if init is None else weighed_on(start, batch)
 
     def fit(self, logs: list[Trajectory], init: Model | None = None, progress: ProgressFn | None = None,
             action_model: str | None = None, initial: tuple[InitialState, ...] | None = None) -> LearnResult:

@@ -115,13 +115,22 @@ class WeighedSightings:
     batch it belongs to; floored at ``W_FLOOR``); a sighting's OWN density (``predictive``) without them."""
 
     def lower(self, lo: Lowered, batch: Batch) -> None:
-        if self.w is not None and self.key == sighting_key(batch):
+        if self.weighs(batch):
             inv = 1.0 / np.maximum(self.w, W_FLOOR)
             lo.size_var_factor = lo.size_var_factor * inv
             lo.bearing_var_factor = lo.bearing_var_factor * inv
 
     def predictive(self):
         return replace(self, w=None, key=None)
+
+    def weighed(self, model, batch: Batch, post: Posterior):
+        """This effect with its weights ``w`` computed on ``batch`` at ``post``'s smoothed path, its parameters held
+        (``learners.em.predictive.weighed_on``)."""
+        raise NotImplementedError
+
+    def weighs(self, batch: Batch) -> bool:
+        """Whether this effect's weights are ``batch``'s (else the filter takes its sightings at full weight)."""
+        return self.w is not None and self.key == sighting_key(batch)
 
 
 @register_effect
@@ -196,16 +205,30 @@ class FalseSightings(WeighedSightings, EffectModel):
         new = replace(self, rate=rate, w=w_all, key=sighting_key(batch), log_u=log_u)
         return model.with_effect(new).with_(sensor=sensor)
 
+    def _weights_at_path(self, model: "Model", batch: Batch, post: Posterior) -> tuple[np.ndarray, np.ndarray, float]:
+        """(the applied sightings, their probabilities of being real at the smoothed path, log u), the rate and the
+        sensor's sigmas held."""
+        lo0, log_u, idx, inn = self._at_path(model, batch, post)
+        w = _real_probability(inn.v, inn.hph, lo0.sigma_size ** 2 * lo0.size_var_factor[idx],
+                              lo0.sigma_bearing ** 2 * lo0.bearing_var_factor[idx], self._rate(), log_u)
+        return idx, w, log_u
+
+    def weighed(self, model: "Model", batch: Batch, post: Posterior) -> "FalseSightings":
+        """This effect with its weights computed on ``batch`` at ``post``'s smoothed path, the rate held
+        (``learners.em.predictive.weighed_on``)."""
+        idx, w, log_u = self._weights_at_path(model, batch, post)
+        w_all = np.ones(batch.n_sightings)
+        w_all[idx] = w
+        return replace(self, w=w_all, key=sighting_key(batch), log_u=log_u)
+
     def conditional_information(self, model: "Model", batch: Batch, post: Posterior) -> ConditionalInformation | None:
         """The rate's information in the likelihood its M-step maximizes: the mixture of each sighting's density at
         the smoothed path (the path and the sensor's sigmas held) and the spurious one. With w_i a sighting's
         probability of being real, its score is (1 - w_i) / r - w_i / (1 - r) and the observed information the sum
         of their squares (the second derivative of log((1 - r) N_i + r u) is minus the score squared). It holds
         the rate's sampling error at the path, not the path's own (``EffectModel.conditional_information``)."""
-        lo0, log_u, idx, inn = self._at_path(model, batch, post)
+        idx, w, _ = self._weights_at_path(model, batch, post)
         r = self._rate()
-        w = _real_probability(inn.v, inn.hph, lo0.sigma_size ** 2 * lo0.size_var_factor[idx],
-                              lo0.sigma_bearing ** 2 * lo0.bearing_var_factor[idx], r, log_u)
         scores = ((1.0 - w) / r - w / (1.0 - r))[:, None]
         info = float(np.sum(scores ** 2))
         if not (math.isfinite(info) and info > 0):

@@ -119,13 +119,18 @@ class HeavyTailedNoise(WeighedSightings, EffectModel):
         rate, c2 = self._mixture()
         rate, scale, var = fit_scale_mixture(pred, vf, rate, math.sqrt(c2),
                                              np.array([lo0.sigma_size ** 2, lo0.sigma_bearing ** 2]))
-        idx, smoothed = smoothed_innovations(lo0, batch, post)
-        vf = np.stack([lo0.size_var_factor[idx], lo0.bearing_var_factor[idx]], axis=1)
-        w_all = np.ones(batch.n_sightings)
-        w_all[idx] = expected_precision(replace(smoothed, r=var * vf), rate, scale ** 2)
+        w_all = _precisions_at_path(lo0, batch, post, var, rate, scale ** 2)
         sensor = replace(model.sensor, sigma_size=math.sqrt(var[0]), sigma_bearing=math.sqrt(var[1]))
         new = replace(self, rate=rate, scale=scale, w=w_all, key=sighting_key(batch))
         return model.with_effect(new).with_(sensor=sensor)
+
+    def weighed(self, model: "Model", batch: Batch, post: Posterior) -> "HeavyTailedNoise":
+        """This effect with its weights computed on ``batch`` at ``post``'s smoothed path, (rate, scale) and the
+        core's variances (the sensor's sigmas) held (``learners.em.predictive.weighed_on``)."""
+        lo0 = replace(model, effects=tuple(e for e in model.effects if e.name != self.name)).lower(batch)
+        var = np.array([lo0.sigma_size ** 2, lo0.sigma_bearing ** 2])
+        rate, c2 = self._mixture()
+        return replace(self, w=_precisions_at_path(lo0, batch, post, var, rate, c2), key=sighting_key(batch))
 
     def _one_step(self, model: "Model", batch: Batch,
                   post: Posterior) -> tuple[Innovations, np.ndarray, Lowered, np.ndarray]:
@@ -179,6 +184,17 @@ def wide_probability(noise: Innovations, rate: float, c2: float) -> np.ndarray:
     """(n,) q: each sighting's posterior probability of the wide component (``noise.r`` the core's variances)."""
     a, b = mixture_terms(noise, rate, c2)
     return np.exp(b - np.logaddexp(a, b))
+
+
+def _precisions_at_path(lo0: Lowered, batch: Batch, post: Posterior, var: np.ndarray, rate: float,
+                        c2: float) -> np.ndarray:
+    """(S,) each sighting's expected precision (``expected_precision``) at the smoothed path, 1 where unused; ``lo0``:
+    the model without the mixture, lowered; ``var``: the core's (size, bearing) variances."""
+    idx, smoothed = smoothed_innovations(lo0, batch, post)
+    vf = np.stack([lo0.size_var_factor[idx], lo0.bearing_var_factor[idx]], axis=1)
+    w_all = np.ones(batch.n_sightings)
+    w_all[idx] = expected_precision(replace(smoothed, r=var * vf), rate, c2)
+    return w_all
 
 
 def expected_precision(noise: Innovations, rate: float, c2: float) -> np.ndarray:
