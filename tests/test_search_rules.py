@@ -266,11 +266,68 @@ def test_a_final_estimate_outside_its_interval_from_the_value_when_named_is_said
     assert "lag_s 0.1 when named" in moved_since_named("actuation_lag", lag, {"lag_s": 0.1})
 
 
+def _scripted_search(monkeypatch, ctx, rounds, candidates, progress, refit=None):
+    """``search`` of ``candidates`` on stand-ins: its base an empty model (``refit``: the base's refit with spurious
+    sightings, as ``base_fits`` returns it; None: the base fitted the field), every fit and likelihood ``ctx``'s, every
+    round ``rounds(trials, pool, jobs)``'s."""
+    from learners.em.options import EMOptions
+
+    monkeypatch.setattr(search_module, "base_fits", lambda logs, opts, action_model=None: (_Model(()), refit))
+    monkeypatch.setattr(search_module, "drop_outliers", lambda model, logs: (logs, 0))
+    monkeypatch.setattr(search_module, "training_log", lambda tr: tr)
+    monkeypatch.setattr(search_module, "applicable", lambda name, logs: True)
+    monkeypatch.setattr(search_module, "SearchContext", lambda tr, logs, opts: ctx)
+    monkeypatch.setattr(search_module, "with_null", lambda ctx, current, n: replace(ctx, current=current,
+                                                                                  null_ll=ctx.loglik(current)))
+    monkeypatch.setattr(search_module, "run_round", rounds)
+    monkeypatch.setattr(search_module, "last_round_checks", lambda tried, ctx, pool: None)
+    monkeypatch.setattr(search_module, "none_of_the_above", lambda *a: [])
+    monkeypatch.setattr(search_module.MotionSide, "run", lambda self, ctx, c: Verdict("motion side", True, False))
+    return search_module.search([], candidates, EMOptions(), jobs=1, progress=progress)
+
+
+def test_a_base_in_a_wrong_world_gives_false_sightings_its_refit_as_a_second_start(monkeypatch):
+    """The base ended in a wrong world and found the field with spurious sightings in the model (``base_fits``'
+    refit): round 1 fits 'false_sightings' from that refit too (``fit_candidate``'s ``previous``) and no other
+    candidate; an escape in round 1 keeps it for the repeated round (beside the escaped-from candidate's own fit);
+    round 2, after 'false_sightings' is named, gives none; the search without it (``search_without``) from round 1
+    has it again."""
+    from types import SimpleNamespace
+
+    s = frozenset
+    train = {s(): -1100.0, s({"false_sightings"}): -900.0, s({"bias"}): -1090.0, s({"bias", "false_sightings"}): -895.0}
+    refit = SimpleNamespace(params=_Model((_Effect("false_sightings"),)), info=SimpleNamespace(
+        spurious_refit={"off_field_fraction": 0.91}))
+    escaped = _Model(())
+    seen = []
+
+    def rounds(trials, pool, jobs=1):
+        seen.append({t.name: t.previous for t in trials})
+        out = []
+        for t in trials:
+            win = t.name == "false_sightings" and len(seen) > 1
+            c = Candidate(t.name, {}, 100.0 if win else 0.0, 50.0, 1, 1e-12 if win else 1.0,
+                          model=_Model(t.ctx.current.effects + (_Effect(t.name),)))
+            c.checks.append(Verdict("likelihood ratio", win, escape=(escaped, -1000.0) if len(seen) == 1
+                                    and t.name == "bias" else None))
+            out.append(c)
+        return out
+
+    said = []
+    out = _scripted_search(monkeypatch, _Context(train), rounds, ["false_sightings", "bias"], said.append, refit)
+    assert [c.name for c in out["named"]] == ["false_sightings"] and len(out["escapes"]) == 1
+    assert seen[0] == {"false_sightings": refit.params, "bias": None}
+    assert seen[1]["false_sightings"] is refit.params and seen[1]["bias"].effects[-1].name == "bias"
+    assert seen[2] == {"bias": None}
+    assert out["base_refit"] == {"off_field_fraction": 0.91}
+    assert any("wrong world (91% of the smoothed poses off the field)" in line for line in said)
+    assert out["state"].starts[0].previous["false_sightings"] is refit.params
+
+
 def test_an_effect_made_implausible_by_the_next_one_goes_before_the_next_round(monkeypatch):
     """Scripted rounds (stand-ins, MRCLAM robot 2's sequence): 'bias' named in round 1, 'lag' in round 2, whose refit
     leaves 'bias' implausible (a bias that holds 104 s). 'bias' is dropped at once, and round 3 runs on the model
     without it and names 'scale', which 'bias' had stood in for; before, it was dropped only after the last round."""
-    from learners.em.options import EMOptions
 
     s = frozenset
     train = {s(): -1100.0, s({"bias"}): -1000.0, s({"bias", "lag"}): -900.0, s({"lag"}): -950.0,
@@ -298,19 +355,8 @@ def test_an_effect_made_implausible_by_the_next_one_goes_before_the_next_round(m
             out.append(c)
         return out
 
-    monkeypatch.setattr(search_module, "base_fit", lambda logs, opts, action_model=None: _Model(()))
-    monkeypatch.setattr(search_module, "drop_outliers", lambda model, logs: (logs, 0))
-    monkeypatch.setattr(search_module, "training_log", lambda tr: tr)
-    monkeypatch.setattr(search_module, "applicable", lambda name, logs: True)
-    monkeypatch.setattr(search_module, "SearchContext", lambda tr, logs, opts: Ctx(train, held))
-    monkeypatch.setattr(search_module, "with_null", lambda ctx, current, n: replace(ctx, current=current,
-                                                                                  null_ll=ctx.loglik(current)))
-    monkeypatch.setattr(search_module, "run_round", rounds)
-    monkeypatch.setattr(search_module, "last_round_checks", lambda tried, ctx, pool: None)
-    monkeypatch.setattr(search_module, "none_of_the_above", lambda *a: [])
-    monkeypatch.setattr(search_module.MotionSide, "run", lambda self, ctx, c: Verdict("motion side", True, False))
     said = []
-    out = search_module.search([], ["bias", "lag", "scale"], EMOptions(), jobs=1, progress=said.append)
+    out = _scripted_search(monkeypatch, Ctx(train, held), rounds, ["bias", "lag", "scale"], said.append)
     assert seen == [(), ("bias",), ("lag",)], seen
     assert [c.name for c in out["named"]] == ["lag", "scale"]
     assert "dropped: bias (given the others, tau_s 104 s is no pass-to-pass bias)" in said

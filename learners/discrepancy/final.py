@@ -86,8 +86,10 @@ def _values(effect) -> dict[str, Any]:
 
 def learned(logs: list[Trajectory], opts: EMOptions, action_model: str | None = None) -> Model:
     """``aibo learn``'s model of ``logs`` (EM from the paper's start with the user's options ``opts``, no standard
-    errors): the second start of the final fit's action model, sensor model and start poses (:func:`final_starts`)."""
-    return EMLearner(replace(opts, uncertainty=False), check_field=False).fit(logs, action_model=action_model).params
+    errors; a wrong world refitted with spurious sightings as learn refits it, ``EMLearner.fit_in_field``): the second
+    start of the final fit's action model, sensor model and start poses (:func:`final_starts`)."""
+    first, refit = EMLearner(replace(opts, uncertainty=False), check_field=False).fit_in_field(logs, action_model)
+    return (first if refit is None else refit).params
 
 
 def _final_job(args: tuple[EMOptions, list[Trajectory], Model]) -> LearnResult:

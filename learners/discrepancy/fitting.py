@@ -19,6 +19,7 @@ from scipy import stats
 from aibo_core.trajectory import Trajectory
 from learners.arrays.batch import Batch, make_batch
 from learners.arrays.posterior import Posterior
+from learners.base import LearnResult
 from learners.em.estep import e_step
 from learners.em.learner import EMLearner
 from learners.em.options import EMOptions
@@ -43,13 +44,27 @@ def fit(logs: list[Trajectory], init: Model | None, opts: EMOptions, action_mode
     """EM on ``logs`` from ``init`` (the paper's start when None; one start when warm-started). The alias search
     (``learners.em.alias``) runs in the base fit from the paper's start only: a warm-started refit that switched a
     command to its alias would credit the jump in likelihood to the effect tried."""
+    return _learner(opts, init).fit(logs, init=init, action_model=action_model, initial=initial).params
+
+
+def _learner(opts: EMOptions, init: Model | None) -> EMLearner:
+    """The learner of :func:`fit`."""
     # no lag search: the search profiles actuation_lag itself, as a candidate (named, tested like the others); no
     # standard errors: only the parameters are kept (the report's intervals are the final fit's, on the whole logs)
     opts = replace(opts, lag_search=False, uncertainty=False)
-    # a warm start is one start: screening stretched copies of a converged model's curve (the paper's-start
-    # rescue, ``learners.em.starts``) only spends 60 iterations per fit before start 0 wins as it would alone
-    learner = EMLearner(opts if init is None else replace(opts, alias_search=False, starts=1), check_field=False)
-    return learner.fit(logs, init=init, action_model=action_model, initial=initial).params
+    # a warm start is one start: screening stretched copies of a converged model's curve (the paper's-start rescue,
+    # ``learners.em.starts``) only spends 60 iterations per fit before start 0 wins as it would alone
+    return EMLearner(opts if init is None else replace(opts, alias_search=False, starts=1), check_field=False)
+
+
+def fit_from_paper_start(logs: list[Trajectory], opts: EMOptions, action_model: str | None = None,
+                         initial: tuple | None = None) -> tuple[Model, LearnResult | None]:
+    """(EM from the paper's start on ``logs``, as :func:`fit`; its refit with spurious sightings where it ended in a
+    wrong world and the refit found the field, else None: ``EMLearner.fit_in_field``). The search keeps the first fit
+    as its base and gives the refit to ``false_sightings`` as a second start (docs/results.md, "Spurious sightings:
+    the search's second start")."""
+    first, refit = _learner(opts, None).fit_in_field(logs, action_model, initial)
+    return first.params, refit
 
 
 def train_loglik(model: Model, train: list[Trajectory]) -> float:

@@ -35,6 +35,7 @@ import numpy as np
 from aibo_core.trajectory import Trajectory
 from aibo_core.workers import pool_map, process_pool
 from learners.arrays.batch import make_batch
+from learners.base import LearnResult
 from learners.em.estep import e_step
 from learners.em.options import DEFAULT_GATE, EMOptions
 from learners.em.start import initial_state_for
@@ -44,7 +45,7 @@ from learners.model.probes import PROBES
 
 from .candidate import Candidate, Verdict
 from .checks import CANDIDATE_CHECKS, LAST_ROUND_CHECKS, PROBE_CHECKS, MotionSide, RobustLikelihoodRatio, run_checks, tested
-from .fitting import SEARCH_PATIENCE, SearchContext, fit, lr_test
+from .fitting import SEARCH_PATIENCE, SearchContext, fit_from_paper_start, lr_test
 from .grid import GridWalk, candidate_start, grid_point, profiled
 from .split import training_log
 
@@ -327,14 +328,21 @@ def with_null(ctx: SearchContext, current: Model, n_tests: int) -> SearchContext
 
 
 def base_fit(logs: list[Trajectory], opts: EMOptions, action_model: str | None = None) -> Model:
-    """The base model: EM from the paper's start on the logs' training halves, each log's start-pose belief
-    estimated from the WHOLE log's first sightings (``initial_state_for``), not from its training half's: a
-    held-out block can hold a log's whole first window. MRCLAM robot 3: every sighting of its first 14 s is in
-    block 1; the training half's first window (13.8-16.7 s, three landmarks 0.35 m apart, the robot turning) put
-    the start 5.9 m off, EM kept it (6.5 m off, the smoothed pose on the wrong side for 30 s) and the diagnosed
-    model's pose error was 1042 mm (the commands' 679). The belief is a nuisance shared by every model compared."""
+    """The base model (:func:`base_fits`' first)."""
+    return base_fits(logs, opts, action_model)[0]
+
+
+def base_fits(logs: list[Trajectory], opts: EMOptions, action_model: str | None = None) -> tuple[Model, LearnResult | None]:
+    """(The base model, its refit with spurious sightings or None): EM from the paper's start on the logs' training
+    halves (``fitting.fit_from_paper_start``: a fit that ends in a wrong world is refitted with ``false_sightings``,
+    which the search tries from there too), each log's start-pose belief estimated from the WHOLE log's first
+    sightings (``initial_state_for``), not from its training half's: a held-out block can hold a log's whole first
+    window. MRCLAM robot 3: every sighting of its first 14 s is in block 1; the training half's first window
+    (13.8-16.7 s, three landmarks 0.35 m apart, the robot turning) put the start 5.9 m off, EM kept it (6.5 m off,
+    the smoothed pose on the wrong side for 30 s) and the diagnosed model's pose error was 1042 mm (the commands'
+    679). The belief is a nuisance shared by every model compared."""
     initial = tuple(initial_state_for(tr) for tr in logs)
-    return fit([training_log(tr) for tr in logs], None, opts, action_model, initial)
+    return fit_from_paper_start([training_log(tr) for tr in logs], opts, action_model, initial)
 
 
 def _say_round(tried: list[Candidate], progress: Callable[[str], None]) -> None:
@@ -351,6 +359,7 @@ class RoundStart(NamedTuple):
     current_ll: float  # its training log-likelihood (nats)
     named: list[Candidate]
     remaining: list[str]  # the candidates left
+    previous: dict[str, Model]  # a second start of the round's candidates (``SearchState.previous``)
 
 
 @dataclass
@@ -366,6 +375,9 @@ class SearchState:
     winners: list[str] = field(default_factory=list)
     escapes: list[dict[str, Any]] = field(default_factory=list)
     starts: list[RoundStart] = field(default_factory=list)
+    #: the next round's second start of a candidate (``fit_candidate``'s ``previous``): an escaped-from candidate's fit
+    #: in a repeated round; ``false_sightings``' the base's refit with it where the base ended in a wrong world
+    previous: dict[str, Model] = field(default_factory=dict)
     last: SearchContext | None = None  # the last round's context (its null: ``current``'s when nothing was named)
 
 
@@ -373,9 +385,9 @@ def run_rounds(st: SearchState, ctx: SearchContext, workers: Any, jobs: int, max
                progress: Callable[[str], None]) -> None:
     """The rounds (module docstring) from ``st`` on, until nothing is significant or ``max_rounds`` rounds are run;
     ``st`` is updated in place. ``workers``: the worker pool (None: this process)."""
-    previous: dict[str, Model] = {}  # a repeated round's second start: the escaped-from candidate's fit
     while len(st.rounds) < max_rounds and st.remaining:
-        st.starts.append(RoundStart(st.current, st.current_ll, list(st.named), list(st.remaining)))
+        previous = st.previous
+        st.starts.append(RoundStart(st.current, st.current_ll, list(st.named), list(st.remaining), dict(previous)))
         st.last = round_ctx = with_null(ctx, st.current, len(st.remaining))
         progress(f"  (null: the current model refitted as the candidates are, train "
                  f"+{round_ctx.null_ll - st.current_ll:.1f} nats)")
@@ -395,12 +407,12 @@ def run_rounds(st: SearchState, ctx: SearchContext, workers: Any, jobs: int, max
                                "candidates": [c.as_dict() for c in st.rounds.pop()]})
             st.starts.pop()
             st.current, st.current_ll = escape.escape, escape.escape_ll
-            previous = {escape.name: escape.model}  # a grid candidate's profile ignores it (``fit_candidate``)
+            st.previous = {**previous, escape.name: escape.model}  # a grid candidate's profile ignores it
             progress(f"  the base model refitted from {escape.name}'s fit without it is "
                      f"{escape.escape_ll - round_ctx.null_ll:.1f} nats better than the null: the round is "
                      "repeated from it")
             continue
-        previous = {}
+        st.previous = {}
         if best is None:
             break
         best.checks.append(MotionSide().run(round_ctx, best))
@@ -448,7 +460,7 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
     (``aibo_core.workers.process_pool``; the caller's, left open), else one of its own."""
     t0 = time.perf_counter()
     opts = opts.comparable()  # every fit of the search is compared with another: converged to 0.1 nats (EMOptions)
-    base = base_fit(logs, opts, action_model)
+    base, refit = base_fits(logs, opts, action_model)
     logs, n_out = drop_outliers(base, logs)
     train = [training_log(tr) for tr in logs]
     # candidates are warm-started
@@ -458,6 +470,10 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
     base_ll = ctx.loglik(base)
     progress(f"base model fitted on the training half in {time.perf_counter() - t0:.1f} s; {n_out} outlier "
              "sightings set aside")
+    if refit is not None:
+        progress(f"  it ended in a wrong world ({refit.info.spurious_refit['off_field_fraction']:.0%} of the smoothed "
+                 "poses off the field); with spurious sightings in the model it found the field: false_sightings is "
+                 "tried from there too")
     in_base = {e.name for e in base.effects}  # fitted by the base itself (a range's shrink: EMOptions.range_shrink)
     remaining = [c for c in candidates if applicable(c, logs) and c not in in_base]
     skipped = {c: "in the base model already (aibo learn fits it on this sensor)" if c in in_base else
@@ -466,12 +482,14 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
                for c in candidates if c not in remaining}
     for name, why in skipped.items():
         progress(f"  {name}: not tried ({why})")
-    st = SearchState(base, base_ll, remaining)
+    st = SearchState(base, base_ll, remaining,
+                     previous={} if refit is None else {"false_sightings": refit.params})
     with process_pool(max(jobs, 1)) if pool is None else nullcontext(pool) as pool:
         workers = pool if jobs > 1 else None
         run_rounds(st, ctx, workers, jobs, max_rounds, progress)
         found = finish(st, ctx, workers, max_rounds, progress)
-    return {"base": base, "logs": logs, "skipped": skipped, "context": ctx, "action_model": action_model, "jobs": jobs,
+    return {"base": base, "base_refit": None if refit is None else refit.info.spurious_refit, "logs": logs,
+            "skipped": skipped, "context": ctx, "action_model": action_model, "jobs": jobs,
             **found}
 
 
@@ -494,7 +512,8 @@ def search_without(found: dict[str, Any], name: str, pool: Any = None,
     start = st0.starts[k]
     st = SearchState(start.current, start.current_ll, [n for n in start.remaining if n != name], rounds=st0.rounds[:k],
                      named=list(start.named), winners=st0.winners[:k], starts=st0.starts[:k],
-                     escapes=[e for e in st0.escapes if e["round"] <= k + 1])  # the round's own: in its start
+                     escapes=[e for e in st0.escapes if e["round"] <= k + 1],  # the round's own: in its start
+                     previous=dict(start.previous))
     progress(f"the search again from round {k + 1}, without {name}")
     ctx, jobs = found["context"], found.get("jobs", 1)
     workers = pool if jobs > 1 else None

@@ -49,6 +49,9 @@ class FitInfo:
     #: EM's falls (``learners.em.learner.setback_record``): the largest over one EM step and the largest from its best,
     #: {"nats", "iteration", "from_best_nats", "from_best_iteration", "iterations"} (1-based); None: it never fell
     setback: dict | None = None
+    #: the refit of a wrong world with spurious sightings (``EMOptions.spurious_refit``): {"off_field_fraction": the
+    #: share of smoothed poses off the field of the fit it replaced}; None: no refit
+    spurious_refit: dict | None = None
     timings: FitTimings = field(default_factory=FitTimings)
 
     def to_dict(self, timings: bool = True) -> dict[str, Any]:
@@ -80,6 +83,8 @@ class FitInfo:
             out["face_value_gate_pruned"] = self.face_value_gate_pruned
         if self.setback is not None:
             out["setback"] = self.setback
+        if self.spurious_refit is not None:
+            out["spurious_refit"] = self.spurious_refit
         return out
 
     # Read access by key, as for the other learners' plain ``info`` dicts (``result.info["best_iteration"]``).

@@ -311,6 +311,21 @@ class EMLearner:
             result.info.warnings = [heavy] + list(result.info.warnings or [])
         return result
 
+    def fit_in_field(self, logs: list[Trajectory], action_model: str | None = None,
+                     initial: tuple[InitialState, ...] | None = None) -> tuple[LearnResult, LearnResult | None]:
+        """(the fit from the paper's start, its refit with spurious sightings or None) for a learner that
+        ``check_field=False`` lets end in a wrong world: one that ends there (more than ``MAX_OFF_FIELD`` of its
+        smoothed poses off the field) is refitted as ``aibo learn`` refits it (``EMOptions.spurious_refit``,
+        :meth:`_spurious_refit`), and the refit is returned where it found the field."""
+        first = self.fit(logs, action_model=action_model, initial=initial)
+        wrong = first.info.off_field_fraction
+        if self.check_field or not (self.options.spurious_refit and wrong > MAX_OFF_FIELD):
+            return first, None
+        batch = make_batch(logs)
+        start = self.start_params(logs, None, batch, action_model, initial)
+        refit = self._spurious_refit(logs, batch, start, None, EMDivergedError("a wrong world", wrong))
+        return first, (refit if refit.info.off_field_fraction <= MAX_OFF_FIELD else None)
+
     def _fit_from(self, logs: list[Trajectory], batch: Batch, start: Model, progress: ProgressFn | None) -> LearnResult:
         """``_fit`` with this start's options (``fit_options``) and the face-value gate's count."""
         given = self.options
@@ -345,6 +360,7 @@ class EMLearner:
         finally:
             self.checkpoint_path = path
         rate = float(result.params.effect("false_sightings").rate)
+        result.info.spurious_refit = {"off_field_fraction": float(wrong.fraction)}
         result.info.warnings = [
             f"the fit ended in a wrong world ({wrong.fraction:.0%} of the smoothed poses off the field) until spurious "
             f"sightings were modelled: fitted again from the same start with false_sightings, then gated at that fit "
