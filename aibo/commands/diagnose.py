@@ -428,6 +428,8 @@ def _report(found: dict, effects: list[dict], before, after, sig_before) -> dict
         "not_tried": found["skipped"],
         # rounds repeated from a better base model found by a candidate's fit (learners.discrepancy.search)
         "base_escapes": found.get("escapes", []),
+        # the base fit's wrong world, refitted with spurious sightings ({"off_field_fraction"}; None: it fit the field)
+        "base_refit": found.get("base_refit"),
         "base_change": base_shift(found["base"], found["model"]) if effects else None,
         # each round's winner, the limit, what it left significant, what the final fit dropped (``passed_over``)
         "search_rounds": {"max_rounds": found["max_rounds"], "winners": found["winners"],
