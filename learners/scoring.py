@@ -191,8 +191,7 @@ def sensor_scores(model: Model, logs: list[Trajectory]) -> dict[str, float]:
 def smoothed_poses(model: Model, logs: list[Trajectory], gate: float | None = DEFAULT_GATE) -> tuple[list[np.ndarray], float]:
     """(the E-step's smoothed poses per log, (T+1, 3) [x mm, y mm, theta rad]; the log-likelihood), sightings beyond
     ``gate`` (Mahalanobis^2; by default the fit's gate; None: every sighting applied) not applied."""
-    from learners.em.estep import e_step
-    from learners.em.predictive import weighed_on
+    from learners.em.estep import e_step, weighed_on
 
     batch = make_batch(logs)
     post = e_step(weighed_on(model, batch), batch, "compiled", gate)  # a mixture's weights on these logs

@@ -46,7 +46,7 @@ def test_a_mixtures_weights_are_computed_on_logs_its_fit_did_not_see(monkeypatch
     from dataclasses import replace
 
     from learners.discrepancy.score import score
-    from learners.em import predictive
+    from learners.em import estep
     from learners.em.estep import e_step
     from learners.model.catalogue_more import FalseSightings, spurious_log_density
 
@@ -59,8 +59,8 @@ def test_a_mixtures_weights_are_computed_on_logs_its_fit_did_not_see(monkeypatch
     log = replace(blind(full), sighting_value=z)
     batch = make_batch([log])
     mixed = model.with_effect(FalseSightings(0.05, log_u=spurious_log_density(batch)))
-    assert predictive.weighed_on(model, batch) is model  # no mixture: nothing to weigh
-    weighed = predictive.weighed_on(mixed, batch)
+    assert estep.weighed_on(model, batch) is model  # no mixture: nothing to weigh
+    weighed = estep.weighed_on(mixed, batch)
     w = weighed.effect("false_sightings").w
     assert weighed.effect("false_sightings").weighs(batch) and weighed.effect("false_sightings").rate == 0.05
     real = np.setdiff1d(np.arange(full.n_sightings), junk)
@@ -72,7 +72,7 @@ def test_a_mixtures_weights_are_computed_on_logs_its_fit_did_not_see(monkeypatch
 
     assert pose_rms(weighed) < 0.7 * pose_rms(mixed)
     held = score(mixed, [log]).heldout_loglik  # the score weighs (weighed_on) ...
-    monkeypatch.setattr(predictive, "WEIGH_STEPS", 0)
+    monkeypatch.setattr(estep, "WEIGH_STEPS", 0)
     assert held > score(mixed, [log]).heldout_loglik + 300  # ... and without: every sighting at full weight
 
 

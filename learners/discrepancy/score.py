@@ -11,9 +11,9 @@ from scipy import stats
 
 from aibo_core.trajectory import Trajectory
 from learners.arrays.batch import make_batch
-from learners.em.estep import e_step
+from learners.em.estep import e_step, weighed_on
 from learners.em.options import DEFAULT_GATE
-from learners.em.predictive import model_logdens, own_noise, sightings_logdens, weighed_on
+from learners.em.predictive import model_logdens, own_noise, sightings_logdens
 from learners.em.whiteness import consecutive_pairs, lag1, normalized_size_innovations
 from learners.inference.open_loop import open_loop_innovations
 from learners.inference.predictive import predictive_logdens

@@ -15,12 +15,12 @@ from learners.em import checkpoint
 from learners.em import lag as lag_search
 from learners.em.accel import Packer
 from learners.em.alias import alias_steps, close_call, search
-from learners.em.estep import e_step
+from learners.em.estep import e_step, weighed_on
 from learners.em.finish import fisher_scoring
 from learners.em.fit import EMState, initial_state, options_json, run, setback_from_best
 from learners.em.info import FitInfo, FitTimings
 from learners.em.options import COMPARABLE_IMPROVEMENT, DEFAULT_DEGREE, EARLY_STOP, STRICT_PATIENCE, EMOptions
-from learners.em.predictive import has_mixture, weighed_on
+from learners.em.predictive import has_mixture
 from learners.em.start import initial_state_for
 from learners.em.starts import disagreement, pruned_warning, screen
 from learners.em.support import (

@@ -125,7 +125,7 @@ class WeighedSightings:
 
     def weighed(self, model, batch: Batch, post: Posterior):
         """This effect with its weights ``w`` computed on ``batch`` at ``post``'s smoothed path, its parameters held
-        (``learners.em.predictive.weighed_on``)."""
+        (``learners.em.estep.weighed_on``)."""
         raise NotImplementedError
 
     def weighs(self, batch: Batch) -> bool:
@@ -215,7 +215,7 @@ class FalseSightings(WeighedSightings, EffectModel):
 
     def weighed(self, model: "Model", batch: Batch, post: Posterior) -> "FalseSightings":
         """This effect with its weights computed on ``batch`` at ``post``'s smoothed path, the rate held
-        (``learners.em.predictive.weighed_on``)."""
+        (``learners.em.estep.weighed_on``)."""
         idx, w, log_u = self._weights_at_path(model, batch, post)
         w_all = np.ones(batch.n_sightings)
         w_all[idx] = w

@@ -126,7 +126,7 @@ class HeavyTailedNoise(WeighedSightings, EffectModel):
 
     def weighed(self, model: "Model", batch: Batch, post: Posterior) -> "HeavyTailedNoise":
         """This effect with its weights computed on ``batch`` at ``post``'s smoothed path, (rate, scale) and the
-        core's variances (the sensor's sigmas) held (``learners.em.predictive.weighed_on``)."""
+        core's variances (the sensor's sigmas) held (``learners.em.estep.weighed_on``)."""
         lo0 = replace(model, effects=tuple(e for e in model.effects if e.name != self.name)).lower(batch)
         var = np.array([lo0.sigma_size ** 2, lo0.sigma_bearing ** 2])
         rate, c2 = self._mixture()
