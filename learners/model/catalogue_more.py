@@ -176,7 +176,7 @@ class FalseSightings(WeighedSightings, EffectModel):
     def _at_path(self, model: "Model", batch: Batch, post: Posterior) -> tuple[Lowered, float, np.ndarray, Innovations]:
         """(the model without this effect, lowered; log u; the applied sightings; their innovations at the smoothed
         path): what the M-step and the rate's information both read."""
-        lo0 = replace(model, effects=tuple(e for e in model.effects if e.name != self.name)).lower(batch)
+        lo0 = model.without_effect(self.name).lower(batch)
         log_u = self.log_u if self.log_u is not None else spurious_log_density(batch)
         idx, inn = smoothed_innovations(lo0, batch, post)
         return lo0, log_u, idx, inn

@@ -127,7 +127,7 @@ class HeavyTailedNoise(WeighedSightings, EffectModel):
     def weighed(self, model: "Model", batch: Batch, post: Posterior) -> "HeavyTailedNoise":
         """This effect with its weights computed on ``batch`` at ``post``'s smoothed path, (rate, scale) and the
         core's variances (the sensor's sigmas) held (``learners.em.estep.weighed_on``)."""
-        lo0 = replace(model, effects=tuple(e for e in model.effects if e.name != self.name)).lower(batch)
+        lo0 = model.without_effect(self.name).lower(batch)
         var = np.array([lo0.sigma_size ** 2, lo0.sigma_bearing ** 2])
         rate, c2 = self._mixture()
         return replace(self, w=_precisions_at_path(lo0, batch, post, var, rate, c2), key=sighting_key(batch))
@@ -137,7 +137,7 @@ class HeavyTailedNoise(WeighedSightings, EffectModel):
         """(the applied sightings' innovations against ``post``'s forward prediction of their frame, with the noise of
         the model without this effect; their other effects' variance factors (n, 2); that model's lowered arrays; the
         sightings' batch indices, in time order)."""
-        lo0 = replace(model, effects=tuple(e for e in model.effects if e.name != self.name)).lower(batch)
+        lo0 = model.without_effect(self.name).lower(batch)
         idx = np.flatnonzero(batch.used & np.isfinite(post.mahal2))
         pred = belief_innovations(lo0, batch, idx, *frame_prediction(model.lower(batch), batch, post, idx))
         return pred, np.stack([lo0.size_var_factor[idx], lo0.bearing_var_factor[idx]], axis=1), lo0, idx
