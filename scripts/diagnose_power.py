@@ -4,7 +4,7 @@
                                      [--minutes 10] [--effects a,b] [--pair-seeds 0] [--pair-minutes M] [--out runs/power]
                                      [--candidates all|defaults|a,b,...]
 
-The published tables (docs/results.md, README "How often aibo diagnose is wrong"), in one command (about 1 h on 2
+The published tables (docs/results.md, docs/measured.md "How often aibo diagnose is wrong"), in one command (about 1 h on 2
 cores): ``python scripts/diagnose_power.py --presets aibo,paper-sim --seeds 25 --wall-seeds 25 --power-seeds 10
 --pair-seeds 10 --minutes 5 --pair-minutes 10``.
 
