@@ -76,12 +76,27 @@ def gap_bars(path: Path, before: dict[str, float], after: dict[str, float]) -> N
     _save(fig, path)
 
 
-def calibrated_bars(path: Path, before: dict[str, Any], after: dict[str, Any] | None, n: int = 12) -> None:
-    """The measured log against the calibrated simulator: z of the ``n`` statistics that disagree most
-    with the base model's simulator, and the same statistics with the named effects added."""
+def calibrated_rows(before: dict[str, Any], after: dict[str, Any] | None, n: int = 12) -> list[dict[str, Any]]:
+    """The ``n`` statistics of the calibrated check (``before["statistics"]``' rows) that disagree most with the base
+    model's simulator or with the named effects' (the larger |z| of the two: a disagreement the effects brought is
+    shown too), most first; a z of None (no spread in the replicas) is left out."""
     z_after = {r["statistic"]: r["z"] for r in (after or {}).get("statistics", [])}
-    rows = sorted((r for r in before["statistics"] if r["z"] is not None), key=lambda r: -abs(r["z"]))[:n][::-1]
-    fig, ax = plt.subplots(figsize=(10.0, 0.38 * len(rows) + 1.6))
+
+    def worst(r: dict[str, Any]) -> float:
+        return max(abs(r["z"]), abs(z_after.get(r["statistic"]) or 0.0))
+
+    return sorted((r for r in before["statistics"] if r["z"] is not None), key=lambda r: -worst(r))[:n]
+
+
+LEGEND_STRIP_IN = 0.3  # inches under the calibrated check's axes for its legend
+
+
+def calibrated_bars(path: Path, before: dict[str, Any], after: dict[str, Any] | None, n: int = 12) -> None:
+    """The measured log against the calibrated simulator: z of the statistics :func:`calibrated_rows` picks, with the
+    base model and with the named effects added."""
+    z_after = {r["statistic"]: r["z"] for r in (after or {}).get("statistics", [])}
+    rows = calibrated_rows(before, after, n)[::-1]
+    fig, ax = plt.subplots(figsize=(10.0, 0.38 * len(rows) + 1.6 + LEGEND_STRIP_IN))
     y = range(len(rows))
     ax.barh([k + 0.2 for k in y], [r["z"] for r in rows], height=0.4, color="tab:red", label="base model")
     if after is not None:
@@ -95,9 +110,10 @@ def calibrated_bars(path: Path, before: dict[str, Any], after: dict[str, Any] | 
     ax.set_xticks(sorted(ticks), [f"{t:g}" for t in sorted(ticks)])
     ax.set_yticks(list(y), [r["statistic"] for r in rows], fontsize=8)
     ax.set_xlabel(f"z = (measured - mean of {before['replicas']} simulated replays) / their sd")
-    ax.legend(fontsize=8, loc="lower right")
     ax.set_title("The measured log against its calibrated simulator (the measured commands replayed)", fontsize=10)
-    fig.tight_layout()
+    # the legend in a strip of its own under the axes: inside them it covered the lowest bars
+    fig.legend(*ax.get_legend_handles_labels(), fontsize=8, loc="lower center", ncol=3, frameon=False)
+    fig.tight_layout(rect=(0.0, LEGEND_STRIP_IN / fig.get_figheight(), 1.0, 1.0))
     _save(fig, path)
 
 

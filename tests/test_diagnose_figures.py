@@ -1,0 +1,26 @@
+"""The report page's figure of the calibrated check shows what disagrees, before and after the named effects."""
+
+from __future__ import annotations
+
+from aibo.diagnose_report import calibrated_bars, calibrated_rows
+
+
+def _check(zs: dict[str, float | None]) -> dict:
+    return {"statistics": [{"statistic": k, "z": z} for k, z in zs.items()], "disagree_z": 5.4, "replicas": 8}
+
+
+def test_a_disagreement_the_named_effects_brought_is_among_the_rows_shown():
+    before = _check({"calm, then off": 0.5, "off, then mended": 9.0, "mild both times": 3.0, "no spread": None})
+    after = _check({"calm, then off": -12.0, "off, then mended": 0.4, "mild both times": 3.5, "no spread": 1.0})
+    rows = [r["statistic"] for r in calibrated_rows(before, after, n=2)]
+    assert rows == ["calm, then off", "off, then mended"]  # by the larger |z| of the two checks, the worst first
+    assert [r["statistic"] for r in calibrated_rows(before, None, n=2)] == ["off, then mended", "mild both times"]
+    assert "no spread" not in [r["statistic"] for r in calibrated_rows(before, after, n=10)]
+
+
+def test_the_calibrated_figure_is_written_with_one_row_or_many(tmp_path):
+    for n in (1, 12):
+        zs = {f"statistic {i}": float(i) - 3.0 for i in range(n)}
+        path = tmp_path / f"calibrated_{n}.png"
+        calibrated_bars(path, _check(zs), _check({k: -z for k, z in zs.items()}))
+        assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
