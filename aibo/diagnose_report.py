@@ -143,13 +143,25 @@ def short(params: dict[str, Any]) -> str:
 
 def interval_text(intervals: dict[str, Any]) -> str:
     """``95%: sigma_rel [0.041, 0.049], tau_s [6.9, 11.2]`` (scalars; ``lag_s [0.1, 0.3] (profile over a grid of step
-    0.1)`` for a grid parameter, ``lag_s [0.1, >=0.5] (profile, open above)`` for an open one), ``SE scale [0.003,
-    ...]`` (arrays); the parameters without an interval are left out; "" when none has one."""
+    0.1)`` for a grid parameter, ``lag_s [0.1, >=0.5] (profile, open above)`` for an open one), ``scale +- [0.0048,
+    ...]`` (arrays: each component's half-width, or its ``[low, high]`` where a bound clipped the interval); the
+    parameters without an interval are left out; "" when none has one."""
     def num(v: Any) -> str:
         return "[" + ", ".join(num(x) for x in v) + "]" if isinstance(v, (list, tuple)) else f"{v:.3g}"
-    parts = [_scalar_interval(k, iv, num) if np.ndim(iv["value"]) == 0 else f"{k} SE {num(iv['se'])}"
+    parts = [_scalar_interval(k, iv, num) if np.ndim(iv["value"]) == 0 else _array_interval(k, iv, num)
              for k, iv in intervals.items() if iv["interval_95"] is not None]
     return "95%: " + ", ".join(parts) if parts else ""
+
+
+def _array_interval(name: str, iv: dict[str, Any], num) -> str:
+    """``scale +- [0.0048, 0.0044]``: the half-widths of an array's intervals (``interval_95`` is [lows, highs]), one per
+    component in the order of the values; ``scale [[0.99, 1.01], [0.97, 1]]`` where one is not centred on its value
+    (clipped at a bound, or not a Wald interval)."""
+    lo, hi = (np.asarray(b, dtype=float) for b in iv["interval_95"])
+    value = np.asarray(iv["value"], dtype=float)
+    if iv.get("clipped") or not np.allclose((lo + hi) / 2.0, value, rtol=1e-6, atol=1e-12):
+        return f"{name} {num([[float(a), float(b)] for a, b in zip(lo, hi)])}"
+    return f"{name} +- {num([float(w) for w in (hi - lo) / 2.0])}"
 
 
 def _scalar_interval(name: str, iv: dict[str, Any], num) -> str:

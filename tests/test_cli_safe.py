@@ -808,3 +808,13 @@ def test_diagnose_warns_when_a_held_fit_beat_the_diagnosed_model():
         "distance_dependent_noise: exponent 0.31 is not the likelihood's maximum: a fit with it held elsewhere is 37.3 "
         "nats more likely (more than the 95% interval's 1.92); the value stated may be off by more than its interval "
         "says"]
+
+
+def test_an_arrays_interval_is_printed_as_its_half_widths_or_its_ends():
+    """An array parameter's 95% interval (``interval_95``: [lows, highs]) was printed as 'SE [...]' after '95%:'."""
+    from aibo.diagnose_report import interval_text
+
+    iv = {"value": [1.01, 0.99], "se": [0.002, 0.003], "interval_95": [[1.0061, 0.9841], [1.0139, 0.9959]]}
+    assert interval_text({"scale": {**iv, "clipped": False}}) == "95%: scale +- [0.0039, 0.0059]"
+    clipped = {"value": [0.002, 0.01], "interval_95": [[0.0, 0.005], [0.006, 0.015]], "clipped": True}
+    assert interval_text({"rate": clipped}) == "95%: rate [[0, 0.006], [0.005, 0.015]]"
