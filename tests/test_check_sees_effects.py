@@ -39,7 +39,6 @@ NOT_YET = {
     "velocity_fade": "0.02/min: no statistic disagrees; the smoothed forward residual vs elapsed time is attenuated. Tried: "
                      "the fade from 10 s windows' smoothed / predicted forward distance, 0.015/min against the "
                      "replicas' -0.011..0.055 (z 0.4); one M-step's estimate, 0.0012/min (z 2.5)",
-    "landmark_bias": "sigma_rel 0.03, tau 10 s: no statistic disagrees (innovation whiteness is within the replicas')",
     "response_time": "tau 0.15 s on a 5-minute wheeled log (commands held 1 s): no statistic disagrees, while EM "
                      "recovers it (tests/test_response_time.py)",
 }

@@ -145,7 +145,8 @@ class LandmarkBias(EffectModel):
         "sigma_rel": Param("fraction of the size", "log", low=0.0, high=0.5, shape=()),  # as the simulator's bounds
         "tau_s": Param("s", "log", low=1e-3, high=1e6, shape=()),
     }
-    EXAMPLE: ClassVar[dict[str, Any]] = {"sigma_rel": 0.03, "tau_s": 10.0}
+    #: the strength every study of the project uses (the power study's medium, the calibration's, issue 34's tau of 8 s)
+    EXAMPLE: ClassVar[dict[str, Any]] = {"sigma_rel": 0.05, "tau_s": 8.0}
 
     STARTS_OFF: ClassVar[bool] = False  # at sigma_rel 0 EM could not move it (``start``)
 
