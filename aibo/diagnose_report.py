@@ -185,10 +185,12 @@ def shift_text(shift: dict[str, Any]) -> str:
         what, units = "velocities", (" mm/s", " mm/s", " rad/s")
     else:  # a feature map's weights: per unit of its features
         what, units = "command weights (forward, lateral, turn, per unit of the commands' features)", ("", "", "")
+    curve = (" and left the sensor curve as it was"  # e.g. a range sensor's, held at range = distance
+             if shift["sensor_curve_max_abs"] == 0.0 else
+             f" and the sensor curve by at most {shift['sensor_curve_max_abs']:.3g} {shift['sensor_unit']} over "
+             f"{shift['sensor_distances_mm'][0]:.0f}-{shift['sensor_distances_mm'][1]:.0f} mm")
     return (f"adding them moved the {what} by {v[0]:.3g}{units[0]}, {v[1]:.3g}{units[1]}, {v[2]:.3g}{units[2]} RMS over "
-            f"the commands (at most {top[0]:.3g}{units[0]}, {top[1]:.3g}{units[1]}, {top[2]:.3g}{units[2]}) and the sensor "
-            f"curve by at most {shift['sensor_curve_max_abs']:.3g} {shift['sensor_unit']} over "
-            f"{shift['sensor_distances_mm'][0]:.0f}-{shift['sensor_distances_mm'][1]:.0f} mm")
+            f"the commands (at most {top[0]:.3g}{units[0]}, {top[1]:.3g}{units[1]}, {top[2]:.3g}{units[2]})" + curve)
 
 
 def starts_text(starts: list[dict[str, Any]]) -> str:

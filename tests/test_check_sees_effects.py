@@ -44,14 +44,15 @@ NOT_YET = {
 }
 
 
-def _separating(name: str, seed: int = 4, replicas: int = 8) -> tuple[list[str], list[str]]:
-    """(the statistics that disagree without effect ``name``, those that still disagree with it fitted)."""
+def _separating(name: str, seed: int = 4, replicas: int = 8, minutes: float = 5.0) -> tuple[list[str], list[str]]:
+    """(the statistics that disagree without effect ``name`` on a log of ``minutes``, those that still disagree with it
+    fitted)."""
     cls = EFFECT_MODELS[name]
     params = {k: (v.tolist() if hasattr(v, "tolist") else v) for k, v in cls.EXAMPLE.items()}
     if "controls" in cls.NEEDS:  # an effect of continuous commands: a wheeled robot's 5 minutes
-        log = collect_wheeled({"effects": {name: params}, "start_pose": "random"}, 3000, seed=seed)
+        log = collect_wheeled({"effects": {name: params}, "start_pose": "random"}, round(minutes * 600), seed=seed)
     else:
-        log = trajectory.blind(collect({"noise": "aibo", "effects": {name: params}}, 9000, seed=seed))
+        log = trajectory.blind(collect({"noise": "aibo", "effects": {name: params}}, round(minutes * 1800), seed=seed))
     opts = EMOptions(starts=1, uncertainty=False)
     base = EMLearner(opts, check_field=False).fit([log]).params
     before = predictive_check(base, [log], replicas=replicas, seed=0, jobs=2).disagreements()

@@ -636,7 +636,12 @@ def test_report_page_states_units_the_grid_step_and_which_candidate_was_named(tm
     assert "lag_s [0.1, 0.3] (profile over a grid of step 0.1)" in page
     assert page.count("grid of step") == 1  # said once, by the interval (not again beside the value)
     assert "by 24.4 mm/s, 19.7 mm/s, 0.038 rad/s RMS over the commands" in page
+    assert "and the sensor curve by at most 1.5 px over 300-3000 mm" in page
     assert "<th>named</th>" in page and page.count("<b>named</b>") == 1
+    # a curve the effects left where it was (a range sensor's, held) was 'moved by at most 0 mm'
+    html_page(tmp_path / "h.html", {**report, "base_change": {**shift, "sensor_curve_max_abs": 0.0}}, "text", [])
+    held = (tmp_path / "h.html").read_text()
+    assert "and left the sensor curve as it was" in held and "at most 0 " not in held
 
 
 @pytest.mark.parametrize("option", ["--config", "--policy-params", "--policy"])
