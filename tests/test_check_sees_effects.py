@@ -1,7 +1,8 @@
 """The calibrated check can see each effect of the catalogue (registry-driven: a new effect gets the test for free).
 
 For every learner effect (``EFFECT_MODELS``) at its ``EXAMPLE`` strength in the simulator twin of the same name: on a
-blind 5-minute log (a wheeled robot's for an effect that needs continuous commands), the check of the model fitted
+blind 5-minute log (``MINUTES`` where that holds too little of it for any test; a wheeled robot's for an effect that
+needs continuous commands), the check of the model fitted
 WITHOUT it (``experiments.calibrated.predictive_check``) has at least one statistic that disagrees with the log, and at
 least one of those no longer disagrees once the effect is fitted too. The effects the check cannot see by construction
 are listed with why (``UNSEEN``); those it does not see yet at that strength are expected failures with what was
@@ -32,16 +33,20 @@ UNSEEN = {
 #: effect -> what was measured where the check does not yet see it at the EXAMPLE strength (5-minute logs, 8 replicas;
 #: a strict xfail: the day a statistic sees it, the test says so)
 NOT_YET = {
-    "floor_drift": "5 mm/s: no statistic disagrees (nor with 20 replicas); the search names it from 6 mm/s on 10-min logs. "
-                   "Tried (2026-11-26, seed 4, 8 replicas; the threshold is |z| 5.4): the smoothed path's mean "
-                   "world-frame motion residual, 3.0 mm/s against the replicas' 0.3-2.2 (z 2.7); one M-step's "
-                   "estimate from the base fit's smoothed path, 2.1 mm/s (z 3.0)",
     "velocity_fade": "0.02/min: no statistic disagrees; the smoothed forward residual vs elapsed time is attenuated. Tried: "
                      "the fade from 10 s windows' smoothed / predicted forward distance, 0.015/min against the "
                      "replicas' -0.011..0.055 (z 0.4); one M-step's estimate, 0.0012/min (z 2.5)",
     "response_time": "tau 0.15 s on a 5-minute wheeled log (commands held 1 s): no statistic disagrees, while EM "
                      "recovers it (tests/test_response_time.py)",
 }
+
+
+#: effect -> the minutes of the log it is checked on, where 5 minutes hold too little of it for any test: the search
+#: names a 6 mm/s floor drift on 1 of 10 five-minute logs (docs/results.md, the confusion matrix), and on 5 minutes no
+#: statistic of the check disagreed (nor with 20 replicas; the smoothed path's mean world-frame motion residual and one
+#: M-step's estimate reached z 2.7 and 3.0 against a threshold of 5.4). On 10 minutes "motion vs world heading", its
+#: signature, disagrees on seeds 4, 5 and 6 and on none once it is fitted (2026-11-28).
+MINUTES = {"floor_drift": 10.0}
 
 
 def _separating(name: str, seed: int = 4, replicas: int = 8, minutes: float = 5.0) -> tuple[list[str], list[str]]:
@@ -68,11 +73,11 @@ def _separating(name: str, seed: int = 4, replicas: int = 8, minutes: float = 5.
 @pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.xfail(reason=NOT_YET[n], strict=True))
                                   if n in NOT_YET else n for n in sorted(set(EFFECT_MODELS) - set(UNSEEN))])
 def test_the_calibrated_check_sees_each_effect_and_stops_once_it_is_fitted(name):
-    before, after = _separating(name)
+    before, after = _separating(name, minutes=MINUTES.get(name, 5.0))
     assert before, f"{name}: no statistic of the check separates the model without it from the log"
     assert set(before) - set(after), f"{name}: every statistic that disagreed still does with it fitted: {after}"
 
 
 def test_every_unseen_effect_is_in_the_catalogue():
     """The exemptions name real effects (a renamed effect would otherwise escape the test silently)."""
-    assert set(UNSEEN) <= set(EFFECT_MODELS) and set(NOT_YET) <= set(EFFECT_MODELS) - set(UNSEEN)
+    assert set(UNSEEN) <= set(EFFECT_MODELS) and set(NOT_YET) | set(MINUTES) <= set(EFFECT_MODELS) - set(UNSEEN)

@@ -76,7 +76,8 @@ class FloorDrift(EffectModel):
     PARAMS: ClassVar[dict[str, Param]] = {"drift_mm_s": Param("mm/s, world frame", "scaled", (10.0, 10.0), low=-1e4,
                                                                       high=1e4, shape=(2,))}
     PROBE: ClassVar[dict[str, Any]] = {"drift_mm_s": np.array([20.0, 0.0])}
-    EXAMPLE: ClassVar[dict[str, Any]] = {"drift_mm_s": np.array([5.0, 1.0])}
+    #: the power study's medium strength (scripts/diagnose_power.py), as every study of the project uses
+    EXAMPLE: ClassVar[dict[str, Any]] = {"drift_mm_s": np.array([6.0, 0.0])}
 
     @classmethod
     def start(cls, batch: Batch) -> "FloorDrift":
