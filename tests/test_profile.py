@@ -277,8 +277,8 @@ def test_a_climb_from_a_beaten_end_stops_at_the_profiles_top():
 
 def test_a_final_fit_stopped_short_of_the_maximum_is_found_by_the_fits_held_at_its_wald_ends():
     """``check_wald_intervals``: at the free fit's maximum the fits held at the Wald interval's ends are below it, no
-    value is returned to refit from; here they are 1.3 and 1.5 nats below, not 1.92 (the profile is flatter than the
-    Fisher information says), so the interval becomes the profile one, wider on both sides. A fit stopped 4 standard
+    value is returned to refit from; here not 1.92 below at both (the profile is flatter than the Fisher information
+    says), so the interval becomes the profile one, each end moved the way its fit says. A fit stopped 4 standard
     errors short (the rest refitted to it: a ridge EM stopped on) is beaten at the end towards the maximum, and the
     climb returns a value near the free fit's."""
     from learners.discrepancy.fitting import SEARCH_PATIENCE, held, with_values
@@ -295,9 +295,15 @@ def test_a_final_fit_stopped_short_of_the_maximum_is_found_by_the_fits_held_at_i
     check = wald["wald_check"]
     assert [v for v, _ in check["points"]] == pytest.approx([wlo, whi])
     drops = [check["free"] - ll for _, ll in check["points"]]
-    assert all(0.5 < d < 1.92 for d in drops)
+    # below the free fit (no held fit beats it: nothing to refit from), and not 1.92 at both: on this log 1.3 and 1.5
+    # with OpenBLAS's own kernels for this CPU, 2.4 and 1.4 with its Haswell ones (OPENBLAS_CORETYPE=Haswell): the fit
+    # stops elsewhere on the flat profile
+    assert all(d > 0.5 for d in drops) and any(d < 1.92 for d in drops)
     assert wald["method"] == "profile likelihood, whole logs" and wald["wald_interval_95"] == [wlo, whi]
-    assert wald["interval_95"][0] < wlo and wald["interval_95"][1] > whi
+    lo, hi = wald["interval_95"]
+    # each end moves the way its drop says: out past a Wald end the profile has not fallen 1.92 nats at, in from one
+    # it has fallen further at
+    assert (lo < wlo) == (drops[0] < 1.92) and (hi > whi) == (drops[1] < 1.92)
 
     short = value - 4 * se
     stopped = held_fit([log], free.params.with_effect(with_values(free.params.effect("velocity_fade"),

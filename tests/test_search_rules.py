@@ -488,8 +488,10 @@ def test_aibo_diagnose_says_which_candidates_its_last_round_left_significant(tmp
 
 def test_the_search_run_again_without_a_named_effect_names_what_a_search_without_that_candidate_names():
     """``search_without`` resumes from the state the round that named the effect started from (a better base model its
-    escapes found kept: here two, one from the left-out effect's fit): it names what a search that never had the
-    effect among its candidates names, and never tries the effect again."""
+    escapes found kept: here one, from the left-out effect's own fit): it names what a search that never had the
+    effect among its candidates names, and never tries the effect again. (Seed 4: the same rounds with OpenBLAS's
+    kernels for this CPU and with its Haswell ones; seed 3, used before, named the lag and escaped twice with the
+    first, and named nothing after the heights with the second.)"""
     from aibo_core.trajectory import blind
     from aibo_gym.collect import collect
     from learners.discrepancy.search import search, search_without
@@ -497,11 +499,11 @@ def test_the_search_run_again_without_a_named_effect_names_what_a_search_without
 
     log = blind(collect({"noise": "aibo", "effects": {"actuation_lag": {"lag_s": 0.2},
                                                     "beacon_height_scale": {"scale": [1.08, 0.94, 1.04, 0.95]}}},
-                        9000, seed=3))
+                        9000, seed=4))
     candidates = ["actuation_lag", "beacon_height_scale", "velocity_fade"]
     found = search([log], candidates, EMOptions(seed=0), jobs=1, progress=lambda s: None)
     assert found["winners"] == ["beacon_height_scale", "actuation_lag"]
-    assert [e["from"] for e in found["escapes"]] == ["velocity_fade", "actuation_lag"]  # both in round 2
+    assert [(e["from"], e["round"]) for e in found["escapes"]] == [("actuation_lag", 2)]
     said = []
     again = search_without(found, "actuation_lag", progress=said.append)
     alone = search([log], ["beacon_height_scale", "velocity_fade"], EMOptions(seed=0), jobs=1, progress=lambda s: None)
@@ -511,5 +513,5 @@ def test_the_search_run_again_without_a_named_effect_names_what_a_search_without
     assert again["rounds"][0] is found["rounds"][0]  # round 1 as it was
     assert [c.name for c in again["rounds"][1]] == ["velocity_fade"]
     assert again["state"].starts[1][1] == found["state"].starts[1][1]  # from the state round 2 started from
-    assert [e["from"] for e in again["escapes"]] == ["velocity_fade", "actuation_lag"]
+    assert [e["from"] for e in again["escapes"]] == ["actuation_lag"]  # replayed, not tried again
     assert found["winners"] == ["beacon_height_scale", "actuation_lag"]  # the search it resumed is left as it was
