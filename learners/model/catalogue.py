@@ -76,7 +76,8 @@ class FloorDrift(EffectModel):
     PARAMS: ClassVar[dict[str, Param]] = {"drift_mm_s": Param("mm/s, world frame", "scaled", (10.0, 10.0), low=-1e4,
                                                                       high=1e4, shape=(2,))}
     PROBE: ClassVar[dict[str, Any]] = {"drift_mm_s": np.array([20.0, 0.0])}
-    #: the power study's medium strength (scripts/diagnose_power.py), as every study of the project uses
+    #: the power study's medium strength (scripts/diagnose_power.py; the calibration takes its strong 12 mm/s, which a
+    #: 5-minute log names more often); the calibrated check sees it on a 10-minute log (tests/test_check_sees_effects.py)
     EXAMPLE: ClassVar[dict[str, Any]] = {"drift_mm_s": np.array([6.0, 0.0])}
 
     @classmethod
