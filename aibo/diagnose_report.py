@@ -76,11 +76,16 @@ def gap_bars(path: Path, before: dict[str, float], after: dict[str, float]) -> N
     _save(fig, path)
 
 
+def _z_by_statistic(check: dict[str, Any] | None) -> dict[str, float | None]:
+    """A calibrated check's z per statistic (``{}`` for no check)."""
+    return {r["statistic"]: r["z"] for r in (check or {}).get("statistics", [])}
+
+
 def calibrated_rows(before: dict[str, Any], after: dict[str, Any] | None, n: int = 12) -> list[dict[str, Any]]:
     """The ``n`` statistics of the calibrated check (``before["statistics"]``' rows) that disagree most with the base
     model's simulator or with the named effects' (the larger |z| of the two: a disagreement the effects brought is
     shown too), most first; a z of None (no spread in the replicas) is left out."""
-    z_after = {r["statistic"]: r["z"] for r in (after or {}).get("statistics", [])}
+    z_after = _z_by_statistic(after)
 
     def worst(r: dict[str, Any]) -> float:
         return max(abs(r["z"]), abs(z_after.get(r["statistic"]) or 0.0))
@@ -94,7 +99,7 @@ LEGEND_STRIP_IN = 0.3  # inches under the calibrated check's axes for its legend
 def calibrated_bars(path: Path, before: dict[str, Any], after: dict[str, Any] | None, n: int = 12) -> None:
     """The measured log against the calibrated simulator: z of the statistics :func:`calibrated_rows` picks, with the
     base model and with the named effects added."""
-    z_after = {r["statistic"]: r["z"] for r in (after or {}).get("statistics", [])}
+    z_after = _z_by_statistic(after)
     rows = calibrated_rows(before, after, n)[::-1]
     fig, ax = plt.subplots(figsize=(10.0, 0.38 * len(rows) + 1.6 + LEGEND_STRIP_IN))
     y = range(len(rows))

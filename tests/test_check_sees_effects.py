@@ -4,9 +4,8 @@ For every learner effect (``EFFECT_MODELS``) at its ``EXAMPLE`` strength in the 
 blind 5-minute log (``MINUTES`` where that holds too little of it for any test; a wheeled robot's for an effect that
 needs continuous commands), the check of the model fitted WITHOUT it (``experiments.calibrated.predictive_check``) has
 at least one statistic that disagrees with the log, and at least one of those no longer disagrees once the effect is
-fitted too. The effects the check cannot see by construction
-are listed with why (``UNSEEN``); those it does not see yet at that strength are expected failures with what was
-measured (``NOT_YET``).
+fitted too. The effects the check cannot see by construction are listed with why (``UNSEEN``); those it does not see
+yet at that strength are expected failures with what was measured (``NOT_YET``).
 """
 
 from __future__ import annotations
@@ -57,7 +56,7 @@ def _separating(name: str, seed: int = 4, replicas: int = 8, minutes: float = 5.
     fitted)."""
     cls = EFFECT_MODELS[name]
     params = {k: (v.tolist() if hasattr(v, "tolist") else v) for k, v in cls.EXAMPLE.items()}
-    if "controls" in cls.NEEDS:  # an effect of continuous commands: a wheeled robot's 5 minutes
+    if "controls" in cls.NEEDS:  # an effect of continuous commands: a wheeled robot's log (10 frames a second)
         log = collect_wheeled({"effects": {name: params}, "start_pose": "random"}, round(minutes * 600), seed=seed)
     else:
         log = trajectory.blind(collect({"noise": "aibo", "effects": {name: params}}, round(minutes * 1800), seed=seed))
