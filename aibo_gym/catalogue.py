@@ -20,6 +20,8 @@ distance_dependent_noise   exponent (sigma ~ (d / 2500 mm)^exponent)         dis
 false_sightings            rate (fraction of sightings, <= 0.5)              none: outliers anywhere in the image
 heavy_tailed_noise         rate (fraction of sightings, <= 0.5), scale        none: heavier tails of both residuals
                            (factor on their noise's deviation, 1-10)
+turn_dependent_noise       gain_s (s/rad: slip covariance x (1 + (gain_s       the spread of the motion and bearing
+                           omega)^2), omega the turn rate)                   residuals against the turn rate
 landmark_bias              sigma_rel (stationary std, fraction), tau_s (s)   size residuals correlated in time,
                                                                              per landmark
 =========================  ================================================  ==============================
@@ -374,6 +376,29 @@ class HeavyTailedNoise(Effect):
                 s.height = s.true_height + (s.height - s.true_height) * scale
                 s.angle = wrap_angle(s.bearing + wrap_angle(s.angle - s.bearing) * scale)
         return sightings
+
+
+@register_effect
+class TurnDependentNoise(Effect):
+    """A robot that turns slips more than one that drives straight: the frame's slip noise (the displacement's
+    departure from ``velocity * dt``, big slips included) is multiplied by sqrt(1 + (``gain_s`` omega)^2), omega the
+    turn rate (rad/s) of the frame's true velocity after every other motion effect (a lag, a fading battery): its
+    covariance by 1 + (gain_s omega)^2, the odometry motion model of Thrun, Burgard & Fox (2005, section 5.4).
+    Draws nothing: the slip is the env's own, scaled. Residual signature: the spread of the motion and bearing
+    residuals against the commanded turn rate.
+    """
+
+    name = "turn_dependent_noise"
+    defaults = {"gain_s": 0.0}
+    bounds = {"gain_s": (0.0, 100.0)}
+    motion_order = 2  # after every effect that changes the velocity (response_time: 1), whatever the config's order
+
+    def motion(self, m: Motion, frame: Frame) -> Motion:
+        g = self.params["gain_s"]
+        if g:
+            nominal = m.velocity * frame.dt
+            m.disp = nominal + (m.disp - nominal) * math.sqrt(1.0 + (g * float(m.velocity[2])) ** 2)
+        return m
 
 
 @register_effect

@@ -82,6 +82,8 @@ _VARIABLE_READING = {
     "position in the image": "change across the image",  # before "position": the first key a variable starts with
     "position": "change across the field",
     "turn rate": "change with the turn rate (timing: a sensor's time offset or the motion's lag)",
+    "commanded turn rate": "change with how fast the robot is commanded to turn (a motion noise that grows with the "
+                           "turn)",
 }
 
 

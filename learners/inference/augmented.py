@@ -25,6 +25,7 @@ import numpy as np
 
 from aibo_core import geometry
 from learners.arrays.batch import Batch
+from learners.arrays.displacement import augmented_displacement_beliefs
 from learners.arrays.lowered import Lowered, sighting_model
 from learners.arrays.posterior import ExtraMoments, Posterior
 
@@ -152,50 +153,9 @@ def displacement_statistics(lo: Lowered, batch: Batch, post: Posterior, need_cov
     it: the smoothed path inherits the forward filter's linearization of the motion at the filtered
     heading, and EM on it lowered the likelihood by ~1 nat per iteration.) Returns mu_star (N, 3) and,
     if ``need_cov``, sum_i C*_i / cov_scale_i."""
-    ex, ext = post.extra, lo.extra
-    K = ext.k
-    n, N = 3 + K, batch.n_frames
-    D = n + 3 + K  # z = (x_p, d, b_{p+1})
-    p = batch.frame_to_pose
-    inv = np.linalg.inv
-    Js, Jp = inv(ex.smoothed_cov[p + 1]), inv(ex.predicted_cov)
-    Y = sym(Js - Jp)
-    y = _mv(Js, ex.smoothed_mean[p + 1]) - _mv(Jp, ex.predicted_mean)
-    L1, L2, m = geometry.rel_disp_jac(ex.smoothed_mean[p, :3], ex.smoothed_mean[p + 1, :3] - lo.offset)
-    L2T = np.swapaxes(L2, 1, 2)
-    M = np.zeros((N, n, D))  # (s_{p+1} - offset, b_{p+1}) = M z + c
-    M[:, :3, :3] = -L2T @ L1
-    M[:, :3, n:n + 3] = L2T
-    M[:, 3:, n + 3:] = np.eye(K)
-    c = np.zeros((N, n))
-    c[:, :3] = -_mv(L2T, m)
-    J, h = np.zeros((N, D, D)), np.zeros((N, D))
-    Ja = inv(ex.filtered_cov[p])
-    J[:, :n, :n] = Ja
-    h[:, :n] = _mv(Ja, ex.filtered_mean[p])
-    w = 1.0 / ext.q
-    bp, bn = 3 + np.arange(K), n + 3 + np.arange(K)
-    J[:, bp, bp] += ext.phi ** 2 * w
-    J[:, bn, bn] += w
-    J[:, bp, bn] -= ext.phi * w
-    J[:, bn, bp] -= ext.phi * w
-    MT = np.swapaxes(M, 1, 2)
-    J += MT @ Y @ M
-    h += _mv(MT, y - _mv(Y, c))
-    prior = inv(np.asarray(lo.cov, dtype=float))[None] / np.asarray(lo.cov_scale, dtype=float)[:, None, None]
-    J[:, n:n + 3, n:n + 3] += prior
-    h[:, n:n + 3] += _mv(prior, lo.disp)
-    rhs = np.zeros((N, D, 4))
-    rhs[:, :, 0] = h
-    rhs[:, n:n + 3, 1:] = np.eye(3)
-    X = np.linalg.solve(sym(J), rhs)
-    mu_star = X[:, n:n + 3, 0]
-    if not np.isfinite(mu_star).all():
-        bad = int(np.flatnonzero(~np.isfinite(mu_star).all(axis=1))[0])
-        raise FloatingPointError(f"action M-step: non-finite statistics at batch frame {bad}")
+    mu_star, C = augmented_displacement_beliefs(lo, batch, post)
     if not need_cov:
         return mu_star, None
-    C = sym(X[:, n:n + 3, 1:])
     return mu_star, (C / np.asarray(lo.cov_scale, dtype=float)[:, None, None]).sum(axis=0)
 
 
