@@ -20,8 +20,8 @@ distance_dependent_noise   exponent (sigma ~ (d / 2500 mm)^exponent)         dis
 false_sightings            rate (fraction of sightings, <= 0.5)              none: outliers anywhere in the image
 heavy_tailed_noise         rate (fraction of sightings, <= 0.5), scale        none: heavier tails of both residuals
                            (factor on their noise's deviation, 1-10)
-turn_dependent_noise       gain_s (s/rad: slip covariance x (1 + (gain_s       the spread of the motion and bearing
-                           omega)^2), omega the turn rate)                   residuals against the turn rate
+turn_dependent_noise       gain_s (s/rad: slip covariance x (1 + (gain_s       the spread of the bearing residuals
+                           omega)^2), omega the turn rate)                   against the turn rate
 landmark_bias              sigma_rel (stationary std, fraction), tau_s (s)   size residuals correlated in time,
                                                                              per landmark
 =========================  ================================================  ==============================
@@ -384,8 +384,8 @@ class TurnDependentNoise(Effect):
     departure from ``velocity * dt``, big slips included) is multiplied by sqrt(1 + (``gain_s`` omega)^2), omega the
     turn rate (rad/s) of the frame's true velocity after every other motion effect (a lag, a fading battery): its
     covariance by 1 + (gain_s omega)^2, the odometry motion model of Thrun, Burgard & Fox (2005, section 5.4).
-    Draws nothing: the slip is the env's own, scaled. Residual signature: the spread of the motion and bearing
-    residuals against the commanded turn rate.
+    Draws nothing: the slip is the env's own, scaled. Residual signature: the spread of the bearing residuals
+    against the commanded turn rate.
     """
 
     name = "turn_dependent_noise"

@@ -54,8 +54,7 @@ GRID_S = np.concatenate([[0.0], np.geomspace(0.1, MAX_GAIN_S, 43)])  # the M-ste
 @dataclass(frozen=True)
 class TurnDependentNoise(EffectModel):
     """The motion's noise grows with the commanded turn rate omega (rad/s): covariance x (1 + (``gain_s`` omega)^2)
-    (module docstring). Residual signature: the spread of the motion and bearing residuals against the commanded
-    turn rate."""
+    (module docstring). Residual signature: the spread of the bearing's innovations against the commanded turn rate."""
 
     gain_s: float  # s/rad
 
