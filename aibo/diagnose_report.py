@@ -51,7 +51,8 @@ def signature_panels(path: Path, before: list, after: list, named: dict[str, str
         ax.axhline(0.0, color="0.5", lw=0.8)
         ax.set_xlabel(s.variable)
         ax.set_ylabel(s.residual)
-        ax.set_title(f"adjusted p = {s.p_holm:.1g}" + (f"; the signature of {name} (named)" if name else ""), fontsize=9)
+        # on two lines with a name: one line ran into the next panel's title (e.g. distance_dependent_noise's)
+        ax.set_title(f"adjusted p = {s.p_holm:.1g}" + (f"\nthe signature of {name} (named)" if name else ""), fontsize=9)
     for ax in axes.ravel()[len(top):]:
         ax.axis("off")
     if top:
