@@ -12,6 +12,7 @@ import pytest
 from aibo_core.trajectory import blind
 from aibo_gym.catalogue import TurnDependentNoise as TwinEffect
 from aibo_gym.collect import collect
+from aibo_gym.config import default_config
 from aibo_gym.context import Motion
 from learners.arrays.batch import make_batch
 from learners.arrays.displacement import pose_displacement_beliefs as displacement_beliefs
@@ -23,11 +24,19 @@ from learners.model.turn_noise import TurnDependentNoise
 from tests.test_mrclam import DATA, needs_data
 
 GAIN = TurnDependentNoise.EXAMPLE["gain_s"]
+OPTS = EMOptions(starts=1, alias_search=False, lag_search=False)  # one start, no searches: the effect's own fit
 
 
 def _log(gain: float, seed: int, minutes: float = 5.0):
     effects = {"turn_dependent_noise": {"gain_s": gain}} if gain else {}
     return blind(collect({"noise": "aibo", "effects": effects}, int(minutes * 1800), seed=seed))
+
+
+def _fitted(tr):
+    """(the base model, the base model with the effect fitted from its start) on ``tr``."""
+    base = EMLearner(OPTS).fit([tr]).params
+    start = base.with_effect(TurnDependentNoise.start(make_batch([tr])))
+    return base, EMLearner(OPTS).fit([tr], init=start).params
 
 
 def test_the_twin_scales_the_slip_and_leaves_the_commanded_motion():
@@ -81,31 +90,23 @@ def test_em_recovers_the_gain_and_the_straight_line_noise(seed):
     """5-minute ``aibo`` logs with gain 1.5 s/rad (the AIBO's commands turn at up to 1.6 rad/s: the noise's standard
     deviation x 2.5 there): measured 1.53, 1.45 (seeds 4, 5), the heading's noise 0.0197, 0.0196 rad (truth 0.02);
     the base model without the effect takes a heading noise of 0.033."""
-    tr = _log(GAIN, seed)
-    opts = EMOptions(starts=1, alias_search=False, lag_search=False)
-    base = EMLearner(opts).fit([tr]).params
-    model = EMLearner(opts).fit([tr], init=base.with_effect(TurnDependentNoise.start(make_batch([tr])))).params
+    base, model = _fitted(_log(GAIN, seed))
     assert abs(model.effect("turn_dependent_noise").gain_s - GAIN) < 0.2 * GAIN
-    truth = 0.02  # the preset's heading slip (rad per frame)
+    truth = default_config()["slip_std"][2]  # the simulator's heading slip (rad per frame)
     assert abs(math.sqrt(model.action.cov[2, 2]) - truth) < 0.1 * truth
     assert math.sqrt(base.action.cov[2, 2]) > 1.3 * truth  # without it the straight-line noise is taken too wide
 
 
 def test_an_effect_free_log_keeps_the_gain_near_zero():
-    tr = _log(0.0, seed=4)
-    opts = EMOptions(starts=1, alias_search=False, lag_search=False)
-    base = EMLearner(opts).fit([tr]).params
-    model = EMLearner(opts).fit([tr], init=base.with_effect(TurnDependentNoise.start(make_batch([tr])))).params
+    _, model = _fitted(_log(0.0, seed=4))
     assert model.effect("turn_dependent_noise").gain_s < 0.3
 
 
 def test_its_signature_is_the_bearings_spread_against_the_commanded_turn_rate():
     """A model without the effect: "|bearing| vs commanded turn rate" at Holm-adjusted p < 1e-6 on the log with it, not
     at p < 0.01 on the effect-free log of the same seed."""
-    opts = EMOptions(starts=1, alias_search=False, lag_search=False)
-
     def p_holm(tr) -> float:
-        model = EMLearner(opts).fit([tr]).params
+        model = EMLearner(OPTS).fit([tr]).params
         (sig,) = [s for s in signatures(model, [tr]) if s.residual == "|bearing| (sigma)" and s.variable == TURN_RATE]
         return sig.p_holm
 

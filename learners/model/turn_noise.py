@@ -72,8 +72,8 @@ class TurnDependentNoise(EffectModel):
     EXAMPLE: ClassVar[dict[str, Any]] = {"gain_s": 1.5}
 
     def factor(self, lo: Lowered, batch: Batch) -> np.ndarray:
-        """(N,) the factor 1 + (gain_s omega_i)^2 on frame i's motion covariance, omega_i = ``lo.disp[i, 2]`` / dt."""
-        return 1.0 + (self.gain_s * lo.disp[:, 2] / batch.dt) ** 2
+        """(N,) the factor 1 + (gain_s omega_i)^2 on frame i's motion covariance (``commanded_turn_rate``)."""
+        return 1.0 + (self.gain_s * commanded_turn_rate(lo, batch)) ** 2
 
     def lower(self, lo: Lowered, batch: Batch) -> None:
         if self.gain_s != 0.0:
@@ -87,8 +87,8 @@ class TurnDependentNoise(EffectModel):
         r = mu - lo.disp
         E = C + r[:, :, None] * r[:, None, :]  # (N, 3, 3) expected squared residual of each frame's displacement
         m = np.einsum("ij,nji->n", np.linalg.inv(model.action.cov), E)  # tr(Sigma_A^-1 E_i)
-        c0 = lo.cov_scale / self.factor(lo, batch)  # the other effects' factors
-        omega2 = (lo.disp[:, 2] / batch.dt) ** 2
+        omega2 = commanded_turn_rate(lo, batch) ** 2
+        c0 = lo.cov_scale / (1.0 + self.gain_s ** 2 * omega2)  # the other effects' factors
 
         def neg_q(g: float) -> float:
             c = c0 * (1.0 + g * g * omega2)
@@ -104,3 +104,8 @@ class TurnDependentNoise(EffectModel):
         if res.fun <= values[k]:
             g = float(res.x)
         return model.with_effect(TurnDependentNoise(g))
+
+
+def commanded_turn_rate(lo: Lowered, batch: Batch) -> np.ndarray:
+    """(N,) omega_i (rad/s): the turn rate the model commands in frame i, ``lo.disp[i, 2]`` / dt."""
+    return lo.disp[:, 2] / batch.dt
