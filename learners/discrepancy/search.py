@@ -37,8 +37,8 @@ from aibo_core.workers import pool_map, process_pool
 from learners.arrays.batch import make_batch
 from learners.base import LearnResult
 from learners.em.estep import e_step
+from learners.em.learner import EMLearner
 from learners.em.options import DEFAULT_GATE, EMOptions
-from learners.em.start import initial_state_for
 from learners.model.effects import EFFECT_MODELS
 from learners.model.model import Model
 from learners.model.probes import PROBES
@@ -336,12 +336,14 @@ def base_fits(logs: list[Trajectory], opts: EMOptions, action_model: str | None 
     """(The base model, its refit with spurious sightings or None): EM from the paper's start on the logs' training
     halves (``fitting.fit_from_paper_start``: a fit that ends in a wrong world is refitted with ``false_sightings``,
     which the search tries from there too), each log's start-pose belief estimated from the WHOLE log's first
-    sightings (``initial_state_for``), not from its training half's: a held-out block can hold a log's whole first
-    window. MRCLAM robot 3: every sighting of its first 14 s is in block 1; the training half's first window
+    sightings (``learners.em.start.initial_state_candidates``), not from its training half's: a held-out block can
+    hold a log's whole first window. MRCLAM robot 3: every sighting of its first 14 s is in block 1; the training half's first window
     (13.8-16.7 s, three landmarks 0.35 m apart, the robot turning) put the start 5.9 m off, EM kept it (6.5 m off,
     the smoothed pose on the wrong side for 30 s) and the diagnosed model's pose error was 1042 mm (the commands'
-    679). The belief is a nuisance shared by every model compared."""
-    initial = tuple(initial_state_for(tr) for tr in logs)
+    679). The belief is a nuisance shared by every model compared. Among the whole log's candidates it is the one the
+    whole log agrees with under the commands' face value, as ``aibo learn`` chooses (``EMLearner.start_params``:
+    ``learners.em.starts.chosen_start_pose``)."""
+    initial = EMLearner(opts, check_field=False).start_params(logs, None, make_batch(logs), action_model).init
     return fit_from_paper_start([training_log(tr) for tr in logs], opts, action_model, initial)
 
 

@@ -21,8 +21,8 @@ from learners.em.fit import EMState, initial_state, options_json, run, setback_f
 from learners.em.info import FitInfo, FitTimings
 from learners.em.options import COMPARABLE_IMPROVEMENT, DEFAULT_DEGREE, EARLY_STOP, STRICT_PATIENCE, EMOptions
 from learners.em.predictive import has_mixture
-from learners.em.start import initial_state_for
-from learners.em.starts import disagreement, pruned_warning, screen
+from learners.em.start import initial_state_candidates
+from learners.em.starts import chosen_start_pose, disagreement, pruned_warning, screen
 from learners.em.support import (
     StartModelError,
     check_support,
@@ -257,8 +257,9 @@ class EMLearner:
                      action_model: str | None = None, initial: tuple[InitialState, ...] | None = None) -> Model:
         """``init`` fitted to these logs (dt, number of logs, sensor degree), or the paper's start
         (``start_model``: zero velocities, a very poor sensor line suited to the sensor kind) with
-        each log's start-pose belief ``initial`` (one per log), by default from ``initial_state_for`` (the
-        simulator's start when the log says it; for a real log, an estimate from its first sightings)."""
+        each log's start-pose belief ``initial`` (one per log), by default from ``initial_state_candidates`` (the
+        simulator's start when the log says it; for a real log, an estimate from its first sightings, the candidate the
+        whole log agrees with under the commands' face value: ``chosen_start_pose``)."""
         tr = logs[0]
         names = tuple(tr.control_names or ())
         n_commands = len(tr.attempted) if tr.discrete else None
@@ -267,8 +268,12 @@ class EMLearner:
         degree = self.options.sensor_degree(basis)
         if init is not None:
             check_model_fits(init, logs, batch)
-        start = init or start_model(batch, tr.dt, tr.sensor_kind, n_commands, names, fmap, basis,
-                                    degree).with_(init=initial or tuple(initial_state_for(t) for t in logs))
+        if init is None:
+            paper = start_model(batch, tr.dt, tr.sensor_kind, n_commands, names, fmap, basis, degree)
+            start = paper.with_(init=initial or tuple(chosen_start_pose(t, paper, initial_state_candidates(t))
+                                                      for t in logs))
+        else:
+            start = init
         if tr.discrete and start.action.discrete and len(start.action.weights) != len(tr.attempted):
             raise StartModelError(f"the start model has {len(start.action.weights)} commands, the log "
                                   f"{len(tr.attempted)}", "action_model.velocities", "attempted")
