@@ -133,7 +133,8 @@ def test_a_real_robots_bearings_ask_for_it_on_the_sightings_it_was_not_fitted_to
     does: fitted on the training half from ``aibo learn``'s model, the effect takes a gain of several s/rad and
     predicts the held-out sightings better than the same model refitted the same way without it (the search's null).
     Measured 2026-11-28: 23.1 s/rad, held-out +127 nats (robots 2, 4, 5 the same way: 20.2, 21.6, 25.8 s/rad, +155,
-    +132, +302 nats; robot 3's first 10 minutes 0.55 s/rad, +0.4, its lateral noise 24 mm); on the whole logs 17-26
+    +132, +302 nats; robot 3's first 10 minutes 19.9 s/rad, +301 since its start pose is chosen by the whole log, 0.55
+    s/rad and +0.4 from the mirror-image start before: ``learners.em.starts.chosen_start_pose``); on the whole logs 17-26
     s/rad on four robots (docs/results.md, "Motion noise that grows with the turn")."""
     from aibo_core.mrclam import import_robot
     from learners.discrepancy.score import score
