@@ -56,7 +56,8 @@ def simulate(rng, lengths, table, *, effects=False, basis=BASIS_POWER, max_per_f
              behind=0.1, seg=30, sigma=(0.8, 0.03), motion_std=(2.0, 2.0, 0.01)):
     """(batch, lowered_true, true poses (P, 3)) for logs of the given lengths.
 
-    ``effects``: random per-frame offsets / cov scales and per-sighting size scale / offset /
+    ``effects``: random per-frame offsets / cov scales, per-component noise factors (``cov_sd``: a fixed pattern, no
+    random draw) and per-sighting size scale / offset /
     variance factor / bearing offset (else the plain model). ``max_per_frame``: each frame has
     0..max_per_frame sightings (70 % of frames at least one). ``gaps[k]``: frame ranges of log k
     without sightings. ``outliers``: sightings made gross outliers per log.
@@ -70,9 +71,12 @@ def simulate(rng, lengths, table, *, effects=False, basis=BASIS_POWER, max_per_f
     s_lm, s_val = [], []
     offset = np.zeros((n_tot, 3))
     scale = np.ones(n_tot)
+    sd = np.ones((n_tot, 3))
     if effects:
         offset = rng.normal(0.0, [1.5, 1.5, 0.004], (n_tot, 3))
         scale = rng.uniform(0.5, 2.0, n_tot)
+        t = np.arange(n_tot)
+        sd = np.stack([1.2 + 0.5 * np.sin(t / 7.0), 0.8 + 0.3 * np.cos(t / 5.0), 1.3 + 0.7 * np.sin(t / 11.0)], axis=1)
     sc_list, so_list, vf_list, bo_list = [], [], [], []
     for k, n in enumerate(lengths):
         f0 = frame_start[k]
@@ -97,7 +101,7 @@ def simulate(rng, lengths, table, *, effects=False, basis=BASIS_POWER, max_per_f
                         best, best_d = c, dd
                 a = int(best)
             actions[i] = a
-            noise = rng.normal(0.0, motion_std) * math.sqrt(scale[i])
+            noise = rng.normal(0.0, motion_std) * math.sqrt(scale[i]) * sd[i]
             pose = pose + rot3(pose[2]) @ (table[a] + noise) + offset[i]
             poses[-1] = np.vstack([poses[-1], pose])
             if gap_mask[j] or rng.random() >= 0.7:
@@ -137,7 +141,8 @@ def simulate(rng, lengths, table, *, effects=False, basis=BASIS_POWER, max_per_f
                   sight_landmark=s_lm, sight_xy=np.ascontiguousarray(LANDMARKS[s_lm].reshape(-1, 2)),
                   sight_value=s_val, used=np.ones(S, bool), landmarks=LANDMARKS.copy())  # fmt: skip
     lo = Lowered(
-        disp=table[actions].copy(), offset=offset, cov=np.diag(np.square(motion_std)), cov_scale=scale, basis=basis,
+        disp=table[actions].copy(), offset=offset, cov=np.diag(np.square(motion_std)), cov_scale=scale, cov_sd=sd,
+        basis=basis,
         coef=coef, sigma_size=sigma[0], sigma_bearing=sigma[1], size_scale=np.array(sc_list, float),
         size_offset=np.array(so_list, float), size_var_factor=np.array(vf_list, float),
         bearing_offset=np.array(bo_list, float), init_mean=np.array(starts).reshape(-1, 3),
@@ -166,6 +171,7 @@ def perturbed(rng, lo: Lowered, batch: Batch, *, zero_disp=False, learned_cov=Fa
     init_mean = lo.init_mean + rng.normal(0, [50.0, 50.0, 0.05], (L, 3)) + np.outer(np.arange(L), [0, 0, 2 * np.pi])
     return Lowered(
         disp=np.ascontiguousarray(disp), offset=lo.offset.copy(), cov=cov, cov_scale=lo.cov_scale.copy(),
+        cov_sd=lo.cov_sd.copy(),
         basis=lo.basis, coef=lo.coef * (1 + 0.002 * rng.standard_normal(len(lo.coef))), sigma_size=1.0,
         sigma_bearing=0.04, size_scale=lo.size_scale.copy(), size_offset=lo.size_offset.copy(),
         size_var_factor=lo.size_var_factor.copy(), bearing_offset=lo.bearing_offset.copy(),

@@ -64,6 +64,18 @@ def _v(batch, q, h):
     return v
 
 
+def _sigma_i(lo, i):
+    """Frame i's motion covariance (robot frame): cov_scale_i D_i Sigma_A D_i, D_i = diag(cov_sd[i])."""
+    D = np.diag(lo.cov_sd[i])
+    return lo.cov_scale[i] * D @ lo.cov @ D
+
+
+def _whitened_sum(lo, cs):
+    """sum_i D_i^-1 C_i D_i^-1 / cov_scale_i of per-frame (N, 3, 3) ``cs``: what the M-step of Sigma_A averages."""
+    Di = np.stack([np.diag(1.0 / d) for d in lo.cov_sd])
+    return (Di @ cs @ Di / lo.cov_scale[:, None, None]).sum(axis=0)
+
+
 def _spec_smooth(lo, batch, gate=None):
     n, L = batch.n_frames, batch.n_logs
     P_ = n + L
@@ -80,7 +92,7 @@ def _spec_smooth(lo, batch, gate=None):
         out["mu_alpha"][ps], out["cov_alpha"][ps] = mu, P
         for i in range(f0, f1):
             g, F, R = _g(mu, lo.disp[i], lo.offset[i])
-            mu, P = g, F @ P @ F.T + lo.cov_scale[i] * R @ lo.cov @ R.T
+            mu, P = g, F @ P @ F.T + R @ _sigma_i(lo, i) @ R.T
             for q in range(ss[i], ss[i + 1]):
                 if not batch.used[q]:
                     continue
@@ -117,7 +129,7 @@ def _spec_smooth(lo, batch, gate=None):
             ma = out["mu_alpha"][p]
             g, F, R = _g(ma, lo.disp[i], lo.offset[i])
             c = g - F @ ma
-            Q = lo.cov_scale[i] * R @ lo.cov @ R.T
+            Q = R @ _sigma_i(lo, i) @ R.T
             B = np.linalg.inv(np.eye(3) + Y @ Q)
             Yt, yt = B @ Y, B @ y
             Y = F.T @ Yt @ F
@@ -133,7 +145,7 @@ def _spec_smooth(lo, batch, gate=None):
 
 
 def _spec_action(lo, batch, post):
-    """mu*_i, C*_i for d = R(-theta_p)(s_{p+1} - s_p - offset_i), prior N(disp_i, cov_scale_i Sigma)."""
+    """mu*_i, C*_i for d = R(-theta_p)(s_{p+1} - s_p - offset_i), prior N(disp_i, Sigma_i)."""
     n = batch.n_frames
     ms, cs = np.zeros((n, 3)), np.zeros((n, 3, 3))
     f2p = batch.frame_to_pose
@@ -159,7 +171,7 @@ def _spec_action(lo, batch, post):
         B = np.linalg.inv(np.eye(3) + Yp @ P1)
         Yd, yd = B @ Yp, B @ (yp + Yp @ m1)
         mh = lo.disp[i]
-        C = np.linalg.inv(np.linalg.inv(lo.cov_scale[i] * lo.cov) + Yd)
+        C = np.linalg.inv(np.linalg.inv(_sigma_i(lo, i)) + Yd)
         ms[i] = mh + C @ (yd - Yd @ mh)
         cs[i] = C
     return ms, cs
@@ -228,14 +240,14 @@ def test_synthetic_cases_cover_the_brief():
         props[name] = dict(max_per=int(per.max()), none=int((per == 0).sum()), turns=min(turns),
                            near_pi=int((np.abs(batch.sight_value[:, 1]) > 3.0).sum()),
                            gated=int((post.mahal2 > GATE).sum()), offset=float(np.abs(lo.offset).max()),
-                           scale=float(np.ptp(lo.cov_scale)), vf=float(np.ptp(lo.size_var_factor)),
+                           scale=float(np.ptp(lo.cov_scale)), sd=float(np.ptp(lo.cov_sd)), vf=float(np.ptp(lo.size_var_factor)),
                            bo=float(np.abs(lo.bearing_offset).max()), basis=lo.basis)  # fmt: skip
     assert props["multi"]["max_per"] == 1 and props["multi"]["offset"] == 0 and props["multi"]["scale"] == 0
     for name in ("several", "effects"):
         assert props[name]["max_per"] == 3, props[name]
     for name in ("effects", "inverse"):
         p = props[name]
-        assert p["offset"] > 0 and p["scale"] > 0.5 and p["vf"] > 1 and p["bo"] > 0.05, p
+        assert p["offset"] > 0 and p["scale"] > 0.5 and p["sd"] > 1 and p["vf"] > 1 and p["bo"] > 0.05, p
     assert props["inverse"]["basis"] == 1
     for name, p in props.items():
         assert p["none"] > 100 and p["gated"] >= 3, (name, p)
@@ -311,6 +323,7 @@ def test_gating_and_effects_change_the_answer():
     _compare_posteriors(pruned, _as_dict(gated, keep=~(gated.mahal2 > GATE)))
     # each lowered array is read: plain values instead change the posterior and the likelihood
     for field, plain in (("offset", np.zeros_like(lo.offset)), ("cov_scale", np.ones_like(lo.cov_scale)),
+                         ("cov_sd", np.ones_like(lo.cov_sd)),
                          ("size_scale", np.ones_like(lo.size_scale)), ("size_offset", np.zeros_like(lo.size_offset)),
                          ("size_var_factor", np.ones_like(lo.size_var_factor)),
                          ("bearing_offset", np.zeros_like(lo.bearing_offset))):  # fmt: skip
@@ -384,7 +397,7 @@ def test_action_statistics_match_spec_and_reference(name):
     post = smooth_compiled(lo, batch, GATE)
     spec_post = {k: getattr(post, k) for k in ("mu_alpha", "cov_alpha", "mu_gamma", "info_delta", "vec_delta")}
     ms_spec, cs_spec = _spec_action(lo, batch, spec_post)
-    C_spec = (cs_spec / lo.cov_scale[:, None, None]).sum(axis=0)
+    C_spec = _whitened_sum(lo, cs_spec)
     ms_ref, C_ref = action_stats.action_statistics(lo, batch, post, True)
     ms_got, C_got = action_statistics_compiled(lo, batch, post, True)
     _close_vec("mu_star ref", ms_ref, ms_spec)
@@ -397,11 +410,11 @@ def test_action_statistics_match_spec_and_reference(name):
     # residual covariance, NumPy vs compiled
     rng = np.random.default_rng(0)
     pred = ms_got + rng.normal(0, 1.0, ms_got.shape) * [1, 1, 0.01]
-    R_ref = action_stats.residual_cov(ms_got, pred, lo.cov_scale)
-    R_got = residual_cov_compiled(ms_got, pred, lo.cov_scale)
+    R_ref = action_stats.residual_cov(ms_got, pred, lo.cov_scale, lo.cov_sd)
+    R_got = residual_cov_compiled(ms_got, pred, lo.cov_scale, lo.cov_sd)
     _close_mat("residual cov", R_got[None], R_ref[None])
     r = ms_got - pred
-    np.testing.assert_allclose(R_ref, np.einsum("ni,nj,n->ij", r, r, 1.0 / lo.cov_scale), rtol=1e-12)
+    np.testing.assert_allclose(R_ref, _whitened_sum(lo, r[:, :, None] * r[:, None, :]), rtol=1e-12)
 
 
 def test_residual_cov_sums_in_frame_order():

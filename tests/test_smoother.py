@@ -299,7 +299,7 @@ def _log_slice(batch, lo, k):
     b = replace(batch, frame_start=np.array([0, f1 - f0]), actions=batch.actions[f0:f1],
                 sight_start=batch.sight_start[f0:f1 + 1] - s0, sight_landmark=batch.sight_landmark[s0:s1],
                 sight_xy=batch.sight_xy[s0:s1], sight_value=batch.sight_value[s0:s1], used=batch.used[s0:s1])  # fmt: skip
-    lk = replace(lo, disp=lo.disp[f0:f1], offset=lo.offset[f0:f1], cov_scale=lo.cov_scale[f0:f1],
+    lk = replace(lo, disp=lo.disp[f0:f1], offset=lo.offset[f0:f1], cov_scale=lo.cov_scale[f0:f1], cov_sd=lo.cov_sd[f0:f1],
                  size_scale=lo.size_scale[s0:s1], size_offset=lo.size_offset[s0:s1],
                  size_var_factor=lo.size_var_factor[s0:s1], bearing_offset=lo.bearing_offset[s0:s1],
                  init_mean=lo.init_mean[k:k + 1], init_cov=lo.init_cov[k:k + 1])  # fmt: skip

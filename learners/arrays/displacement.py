@@ -29,13 +29,12 @@ def displacement_beliefs(lo: Lowered, batch: Batch, post: Posterior) -> tuple[np
 
 def pose_displacement_beliefs(lo: Lowered, batch: Batch, post: Posterior) -> tuple[np.ndarray, np.ndarray]:
     """(mu*_i (N, 3), C*_i (N, 3, 3)): each frame's belief of its displacement (net of the offset) under its prior
-    N(disp_i, cov_scale_i Sigma_A) and the E-step's information on its poses (module docstring); an effect on the
+    N(disp_i, Sigma_i) (``Lowered.frame_cov``) and the E-step's information on its poses (module docstring); an effect on the
     motion noise (``turn_dependent_noise``) takes its expected second moments from them."""
     p = batch.frame_to_pose
     mu_hat = np.asarray(lo.disp, dtype=float)  # (N, 3)
     off = np.asarray(lo.offset, dtype=float)
-    scale = np.asarray(lo.cov_scale, dtype=float)
-    sig_inv = np.linalg.inv(np.asarray(lo.cov, dtype=float))
+    prior = lo.whitened(np.broadcast_to(np.linalg.inv(np.asarray(lo.cov, dtype=float)), (len(mu_hat), 3, 3)))
     eye = np.eye(3)
 
     L1, L2, m = geometry.rel_disp_jac(post.mu_gamma[p], post.mu_gamma[p + 1] - off)
@@ -50,7 +49,7 @@ def pose_displacement_beliefs(lo: Lowered, batch: Batch, post: Posterior) -> tup
     Yd = _symmetric(X[:, :, :3])
     yd = X[:, :, 3]
 
-    C_star = _symmetric(np.linalg.inv(sig_inv / scale[:, None, None] + Yd))
+    C_star = _symmetric(np.linalg.inv(prior + Yd))  # prior: Sigma_i^-1
     mu_star = mu_hat + _mv(C_star, yd - _mv(Yd, mu_hat))
     if not (np.isfinite(mu_star).all() and np.isfinite(C_star).all()):
         bad = int(np.flatnonzero(~np.isfinite(mu_star).all(axis=1) | ~np.isfinite(C_star).all(axis=(1, 2)))[0])
@@ -91,7 +90,7 @@ def augmented_displacement_beliefs(lo: Lowered, batch: Batch, post: Posterior) -
     MT = np.swapaxes(M, 1, 2)
     J += MT @ Y @ M
     h += _mv(MT, y - _mv(Y, c))
-    prior = inv(np.asarray(lo.cov, dtype=float))[None] / np.asarray(lo.cov_scale, dtype=float)[:, None, None]
+    prior = lo.whitened(np.broadcast_to(inv(np.asarray(lo.cov, dtype=float)), (N, 3, 3)))  # Sigma_i^-1
     J[:, n:n + 3, n:n + 3] += prior
     h[:, n:n + 3] += _mv(prior, lo.disp)
     rhs = np.zeros((N, D, 4))

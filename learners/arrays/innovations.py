@@ -75,7 +75,8 @@ def pose_prediction(lo: "Lowered", batch: "Batch", post: "Posterior", frame: np.
     mean displacement (EKF linearization), its world offset, and its motion noise."""
     p = batch.frame_to_pose[frame]
     g, F, R3 = geometry.motion(post.mu_alpha[p], lo.disp[frame])
-    P = F @ post.cov_alpha[p] @ np.swapaxes(F, 1, 2) + lo.cov_scale[frame, None, None] * (R3 @ lo.cov @ np.swapaxes(R3, 1, 2))
+    P = F @ post.cov_alpha[p] @ np.swapaxes(F, 1, 2) + lo.cov_scale[frame, None, None] * (
+        R3 @ lo.shaped_cov(frame) @ np.swapaxes(R3, 1, 2))
     return g + lo.offset[frame], P
 
 

@@ -5,7 +5,10 @@ compiled) and the M-step statistics read only these, so a new effect or a contin
 touches a kernel. Units: displacements per frame (mm, mm, rad); sizes in the log's unit (px or mm).
 
 Motion of frame i (pose s -> s'):   s' = s + R(theta) disp[i] + offset[i] + w,
-                                    w ~ N(0, cov_scale[i] R(theta) cov R(theta)^T).
+                                    w ~ N(0, R(theta) Sigma_i R(theta)^T),
+                                    Sigma_i = cov_scale[i] D_i cov D_i, D_i = diag(cov_sd[i])
+(``Lowered.frame_cov``: one factor on the whole covariance, and one per component on its standard deviations:
+forward, lateral, heading).
 Sighting j (of the end pose s'):    size    = size_scale[j] f(d) + size_offset[j] + e1,
                                     bearing = wrap(atan2(dy, dx) - theta + bearing_offset[j]) + e2,
     e1 ~ N(0, sigma_size^2 size_var_factor[j]), e2 ~ N(0, sigma_bearing^2 bearing_var_factor[j]), d the distance (mm) to
@@ -69,10 +72,42 @@ class Lowered:
     #: none. Their displacement
     #: does not depend on what moves the robot outwards, so an M-step that estimates such a motion leaves them out.
     blocked: np.ndarray | None = None
+    #: (N, 3) per-frame factors on the motion noise's standard deviations (forward, lateral, heading; module
+    #: docstring), None: ones, filled in
+    cov_sd: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.bearing_var_factor is None:
             self.bearing_var_factor = _constant((len(self.size_var_factor),), 1.0)
+        if self.cov_sd is None:
+            self.cov_sd = _constant((len(self.disp), 3), 1.0)
+
+    def shaped_cov(self, frames=None) -> np.ndarray:
+        """(n, 3, 3) D_i cov D_i of ``frames`` (an index array or a slice; default every frame): each frame's motion
+        covariance in the robot frame before its ``cov_scale`` (mm^2, mm^2, rad^2; module docstring). Unit factors
+        give ``cov`` exactly."""
+        d = np.asarray(self.cov_sd, dtype=float)[slice(None) if frames is None else frames]
+        return d[:, :, None] * np.asarray(self.cov, dtype=float)[None] * d[:, None, :]
+
+    def frame_cov(self, frames=None) -> np.ndarray:
+        """(n, 3, 3) Sigma_i = cov_scale[i] D_i cov D_i of ``frames`` (default every frame): each frame's motion
+        covariance in the robot frame (mm^2, mm^2, rad^2; module docstring)."""
+        c = np.asarray(self.cov_scale, dtype=float)[slice(None) if frames is None else frames]
+        return c[:, None, None] * self.shaped_cov(frames)
+
+    def whiten(self, v: np.ndarray, frames=None) -> np.ndarray:
+        """(n, 3) D_i^-1 v_i of per-frame robot-frame vectors ``v`` (n, 3) of ``frames`` (default every frame): a
+        displacement residual in the units of cov's standard deviations, before cov_scale."""
+        return v / np.asarray(self.cov_sd, dtype=float)[slice(None) if frames is None else frames]
+
+    def whitened(self, m: np.ndarray, frames=None) -> np.ndarray:
+        """(n, 3, 3) D_i^-1 m_i D_i^-1 / cov_scale[i] of per-frame second moments ``m`` (n, 3, 3) of ``frames``
+        (default every frame): in the units of cov, what the M-step of Sigma_A averages. Unit factors give m /
+        cov_scale exactly."""
+        frames = slice(None) if frames is None else frames
+        d = np.asarray(self.cov_sd, dtype=float)[frames]
+        c = np.asarray(self.cov_scale, dtype=float)[frames]
+        return m / c[:, None, None] / (d[:, :, None] * d[:, None, :])
 
     @staticmethod
     def plain(disp: np.ndarray, cov: np.ndarray, basis: int, coef: np.ndarray, sigma_size: float,

@@ -158,7 +158,7 @@ def motion_residuals(model: Model, batch: Batch, post: Posterior, field: np.ndar
     lo = model.lower(batch)
     p = batch.frame_to_pose
     s0, s1 = post.mu_gamma[p], post.mu_gamma[p + 1]
-    r = (rel_disp(s0, s1 - lo.offset) - lo.disp) / np.sqrt(np.diag(lo.cov)[None, :] * lo.cov_scale[:, None])
+    r = lo.whiten(rel_disp(s0, s1 - lo.offset) - lo.disp) / np.sqrt(np.diag(lo.cov)[None, :] * lo.cov_scale[:, None])
     if batch.actions is not None:
         count = np.maximum(np.bincount(batch.actions), 1)
         r = r - np.stack([np.bincount(batch.actions, weights=r[:, k]) / count for k in range(3)], axis=1)[batch.actions]

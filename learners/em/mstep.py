@@ -112,9 +112,9 @@ def _action_update(model: Model, batch: Batch, post: Posterior, opts: "EMOptions
     if opts.learn_motion_noise and len(mu_star):
         inv_n = 1.0 / len(mu_star)
         if fused:
-            R = table_residual_cov_compiled(commands, mu_star, weights, lo.cov_scale)
+            R = table_residual_cov_compiled(commands, mu_star, weights, lo.cov_scale, lo.cov_sd)
         else:
             pred = action.displacements(commands)
-            R = resid_cov(mu_star, pred if scale is None else pred * scale, lo.cov_scale)
+            R = resid_cov(mu_star, pred if scale is None else pred * scale, lo.cov_scale, lo.cov_sd)
         action = action.with_values(cov=_sym(C_sum * inv_n + R * inv_n))
     return action, mu_star

@@ -66,7 +66,7 @@ def augmented_model(lo: Lowered, batch: Batch, k: int):
     obs_start = batch.sight_start[f0 : f1 + 1] - s0
     disp, offset, scale = lo.disp[f0:f1], lo.offset[f0:f1], lo.cov_scale[f0:f1]
     phi, q = ex.phi[f0:f1], ex.q[f0:f1]
-    sigA = np.asarray(lo.cov, dtype=float)
+    sigA = lo.shaped_cov(slice(f0, f1))  # (n, 3, 3) D_i Sigma_A D_i
     gidx = np.arange(s0, s0 + int(obs_start[-1]))
     xy, z, used = batch.sight_xy[gidx], batch.sight_value[gidx], batch.used[gidx]
 
@@ -76,7 +76,7 @@ def augmented_model(lo: Lowered, batch: Batch, k: int):
         F[:3, :3] = F3
         F[3:, 3:] = np.diag(phi[i])
         Q = np.zeros((n, n))
-        Q[:3, :3] = scale[i] * (R3 @ sigA @ R3.T)
+        Q[:3, :3] = scale[i] * (R3 @ sigA[i] @ R3.T)
         Q[3:, 3:] = np.diag(q[i])
         return np.concatenate([g3 + offset[i], phi[i] * mean[3:]]), F, Q
 
@@ -146,17 +146,17 @@ def displacement_statistics(lo: Lowered, batch: Batch, post: Posterior, need_cov
     formula on the whole state; docs/em-math.md, "Extra states"): the posterior of the robot-frame
     displacement net of the offset, d = d_0(s_p, s_{p+1} - offset_i), linearized at the smoothed means, from
 
-        alpha_p(x_p)  x  N(b_{p+1}; phi b_p, q)  x  delta_i(x_{p+1})  x  N(d; disp_i, cov_scale_i Sigma_A),
+        alpha_p(x_p)  x  N(b_{p+1}; phi b_p, q)  x  delta_i(x_{p+1})  x  N(d; disp_i, Sigma_i),
 
     delta_i the information of frame i's and later sightings on its end state, read off the smoother as
     (C_{p+1}^-1 - (P-)^-1, C_{p+1}^-1 m_{p+1} - (P-)^-1 g). (d_0 of the smoothed means themselves is NOT
     it: the smoothed path inherits the forward filter's linearization of the motion at the filtered
     heading, and EM on it lowered the likelihood by ~1 nat per iteration.) Returns mu_star (N, 3) and,
-    if ``need_cov``, sum_i C*_i / cov_scale_i."""
+    if ``need_cov``, sum_i D_i^-1 C*_i D_i^-1 / cov_scale_i (``Lowered.whitened``)."""
     mu_star, C = augmented_displacement_beliefs(lo, batch, post)
     if not need_cov:
         return mu_star, None
-    return mu_star, (C / np.asarray(lo.cov_scale, dtype=float)[:, None, None]).sum(axis=0)
+    return mu_star, lo.whitened(C).sum(axis=0)
 
 
 def _mv(A: np.ndarray, v: np.ndarray) -> np.ndarray:

@@ -81,7 +81,6 @@ def _propagate(lo: Lowered, idx: np.ndarray, f0: np.ndarray, k_frames: int, m: n
     """Run the beliefs (m, P) of ``joint_belief`` through frames f0 .. f0 + k_frames - 1, open loop."""
     if moments not in ("exact", "linear"):
         raise ValueError(f"moments {moments!r}: 'exact' or 'linear'")
-    sig = np.asarray(lo.cov, dtype=float)
     slot = lo.extra.slot[idx] if lo.extra is not None else np.full(len(idx), -1)
     has = slot >= 0
     s = np.maximum(slot, 0)
@@ -90,7 +89,7 @@ def _propagate(lo: Lowered, idx: np.ndarray, f0: np.ndarray, k_frames: int, m: n
     for step in range(k_frames):
         fr = f0 + step
         g, F, R3 = geometry.motion(m[:, :3], lo.disp[fr])
-        Q4[:, :3, :3] = lo.cov_scale[fr, None, None] * (R3 @ sig @ np.swapaxes(R3, 1, 2))
+        Q4[:, :3, :3] = lo.cov_scale[fr, None, None] * (R3 @ lo.shaped_cov(fr) @ np.swapaxes(R3, 1, 2))
         if moments == "exact":
             m, P = _motion_moments(m, P, lo.disp[fr])
         else:

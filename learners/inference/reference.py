@@ -310,7 +310,7 @@ def aibo_model(lo: Lowered, batch: Batch, k: int):
     """The lowered aibo model of log k as (obs_start, motion, observe, obs_info) for
     ``two_filter_smooth`` (frame and observation indices local to the log).
 
-    Motion of frame i: g(s) = s + R(theta) disp[i] + offset[i], Q = cov_scale[i] R Sigma_A R^T.
+    Motion of frame i: g(s) = s + R(theta) disp[i] + offset[i], Q = cov_scale[i] R D_i Sigma_A D_i R^T.
     """
     f0, f1 = int(batch.frame_start[k]), int(batch.frame_start[k + 1])
     s0 = int(batch.sight_start[f0])
@@ -318,7 +318,7 @@ def aibo_model(lo: Lowered, batch: Batch, k: int):
     disp = lo.disp[f0:f1]
     offset = lo.offset[f0:f1]
     scale = lo.cov_scale[f0:f1]
-    sigA = np.asarray(lo.cov, dtype=float)
+    sigA = lo.shaped_cov(slice(f0, f1))  # (n, 3, 3) D_i Sigma_A D_i
     n_s = int(obs_start[-1])
     gidx = np.arange(s0, s0 + n_s)  # global sighting indices
     xy = batch.sight_xy[gidx]
@@ -327,7 +327,7 @@ def aibo_model(lo: Lowered, batch: Batch, k: int):
 
     def motion(i, mean):
         g, F, R3 = geometry.motion(mean, disp[i])
-        return g + offset[i], F, scale[i] * (R3 @ sigA @ R3.T)
+        return g + offset[i], F, scale[i] * (R3 @ sigA[i] @ R3.T)
 
     def observe(j, mean):
         if not used[j]:

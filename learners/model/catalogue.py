@@ -101,7 +101,8 @@ class FloorDrift(EffectModel):
         e = np.stack([c * r[:, 0] - s * r[:, 1], s * r[:, 0] + c * r[:, 1]], axis=1) + lo.offset[:, :2]
         Wr = np.linalg.inv(np.asarray(model.action.cov)[:2, :2])  # robot-frame information
         R = np.stack([np.stack([c, -s], 1), np.stack([s, c], 1)], 1)  # (N, 2, 2)
-        W = R @ Wr @ np.swapaxes(R, 1, 2) / lo.cov_scale[:, None, None]
+        d = np.asarray(lo.cov_sd, dtype=float)[:, :2]  # each frame's factors on the xy standard deviations
+        W = R @ (Wr[None] / (d[:, :, None] * d[:, None, :])) @ np.swapaxes(R, 1, 2) / lo.cov_scale[:, None, None]
         if lo.blocked is not None:
             W = W * ~lo.blocked[:, None, None]
         drift = np.linalg.solve(W.sum(axis=0), np.einsum("nij,nj->i", W, e)) / batch.dt
@@ -243,26 +244,27 @@ class ResponseTime(EffectModel):
         return out
 
     def maximize(self, model: "Model", batch: Batch, post: Posterior, mu_star: np.ndarray) -> "Model":
-        """Given the action model: the tau_s minimizing sum_i (mu*_i - d_i(tau))' (s_i Sigma)^-1 (mu*_i - d_i(tau)),
+        """Given the action model: the tau_s minimizing sum_i (mu*_i - d_i(tau))' Sigma_i^-1 (mu*_i - d_i(tau)),
         d_i the frame's mean displacement with the commands low-passed (and every other effect's transform and
-        scale), s_i the frame's covariance scale: the expected complete-data likelihood's only term in tau_s. Over
+        scale), Sigma_i the frame's motion covariance: the expected complete-data likelihood's only term in tau_s. Over
         ``RESPONSE_GRID``, then Brent's method between the best value's neighbours."""
         from scipy.optimize import minimize_scalar  # here, not at import
 
         Wi = np.linalg.inv(np.asarray(model.action.cov))
-        w = 1.0 / model.lower(batch).cov_scale
+        lo = model.lower(batch)
+        w = 1.0 / lo.cov_scale
 
         def cost(tau: float) -> float:
             commands, scale = model.with_effect(ResponseTime(float(tau))).effective_commands(batch)
             d = model.action.displacements(commands)
-            r = mu_star - (d if scale is None else d * scale)
+            r = lo.whiten(mu_star - (d if scale is None else d * scale))
             return float(np.sum(w * np.einsum("ij,jk,ik->i", r, Wi, r)))
 
         grid = RESPONSE_GRID
         costs = [cost(t) for t in grid]
         k = int(np.argmin(costs))
-        lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
-        found = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 1e-4})
+        left, right = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
+        found = minimize_scalar(cost, bounds=(left, right), method="bounded", options={"xatol": 1e-4})
         best = float(found.x) if found.fun < costs[k] else float(grid[k])
         return model.with_effect(ResponseTime(best))
 

@@ -370,14 +370,14 @@ class WallSlowdown(EffectModel):
 
     def maximize(self, model: "Model", batch: Batch, post: Posterior, mu_star: np.ndarray) -> "Model":
         """As ``velocity_fade``'s: mu*_i ~ f p_i on the near frames (p_i the displacement without this factor),
-        f = sum p' W mu* / sum p' W p (W = Sigma_A^-1 / cov_scale), clipped to the domain."""
+        f = sum p' W mu* / sum p' W p (W = Sigma_i^-1: ``Lowered.frame_cov``), clipped to the domain."""
         if self.near is None or self.key != _frame_key(batch) or not self.near.any():
             return model
         lo = model.lower(batch)
         scale = self.disp_scale(batch)
         rows = np.flatnonzero(self.near)
         p = lo.disp[rows] / (1.0 if scale is None else scale[rows, None])
-        pw = (p @ np.linalg.inv(np.asarray(model.action.cov))) / lo.cov_scale[rows, None]
+        pw = lo.whiten(lo.whiten(p, rows) @ np.linalg.inv(np.asarray(model.action.cov)), rows) / lo.cov_scale[rows, None]
         den = float(np.sum(pw * p))
         if den <= 0:
             return model

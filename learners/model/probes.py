@@ -90,7 +90,7 @@ class SpeedProbe(EffectModel):
     def maximize(self, model: "Model", batch: Batch, post: Posterior, mu_star: np.ndarray) -> "Model":
         """Generalized least squares given the rest of the model: mu*_i - p_i ~ (phi_i . coef) q_i, with p_i the
         displacement without this factor and q_i = (p_x, p_y, 0) its part the factor scales; with
-        W_i = Sigma_A^-1 / cov_scale_i, a_i = q_i' W_i q_i and b_i = q_i' W_i (mu*_i - p_i):
+        W_i = Sigma_i^-1 (``Lowered.frame_cov``), a_i = q_i' W_i q_i and b_i = q_i' W_i (mu*_i - p_i):
         coef = (sum a_i phi_i phi_i')^-1 sum b_i phi_i."""
         if self.basis is None or self.key != _frame_key(batch):
             return model
@@ -98,7 +98,7 @@ class SpeedProbe(EffectModel):
         f = self._factor(batch)
         p = lo.disp if f is None else lo.disp / np.stack([f, f, np.ones_like(f)], axis=1)
         q = p * np.array([1.0, 1.0, 0.0])
-        qw = (q @ np.linalg.inv(np.asarray(model.action.cov))) / lo.cov_scale[:, None]
+        qw = lo.whiten(lo.whiten(q) @ np.linalg.inv(np.asarray(model.action.cov))) / lo.cov_scale[:, None]  # W_i q_i
         a = np.einsum("ij,ij->i", qw, q)
         b = np.einsum("ij,ij->i", qw, mu_star - p)
         lhs = np.einsum("i,ik,il->kl", a, self.basis, self.basis)

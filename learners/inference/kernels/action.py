@@ -4,12 +4,13 @@ and ``_table_residual_kernel`` (``residual_cov_compiled``, ``table_residual_cov_
 Units: mm, mm, rad per frame.
 
 The mu*_i, C*_i of ``action_stats.action_statistics``, rearranged so that each frame needs ONE 3x3
-inverse and C*_i is never formed. With Sigma_i = cov_scale_i Sigma_A, B = (I + Y'P1)^-1,
+inverse and C*_i is never formed. With Sigma_i = cov_scale_i D_i Sigma_A D_i, B = (I + Y'P1)^-1,
 Y_d = B Y', y_d = B (y' + Y' m1):
     I + Y_d Sigma_i = B (I + Y' (P1 + Sigma_i))  =>  with K = (I + Y' (P1 + Sigma_i))^-1:
     C*_i = (Sigma_i^-1 + Y_d)^-1 = Sigma_i K (I + Y' P1),
     mu*_i = mu_hat + Sigma_i K (y' + Y' (m1 - mu_hat)).
-So C*_i / cov_scale_i = Sigma_A K (I + Y'P1) and sum_i C*_i / cov_scale_i = Sigma_A sum_i K_i (I + Y'_i P1_i).
+So D_i^-1 C*_i D_i^-1 / cov_scale_i = Sigma_A D_i K (I + Y'P1) D_i^-1, and the M-step's sum of them is Sigma_A times
+sum_i D_i K_i (I + Y'_i P1_i) D_i^-1.
 """
 
 from __future__ import annotations
@@ -61,16 +62,16 @@ def _rot_sandwich(c, s, A):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _action_stats_kernel(frame_start, disp, offset, cov_scale, sig_a, mu_alpha, cov_alpha, mu_gamma, info_delta,
+def _action_stats_kernel(frame_start, disp, offset, cov_scale, cov_sd, sig_a, mu_alpha, cov_alpha, mu_gamma, info_delta,
                          vec_delta, need_cov, mu_star, cov_out, cos_th, sin_th):  # fmt: skip
-    """Fills mu_star (N, 3) and (if need_cov) cov_out (3, 3) = sum_i C*_i / cov_scale_i.
+    """Fills mu_star (N, 3) and (if need_cov) cov_out (3, 3) = sum_i D_i^-1 C*_i D_i^-1 / cov_scale_i.
     Returns (status, log index, frame index within the log).
 
     Evaluated in the world frame: with R = R3(theta_p) = L2^T and J = L2^T L1 = -(I with
     J[0,2] = -dy, J[1,2] = dx) (dx, dy = smoothed end minus offset minus start position),
-    K = L2 Kw L2^T, Kw = (I + Y_delta (J P_alpha J^T + cov_scale R Sigma R^T))^-1, and
-    mu*_i = mu_hat + cov_scale Sigma L2 Kw (y_delta + Y_delta (J (mu_alpha - g0) - g0 - offset - R mu_hat)),
-    C*_i / cov_scale = Sigma L2 Kw (I + Y_delta J P_alpha J^T) L2^T.
+    K = L2 Kw L2^T, Kw = (I + Y_delta (J P_alpha J^T + cov_scale R D Sigma D R^T))^-1, and
+    mu*_i = mu_hat + cov_scale D Sigma D L2 Kw (y_delta + Y_delta (J (mu_alpha - g0) - g0 - offset - R mu_hat)),
+    D^-1 C*_i D^-1 / cov_scale = Sigma D L2 Kw (I + Y_delta J P_alpha J^T) L2^T D^-1.
     """
     Sig = _ld33(sig_a.reshape(1, 3, 3), 0)
     _, det = _inv(Sig)
@@ -93,8 +94,11 @@ def _action_stats_kernel(frame_start, disp, offset, cov_scale, sig_a, mu_alpha, 
             dy = mu_gamma[p + 1, 1] - g0[1] - o[1]
             mh = _ld3(disp, i)
             w_i = cov_scale[i]
+            d0, d1, d2 = cov_sd[i, 0], cov_sd[i, 1], cov_sd[i, 2]
+            SigD = (d0 * d0 * Sig[0], d0 * d1 * Sig[1], d0 * d2 * Sig[2], d1 * d0 * Sig[3], d1 * d1 * Sig[4],
+                    d1 * d2 * Sig[5], d2 * d0 * Sig[6], d2 * d1 * Sig[7], d2 * d2 * Sig[8])  # D Sigma D
             P1w = _fpft(_ld33(cov_alpha, p), -dy, dx)  # J P_alpha J^T
-            Q = _rot_sandwich(c, s, Sig)
+            Q = _rot_sandwich(c, s, SigD)
             Mw = _add(P1w, (w_i * Q[0], w_i * Q[1], w_i * Q[2], w_i * Q[3], w_i * Q[4], w_i * Q[5], w_i * Q[6],
                             w_i * Q[7], w_i * Q[8]))  # fmt: skip
             Y = _ld33(info_delta, i)
@@ -109,7 +113,7 @@ def _action_stats_kernel(frame_start, disp, offset, cov_scale, sig_a, mu_alpha, 
             Yw = _mv(Y, w)
             v = _mv(Kw, (vec_delta[i, 0] + Yw[0], vec_delta[i, 1] + Yw[1], vec_delta[i, 2] + Yw[2]))
             v = (c * v[0] + s * v[1], -s * v[0] + c * v[1], v[2])  # L2 v
-            q = _mv(Sig, v)
+            q = _mv(SigD, v)
             ms = (mh[0] + w_i * q[0], mh[1] + w_i * q[1], mh[2] + w_i * q[2])
             _st3(mu_star, i, ms)
             if not (_fin3(ms) and _fin33(Kw)):
@@ -117,7 +121,9 @@ def _action_stats_kernel(frame_start, disp, offset, cov_scale, sig_a, mu_alpha, 
             if need_cov:
                 YP = _mm(Y, P1w)
                 Aw = _mm(Kw, (1.0 + YP[0], YP[1], YP[2], YP[3], 1.0 + YP[4], YP[5], YP[6], YP[7], 1.0 + YP[8]))
-                Asum = _add(Asum, _rot_sandwich(c, -s, Aw))  # L2 Aw L2^T
+                M = _rot_sandwich(c, -s, Aw)  # L2 Aw L2^T, then D M D^-1
+                Asum = _add(Asum, (M[0], d0 * M[1] / d1, d0 * M[2] / d2, d1 * M[3] / d0, M[4], d1 * M[5] / d2,
+                                   d2 * M[6] / d0, d2 * M[7] / d1, M[8]))  # fmt: skip
     if need_cov:
         C = _mm(Sig, Asum)
         for t in range(9):
@@ -140,18 +146,21 @@ def action_statistics_compiled(lo: Lowered, batch: Batch, post: Posterior, need_
     _cos_sin_all(mu_gamma[:, 2], cos_th, sin_th)
     status, k, j = _action_stats_kernel(
         np.ascontiguousarray(batch.frame_start, dtype=np.int64), _f64(lo.disp, (n, 3)), _f64(lo.offset, (n, 3)),
-        _f64(lo.cov_scale, (n,)), _f64(lo.cov, (3, 3)), _f64(post.mu_alpha), _f64(post.cov_alpha), mu_gamma,
+        _f64(lo.cov_scale, (n,)), _f64(lo.cov_sd, (n, 3)), _f64(lo.cov, (3, 3)), _f64(post.mu_alpha), _f64(post.cov_alpha), mu_gamma,
         _f64(post.info_delta), _f64(post.vec_delta), bool(need_cov), mu_star, cov, cos_th, sin_th,
     )  # fmt: skip
     _raise(status, k, j, batch)
     return mu_star, (cov if need_cov else None)
 
 
-def residual_cov_compiled(mu_star: np.ndarray, pred: np.ndarray, cov_scale: np.ndarray) -> np.ndarray:
-    """Compiled twin of ``action_stats.residual_cov``: sum_i (mu*_i - pred_i)(...)^T / cov_scale_i (3, 3),
-    summed in frame order like the table-indexed kernel's pass 2 (bit-identical with unit scales)."""
+def residual_cov_compiled(mu_star: np.ndarray, pred: np.ndarray, cov_scale: np.ndarray,
+                          cov_sd: np.ndarray | None = None) -> np.ndarray:
+    """Compiled twin of ``action_stats.residual_cov``: sum_i D_i^-1 r_i r_i^T D_i^-1 / cov_scale_i (3, 3), r_i = mu*_i -
+    pred_i, D_i = diag(cov_sd[i]) (None: ones), summed in frame order like the table-indexed kernel's pass 2
+    (bit-identical with unit scales)."""
     n = len(mu_star)
-    return table_residual_cov_compiled(np.arange(n), mu_star, _f64(pred, (n, 3)), cov_scale)  # row i predicts frame i
+    return table_residual_cov_compiled(np.arange(n), mu_star, _f64(pred, (n, 3)), cov_scale,
+                                       cov_sd)  # row i predicts frame i
 
 
 # ----------------------------------------------------------------------------------------------
@@ -185,15 +194,16 @@ def table_means_compiled(commands: np.ndarray, mu_star: np.ndarray, old: np.ndar
 
 
 @njit(cache=True, nogil=True)
-def _table_residual_kernel(commands, mu_star, weights, cov_scale):
-    """sum_i r_i r_i^T / cov_scale_i, r_i = mu_star_i - weights[commands_i], in frame order (upper triangle)."""
+def _table_residual_kernel(commands, mu_star, weights, cov_scale, cov_sd):
+    """sum_i r_i r_i^T / cov_scale_i, r_i = D_i^-1 (mu_star_i - weights[commands_i]), in frame order (upper
+    triangle)."""
     r00 = r01 = r02 = r11 = r12 = r22 = 0.0
     for i in range(mu_star.shape[0]):
         a = commands[i]
         iw = 1.0 / cov_scale[i]
-        r0 = mu_star[i, 0] - weights[a, 0]
-        r1 = mu_star[i, 1] - weights[a, 1]
-        r2 = mu_star[i, 2] - weights[a, 2]
+        r0 = (mu_star[i, 0] - weights[a, 0]) / cov_sd[i, 0]
+        r1 = (mu_star[i, 1] - weights[a, 1]) / cov_sd[i, 1]
+        r2 = (mu_star[i, 2] - weights[a, 2]) / cov_sd[i, 2]
         r00 += r0 * r0 * iw
         r01 += r0 * r1 * iw
         r02 += r0 * r2 * iw
@@ -204,9 +214,11 @@ def _table_residual_kernel(commands, mu_star, weights, cov_scale):
 
 
 def table_residual_cov_compiled(commands: np.ndarray, mu_star: np.ndarray, weights: np.ndarray,
-                                cov_scale: np.ndarray) -> np.ndarray:
-    """``residual_cov_compiled(mu_star, weights[commands], cov_scale)`` without forming the predictions."""
+                                cov_scale: np.ndarray, cov_sd: np.ndarray | None = None) -> np.ndarray:
+    """``residual_cov_compiled(mu_star, weights[commands], cov_scale, cov_sd)`` without forming the predictions."""
     n = len(mu_star)
+    sd = np.ones((n, 3)) if cov_sd is None else _f64(cov_sd, (n, 3))
     r00, r01, r02, r11, r12, r22 = _table_residual_kernel(np.ascontiguousarray(commands, dtype=np.int64),
-                                                          _f64(mu_star, (n, 3)), _f64(weights), _f64(cov_scale, (n,)))
+                                                          _f64(mu_star, (n, 3)), _f64(weights), _f64(cov_scale, (n,)),
+                                                          sd)  # fmt: skip
     return np.array([[r00, r01, r02], [r01, r11, r12], [r02, r12, r22]])

@@ -22,6 +22,7 @@ class FrameInputs(NamedTuple):
     disp: np.ndarray  # (N, 3) mm, mm, rad: each frame's displacement in the robot frame
     offset: np.ndarray  # (N, 3) mm, mm, rad: added to the pose after the displacement (world frame)
     cov_scale: np.ndarray  # (N,): each frame's factor on the motion noise
+    cov_sd: np.ndarray  # (N, 3): each frame's factors on its standard deviations (Sigma_i = cov_scale D Sigma_A D)
     sig_a: np.ndarray  # (3, 3) mm^2, mm^2, rad^2: motion noise per frame (robot frame), Sigma_A
     init_mean: np.ndarray  # (L, 3) mm, mm, rad: each log's initial pose belief
     init_cov: np.ndarray  # (L, 3, 3)
@@ -64,7 +65,8 @@ def kernel_inputs(lo: Lowered, batch: Batch, gate: float | None) -> tuple[FrameI
         coef = np.zeros(1)
     frames = FrameInputs(
         frame_start=np.ascontiguousarray(batch.frame_start, dtype=np.int64), disp=_f64(lo.disp, (n, 3)),
-        offset=_f64(lo.offset, (n, 3)), cov_scale=_f64(lo.cov_scale, (n,)), sig_a=_f64(lo.cov, (3, 3)),
+        offset=_f64(lo.offset, (n, 3)), cov_scale=_f64(lo.cov_scale, (n,)), cov_sd=_f64(lo.cov_sd, (n, 3)),
+        sig_a=_f64(lo.cov, (3, 3)),
         init_mean=_f64(lo.init_mean, (n_logs, 3)), init_cov=_f64(lo.init_cov, (n_logs, 3, 3)))
     sightings = SightingInputs(
         sight_start=sight_start, xy=_f64(batch.sight_xy, (n_s, 2)), value=_f64(batch.sight_value, (n_s, 2)),

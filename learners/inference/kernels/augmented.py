@@ -35,7 +35,7 @@ from learners.inference.kernels.algebra import (
     _wrap,
 )
 from learners.inference.kernels.arguments import kernel_inputs
-from learners.inference.kernels.structured import _rot_sym, _scale_sym
+from learners.inference.kernels.structured import _dscale_sym, _rot_sym
 
 
 @njit(cache=True, error_model="numpy")
@@ -219,7 +219,7 @@ class AugmentedOutputs(NamedTuple):
 def _augmented_forward_log(k, f0, ps, nfr, fr, si, ex, sig, out, loglik):
     """Forward EKF on x = (pose, K extra states) of log k (frames f0 .. f0+nfr-1, poses ps .. ps+nfr).
     Returns (status, frame index within the log, loglik + this log's log-likelihood)."""
-    disp, offset, cov_scale, phi, q = fr.disp, fr.offset, fr.cov_scale, ex.phi, ex.q
+    disp, offset, cov_scale, cov_sd, phi, q = fr.disp, fr.offset, fr.cov_scale, fr.cov_sd, ex.phi, ex.q
     mf, Pf, g_pred, P_pred, fab, mahal2, innov = out.mf, out.Pf, out.g_pred, out.P_pred, out.fab, out.mahal2, out.innov
     n = mf.shape[1]
     K = n - 3
@@ -253,7 +253,7 @@ def _augmented_forward_log(k, f0, ps, nfr, fr, si, ex, sig, out, loglik):
                                mu[2] + disp[i, 2] + offset[i, 2])  # fmt: skip
         for e in range(K):
             mu[3 + e] = phi[i, e] * mu[3 + e]
-        Q = _rot_sym(c, s, _scale_sym(cov_scale[i], sig))  # pose block: cov_scale R Sigma_A R^T (as estep)
+        Q = _rot_sym(c, s, _dscale_sym(cov_scale[i], cov_sd[i], sig))  # pose block: R Sigma_i R^T (as estep)
         for r in range(3):
             for cc in range(3):
                 qpose[r, cc] = Q[3 * r + cc]

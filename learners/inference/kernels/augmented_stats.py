@@ -118,14 +118,14 @@ def _lu_solve(A, B):
 
 
 @njit(cache=True, error_model="numpy")
-def _displacement_kernel(frame_to_pose, offset, disp, cov, cov_scale, phi, q, f_mean, f_cov, p_mean, p_cov,
+def _displacement_kernel(frame_to_pose, offset, disp, cov, cov_scale, cov_sd, phi, q, f_mean, f_cov, p_mean, p_cov,
                          s_mean, s_cov, need_cov, mu_star, c_sum):
     """Fills mu_star (N, 3) and c_sum (3, 3); returns -1, or the first frame whose statistics are not finite
     or whose matrices are not positive definite (or I + Y S singular).
 
     The reference's posterior in its moment form (module docstring): the prior over z = (x_p, d, b_{p+1}) has
     moments m_z = (mu_p, disp_i, phi b_p) and P_z = [[P_p, 0, P_p[:, b] phi], [0, S_d, 0], [., 0, phi P_bb phi + q]]
-    (S_d = cov_scale_i Sigma_A), the end state's information (Y, y) enters through u = M z + c, and by Woodbury
+    (S_d = cov_scale_i D_i Sigma_A D_i), the end state's information (Y, y) enters through u = M z + c, and by Woodbury
     J^-1 M^T = G (I + Y S)^-1 with G = P_z M^T, S = M G: mean m_z + G (I + Y S)^-1 (y - Y (M m_z + c)),
     covariance P_z - G (I + Y S)^-1 Y G^T. Only d's rows of G are needed: S_d [L2, 0]."""
     n_frames = disp.shape[0]
@@ -165,7 +165,7 @@ def _displacement_kernel(frame_to_pose, offset, disp, cov, cov_scale, phi, q, f_
                 for k in range(3):
                     acc -= L2[k, a] * L1[k, b]
                 A0[a, b] = acc
-                Sd[a, b] = cov[a, b] * cov_scale[i]
+                Sd[a, b] = cov[a, b] * cov_sd[i, a] * cov_sd[i, b] * cov_scale[i]
         for a in range(3):
             for b in range(3):
                 acc = 0.0
@@ -236,13 +236,13 @@ def _displacement_kernel(frame_to_pose, offset, disp, cov, cov_scale, phi, q, f_
                     for k in range(3):
                         cab -= L2Sd[k, a] * X[k, 1 + b]
                         cba -= L2Sd[k, b] * X[k, 1 + a]
-                    c_sum[a, b] += 0.5 * (cab + cba) * inv_scale
+                    c_sum[a, b] += 0.5 * (cab + cba) * inv_scale / (cov_sd[i, a] * cov_sd[i, b])
     return -1
 
 
 def displacement_statistics_compiled(lo: Lowered, batch: Batch, post: Posterior, need_cov: bool):
     """Compiled twin of ``augmented.displacement_statistics`` (same contract): mu_star (N, 3) and, if
-    ``need_cov``, sum_i C*_i / cov_scale_i (else None)."""
+    ``need_cov``, sum_i D_i^-1 C*_i D_i^-1 / cov_scale_i (``Lowered.whitened``; else None)."""
     ex, ext = post.extra, lo.extra
     n_frames, K = batch.n_frames, ext.k
     n = 3 + K
@@ -250,7 +250,8 @@ def displacement_statistics_compiled(lo: Lowered, batch: Batch, post: Posterior,
     bad = _displacement_kernel(
         np.ascontiguousarray(batch.frame_to_pose, dtype=np.int64), _f64(lo.offset, (n_frames, 3)),
         _f64(lo.disp, (n_frames, 3)), _f64(lo.cov, (3, 3)),
-        _f64(np.broadcast_to(lo.cov_scale, (n_frames,))), _f64(ext.phi, (n_frames, K)), _f64(ext.q, (n_frames, K)),
+        _f64(np.broadcast_to(lo.cov_scale, (n_frames,))), _f64(lo.cov_sd, (n_frames, 3)), _f64(ext.phi, (n_frames, K)),
+        _f64(ext.q, (n_frames, K)),
         _f64(ex.filtered_mean), _f64(ex.filtered_cov), _f64(ex.predicted_mean, (n_frames, n)),
         _f64(ex.predicted_cov, (n_frames, n, n)), _f64(ex.smoothed_mean), _f64(ex.smoothed_cov), need_cov, mu_star, c_sum)
     if bad >= 0:

@@ -52,11 +52,11 @@ from learners.inference.kernels.fasttrig import _cos_sin
 from learners.inference.kernels.structured import (
     _FMA,
     _combine_fast,
+    _dscale_sym,
     _fpft_sym,
     _ftyf_sym,
     _observe_h,
     _rot_sym,
-    _scale_sym,
     _symm,
 )
 
@@ -66,7 +66,7 @@ from learners.inference.kernels.structured import (
 #   scratch array: the backward time update linearizes g at the same mu_alpha, so it rebuilds
 #   F, Q and c = g - F mu from them without any trig;
 # - bearings use the branch-free ``_atan2`` (<= 3 ulp);
-# - F = I + (column 2) and Q = cov_scale R Sigma_A R^T (Sigma_A symmetrized once) are applied
+# - F = I + (column 2) and Q = cov_scale R D Sigma_A D R^T (Sigma_A symmetrized once) are applied
 #   through their structure; symmetric results (P, Y, Q, Ytil, Sigma_gamma) are formed from their
 #   upper triangle, which replaces the symmetrization (same matrix up to rounding);
 # - H has the constant entries H[0,2] = 0, H[1,2] = -1, written out (x * 0.0 is not folded);
@@ -108,7 +108,7 @@ def _forward_log(k, f0, ps, n, fr, si, sig, out, loglik):
     are the same numbers (bit for bit), without the 208 bytes per frame those arrays take.
     (Inlined into the kernel: as a called function it was 4-8% slower; inlined, 1-4% slower than the
     single kernel it was split from, measured at 27,000 frames.)"""
-    disp, offset, cov_scale = fr.disp, fr.offset, fr.cov_scale
+    disp, offset, cov_scale, cov_sd = fr.disp, fr.offset, fr.cov_scale, fr.cov_sd
     sight_start, used, mahal2, innov = si.sight_start, si.used, out.mahal2, out.innov
     mu_alpha, cov_alpha, cos_th, sin_th = out.mu_alpha, out.cov_alpha, out.cos_th, out.sin_th
     info_delta, vec_delta = out.info_delta, out.vec_delta
@@ -138,7 +138,7 @@ def _forward_log(k, f0, ps, n, fr, si, sig, out, loglik):
         fb = c * ux - s * uy  # F[1,2]
         mu = (mu[0] + c * ux - s * uy + offset[i, 0], mu[1] + s * ux + c * uy + offset[i, 1],
               mu[2] + disp[i, 2] + offset[i, 2])  # fmt: skip
-        P = _add(_fpft_sym(P, fa, fb), _rot_sym(c, s, _scale_sym(cov_scale[i], sig)))  # P- = F P F^T + Q
+        P = _add(_fpft_sym(P, fa, fb), _rot_sym(c, s, _dscale_sym(cov_scale[i], cov_sd[i], sig)))  # P- = F P F^T + Q
         for q in range(sight_start[i], sight_start[i + 1]):
             mahal2[q] = np.nan
             if store:
@@ -235,7 +235,7 @@ def _backward_log(f0, ps, n, fr, sig, out):
     overwritten with Y_delta, y_delta. Returns (status, frame index within the log).
     (A separate, never-inlined function, so that its FMA contractions do not depend on the forward
     pass; rounding-level differences from the reference only.)"""
-    disp, offset, cov_scale = fr.disp, fr.offset, fr.cov_scale
+    disp, offset, cov_scale, cov_sd = fr.disp, fr.offset, fr.cov_scale, fr.cov_sd
     mu_alpha, cov_alpha, mu_gamma, cov_gamma = out.mu_alpha, out.cov_alpha, out.mu_gamma, out.cov_gamma
     info_delta, vec_delta, cos_th, sin_th = out.info_delta, out.vec_delta, out.cos_th, out.sin_th
     Y = _ZERO33
@@ -266,7 +266,7 @@ def _backward_log(f0, ps, n, fr, sig, out):
         fb = c * ux - s * uy
         th = mu_alpha[p, 2]
         cv = (fb - fa * th + offset[i, 0], -fa - fb * th + offset[i, 1], disp[i, 2] + offset[i, 2])
-        B = _inv_i_plus(_mm(Y, _rot_sym(c, s, _scale_sym(cov_scale[i], sig))))  # (I + Y_delta Q)^-1
+        B = _inv_i_plus(_mm(Y, _rot_sym(c, s, _dscale_sym(cov_scale[i], cov_sd[i], sig))))  # (I + Y_delta Q)^-1
         # Ytil = B Y_delta (symmetric: upper triangle), ytil = B y_delta
         Yt = _symm(B[0] * Y[0] + B[1] * Y[3] + B[2] * Y[6], B[0] * Y[1] + B[1] * Y[4] + B[2] * Y[7],
                    B[0] * Y[2] + B[1] * Y[5] + B[2] * Y[8], B[3] * Y[1] + B[4] * Y[4] + B[5] * Y[7],

@@ -41,6 +41,15 @@ def _scale_sym(w, A):
 
 
 @njit(cache=True, fastmath=_FMA)
+def _dscale_sym(w, d, A):
+    """w D A D for symmetric A and D = diag(d0, d1, d2), d a row of ``cov_sd`` (upper triangle, mirrored): a frame's
+    motion covariance. d = (1, 1, 1) gives ``_scale_sym(w, A)`` exactly (the products by 1 are exact)."""
+    d0, d1, d2 = d[0], d[1], d[2]
+    return _symm(w * (d0 * d0 * A[0]), w * (d0 * d1 * A[1]), w * (d0 * d2 * A[2]), w * (d1 * d1 * A[4]),
+                 w * (d1 * d2 * A[5]), w * (d2 * d2 * A[8]))
+
+
+@njit(cache=True, fastmath=_FMA)
 def _fpft_sym(P, a, b):
     """F P F^T for symmetric P, F = I except F[0,2] = a, F[1,2] = b (upper triangle, mirrored)."""
     r02 = P[2] + a * P[8]
