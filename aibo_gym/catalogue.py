@@ -22,6 +22,8 @@ heavy_tailed_noise         rate (fraction of sightings, <= 0.5), scale        no
                            (factor on their noise's deviation, 1-10)
 turn_dependent_noise       gain_s (s/rad: slip covariance x (1 + (gain_s       the spread of the bearing residuals
                            omega)^2), omega the turn rate)                   against the turn rate
+turn_heading_noise         gain_s (s/rad: heading slip sd x sqrt(1 +           the spread of the bearing residuals
+                           (gain_s omega)^2); forward, lateral unchanged)    against the turn rate
 landmark_bias              sigma_rel (stationary std, fraction), tau_s (s)   size residuals correlated in time,
                                                                              per landmark
 =========================  ================================================  ==============================
@@ -398,6 +400,29 @@ class TurnDependentNoise(Effect):
         if g:
             nominal = m.velocity * frame.dt
             m.disp = nominal + (m.disp - nominal) * math.sqrt(1.0 + (g * float(m.velocity[2])) ** 2)
+        return m
+
+
+@register_effect
+class TurnHeadingNoise(Effect):
+    """A robot that turns slips more in its heading: the frame's heading slip (the heading's departure from ``velocity
+    * dt``) is multiplied by sqrt(1 + (``gain_s`` omega)^2), omega the turn rate (rad/s) of the frame's true velocity
+    after every other motion effect; the forward and lateral slip unchanged (what the MRCLAM robots' Vicon residuals
+    show: docs/results.md, "Motion noise that grows with the turn"). Draws nothing. Residual signature: the spread of
+    the bearing residuals against the commanded turn rate.
+    """
+
+    name = "turn_heading_noise"
+    defaults = {"gain_s": 0.0}
+    bounds = {"gain_s": (0.0, 100.0)}
+    motion_order = 2  # after every effect that changes the velocity (as turn_dependent_noise)
+
+    def motion(self, m: Motion, frame: Frame) -> Motion:
+        g = self.params["gain_s"]
+        if g:
+            nominal = float(m.velocity[2]) * frame.dt
+            m.disp = m.disp.copy()
+            m.disp[2] = nominal + (m.disp[2] - nominal) * math.sqrt(1.0 + (g * float(m.velocity[2])) ** 2)
         return m
 
 

@@ -74,6 +74,7 @@ STRENGTH: dict[str, dict[str, Any]] = {
     "heavy_tailed_noise": {"rate": 0.1, "scale": 2.0},
     "response_time": {"tau_s": 0.15},  # continuous commands only: a wheeled robot's logs (WHEELED)
     "turn_dependent_noise": {"gain_s": 1.5},
+    "turn_heading_noise": {"gain_s": 1.5},
 }
 PRESETS = ("aibo", "paper-sim")
 #: the "preset" of the logs of an effect that needs continuous commands (``EffectModel.NEEDS``): ``WheeledRobot-v0``

@@ -56,6 +56,7 @@ STRENGTHS = {
     "false_sightings": [{"rate": r} for r in (0.02, 0.05, 0.1)],
     "heavy_tailed_noise": [{"rate": 0.1, "scale": c} for c in (1.5, 2.0, 3.0)],  # MRCLAM's tails: about 0.1 at 2
     "turn_dependent_noise": [{"gain_s": g} for g in (0.75, 1.5, 3.0)],  # s/rad: the AIBO turns at up to 1.6 rad/s
+    "turn_heading_noise": [{"gain_s": g} for g in (0.75, 1.5, 3.0)],
     "angle_bias": [{"bias_rad": b} for b in (0.02, 0.05, 0.1)],  # not identifiable: "none" is the right answer
 }
 #: Effects whose right answer is "none" at any strength (the search reports them not identifiable).

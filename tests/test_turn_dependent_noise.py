@@ -115,15 +115,16 @@ def test_its_signature_is_the_bearings_spread_against_the_commanded_turn_rate():
 
 
 def test_the_report_names_it_for_the_bearings_spread_against_the_turn_rate():
-    """Not a default candidate: a disagreement of the calibrated check that is its signature says how to try it."""
+    """Not a default candidate: a disagreement of the calibrated check that is its signature says how to try it (and
+    how to try ``turn_heading_noise``, whose signature it is too)."""
     from aibo.commands.diagnose import unexplained
 
     report = {"effects": [], "candidates": [], "calibrated_simulation": {"after": {"disagreements": [
         {"statistic": "|bearing| (sigma) vs commanded turn rate (rad/s) (strength)", "z": 12.8}]}}}
-    (u,) = unexplained(report)
-    assert u["effect"] == "turn_dependent_noise"
-    assert "--candidates ...,turn_dependent_noise" in u["why_not_named"]
-    assert "turn" in u["reading"]
+    found = {u["effect"]: u for u in unexplained(report)}
+    assert set(found) == {"turn_dependent_noise", "turn_heading_noise"}
+    for name, u in found.items():
+        assert f"--candidates ...,{name}" in u["why_not_named"] and "turn" in u["reading"]
 
 
 @pytest.mark.realdata
