@@ -14,6 +14,7 @@ from learners.arrays.batch import make_batch
 from learners.em.estep import e_step, weighed_on
 from learners.em.options import DEFAULT_GATE
 from learners.em.predictive import model_logdens, own_noise, sightings_logdens
+from learners.em.starts import start_beliefs
 from learners.em.whiteness import consecutive_pairs, lag1, normalized_size_innovations
 from learners.inference.open_loop import open_loop_innovations
 from learners.inference.predictive import predictive_logdens
@@ -107,12 +108,16 @@ class MotionScore:
 
 
 def motion_score(model: Model, logs: list[Trajectory], horizons_s: tuple[float, ...] = MOTION_HORIZONS_S,
-                 heldout_only: bool = True) -> MotionScore:
+                 heldout_only: bool = True, own_start: bool = True) -> MotionScore:
     """The held-out sightings (``heldout_mask``, the used ones; every used one with ``heldout_only`` False, for
-    logs the model was not fitted to) predicted open loop from the filtered belief k seconds before each (the
+    logs the model was not fitted to, whose start beliefs are then the logs' own, ``learners.em.starts.start_beliefs``,
+    unless ``own_start`` is False)
+    predicted open loop from the filtered belief k seconds before each (the
     forward filter run over all sightings with ``model``, as ``score`` does) and the commands alone, for each
     horizon k; the model's own density of each (a mixture's where an effect says so)."""
     batch = make_batch(logs)
+    if not heldout_only and own_start:  # logs the model was not fitted to: its init is another run's start
+        model = model.with_(init=start_beliefs(model, logs))
     model = weighed_on(model, batch)  # as ``score``
     post = e_step(model, batch, "compiled", None)
     lo = model.lower(batch)
