@@ -1,6 +1,7 @@
 """``turn_dependent_noise``: the motion's noise grows with the turn rate, covariance x (1 + (gain_s omega)^2) (the
 learner's twin ``learners.model.turn_noise.TurnDependentNoise`` and the simulator's
-``aibo_gym.catalogue.TurnDependentNoise``), and its residual signature against the commanded turn rate."""
+``aibo_gym.catalogue.TurnDependentNoise``), and its residual signature against the commanded turn rate. The simulator
+twins of it and of ``turn_heading_noise`` (tests/test_turn_heading_noise.py) are tested together here."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import pytest
 
 from aibo_core.trajectory import blind
 from aibo_gym.catalogue import TurnDependentNoise as TwinEffect
+from aibo_gym.catalogue import TurnHeadingNoise as HeadingTwin
 from aibo_gym.collect import collect
 from aibo_gym.config import default_config
 from aibo_gym.context import Motion
@@ -39,17 +41,20 @@ def _fitted(tr):
     return base, EMLearner(OPTS).fit([tr], init=start).params
 
 
-def test_the_twin_scales_the_slip_and_leaves_the_commanded_motion():
-    """disp = v dt + slip becomes v dt + slip sqrt(1 + (g omega)^2); a frame that does not turn is unchanged."""
+@pytest.mark.parametrize("twin_class, components", [(TwinEffect, [1, 1, 1]), (HeadingTwin, [0, 0, 1])])
+def test_the_twin_scales_the_slip_and_leaves_the_commanded_motion(twin_class, components):
+    """disp = v dt + slip becomes v dt + slip sqrt(1 + (g omega)^2), every component's (``turn_dependent_noise``) or
+    the heading's alone (``turn_heading_noise``); a frame that does not turn is unchanged."""
 
     class Frame:
         dt = 0.1
 
-    twin = TwinEffect({"gain_s": 2.0})
+    twin = twin_class({"gain_s": 2.0})
     v = np.array([100.0, 0.0, 0.5])
     slip = np.array([3.0, -2.0, 0.01])
     m = twin.motion(Motion(v * 0.1 + slip, v.copy()), Frame())
-    np.testing.assert_allclose(m.disp, v * 0.1 + slip * math.sqrt(1.0 + (2.0 * 0.5) ** 2), rtol=1e-12)
+    factor = np.where(np.array(components) == 1, math.sqrt(1.0 + (2.0 * 0.5) ** 2), 1.0)
+    np.testing.assert_allclose(m.disp, v * 0.1 + slip * factor, rtol=1e-12)
     straight = np.array([100.0, 0.0, 0.0])
     m = twin.motion(Motion(straight * 0.1 + slip, straight.copy()), Frame())
     np.testing.assert_allclose(m.disp, straight * 0.1 + slip, rtol=1e-12)

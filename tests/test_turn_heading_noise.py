@@ -1,6 +1,7 @@
 """``turn_heading_noise``: the heading's noise grows with the turn rate, its standard deviation x sqrt(1 + (gain_s
 omega)^2), the forward and lateral noise unchanged (the learner's twin ``learners.model.turn_noise.TurnHeadingNoise``,
-a per-frame factor in ``Lowered.cov_sd``, and the simulator's ``aibo_gym.catalogue.TurnHeadingNoise``)."""
+a per-frame factor in ``Lowered.cov_sd``, and the simulator's ``aibo_gym.catalogue.TurnHeadingNoise``, whose test is
+tests/test_turn_dependent_noise.py's, with that effect's twin)."""
 
 from __future__ import annotations
 
@@ -10,10 +11,8 @@ import numpy as np
 import pytest
 
 from aibo_core.trajectory import blind
-from aibo_gym.catalogue import TurnHeadingNoise as TwinEffect
 from aibo_gym.collect import collect
 from aibo_gym.config import default_config
-from aibo_gym.context import Motion
 from learners.arrays.batch import make_batch
 from learners.arrays.displacement import pose_displacement_beliefs
 from learners.em.estep import e_step
@@ -34,24 +33,6 @@ def _log(gain: float, seed: int, minutes: float = 5.0):
 def _base(tr, max_iter: int | None = None):
     opts = OPTS if max_iter is None else EMOptions(starts=1, max_iter=max_iter, alias_search=False, lag_search=False)
     return EMLearner(opts).fit([tr]).params
-
-
-def test_the_twin_scales_the_heading_slip_alone():
-    """disp = v dt + slip: the heading's slip x sqrt(1 + (g omega)^2), the forward and lateral slip kept; a frame
-    that does not turn is unchanged."""
-
-    class Frame:
-        dt = 0.1
-
-    twin = TwinEffect({"gain_s": 2.0})
-    v = np.array([100.0, 0.0, 0.5])
-    slip = np.array([3.0, -2.0, 0.01])
-    m = twin.motion(Motion(v * 0.1 + slip, v.copy()), Frame())
-    want = v * 0.1 + slip * np.array([1.0, 1.0, math.sqrt(1.0 + (2.0 * 0.5) ** 2)])
-    np.testing.assert_allclose(m.disp, want, rtol=1e-12)
-    straight = np.array([100.0, 0.0, 0.0])
-    m = twin.motion(Motion(straight * 0.1 + slip, straight.copy()), Frame())
-    np.testing.assert_allclose(m.disp, straight * 0.1 + slip, rtol=1e-12)
 
 
 def test_the_model_scales_each_frames_heading_noise_by_its_commanded_turn():
