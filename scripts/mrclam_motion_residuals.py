@@ -3,7 +3,9 @@ displacement against Vicon (robot frame: forward mm, lateral mm, heading mrad) m
 model commands (fitted on the whole log with its defaults), its standard deviation over the frames driving straight,
 over the turning ones in thirds of the commanded turn rate |omega|, and over those commanded to stand still.
 
-    python scripts/mrclam_motion_residuals.py [DATA] [--robots 1,2,3,4,5]
+    python scripts/mrclam_motion_residuals.py [DATA] [--robots 1,2,3,4,5] [--png docs/img/mrclam_motion_residuals.png]
+
+``--png``: the figure of the table (each robot's heading and forward residual against the bins' mean |omega|).
 
 DATA defaults to ../shared/data/mrclam7 (never copied into the repository). Vicon's own noise is in every row alike.
 The evidence for ``turn_heading_noise`` (docs/results.md, "Motion noise that grows with the turn"): the heading's
@@ -30,9 +32,9 @@ MAX_HEADING_STEP = 0.5  # rad: a frame whose Vicon heading jumps more is a track
 STRAIGHT_RAD_S = 0.01  # a frame commanded to turn slower than this drives straight
 
 
-def residual_rows(tr) -> list[tuple[str, int, np.ndarray]]:
-    """(label, frames, sd of the (forward mm, lateral mm, heading mrad) residual): the frames driving straight, the
-    turning ones in thirds of |omega|, the frames commanded to stand still."""
+def residual_rows(tr) -> list[tuple[str, int, np.ndarray, float]]:
+    """(label, frames, sd of the (forward mm, lateral mm, heading mrad) residual, mean commanded |omega| rad/s): the
+    frames driving straight, the turning ones in thirds of |omega|, the frames commanded to stand still."""
     model = EMLearner(EMOptions(uncertainty=False), check_field=False).fit([tr]).params
     lo = model.lower(make_batch([tr]))
     res = rel_disp(tr.pose[:-1], tr.pose[1:]) - lo.disp
@@ -40,27 +42,67 @@ def residual_rows(tr) -> list[tuple[str, int, np.ndarray]]:
     omega = np.abs(lo.disp[:, 2]) / tr.dt
     speed = np.abs(lo.disp[:, 0]) / tr.dt
     straight = ok & (omega < STRAIGHT_RAD_S) & (speed >= 1.0)
-    rows = [("straight (|omega| < 0.01 rad/s)", int(straight.sum()), res[straight].std(axis=0) * [1, 1, 1000])]
+    rows = [("straight (|omega| < 0.01 rad/s)", int(straight.sum()), res[straight].std(axis=0) * [1, 1, 1000],
+             float(omega[straight].mean()))]
     turning = ok & (omega >= STRAIGHT_RAD_S)
     edges = np.quantile(omega[turning], [0.0, 1 / 3, 2 / 3, 1.0])
     for k, (a, b) in enumerate(zip(edges[:-1], edges[1:])):
         sel = turning & (omega >= a) & ((omega < b) if k < 2 else (omega <= b))
-        rows.append((f"turning, |omega| {a:.2f}-{b:.2f} rad/s", int(sel.sum()), res[sel].std(axis=0) * [1, 1, 1000]))
+        rows.append((f"turning, |omega| {a:.2f}-{b:.2f} rad/s", int(sel.sum()), res[sel].std(axis=0) * [1, 1, 1000],
+                     float(omega[sel].mean())))
     still = ok & (speed < 1.0) & (omega < STRAIGHT_RAD_S)
     rows.append(("standing still", int(still.sum()), res[still].std(axis=0) * [1, 1, 1000] if still.any() else
-                 np.full(3, np.nan)))
+                 np.full(3, np.nan), 0.0))
     return rows
 
 
+def figure(rows: dict[int, list[tuple[str, int, np.ndarray, float]]], path: Path) -> None:
+    """Each robot's heading (left) and forward (right) residual sd against the bins' mean commanded |omega|; standing
+    still drawn apart at the left edge."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+    for r, rs in rows.items():
+        moving = [x for x in rs if x[0] != "standing still"]
+        still = [x for x in rs if x[0] == "standing still"]
+        for ax, k in zip(axes, (2, 0)):
+            line, = ax.plot([x[3] for x in moving], [x[2][k] for x in moving], "o-", label=f"robot {r}")
+            if still:
+                ax.plot([-0.03], [still[0][2][k]], "s", color=line.get_color())
+    for ax, what in zip(axes, ("heading residual sd (mrad per frame)", "forward residual sd (mm per frame)")):
+        ax.set_xlabel("commanded |omega| (rad/s), the bin's mean; squares: standing still")
+        ax.set_ylabel(what)
+        ax.set_ylim(bottom=0)
+        ax.grid(alpha=0.3)
+    axes[0].set_title("the heading's noise grows with the turn")
+    axes[1].set_title("the forward noise does not")
+    axes[0].legend(fontsize=8)
+    fig.suptitle("MRCLAM Dataset 7: each frame's motion against Vicon, minus aibo learn's commanded motion", fontsize=10)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main(argv=None) -> int:
-    args = mrclam_parser(__doc__, "").parse_args(argv)
+    ap = mrclam_parser(__doc__, "")
+    ap.add_argument("--png", default=None, help="write the figure here")
+    args = ap.parse_args(argv)
     data = data_folder("mrclam_motion_residuals", args.data)
     if data is None:
         return 2
     print("| robot | frames commanded | n | forward mm | lateral mm | heading mrad |\n|---|---|---|---|---|---|")
+    found = {}
     for r in robots(args.robots):
-        for label, n, sd in residual_rows(import_robot(data, r)):
+        found[r] = residual_rows(import_robot(data, r))
+        for label, n, sd, _ in found[r]:
             print(f"| {r} | {label} | {n} | {sd[0]:.2f} | {sd[1]:.2f} | {sd[2]:.2f} |", flush=True)
+    if args.png:
+        figure(found, Path(args.png))
+        print(f"wrote {args.png}")
     return 0
 
 
