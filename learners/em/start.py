@@ -46,6 +46,8 @@ POS_STD_MM, POS_STD_PER_S = 250.0, 100.0
 HEADING_STD, HEADING_STD_PER_S, MAX_HEADING_STD = 0.2, 0.2, 1.0
 #: Candidates for the first pose (``pose_candidates``): at most this many, their positions at least this far apart (mm).
 MAX_POSE_CANDIDATES, MIN_SEPARATION_MM = 3, 1000.0
+#: The lowest grid minima examined for them (a flat cost holds many; MRCLAM robot 2's training half: 212 ms for all)
+MAX_REFINED = 40
 
 
 def _window(tr: Trajectory) -> np.ndarray | None:
@@ -137,9 +139,11 @@ def pose_candidates(tr: Trajectory, grid_mm: float = 100.0,
     pos = POS_STD_MM + POS_STD_PER_S * w
     head = min(HEADING_STD + HEADING_STD_PER_S * w, MAX_HEADING_STD)
     out: list[InitialState] = []
-    for i in _local_minima(cost.reshape(len(gx), len(gy))):
+    for i in _local_minima(cost.reshape(len(gx), len(gy)))[:MAX_REFINED]:
         if len(out) == most:
             break
+        if any(np.hypot(*(xy[i] - c.mean[:2])) < MIN_SEPARATION_MM for c in out):
+            continue  # in a basin already found (a flat valley holds many grid minima): no refinement
         p, cov = _refine(np.array([xy[i, 0], xy[i, 1], th[i]]), L, r, b)
         if not (np.all(np.isfinite(p)) and np.all(np.isfinite(cov))):
             continue
