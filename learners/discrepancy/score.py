@@ -111,10 +111,9 @@ def motion_score(model: Model, logs: list[Trajectory], horizons_s: tuple[float, 
                  heldout_only: bool = True, own_start: bool = True) -> MotionScore:
     """The held-out sightings (``heldout_mask``, the used ones; every used one with ``heldout_only`` False, for
     logs the model was not fitted to, whose start beliefs are then the logs' own, ``learners.em.starts.start_beliefs``,
-    unless ``own_start`` is False)
-    predicted open loop from the filtered belief k seconds before each (the
-    forward filter run over all sightings with ``model``, as ``score`` does) and the commands alone, for each
-    horizon k; the model's own density of each (a mixture's where an effect says so)."""
+    unless ``own_start`` is False) predicted open loop from the filtered belief k seconds before each (the forward
+    filter run over all sightings with ``model``, as ``score`` does) and the commands alone, for each horizon k; the
+    model's own density of each (a mixture's where an effect says so)."""
     batch = make_batch(logs)
     if not heldout_only and own_start:  # logs the model was not fitted to: its init is another run's start
         model = model.with_(init=start_beliefs(model, logs))

@@ -39,6 +39,7 @@ from learners.arrays.posterior import Posterior
 from learners.em.estep import e_step
 from learners.em.fit import EMState, initial_state, run
 from learners.em.options import DEFAULT_GATE, EMOptions
+from learners.em.start import initial_state_candidates
 from learners.model.initial import InitialState
 from learners.model.model import Model
 from learners.model.sensor import SensorModel
@@ -173,8 +174,8 @@ def chosen_start_pose(tr: Trajectory, start: Model, candidates: list[InitialStat
 
     Why: EM's filter settles the first ambiguous sightings on the side of its start and keeps it. On MRCLAM robot 3's
     first 10 minutes' training half, ``aibo learn`` from the window's best pose (the mirror image of three landmarks
-    0.35 m apart, 5.4 m off) ended 8,700 nats below the fit from a start on the right side (bearing noise 0.095 rad
-    against 0.0055), with 87 sightings gated out; the face value's score picks the right side there
+    0.35 m apart, 5.4 m off) ended 8,656 nats below the fit from a start on the right side (bearing noise 0.095 rad
+    against 0.0054), with 87 sightings gated out; the face value's score picks the right side there
     (``tests/test_mrclam.py``)."""
     from learners.scoring import face_value_model  # the scoring layer imports the learners' arrays: here, not at import
 
@@ -197,6 +198,4 @@ def start_beliefs(model: Model, logs: list[Trajectory]) -> tuple[InitialState, .
     1's halves: 2.2 m and 3 rad), and a filter started there pays for it in its first sightings' densities (the motion
     gap at 5 s of a model fitted on robot 1's first half and scored on its second: 15.1 nats per sighting from the
     first half's start, 3.8 from the second half's own)."""
-    from learners.em.start import initial_state_candidates
-
     return tuple(chosen_start_pose(tr, model, initial_state_candidates(tr)) for tr in logs)

@@ -32,9 +32,10 @@ continuous commands is unweighted, consistent but not efficient under the factor
 omega_i)^2), the forward and lateral ones unchanged (a per-frame factor in ``Lowered.cov_sd``: Sigma_i = D_i Sigma_A
 D_i, D_i = diag(1, 1, sqrt(1 + (gain_s omega_i)^2))). Why: against Vicon, the MRCLAM robots' per-frame heading
 residual is 1.9-2.8 times larger in the third of the turning frames that turn fastest than driving straight (11.2-14.8
-against 4.9-7.6 mrad), while the forward one is not (1.1-1.3 mm straight, 1.0-1.6 turning) (``scripts/mrclam_motion_residuals.py``; docs/results.md,
-"The heading's noise alone grows with the turn"). ``turn_dependent_noise`` scales all three, so its fit takes the forward noise of straight driving down with
-the turns' heading noise up. M-step (ECM, as above): with E~_i = D0_i^-1 E_i D0_i^-1 / c_i (every other effect's
+against 4.9-7.6 mrad), while the forward one is not (1.1-1.3 mm straight, 1.0-1.6 turning)
+(``scripts/mrclam_motion_residuals.py``; docs/results.md, "The heading's noise alone grows with the turn").
+``turn_dependent_noise`` scales all three, so its fit takes the forward noise of straight driving down with the turns'
+heading noise up. M-step (ECM, as above): with E~_i = D0_i^-1 E_i D0_i^-1 / c_i (every other effect's
 factors), s_i = sqrt(1 + (g omega_i)^2) and W = Sigma_A^-1,
 
     Q(g) = -sum_i log s_i - 1/2 sum_i (a_i + b_i / s_i + c_i / s_i^2) + const,
