@@ -142,19 +142,26 @@ def test_a_real_robots_bearings_ask_for_it_on_the_sightings_it_was_not_fitted_to
     +132, +302 nats; robot 3's first 10 minutes 19.9 s/rad, +301 since its start pose is chosen by the whole log, 0.55
     s/rad and +0.4 from the mirror-image start before: ``learners.em.starts.chosen_start_pose``); on the whole logs 17-26
     s/rad on four robots (docs/results.md, "Motion noise that grows with the turn")."""
+    null, model, heldout = real_robot_fits(TurnDependentNoise)
+    gain = model.effect("turn_dependent_noise").gain_s
+    assert gain > 5.0 and heldout > 20.0, (gain, heldout)
+
+
+def real_robot_fits(effect, robot: int = 1, seconds: float = 600.0):
+    """(the null, the model with ``effect`` fitted, its held-out gain in nats) on MRCLAM ``robot``'s first ``seconds``
+    as the search fits a candidate: ``aibo learn``'s model of the training half, the outliers it gates set aside, then
+    refitted from it on the training half without the effect (the null) and with it; the gain on the held-out
+    sightings. Shared by the turn noises' real-data tests."""
     from aibo_core.mrclam import import_robot
     from learners.discrepancy.score import score
     from learners.discrepancy.search import drop_outliers
     from learners.discrepancy.split import training_log
 
-    tr = import_robot(DATA, 1, seconds=600.0)
+    tr = import_robot(DATA, robot, seconds=seconds)
     opts = EMOptions().comparable()
     learn = EMLearner(opts, check_field=False).fit([training_log(tr)]).params
     (tr,), _ = drop_outliers(learn, [tr])
     train = training_log(tr)
     null = EMLearner(opts, check_field=False).fit([train], init=learn).params
-    start = learn.with_effect(TurnDependentNoise.start(make_batch([train])))
-    model = EMLearner(opts, check_field=False).fit([train], init=start).params
-    gain = model.effect("turn_dependent_noise").gain_s
-    heldout = score(model, [tr]).heldout_loglik - score(null, [tr]).heldout_loglik
-    assert gain > 5.0 and heldout > 20.0, (gain, heldout)
+    model = EMLearner(opts, check_field=False).fit([train], init=learn.with_effect(effect.start(make_batch([train])))).params
+    return null, model, score(model, [tr]).heldout_loglik - score(null, [tr]).heldout_loglik

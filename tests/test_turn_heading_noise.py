@@ -20,7 +20,8 @@ from learners.em.learner import EMLearner
 from learners.em.options import EMOptions
 from learners.inference.action_stats import action_statistics
 from learners.model.turn_noise import TurnHeadingNoise
-from tests.test_mrclam import DATA, needs_data
+from tests.test_mrclam import needs_data
+from tests.test_turn_dependent_noise import real_robot_fits
 
 GAIN = TurnHeadingNoise.EXAMPLE["gain_s"]
 OPTS = EMOptions(starts=1, alias_search=False, lag_search=False)  # one start, no searches: the effect's own fit
@@ -101,18 +102,6 @@ def test_on_a_real_robot_it_predicts_the_unseen_sightings_better_and_keeps_the_s
     2026-11-28: 31.6 s/rad, held-out +148 nats, forward sd 3.39 mm against the null's 3.28 (``turn_dependent_noise``:
     1.25); robots 2-5: 20.7-36.2 s/rad, +109 to +293 nats (docs/results.md, "The heading's noise alone grows with the
     turn")."""
-    from aibo_core.mrclam import import_robot
-    from learners.discrepancy.score import score
-    from learners.discrepancy.search import drop_outliers
-    from learners.discrepancy.split import training_log
-    tr = import_robot(DATA, 1, seconds=600.0)
-    opts = EMOptions().comparable()
-    learn = EMLearner(opts, check_field=False).fit([training_log(tr)]).params
-    (tr,), _ = drop_outliers(learn, [tr])
-    train = training_log(tr)
-    null = EMLearner(opts, check_field=False).fit([train], init=learn).params
-    start = learn.with_effect(TurnHeadingNoise.start(make_batch([train])))
-    model = EMLearner(opts, check_field=False).fit([train], init=start).params
-    heldout = score(model, [tr]).heldout_loglik - score(null, [tr]).heldout_loglik
+    null, model, heldout = real_robot_fits(TurnHeadingNoise)
     assert model.effect("turn_heading_noise").gain_s > 5.0 and heldout > 20.0, heldout
     assert math.sqrt(model.action.cov[0, 0]) > 0.8 * math.sqrt(null.action.cov[0, 0])
