@@ -99,8 +99,7 @@ class TurnDependentNoise(EffectModel):
         mu, C = displacement_beliefs(lo, batch, post)
         r = mu - lo.disp
         E = C + r[:, :, None] * r[:, None, :]  # (N, 3, 3) expected squared residual of each frame's displacement
-        d = np.asarray(lo.cov_sd, dtype=float)
-        E = E / (d[:, :, None] * d[:, None, :])  # D_i^-1 E_i D_i^-1 (``Lowered.cov_sd``)
+        E = lo.unshaped(E)  # D_i^-1 E_i D_i^-1 (``Lowered.cov_sd``)
         m = np.einsum("ij,nji->n", np.linalg.inv(model.action.cov), E)  # tr(Sigma_A^-1 D^-1 E_i D^-1)
         omega2 = commanded_turn_rate(lo, batch) ** 2
         c0 = lo.cov_scale / (1.0 + self.gain_s ** 2 * omega2)  # the other effects' factors

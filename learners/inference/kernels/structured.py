@@ -34,16 +34,10 @@ def _rot_sym(c, s, A):
 
 
 @njit(cache=True, fastmath=_FMA)
-def _scale_sym(w, A):
-    """w A for symmetric A (upper triangle, mirrored). Scaling Sigma_A before the rotation keeps the
-    rotation's FMA contractions those of the unscaled kernel (w = 1 gives A exactly)."""
-    return _symm(w * A[0], w * A[1], w * A[2], w * A[4], w * A[5], w * A[8])
-
-
-@njit(cache=True, fastmath=_FMA)
 def _dscale_sym(w, d, A):
     """w D A D for symmetric A and D = diag(d0, d1, d2), d a row of ``cov_sd`` (upper triangle, mirrored): a frame's
-    motion covariance. d = (1, 1, 1) gives ``_scale_sym(w, A)`` exactly (the products by 1 are exact)."""
+    motion covariance. Scaling Sigma_A before the rotation keeps the rotation's FMA contractions those of the unscaled
+    kernel; d = (1, 1, 1) gives w A exactly, and w = 1 too A itself (the products by 1 are exact)."""
     d0, d1, d2 = d[0], d[1], d[2]
     return _symm(w * (d0 * d0 * A[0]), w * (d0 * d1 * A[1]), w * (d0 * d2 * A[2]), w * (d1 * d1 * A[4]),
                  w * (d1 * d2 * A[5]), w * (d2 * d2 * A[8]))
