@@ -216,6 +216,24 @@ def _img(path: Path) -> str:
     return f'<img src="data:image/png;base64,{data}" style="max-width:100%">'
 
 
+def signature_of(u: dict[str, Any]) -> list[dict[str, Any]]:
+    """The effects not named whose residual signature an ``report.json["unexplained"]`` row is, each with why it was
+    not named: the row's ``effect`` first, then its ``other_effects`` (empty when the catalogue has none)."""
+    if not u.get("effect"):
+        return []
+    return [{"effect": u["effect"], "why_not_named": u["why_not_named"]}] + list(u.get("other_effects", []))
+
+
+def _still_unlike(u: dict[str, Any]) -> str:
+    """One paragraph on a disagreement left after the named effects (an ``unexplained`` row)."""
+    whose = signature_of(u)
+    of = ("; ".join(f"the residual signature of <b>{html.escape(w['effect'])}</b>, which was not named "
+                    f"({html.escape(w['why_not_named'])})" for w in whose)
+          if whose else f"unexplained ({html.escape(u['why_not_named'])})")
+    return (f"<p><b>Still unlike its simulation:</b> {html.escape(u['statistic'])} ({z_text(u['z'])}): "
+            f"{html.escape(u.get('reading', ''))}; {of}.</p>")
+
+
 def _calibrated(cal: dict[str, Any] | None, unexplained: list[dict[str, Any]]) -> str:
     """One paragraph: where the measured log is unlike its calibrated simulation, before and after."""
     if not cal:
@@ -230,13 +248,8 @@ def _calibrated(cal: dict[str, Any] | None, unexplained: list[dict[str, Any]]) -
     return (f"<p>Calibrated simulator ({cal['before']['replicas']} replays of the measured commands): the measured "
             f"log differs in <b>{len(cal['before']['disagreements'])}</b> statistics from the base model's simulation "
             f"({worst(cal['before'])}), and in <b>{len(cal['after']['disagreements'])}</b> from the simulation with the "
-            f"named effects ({worst(cal['after'])}).</p>" + "".join(
-                f"<p><b>Still unlike its simulation:</b> {html.escape(u['statistic'])} ({z_text(u['z'])}): "
-                f"{html.escape(u.get('reading', ''))}; "
-                + (f"the residual signature of <b>{html.escape(u['effect'])}</b>, which was not named"
-                   if u.get("effect") else "unexplained")
-                + f" ({html.escape(u['why_not_named'])}).</p>"
-                for u in unexplained if "probe" not in u))
+            f"named effects ({worst(cal['after'])}).</p>"
+            + "".join(_still_unlike(u) for u in unexplained if "probe" not in u))
 
 
 def _none_of_the_above(unexplained: list[dict[str, Any]]) -> str:

@@ -193,6 +193,24 @@ def test_a_disagreement_that_is_the_signature_of_an_effect_not_tried_by_default_
                   {"statistic": "|turn| (sigma) vs time since command change (s) (strength)", "z": 5.8}]}}}
     (u,) = unexplained(report)
     assert u["effect"] == "response_time" and "--candidates ...,response_time" in u["why_not_named"]
+    assert u["other_effects"] == []
+
+
+def test_a_disagreement_that_is_the_signature_of_two_effects_is_one_row_naming_both():
+    """MRCLAM robot 1's "|bearing| vs commanded turn rate" after the default candidates: the signature of both turn
+    noises, once in ``unexplained`` (it was listed twice, one row per effect, so the disagreements looked more), and
+    the page and the terminal name both."""
+    from aibo.commands.diagnose import unexplained
+    from aibo.diagnose_report import _still_unlike, signature_of
+
+    statistic = "|bearing| (sigma) vs commanded turn rate (rad/s) (strength)"
+    report = {"effects": [{"name": "actuation_lag", "parameters": {}}], "candidates": [],
+              "calibrated_simulation": {"after": {"disagreements": [{"statistic": statistic, "z": 12.8}]}}}
+    (u,) = unexplained(report)
+    assert {w["effect"] for w in signature_of(u)} == {"turn_dependent_noise", "turn_heading_noise"}
+    assert all("--candidates ...," + w["effect"] in w["why_not_named"] for w in signature_of(u))
+    page = _still_unlike(u)
+    assert page.count("which was not named") == 2 and "turn_heading_noise" in page and "turn_dependent_noise" in page
 
 
 def test_every_learned_effect_drives_its_simulator_twin(fitted):

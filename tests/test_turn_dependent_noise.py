@@ -123,13 +123,15 @@ def test_the_report_names_it_for_the_bearings_spread_against_the_turn_rate():
     """Not a default candidate: a disagreement of the calibrated check that is its signature says how to try it (and
     how to try ``turn_heading_noise``, whose signature it is too)."""
     from aibo.commands.diagnose import unexplained
+    from aibo.diagnose_report import signature_of
 
     report = {"effects": [], "candidates": [], "calibrated_simulation": {"after": {"disagreements": [
         {"statistic": "|bearing| (sigma) vs commanded turn rate (rad/s) (strength)", "z": 12.8}]}}}
-    found = {u["effect"]: u for u in unexplained(report)}
-    assert set(found) == {"turn_dependent_noise", "turn_heading_noise"}
-    for name, u in found.items():
-        assert f"--candidates ...,{name}" in u["why_not_named"] and "turn" in u["reading"]
+    (u,) = unexplained(report)
+    found = {w["effect"]: w for w in signature_of(u)}
+    assert set(found) == {"turn_dependent_noise", "turn_heading_noise"} and "turn" in u["reading"]
+    for name, w in found.items():
+        assert f"--candidates ...,{name}" in w["why_not_named"]
 
 
 @pytest.mark.realdata

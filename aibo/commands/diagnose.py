@@ -133,9 +133,9 @@ def run(args) -> int:
     seconds["calibrated check"] = time.perf_counter() - t1
     report["unexplained"] = unexplained(report)
     for u in report["unexplained"]:
-        of = f"the signature of {u['effect']}, not named" if u["effect"] else "unexplained"
-        say(f"  still unlike its simulation: {u['statistic']} ({fig.z_text(u['z'])}): {u['reading']}; {of} "
-            f"({u['why_not_named']})")
+        of = "; ".join(f"the signature of {w['effect']}, not named ({w['why_not_named']})" for w in fig.signature_of(u))
+        say(f"  still unlike its simulation: {u['statistic']} ({fig.z_text(u['z'])}): {u['reading']}; "
+            + (of or f"unexplained ({u['why_not_named']})"))
     report["unexplained"] += none_of_the_above(found, logs)
     for u in (u for u in report["unexplained"] if u["effect"] == NONE_OF_THE_ABOVE):
         say(f"none of the above: {u['describes']} (train +{u['gain_train']:.1f} nats, held-out {u['gain_heldout']:+.1f} "
@@ -292,18 +292,26 @@ def unexplained(report: dict) -> list[dict]:
     tried = {c["name"]: c for c in report["candidates"]}  # the last round's try of each
     out = []
     for d in after["disagreements"]:
-        reading = plain_reading(d["statistic"], d["z"])
+        row = {"statistic": d["statistic"], "z": d["z"], "reading": plain_reading(d["statistic"], d["z"])}
         matches = [name for name, cls in sorted(EFFECT_MODELS.items()) if cls.SIGNATURE and cls.SIGNATURE in d["statistic"]]
-        for name in (n for n in matches if n not in named):
-            c = tried.get(name)
-            why = (not_tried(name) if c is None else passed_over(c, report.get("search_rounds", {})) or c["note"] or
-                   f"training gain {c['gain_train']:.1f} nats, p = {c['p_value']:.2g}; held-out gain {c['gain_heldout']:+.1f} nats")
-            out.append({"statistic": d["statistic"], "z": d["z"], "effect": name, "why_not_named": why, "reading": reading})
-        if not matches or all(n in named for n in matches):
+        whose = [{"effect": name, "why_not_named": why_unnamed(name, tried.get(name), report)}
+                 for name in matches if name not in named]
+        if whose:  # one row per statistic: the first effect whose signature it is, the others beside it
+            out.append(row | whose[0] | {"other_effects": whose[1:]})
+        else:
             why = ("the named effects " + ", ".join(matches) + " do not remove it" if matches
                    else "no effect of the catalogue leaves this signature")
-            out.append({"statistic": d["statistic"], "z": d["z"], "effect": None, "why_not_named": why, "reading": reading})
+            out.append(row | {"effect": None, "why_not_named": why, "other_effects": []})
     return out
+
+
+def why_unnamed(name: str, c: dict | None, report: dict) -> str:
+    """Why effect ``name``, whose signature a disagreement is, is not in the diagnosed model (``c``: its candidate
+    entry in the report, None when it was not tried)."""
+    if c is None:
+        return not_tried(name)
+    return (passed_over(c, report.get("search_rounds", {})) or c["note"] or
+            f"training gain {c['gain_train']:.1f} nats, p = {c['p_value']:.2g}; held-out gain {c['gain_heldout']:+.1f} nats")
 
 
 def passed_over(c: dict, rounds: dict) -> str:
