@@ -107,20 +107,16 @@ def one(effect: str | None, params: dict | None, seed: int, minutes: float, pres
             "detected": first_named(named) == right_answer(effect or "none"), "seconds": time.perf_counter() - t0}
 
 
-def chosen_candidates(arg: str) -> list[str] | None:
-    """``--candidates``: None for "all" (every effect of the catalogue), ``aibo diagnose``'s defaults for "defaults",
-    else the names given (each checked against the catalogue)."""
-    if arg == "all":
-        return None
-    if arg == "defaults":
-        from aibo.commands.diagnose import candidates
+def chosen_candidates(arg: str) -> list[str]:
+    """``--candidates`` as ``aibo diagnose`` reads it (``aibo.commands.diagnose.candidates``: names, "all" for every
+    effect of the catalogue, "defaults" for the effects it tries without the option)."""
+    from aibo.commands.diagnose import candidates
+    from aibo.errors import CLIError
 
-        return list(candidates(None))
-    names = [n for n in arg.split(",") if n]
-    unknown = [n for n in names if n not in EFFECT_MODELS]
-    if unknown or not names:
-        raise SystemExit(f"--candidates: not in the catalogue: {', '.join(unknown) or '(none given)'}")
-    return names
+    try:
+        return candidates(arg)
+    except CLIError as err:
+        raise SystemExit(str(err)) from None
 
 
 def first_named(named: list[str]) -> str:
@@ -170,7 +166,8 @@ def main() -> None:
     ap.add_argument("--pair-minutes", type=float, default=None, help="length of the pairs' logs (default: --minutes)")
     ap.add_argument("--out", default="runs/power")
     ap.add_argument("--candidates", default="all",
-                    help="all (every effect of the catalogue), defaults (aibo diagnose's), or a comma-separated list")
+                    help="as aibo diagnose's: comma-separated effects, 'all' (every effect of the catalogue), "
+                         "'defaults' (aibo diagnose's without the option)")
     args = ap.parse_args()
     candidates = chosen_candidates(args.candidates)
     out = Path(args.out)

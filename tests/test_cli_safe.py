@@ -148,6 +148,22 @@ def test_diagnose_refuses_empty_candidates(value, blind_log, tmp_path, capsys):
     assert not (tmp_path / "D").exists()
 
 
+def test_diagnose_candidates_take_all_and_defaults_as_the_catalogue_and_the_default_set():
+    """``--candidates all`` is every effect of the catalogue, ``defaults`` the effects tried without the option (so
+    ``defaults,heavy_tailed_noise`` adds one), each effect once; an unknown name is refused naming the keywords."""
+    from aibo.commands.diagnose import candidates
+    from aibo.errors import CLIError
+    from learners.model.effects import EFFECT_MODELS
+
+    defaults = candidates(None)
+    assert candidates("all") == sorted(EFFECT_MODELS) and candidates("defaults") == defaults
+    assert "heavy_tailed_noise" not in defaults
+    assert candidates("defaults,heavy_tailed_noise") == defaults + ["heavy_tailed_noise"]
+    assert candidates("floor_drift,defaults") == ["floor_drift"] + [n for n in defaults if n != "floor_drift"]
+    with pytest.raises(CLIError, match="valid choices: all, defaults, "):
+        candidates("defaults,nope")
+
+
 @pytest.mark.parametrize("value", ["1", "2"])
 def test_diagnose_refuses_too_few_replicas_to_reject_anything(value, blind_log, tmp_path, capsys):
     """With fewer than 3 replicas the disagreement threshold is infinite: refused, not a silent '0 disagree'."""

@@ -62,9 +62,10 @@ def test_the_study_runs_with_the_commands_default_candidates_when_asked(tmp_path
     import pytest
 
     from aibo.commands.diagnose import candidates
+    from learners.model.effects import EFFECT_MODELS
 
     dp = _load()
-    assert dp.chosen_candidates("all") is None
+    assert dp.chosen_candidates("all") == sorted(EFFECT_MODELS)
     assert dp.chosen_candidates("defaults") == list(candidates(None))
     assert "heavy_tailed_noise" not in dp.chosen_candidates("defaults")
     assert dp.chosen_candidates("floor_drift,wall_contact") == ["floor_drift", "wall_contact"]
@@ -76,5 +77,5 @@ def test_the_study_runs_with_the_commands_default_candidates_when_asked(tmp_path
                                       "defaults", "--out", str(tmp_path)])
     dp.main()
     assert given == [list(candidates(None))]
-    with pytest.raises(SystemExit, match="not in the catalogue: nope"):
+    with pytest.raises(SystemExit, match="unknown effect 'nope'"):
         dp.chosen_candidates("floor_drift,nope")

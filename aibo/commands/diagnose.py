@@ -45,21 +45,29 @@ FIGURES = ("signatures.png", "gap.png", "calibrated.png")
 OUTPUTS = ("report.json", "model.json", "report.html", *FIGURES)
 
 
+#: ``--candidates`` keywords: the whole catalogue, and the effects tried without the option (``DEFAULT_CANDIDATE``).
+ALL, DEFAULTS = "all", "defaults"
+
+
 def candidates(arg: str | None) -> list[str]:
     """The effects to try: the catalogue's default candidates (``EffectModel.DEFAULT_CANDIDATE``), or the
-    comma-separated names given."""
+    comma-separated names given, where "all" stands for every effect of the catalogue and "defaults" for the default
+    candidates (``--candidates defaults,heavy_tailed_noise``)."""
+    defaults = sorted(n for n, cls in EFFECT_MODELS.items() if cls.DEFAULT_CANDIDATE)
     if arg is None:
-        return sorted(n for n, cls in EFFECT_MODELS.items() if cls.DEFAULT_CANDIDATE)
+        return defaults
     names = [n.strip() for n in arg.split(",") if n.strip()]
     if not names:
         raise CLIError(f"--candidates {arg!r}: no effect named (give comma-separated names, or leave the option out "
-                       "for the whole catalogue)")
+                       "for the default candidates)")
     if len(set(names)) != len(names):
         raise CLIError(f"--candidates {arg!r}: an effect is named twice")
-    unknown = [n for n in names if n not in EFFECT_MODELS]
+    unknown = [n for n in names if n not in EFFECT_MODELS and n not in (ALL, DEFAULTS)]
     if unknown:
-        raise CLIError(f"--candidates: unknown effect {unknown[0]!r} (valid choices: {', '.join(sorted(EFFECT_MODELS))})")
-    return names
+        raise CLIError(f"--candidates: unknown effect {unknown[0]!r} (valid choices: {ALL}, {DEFAULTS}, "
+                       f"{', '.join(sorted(EFFECT_MODELS))})")
+    expanded = {ALL: sorted(EFFECT_MODELS), DEFAULTS: defaults}
+    return list(dict.fromkeys(x for n in names for x in expanded.get(n, [n])))
 
 
 def run(args) -> int:
