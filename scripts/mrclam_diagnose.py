@@ -48,6 +48,7 @@ def diagnose_robot(data: Path, robot: int, out: Path, options: list[str] | None 
             "named": [(e["name"], e["parameters"]) for e in report["effects"]],
             "none_of_the_above": [u.get("describes", u["statistic"]) for u in report.get("unexplained", [])
                                   if u.get("probe")],
+            "disagreements": [[u["statistic"], u["z"]] for u in report.get("unexplained", []) if not u.get("probe")],
             "warnings": report.get("warnings", []), "gap_before": report["gap_before"], "gap_after": report["gap_after"],
             "face": model_row(face_value_model(model), tr, 2.0), "diagnosed": model_row(model, tr, 2.0)}
 
@@ -61,19 +62,28 @@ def _named(rec: dict) -> str:
 def table(records: list[dict]) -> str:
     head = ("| robot | forward mm/s: face / diagnosed | turn rad/s: face / diagnosed | pose mm: face / diagnosed | "
             "autocorr.: face / diagnosed | gap: base -> model | s (by stage: report.json's seconds_by_stage) | named | "
-            "none of the above | warnings |\n|" + "---|" * 10)
+            "none of the above | statistics disagreeing after (calibrated check) | warnings |\n|" + "---|" * 11)
     rows = []
     for r in records:
         if "error" in r:
-            rows.append(f"| {r['robot']} | failed: {r['error']} |" + " |" * 9)
+            rows.append(f"| {r['robot']} | failed: {r['error']} |" + " |" * 10)
             continue
         f, d, st = r["face"], r["diagnosed"], r["stages"]
         rows.append(f"| {r['robot']} | {f['vx_rms']:.1f} / {d['vx_rms']:.1f} | {f['vtheta_rms']:.4f} / "
                     f"{d['vtheta_rms']:.4f} | {f['pose_rms']:.0f} / {d['pose_rms']:.0f} | {f['ac1']:.2f} / {d['ac1']:.2f} | "
                     f"{r['gap_before']:.2f} -> {r['gap_after']:.2f} | {r['wall_s']:.0f} ("
                     + ", ".join(f"{k} {v:.0f}" for k, v in st.items()) + f") | {_named(r)} | "
-                    f"{'; '.join(r['none_of_the_above']) or '-'} | {len(r['warnings'])} |")
+                    f"{'; '.join(r['none_of_the_above']) or '-'} | {_disagreeing(r)} | {len(r['warnings'])} |")
     return head + "\n" + "\n".join(rows) + "\n"
+
+
+def _disagreeing(rec: dict) -> str:
+    """The calibrated check's statistics still disagreeing after the named effects (``report.json["unexplained"]``,
+    one row per statistic) and their z; "?" for a record written before they were kept."""
+    if "disagreements" not in rec:
+        return "?"
+    rows = rec["disagreements"]
+    return f"{len(rows)}" + (": " + "; ".join(f"{n} ({z:+.1f})" if isinstance(z, (int, float)) else f"{n} ({z})" for n, z in rows) if rows else "")
 
 
 WARM_UP_S = 180.0  # the first minute holds too few sightings for a fit (robot 2: 146, 150 needed)
