@@ -78,8 +78,9 @@ class TurnDependentNoise(EffectModel):
     #: Tried only when asked for: on the MRCLAM robots' whole logs it is named on four of five (gain 17-26 s/rad), the
     #: forward speed against Vicon 12% better on robot 4 and 7% worse on robot 1, the turn 19% worse on robot 2, and it
     #: takes a round of the three the search runs from the beacon heights; on the halves it was not fitted to it is as
-    #: good as the defaults or better (forward within 3% of learn's on 9 of 10, the motion gap better on 8), and no
-    #: confusion matrix has it among the defaults yet (docs/results.md, "Motion noise that grows with the turn")
+    #: good as the defaults or better (forward within 3% of learn's on 9 of 10, the motion gap better on 9); with it
+    #: among the candidates the confusion matrix (210 blind logs) names it on none of the 180 hiding another effect,
+    #: and on 11 of the 15 hiding ``turn_heading_noise`` (docs/results.md, "Motion noise that grows with the turn")
     DEFAULT_CANDIDATE: ClassVar[bool] = False
     #: the simulated strength the tests and studies use: the noise's standard deviation x 1.8 at 1 rad/s
     EXAMPLE: ClassVar[dict[str, Any]] = {"gain_s": 1.5}
