@@ -83,7 +83,8 @@ def _disagreeing(rec: dict) -> str:
     if "disagreements" not in rec:
         return "?"
     rows = rec["disagreements"]
-    return f"{len(rows)}" + (": " + "; ".join(f"{n} ({z:+.1f})" if isinstance(z, (int, float)) else f"{n} ({z})" for n, z in rows) if rows else "")
+    text = [f"{n} ({z:+.1f})" if isinstance(z, (int, float)) else f"{n} ({z})" for n, z in rows]
+    return f"{len(rows)}" + (": " + "; ".join(text) if rows else "")
 
 
 WARM_UP_S = 180.0  # the first minute holds too few sightings for a fit (robot 2: 146, 150 needed)
