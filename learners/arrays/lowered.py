@@ -86,32 +86,32 @@ class Lowered:
         """(n, 3, 3) D_i cov D_i of ``frames`` (an index array or a slice; default every frame): each frame's motion
         covariance in the robot frame before its ``cov_scale`` (mm^2, mm^2, rad^2; module docstring). Unit factors
         give ``cov`` exactly."""
-        d = np.asarray(self.cov_sd, dtype=float)[_rows(frames)]
+        d = _of_frames(self.cov_sd, frames)
         return d[:, :, None] * np.asarray(self.cov, dtype=float)[None] * d[:, None, :]
 
     def frame_cov(self, frames=None) -> np.ndarray:
         """(n, 3, 3) Sigma_i = cov_scale[i] D_i cov D_i of ``frames`` (default every frame): each frame's motion
         covariance in the robot frame (mm^2, mm^2, rad^2; module docstring)."""
-        c = np.asarray(self.cov_scale, dtype=float)[_rows(frames)]
+        c = _of_frames(self.cov_scale, frames)
         return c[:, None, None] * self.shaped_cov(frames)
 
     def whiten(self, v: np.ndarray, frames=None) -> np.ndarray:
         """(n, 3) D_i^-1 v_i of per-frame robot-frame vectors ``v`` (n, 3) of ``frames`` (default every frame): a
         displacement residual in the units of cov's standard deviations, before cov_scale."""
-        return v / np.asarray(self.cov_sd, dtype=float)[_rows(frames)]
+        return v / _of_frames(self.cov_sd, frames)
 
     def unshaped(self, m: np.ndarray, frames=None) -> np.ndarray:
         """(n, 3, 3) D_i^-1 m_i D_i^-1 of per-frame second moments ``m`` (n, 3, 3) of ``frames`` (default every frame):
         the per-component factors taken out, ``cov_scale`` left in (``shaped_cov``'s inverse). Unit factors give m
         exactly."""
-        d = np.asarray(self.cov_sd, dtype=float)[_rows(frames)]
+        d = _of_frames(self.cov_sd, frames)
         return m / (d[:, :, None] * d[:, None, :])
 
     def whitened(self, m: np.ndarray, frames=None) -> np.ndarray:
         """(n, 3, 3) D_i^-1 m_i D_i^-1 / cov_scale[i] of per-frame second moments ``m`` (n, 3, 3) of ``frames``
         (default every frame): in the units of cov, what the M-step of Sigma_A averages. Unit factors give m /
         cov_scale exactly."""
-        return self.unshaped(m, frames) / np.asarray(self.cov_scale, dtype=float)[_rows(frames)][:, None, None]
+        return self.unshaped(m, frames) / _of_frames(self.cov_scale, frames)[:, None, None]
 
     @staticmethod
     def plain(disp: np.ndarray, cov: np.ndarray, basis: int, coef: np.ndarray, sigma_size: float,
@@ -136,9 +136,10 @@ class Lowered:
         return curve(self.basis, self.coef, d)
 
 
-def _rows(frames):
-    """The frames an index argument of ``Lowered``'s per-frame helpers selects: every frame for None."""
-    return slice(None) if frames is None else frames
+def _of_frames(values, frames) -> np.ndarray:
+    """The rows of per-frame ``values`` (``cov_sd``, ``cov_scale``) that an index argument of ``Lowered``'s per-frame
+    helpers selects, as floats: every frame for None."""
+    return np.asarray(values, dtype=float)[slice(None) if frames is None else frames]
 
 
 _CONSTANTS: dict[tuple, np.ndarray] = {}
