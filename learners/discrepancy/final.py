@@ -192,6 +192,15 @@ def diagnosed(found: dict[str, Any], opts: EMOptions, again: bool = True, final:
     return Diagnosed(final, effects, profiled, seconds, starts)
 
 
+def _first_implausible(found: dict[str, Any], fit: LearnResult) -> tuple[Any, str] | None:
+    """The first named effect (in the order named) the fit ``fit`` holds at values its class finds implausible, with
+    why (``EffectModel.implausible``); None when every one is plausible."""
+    for c in found["named"]:
+        if why := fit.params.effect(c.name).implausible():
+            return c, why
+    return None
+
+
 def plausible_diagnosis(found: dict[str, Any], opts: EMOptions, progress=print,
                         pool: Any = None) -> tuple[dict[str, Any], Diagnosed]:
     """(``found`` as the final fit leaves it, the final fit with its intervals): while the final fit on the whole logs
@@ -204,21 +213,40 @@ def plausible_diagnosis(found: dict[str, Any], opts: EMOptions, progress=print,
     first half: ``landmark_bias`` named at a correlation time of 50 s went to 459 s in the final fit, a per-landmark
     constant whose common part traded with the forward speed (7.4 mm/s against Vicon on the other half; 5.4 without
     it, ``aibo learn`` 5.8). ``pool``: the worker pool the final fits' starts and the intervals' held fits run in
-    (:func:`final_fit`, :func:`diagnosed`)."""
+    (:func:`final_fit`, :func:`diagnosed`).
+
+    The rule holds for the fit whose values are stated: :func:`diagnosed` makes the final fit once more where a held
+    fit of the intervals' stage is more likely, and that fit is checked too (MRCLAM robot 4's whole log, the twin's
+    recipe of docs/results.md: ``landmark_bias`` plausible in the final fit, reported at 72 s, above the 60 s bound,
+    after the refit, with a warning only); an effect it makes implausible is dropped in the same way, the intervals of
+    that fit computed in vain (rare: the time is counted)."""
     t0 = time.perf_counter()
     if "learned" not in found:
         found = dict(found, learned=learned(found["logs"], opts, found.get("action_model")))
-    fit, starts = final_fit(found, opts, pool)
     found = dict(found, dropped_in_final=[])
-    while bad := [c for c in found["named"] if fit.params.effect(c.name).implausible()]:
-        c = bad[0]
-        why = fit.params.effect(c.name).implausible()
-        progress(f"dropped: {c.name} (in the final fit on the whole log(s), {why})")
-        dropped = found["dropped_in_final"] + [{"name": c.name, "why": why, "round": found["winners"].index(c.name) + 1}]
-        found = dict(search_without(found, c.name, pool, progress), dropped_in_final=dropped)
+    fit, starts = final_fit(found, opts, pool)
+    spent, final = 0.0, None
+    while True:
+        if bad := _first_implausible(found, fit):
+            found = _drop(found, *bad, pool, progress)
+            fit, starts = final_fit(found, opts, pool)
+            continue
+        spent += time.perf_counter() - t0
+        final = diagnosed(found, opts, final=fit, pool=pool)  # the intervals of the fit kept only
+        t0 = time.perf_counter()
+        if (bad := _first_implausible(found, final.result)) is None:
+            break
+        spent += sum(final.seconds.values())  # a refit's intervals, discarded with the effect
+        found = _drop(found, *bad, pool, progress)
         fit, starts = final_fit(found, opts, pool)
-    spent = time.perf_counter() - t0
-    final = diagnosed(found, opts, final=fit, pool=pool)  # the intervals of the fit kept only
-    final.seconds[FINAL_FIT_STAGE] += spent
+    final.seconds[FINAL_FIT_STAGE] = final.seconds.get(FINAL_FIT_STAGE, 0.0) + spent
     final.starts = final.starts or starts  # made again from a held fit (``diagnosed``): that fit's starts
     return found, final
+
+
+def _drop(found: dict[str, Any], c: Any, why: str, pool: Any, progress) -> dict[str, Any]:
+    """``found`` without the named effect ``c`` (the search run again without it from the round that named it,
+    ``search.search_without``), ``dropped_in_final`` saying why; the drop said through ``progress``."""
+    progress(f"dropped: {c.name} (in the final fit on the whole log(s), {why})")
+    dropped = found["dropped_in_final"] + [{"name": c.name, "why": why, "round": found["winners"].index(c.name) + 1}]
+    return dict(search_without(found, c.name, pool, progress), dropped_in_final=dropped)
