@@ -266,6 +266,23 @@ def test_a_final_estimate_outside_its_interval_from_the_value_when_named_is_said
     assert "lag_s 0.1 when named" in moved_since_named("actuation_lag", lag, {"lag_s": 0.1})
 
 
+def test_a_named_effect_without_an_interval_is_said():
+    """MRCLAM robot 4's whole log, the twin's recipe: heavy_tailed_noise named at its start (0.1, 2), EM having kept its
+    start, and the final fit's information giving neither parameter an interval: the report says so, naming both;
+    with every interval, nothing."""
+    from types import SimpleNamespace
+
+    from learners.discrepancy.effect_sizes import effect_intervals, without_interval
+    from learners.model.heavy_tails import HeavyTailedNoise
+
+    model = SimpleNamespace(effect=lambda name: HeavyTailedNoise(0.1, 2.0))
+    iv = effect_intervals(model, "heavy_tailed_noise", {})  # no standard error: the information determines neither
+    why = without_interval("heavy_tailed_noise", iv)
+    assert why.startswith("heavy_tailed_noise: no 95% interval for rate 0.1, scale 2:") and "not a measured one" in why
+    se = {"effects.heavy_tailed_noise.rate": 0.01, "effects.heavy_tailed_noise.scale": 0.2}
+    assert without_interval("heavy_tailed_noise", effect_intervals(model, "heavy_tailed_noise", se)) == ""
+
+
 def _scripted_search(monkeypatch, ctx, rounds, candidates, progress, refit=None):
     """``search`` of ``candidates`` on stand-ins: its base an empty model (``refit``: the base's refit with spurious
     sightings, as ``base_fits`` returns it; None: the base fitted the field), every fit and likelihood ``ctx``'s, every

@@ -18,7 +18,7 @@ from aibo_core.compat import check_compatible
 from aibo_core.workers import process_pool
 from learners.arrays.batch import make_batch
 from learners.discrepancy.checks import RobustLikelihoodRatio
-from learners.discrepancy.effect_sizes import base_shift, holds_off, moved_since_named
+from learners.discrepancy.effect_sizes import base_shift, holds_off, moved_since_named, without_interval
 from learners.discrepancy.final import plausible_diagnosis
 from learners.discrepancy.profile import HALF_CHI2_1_95
 from learners.discrepancy.score import (
@@ -156,6 +156,7 @@ def run(args) -> int:
                            f"whole log(s), {d['why']}" for d in found["dropped_in_final"]]
     report["warnings"] += negligible_when_final(final.result.params, report["effects"], logs)
     report["warnings"] += short_of_maximum(report["effects"])
+    report["warnings"] += [w for e in report["effects"] if (w := without_interval(e["name"], e["intervals"]))]
     report["warnings"] += off_held(report["effects"], logs)
     report["warnings"] += [w for e in report["effects"]
                            if (w := moved_since_named(e["name"], e["intervals"], e["parameters_when_named"]))]

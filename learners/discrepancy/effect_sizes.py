@@ -145,6 +145,18 @@ def moved_since_named(name: str, intervals: dict[str, dict[str, Any]], when_name
             f"({'; '.join(moved)}): the training-half and whole-log fits disagree; the value reported is the final fit's")
 
 
+def without_interval(name: str, intervals: dict[str, dict[str, Any]]) -> str:
+    """Why named effect ``name``'s value is no measured one ("" when every parameter has its interval): the final fit
+    gives a parameter no 95% interval (``effect_intervals``: its information does not determine it). MRCLAM robot 4's
+    whole log, the twin's recipe, before ``heavy_tails.MAX_LOG_VAR_STEP``: ``heavy_tailed_noise`` named at its start,
+    rate 0.1 and scale 2 (EM kept its start, every step from it less likely), both intervals null, and no word."""
+    none = [f"{pname} {_fmt(iv['value'])}" for pname, iv in intervals.items() if iv["interval_95"] is None]
+    if not none:
+        return ""
+    return (f"{name}: no 95% interval for {', '.join(none)}: the final fit's information does not determine it (the "
+            "fit may have stopped short of the likelihood's maximum there); the value stated is not a measured one")
+
+
 def _fmt(v: Any) -> str:
     a = np.asarray(v, dtype=float)
     return f"{float(a):.3g}" if a.ndim == 0 else "[" + ", ".join(f"{x:.3g}" for x in a.ravel()) + "]"
