@@ -468,6 +468,25 @@ def test_an_effect_the_final_fits_refit_makes_implausible_is_dropped_too(monkeyp
     assert final.seconds[FINAL_FIT_STAGE] >= 20.0
 
 
+def test_the_search_again_leaves_out_every_effect_the_final_fit_dropped(monkeypatch):
+    """'c' named in round 2 was dropped in the final fit and the search run again from round 2 without it; the final fit
+    then makes 'a', named in round 1, implausible: the search runs again from round 1, whose candidates held 'c' too,
+    and leaves out both (else 'c', named and dropped, could be named again)."""
+    from learners.discrepancy.search import RoundStart, SearchState, search_without
+
+    seen = []
+    monkeypatch.setattr(search_module, "run_rounds", lambda st, *args: seen.append(list(st.remaining)))
+    monkeypatch.setattr(search_module, "finish", lambda st, *args: {"winners": st.winners})
+    starts = [RoundStart(_Model(()), 0.0, [], ["a", "b", "c"], {}), RoundStart(_Model(()), 1.0, [], ["b", "c"], {})]
+    found = {"state": SearchState(_Model(()), 2.0, ["b"], rounds=[[], []], winners=["a", "b"], starts=starts),
+             "context": None, "max_rounds": 3, "dropped_in_final": [{"name": "c", "why": "", "round": 2}]}
+    said = []
+    search_without(found, "a", progress=said.append)
+    assert seen == [["b"]] and said == ["the search again from round 1, without a, c"]
+    search_without(dict(found, dropped_in_final=[]), "a", progress=said.append)
+    assert seen[-1] == ["b", "c"] and said[-1] == "the search again from round 1, without a"
+
+
 def test_the_drifting_size_warning_says_what_the_search_found_of_landmark_bias():
     """``aibo learn``'s warning ends "`aibo diagnose` ... tests landmark_bias"; in the diagnosis it says instead that
     the search dropped it (its own warning says why: not twice) or tried it and did not name it; untried, the advice

@@ -508,15 +508,18 @@ def search_without(found: dict[str, Any], name: str, pool: Any = None,
     won round 3 over ``beacon_height_scale`` (held-out +212 nats), then went to a correlation time of 734 s in the
     final fit; without it as a candidate, ``beacon_height_scale`` is named, the calibrated check's disagreements
     fall from 9 to 5 and the forward speed against Vicon is within 2% (docs/results.md, "An effect dropped in the
-    final fit")."""
+    final fit"). Every effect the final fit dropped before (``found["dropped_in_final"]``) is left out too: a round
+    earlier than the one that named it would otherwise try it again."""
     st0: SearchState = found["state"]
     k = st0.winners.index(name)
     start = st0.starts[k]
-    st = SearchState(start.current, start.current_ll, [n for n in start.remaining if n != name], rounds=st0.rounds[:k],
+    left_out = {name} | {d["name"] for d in found.get("dropped_in_final", [])}
+    st = SearchState(start.current, start.current_ll, [n for n in start.remaining if n not in left_out],
+                     rounds=st0.rounds[:k],
                      named=list(start.named), winners=st0.winners[:k], starts=st0.starts[:k],
                      escapes=[e for e in st0.escapes if e["round"] <= k + 1],  # the round's own: in its start
                      previous=dict(start.previous))
-    progress(f"the search again from round {k + 1}, without {name}")
+    progress(f"the search again from round {k + 1}, without " + ", ".join(sorted(left_out & set(start.remaining))))
     ctx, jobs = found["context"], found.get("jobs", 1)
     workers = pool if jobs > 1 else None
     run_rounds(st, ctx, workers, jobs, found["max_rounds"], progress)
