@@ -224,22 +224,18 @@ def plausible_diagnosis(found: dict[str, Any], opts: EMOptions, progress=print,
     if "learned" not in found:
         found = dict(found, learned=learned(found["logs"], opts, found.get("action_model")))
     found = dict(found, dropped_in_final=[])
-    fit, starts = final_fit(found, opts, pool)
-    spent, final = 0.0, None
+    spent = 0.0
     while True:
-        if bad := _first_implausible(found, fit):
-            found = _drop(found, *bad, pool, progress)
-            fit, starts = final_fit(found, opts, pool)
-            continue
-        spent += time.perf_counter() - t0
-        final = diagnosed(found, opts, final=fit, pool=pool)  # the intervals of the fit kept only
-        t0 = time.perf_counter()
-        if (bad := _first_implausible(found, final.result)) is None:
-            break
-        spent += sum(final.seconds.values())  # a refit's intervals, discarded with the effect
-        found = _drop(found, *bad, pool, progress)
         fit, starts = final_fit(found, opts, pool)
-    final.seconds[FINAL_FIT_STAGE] = final.seconds.get(FINAL_FIT_STAGE, 0.0) + spent
+        if (bad := _first_implausible(found, fit)) is None:
+            spent += time.perf_counter() - t0
+            final = diagnosed(found, opts, final=fit, pool=pool)  # the intervals of the fit kept only
+            t0 = time.perf_counter()
+            if (bad := _first_implausible(found, final.result)) is None:
+                break
+            spent += sum(final.seconds.values())  # a refit's intervals, discarded with the effect
+        found = _drop(found, *bad, pool, progress)
+    final.seconds[FINAL_FIT_STAGE] += spent
     final.starts = final.starts or starts  # made again from a held fit (``diagnosed``): that fit's starts
     return found, final
 
