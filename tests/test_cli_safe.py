@@ -616,6 +616,28 @@ def test_diagnose_says_when_every_replica_failed(blind_log, tmp_path, monkeypatc
     assert "calibrated.png" not in text and not (out / "calibrated.png").exists()
 
 
+def test_the_calibrated_check_after_the_named_effects_is_of_the_model_written(blind_log, tmp_path, monkeypatch):
+    """The twin judged "after" is model.json (the final fit on the whole log, the simulator a user drives), not the
+    search's fit of the training half; "before" is the base model's."""
+    import numpy as np
+
+    from experiments import calibrated
+    from learners.model.io import load_model, model_to_json
+
+    checked = []
+
+    def records(model, logs, replicas, seed, jobs, progress=None):
+        checked.append(model)
+        return calibrated.Check(["s"], np.zeros(1), np.zeros((replicas, 1)))
+
+    monkeypatch.setattr(calibrated, "predictive_check", records)
+    out = tmp_path / "D"
+    assert _diagnose(blind_log, out, "--replicas", "3") == 0
+    assert len(checked) == 2
+    written = model_to_json(load_model(out / "model.json"))
+    assert model_to_json(checked[1]) == written and model_to_json(checked[0]) != written
+
+
 def test_report_page_leads_with_the_verdict(tmp_path):
     from aibo.diagnose_report import html_page
 

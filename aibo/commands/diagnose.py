@@ -137,7 +137,7 @@ def run(args) -> int:
         say(f"  {s.residual:24s} vs {s.variable:40s} adjusted p = {s.p_holm:.1g}"
             + (f" (the signature of {whose})" if whose else ""))
     t1 = time.perf_counter()
-    report["calibrated_simulation"] = calibrated(found, logs, args, say)
+    report["calibrated_simulation"] = calibrated(found["base"], final.result.params, logs, args, say)
     seconds["calibrated check"] = time.perf_counter() - t1
     report["unexplained"] = unexplained(report)
     for u in report["unexplained"]:
@@ -204,24 +204,25 @@ def named_signatures(report: dict) -> dict[str, str]:
     return {e["name"]: EFFECT_MODELS[e["name"]].SIGNATURE for e in report["effects"] if e["name"] in EFFECT_MODELS}
 
 
-def calibrated(found: dict, logs: list, args, say) -> dict:
-    """The measured logs against the calibrated simulators of the base and the final model
+def calibrated(base, final, logs: list, args, say) -> dict:
+    """The measured logs against the calibrated simulators of the ``base`` model and of the ``final`` one (the final
+    fit: model.json, the twin a user drives; until 2026-11-28 the search's fit of the training half)
     (``experiments.calibrated``): ``{"before", "after"}`` checks, or ``{"note"}`` why not."""
     from experiments.calibrated import MIN_REPLICAS, predictive_check, simulator_config
 
     if args.replicas == 0:
         return {"note": "not run (--replicas 0)"}
     try:
-        simulator_config(found["model"], logs[0])
+        simulator_config(final, logs[0])
     except ValueError as err:
         say(f"calibrated simulator: not available: {err}")
         return {"note": f"not available: {err}"}
     say("")
     say(f"the measured log against its calibrated simulator ({args.replicas} replays of the measured commands):")
     checks = {}
-    for when, key in (("base model", "base"), ("with the named effects", "model")):
-        check = predictive_check(found[key], logs, args.replicas, args.seed, args.jobs)
-        checks["before" if key == "base" else "after"] = check.as_dict()
+    for when, key, model in (("base model", "before", base), ("with the named effects", "after", final)):
+        check = predictive_check(model, logs, args.replicas, args.seed, args.jobs)
+        checks[key] = check.as_dict()
         worst = check.disagreements()
         if len(check.replicas) < MIN_REPLICAS:
             say(f"  {when}: no comparison: {len(check.replicas)} of {args.replicas} replicas ran "
