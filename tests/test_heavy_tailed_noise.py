@@ -130,30 +130,6 @@ def test_em_recovers_the_share_and_the_width_of_the_tails(tails_log):
     np.testing.assert_allclose(sightings_logdens(fit.params, batch, post, idx), want, rtol=1e-10)
 
 
-def test_the_polish_takes_rate_and_scale_up_the_likelihood_with_the_weights_recomputed(tails_log):
-    """ECME's step (``HeavyTailedNoise.polish``): from (rate, scale) off the fit's, with the rest of a fitted model
-    held, the polish ends more likely than the start, each trial point's weights computed at the smoothed path
-    (``smooth``), and back near the fit's values (10% at 3x simulated); without ``smooth`` it leaves the effect."""
-    opts = EMOptions(starts=1, uncertainty=False, lag_search=False)
-    base = EMLearner(opts).fit([tails_log]).params
-    fit = EMLearner(opts).fit([tails_log], init=base.with_effect(HeavyTailedNoise.start(None))).params
-    batch = make_batch([tails_log])
-
-    def smooth(model):
-        return e_step(model, batch, "compiled")
-
-    def loglik(model):
-        return smooth(model).loglik
-
-    off = fit.effect("heavy_tailed_noise")
-    off = replace(off, rate=0.03, scale=6.0).weighed(fit, batch, smooth(fit))
-    start = fit.with_effect(off)
-    e = off.polish(start, batch, loglik, smooth=smooth)
-    assert loglik(start.with_effect(e)) > loglik(start) + 20.0
-    assert e.rate == pytest.approx(0.1, abs=0.03) and e.scale == pytest.approx(3.0, abs=0.5), e
-    assert e.weighs(batch) and off.polish(start, batch, loglik) is off
-
-
 def test_the_smoothed_residuals_hold_the_size_bias_states():
     """With ``landmark_bias``'s states in the model, a noise mixture's M-step weighs each size against the smoothed
     prediction times (1 + b): without b, every biased landmark looked like the wide component."""

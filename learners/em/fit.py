@@ -169,7 +169,7 @@ class _Loop:
         best, changed = st.best, False
         for effect in st.best.effects:
             if effect.name not in opts.frozen:
-                polished = best.effect(effect.name).polish(best, self.batch, loglik, smooth=self.smooth)
+                polished = best.effect(effect.name).polish(best, self.batch, loglik)
                 if polished is not best.effect(effect.name):
                     best, changed = best.with_effect(polished), True
         st.polishes += 1
@@ -178,10 +178,6 @@ class _Loop:
         st.params, st.converged = best, False
         self.state.step_ref = None  # the polished model is no EM step's
         return True
-
-    def smooth(self, params: Model) -> Posterior:
-        """``params``' E-step on the fit's sightings (its smoothed posterior; a polish's)."""
-        return e_step(params, self.batch, self.opts.estep)
 
     def loglik(self, params: Model) -> float:
         """``params``' log-likelihood of the fit's sightings (nats): one forward pass, or for a mixture

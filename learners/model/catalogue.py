@@ -165,8 +165,7 @@ class ActuationLag(EffectModel):
     GRID: ClassVar[dict[str, tuple[float, ...]]] = {"lag_s": (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)}
     EXAMPLE: ClassVar[dict[str, Any]] = {"lag_s": 0.2}  # no PROBE: the grid's profile shows a flat likelihood
 
-    def polish(self, model: "Model", batch: Batch, loglik: Callable[["Model"], float],
-               smooth: Callable[["Model"], Posterior] | None = None) -> "ActuationLag":
+    def polish(self, model: "Model", batch: Batch, loglik: Callable[["Model"], float]) -> "ActuationLag":
         """The lag maximizing the likelihood within one grid step either side of this one, the rest of ``model`` held
         (``EffectModel.polish``): the search places it on ``GRID`` (0.1 s apart), the final fit refines it below.
         Continuous commands: Brent's method on the continuous lag, to 1 ms. Discrete commands move by whole frames:

@@ -124,15 +124,12 @@ class EffectModel(Component):
         model's components never run inference themselves)."""
         return self
 
-    def polish(self, model: "Model", batch: Batch, loglik: Callable[["Model"], float],
-               smooth: Callable[["Model"], Posterior] | None = None) -> "EffectModel":
+    def polish(self, model: "Model", batch: Batch, loglik: Callable[["Model"], float]) -> "EffectModel":
         """This effect's parameters maximizing ``loglik`` (the likelihood itself, one forward pass per call) with the
         rest of ``model`` held: a conditional maximization step on the observed-data likelihood (ECME, Liu & Rubin
         1994), which EM's loop takes once it has converged when ``EMOptions.polish`` is on (``learners.em.fit``);
         default: itself. For an effect whose M-step, a maximum of the expected complete-data likelihood, moves its
-        parameters slowly along a ridge of the likelihood (``landmark_bias``: docs/results.md, calibration), or is no
-        ascent step (``heavy_tailed_noise``). ``smooth``: a model's E-step (its smoothed posterior), for an effect
-        whose filter needs quantities computed at the smoothed path (a noise mixture's weights)."""
+        parameters slowly along a ridge of the likelihood (``landmark_bias``: docs/results.md, calibration)."""
         return self
 
     def grid_resolution(self, pname: str, batch: Batch) -> float | None:

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Any, Callable, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
@@ -56,9 +56,6 @@ MAX_SCALE = 10.0  # the wide component's standard deviation at most this many ti
 #: never fitted, with no interval. Bounded at 0.2: -2,278.9 nats against -2,327.7 (0.7: -2,323.0, a fall of 128 nats);
 #: on simulated logs (rate 0.1 at 2 and 3 times the noise, `aibo` and `paper-sim`) the same estimates to 0.01.
 MAX_LOG_VAR_STEP = 0.2
-#: ``polish``: its first simplex (log rate and log scale +0.3 each) and its E-steps at most (one per trial point)
-POLISH_SIMPLEX = 0.3
-POLISH_MAX_EVALS = 60
 START = {"rate": 0.1, "scale": 2.0}  # EM's start: at rate 0 or scale 1 the mixture is one Gaussian, and EM stays there
 
 
@@ -143,35 +140,6 @@ class HeavyTailedNoise(WeighedSightings, EffectModel):
         var = np.array([lo0.sigma_size ** 2, lo0.sigma_bearing ** 2])
         rate, c2 = self._mixture()
         return replace(self, w=_precisions_at_path(lo0, batch, post, var, rate, c2), key=sighting_key(batch))
-
-    def polish(self, model: "Model", batch: Batch, loglik: Callable[["Model"], float],
-               smooth: Callable[["Model"], Posterior] | None = None) -> "HeavyTailedNoise":
-        """(rate, scale) maximizing the likelihood itself, the rest of ``model`` held, each trial point's weights ``w``
-        computed at the smoothed path of ``model`` (``smooth``): ECME's conditional step (``EffectModel.polish``),
-        Nelder-Mead over their logarithms from the current values. Why: the M-step maximizes the mixture's likelihood
-        with the forward filter held and then moves the weights, and that pair is no ascent step where the pose's
-        share dominates the innovations: on MRCLAM robot 2 (the twin's recipe, docs/results.md) one more M-step from
-        the diagnosed model lowered EM's likelihood by 9.4 nats, while (rate, scale) from (0.081, 6.5) to (0.125,
-        5.2) raised it by 14. Without ``smooth``: itself."""
-        if smooth is None:
-            return self
-        from scipy.optimize import minimize  # here, not at import (SciPy's load costs every command)
-
-        post = smooth(model)
-
-        def at(x: np.ndarray) -> "HeavyTailedNoise":
-            trial = replace(self, rate=float(np.clip(math.exp(x[0]), W_FLOOR, MAX_RATE)),
-                            scale=float(np.clip(math.exp(x[1]), 1.0, MAX_SCALE)))
-            return trial.weighed(model, batch, post)
-
-        def negative(x: np.ndarray) -> float:
-            return -loglik(model.with_effect(at(x)))
-
-        x0 = np.array([math.log(max(self.rate, W_FLOOR)), math.log(max(self.scale, 1.0))])
-        simplex = [x0, x0 + [POLISH_SIMPLEX, 0.0], x0 + [0.0, POLISH_SIMPLEX]]
-        best = minimize(negative, x0, method="Nelder-Mead",
-                        options={"initial_simplex": simplex, "xatol": 1e-2, "fatol": 0.05, "maxfev": POLISH_MAX_EVALS})
-        return at(best.x) if best.fun < negative(x0) else self
 
     def _one_step(self, model: "Model", batch: Batch,
                   post: Posterior) -> tuple[Innovations, np.ndarray, Lowered, np.ndarray]:

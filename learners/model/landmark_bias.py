@@ -163,8 +163,7 @@ class LandmarkBias(EffectModel):
         return max((LandmarkBias(s, t) for s in WARM_GRID[0] for t in WARM_GRID[1]),
                    key=lambda e: loglik(model.with_effect(e)))
 
-    def polish(self, model: "Model", batch: Batch, loglik: Callable[["Model"], float],
-               smooth: Callable[["Model"], Posterior] | None = None) -> "LandmarkBias":
+    def polish(self, model: "Model", batch: Batch, loglik: Callable[["Model"], float]) -> "LandmarkBias":
         """(sigma_rel, tau_s) maximizing the likelihood itself, the rest of ``model`` held (ECME's conditional step;
         ``EffectModel.polish``): Nelder-Mead over their logarithms from the current values, to 0.01 nat. Why: EM's
         M-step maximizes the expected log density of the states, whose information about tau_s is a fraction of the
