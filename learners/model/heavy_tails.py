@@ -21,7 +21,9 @@ M-step: rate, scale and the core's two variances maximizing the mixture's likeli
 filter held (each sighting's innovation against the filter's prediction of its frame: ``fit_scale_mixture``, L-BFGS-B
 from the current values, the variances within a trust region: ``MAX_LOG_VAR_STEP``); then each sighting's expected
 precision at the smoothed path for the filter. EM's own closed-form steps crawl along the rate-scale ridge
-(docs/results.md, "A scale mixture of the noise"). Standard errors: ``conditional_information`` (the EKF's Fisher
+(docs/results.md, "A scale mixture of the noise"). No polish (ECME) after EM: the fit's likelihood, with weights
+from the smoothed path, rewards a higher rate (tried: the rate 0.07-0.18 for 0.1 on simulated logs, docs/results.md).
+Standard errors: ``conditional_information`` (the EKF's Fisher
 information cannot see a mixture's parameters). Not named below a rate of ``MIN_RATE`` (outliers) or a scale of
 ``MIN_SCALE`` (a slightly mis-specified Gaussian); not a default candidate: on the MRCLAM robots it traded robot 4's
 forward speed for robot 1's with the range held at the distance, and with the range's shrink in the base it is named
