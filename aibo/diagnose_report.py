@@ -107,7 +107,7 @@ def calibrated_bars(path: Path, before: dict[str, Any], after: dict[str, Any] | 
     ax.barh([k + 0.2 for k in y], [r["z"] for r in rows], height=0.4, color="tab:red", label="base model")
     if after is not None:
         ax.barh([k - 0.2 for k in y], [z_after.get(r["statistic"]) or 0.0 for r in rows], height=0.4,
-                color="tab:blue", label="with the named effects")
+                color="tab:blue", label="model.json (with the named effects)")
     limit = before["disagree_z"] or 4.0  # None: too few replicas for a threshold
     ax.axvspan(-limit, limit, color="0.9", zorder=0, label=f"|z| <= {limit:.1f}: like a simulated log")
     ax.set_xscale("symlog", linthresh=limit)
@@ -247,8 +247,8 @@ def _calibrated(cal: dict[str, Any] | None, unexplained: list[dict[str, Any]]) -
                 + (f" and {len(d) - 4} more" if len(d) > 4 else "")) if d else "nothing"
     return (f"<p>Calibrated simulator ({cal['before']['replicas']} replays of the measured commands): the measured "
             f"log differs in <b>{len(cal['before']['disagreements'])}</b> statistics from the base model's simulation "
-            f"({worst(cal['before'])}), and in <b>{len(cal['after']['disagreements'])}</b> from the simulation with the "
-            f"named effects ({worst(cal['after'])}).</p>"
+            f"({worst(cal['before'])}), and in <b>{len(cal['after']['disagreements'])}</b> from the simulation of the "
+            f"diagnosed model, model.json, with the named effects ({worst(cal['after'])}).</p>"
             + "".join(_still_unlike(u) for u in unexplained if "probe" not in u))
 
 
