@@ -3,23 +3,16 @@ parametrization) and the final fit it shares with ``aibo diagnose`` (``learners.
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "calibration.py"
+from tests._scripts import load_script
 
 
 def _load():
-    spec = importlib.util.spec_from_file_location("calibration", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("calibration")
 
 
 def test_coverage_bias_and_their_standard_errors_on_known_inputs():

@@ -2,19 +2,13 @@
 
 from __future__ import annotations
 
-import importlib.util
 import sys
-from pathlib import Path
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "diagnose_power.py"
+from tests._scripts import load_script
 
 
 def _load():
-    spec = importlib.util.spec_from_file_location("diagnose_power", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod  # its dataclasses look their module up there
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("diagnose_power")
 
 
 def test_a_pair_that_meets_the_walls_names_wall_contact_too():

@@ -3,15 +3,10 @@ and ``aibo diagnose`` (defaults, as a user runs them) fitted on the first half, 
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import pytest
 
+from tests._scripts import load_script
 from tests.test_mrclam import DATA, needs_data
-
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "mrclam_crossval.py"
 
 
 @pytest.mark.slow
@@ -23,10 +18,7 @@ def test_on_the_half_it_never_saw_the_diagnosed_model_drives_no_worse_than_learn
     half's own start) no worse than learn's. Measured 2026-11-28: forward 5.8 (diagnose) / 5.8 (learn) / 10.3 (face)
     mm/s, turn 0.0253 / 0.0254 / 0.0409 rad/s, motion gap at 5 s 4.25 / 4.47 nats per sighting (docs/results.md,
     "MRCLAM, half to half")."""
-    spec = importlib.util.spec_from_file_location("mrclam_crossval", SCRIPT)
-    cv = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = cv
-    spec.loader.exec_module(cv)
+    cv = load_script("mrclam_crossval")
     r = cv.row(DATA, 2, "first->second", tmp_path, jobs=2)
     learn, diag = r["learn"], r["diagnose"]
     assert diag["vx_rms"] <= 1.03 * learn["vx_rms"] and diag["vx_x_face"] <= 0.6, r

@@ -3,21 +3,15 @@
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-MRCLAM = ROOT / ".." / "shared" / "data" / "mrclam7"
+from tests._scripts import load_script
+from tests.test_mrclam import DATA, needs_data
 
 
 def _script():
-    spec = importlib.util.spec_from_file_location("mrclam_range_scale", ROOT / "scripts" / "mrclam_range_scale.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("mrclam_range_scale")
 
 
 def test_the_fit_recovers_a_known_scale_offset_and_shrink_and_leaves_out_far_ranges():
@@ -34,13 +28,12 @@ def test_the_fit_recovers_a_known_scale_offset_and_shrink_and_leaves_out_far_ran
 
 
 @pytest.mark.realdata
-@pytest.mark.skipif(not (MRCLAM / "Robot1_Odometry.dat").is_file(),
-                    reason=f"MRCLAM Dataset 7 not found at {MRCLAM} (see README, 'Real robot logs (MRCLAM)')")
+@needs_data
 def test_the_real_robots_ranges_are_longer_than_the_held_curve_at_every_distance():
     """Against Vicon every robot's ranges exceed d (1 - 0.42 phi^2) by 1.5-6% in each fifth of its distances, by a
     scale of 1-5% and a constant of 16-93 mm (docs/results.md)."""
     script = _script()
     for robot in range(1, 6):
-        fit = script.range_fit(MRCLAM, robot, 0.1)
+        fit = script.range_fit(DATA, robot, 0.1)
         assert 1.005 < fit["a"] < 1.06 and 0.0 < fit["b_mm"] < 120.0, (robot, fit)
         assert all(1.01 < m < 1.07 for _, _, m in fit["bins"]), (robot, fit["bins"])

@@ -4,21 +4,19 @@ Fisher ones, about the size of the differences between the two halves of a real 
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import numpy as np
 import pytest
+
+from tests._scripts import load_script
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / ".." / "shared" / "data" / "mrclam7"
 
 
 def _script():
-    spec = importlib.util.spec_from_file_location("se_halves", ROOT / "scripts" / "se_halves.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("se_halves")
 
 
 def _rms(z: dict[str, list[float]]) -> float:
