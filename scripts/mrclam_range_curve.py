@@ -1,0 +1,91 @@
+"""The range curve held at the distance against the curve freed from the held fit, on the real robots: whole logs and
+halves they were not fitted to.
+
+    python scripts/mrclam_range_curve.py [DATA] [--robots 1,2,3,4,5]
+
+DATA defaults to ../shared/data/mrclam7 (never copied into the repository). Per robot, on the whole log and on each
+half: ``aibo learn``'s fit (``EMOptions()``: the range curve held at range = distance, its shrink fitted) and the
+same log fitted again from that model with the curve free (``range_curve="free"``, one start: the two commands
+``aibo learn LOG --out held.json`` and ``aibo learn LOG --range-curve free --init held.json``). Scored against
+Vicon: the whole-log fits on the whole log (forward speed, turn rate over 1 s windows, smoothed pose RMS); the
+halves' fits on the other half (forward speed, turn rate, and the motion gap at 5 s, as ``scripts/mrclam_crossval.py``
+scores them). The free curve's range at 1 and at 5 m (straight ahead) beside the held one's. Prints a table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from aibo_core.mrclam import import_robot  # noqa: E402
+from learners.discrepancy.score import motion_score  # noqa: E402
+from learners.discrepancy.search import drop_outliers  # noqa: E402
+from learners.em.learner import EMLearner  # noqa: E402
+from learners.em.options import EMOptions  # noqa: E402
+from learners.em.starts import start_beliefs  # noqa: E402
+from learners.scoring import pose_scores, velocity_scores  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from mrclam_crossval import halves  # noqa: E402
+from study import DATA, data_folder, robots  # noqa: E402
+
+HELD = EMOptions(seed=0, uncertainty=False)
+#: the second fit: from the held fit, the curve free; one start and no searches (they ran in the first)
+FREED = replace(HELD, range_curve="free", starts=1, alias_search=False, lag_search=False)
+
+
+def fits(log) -> tuple:
+    """(the held fit's model, the freed fit's model) on ``log``."""
+    held = EMLearner(HELD).fit([log]).params
+    return held, EMLearner(FREED).fit([log], init=held).params
+
+
+def curve_at(model, d_mm: float) -> float:
+    """The model's range (mm) of a landmark ``d_mm`` straight ahead."""
+    return float(model.sensor.mean(np.array([d_mm]))[0])
+
+
+def scores(model, test, whole: bool) -> dict:
+    s = velocity_scores(model, [test])
+    row = {"vx": s["vx_rms"], "vtheta": s["vtheta_rms"]}
+    if whole:
+        row["pose"] = pose_scores(model, [test])["pose_rms"]
+    else:
+        (clean,), _ = drop_outliers(model.with_(init=start_beliefs(model, [test])), [test])
+        row["gap5"] = motion_score(model, [clean], heldout_only=False).gap()["5"]
+    return row
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("data", nargs="?", default=str(DATA))
+    ap.add_argument("--robots", default="1,2,3,4,5", help="comma-separated robot numbers (default 1,2,3,4,5)")
+    args = ap.parse_args()
+    folder = data_folder(__file__, args.data)
+    if folder is None:
+        return 1
+    print("| robot | fitted on -> scored on | forward mm/s: held / freed | turn rad/s: held / freed | pose mm or motion gap "
+          "5 s: held / freed | freed curve at 1 m, 5 m (mm) |\n|---|---|---|---|---|---|")
+    for robot in robots(args.robots):
+        whole = import_robot(folder, robot)
+        first, second = halves(folder, robot)
+        for label, fit_log, test, is_whole in (("whole -> whole", whole, whole, True),
+                                               ("first -> second", first, second, False),
+                                               ("second -> first", second, first, False)):
+            held, freed = fits(fit_log)
+            a, b = scores(held, test, is_whole), scores(freed, test, is_whole)
+            last = "pose" if is_whole else "gap5"
+            print(f"| {robot} | {label} | {a['vx']:.2f} / {b['vx']:.2f} | {a['vtheta']:.4f} / {b['vtheta']:.4f} | "
+                  f"{a[last]:.{0 if is_whole else 2}f} / {b[last]:.{0 if is_whole else 2}f} | "
+                  f"{curve_at(freed, 1000.0):.0f}, {curve_at(freed, 5000.0):.0f} |", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
