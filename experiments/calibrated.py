@@ -17,8 +17,8 @@ the comparison (``EXCLUDED``); everything else depends on the path only through 
 model explains.
 
 The check (:func:`predictive_check`) is a parametric bootstrap: ``replicas`` logs are simulated from
-the fitted model with the measured commands; each is put through exactly what the measured log went
-through (outliers set aside, refit on its training half warm-started from the model, then every
+the fitted model with the measured commands; each, and the measured log, goes through the same steps
+(outliers set aside, refit on its training half warm-started from the model, then every
 statistic of :mod:`learners.discrepancy.statistics`); the measured value of a statistic is compared
 with the replicas' spread as z = (measured - mean) / sd. Where the model is right, the measured log
 looks like one more replica. A statistic disagrees when the measured value is outside the replicas'
