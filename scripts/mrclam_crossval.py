@@ -44,6 +44,22 @@ def halves(data: Path, robot: int) -> tuple:
     return import_robot(data, robot, seconds=half), import_robot(data, robot, start_s=half)
 
 
+def set_aside(model, test) -> tuple:
+    """(the scored half ``test`` without its gross outliers, how many): judged by ``model`` (fitted on the other half)
+    from the half's own start belief, and set aside once for every model scored on it (robot 3's first half: a burst
+    at 362-372 s whose one-step densities reach -1,686 nats)."""
+    (clean,), outliers = drop_outliers(model.with_(init=start_beliefs(model, [test])), [test])
+    return clean, outliers
+
+
+def half_scores(model, test, clean) -> dict:
+    """``model``'s scores on the half ``test`` it was not fitted to (module docstring): forward speed and turn rate
+    against Vicon (RMS, mm/s and rad/s), and the motion gap on ``clean`` (``set_aside``) per horizon."""
+    s = velocity_scores(model, [test])
+    return {"vx_rms": s["vx_rms"], "vtheta_rms": s["vtheta_rms"],
+            "motion_gap": motion_score(model, [clean], heldout_only=False).gap()}
+
+
 def run(args: list[str]) -> float:
     """Run an ``aibo`` command; its wall time (s). Raises on failure with its last line of stderr."""
     seconds, done = run_aibo(args)
@@ -64,19 +80,15 @@ def row(data: Path, robot: int, direction: str, out: Path, jobs: int, options: l
     t_diag = run(["diagnose", str(log), "--out", str(diag), "--jobs", str(jobs)] + (options or []))
     models = {"learn": load_model(learned), "diagnose": load_model(diag / "model.json")}
     face = face_value_model(models["learn"])
-    # the scored half's gross outliers set aside once for both models, judged by learn's model from the half's own
-    # start (robot 3's first half: a burst at 362-372 s whose one-step densities reach -1,686 nats)
-    (clean,), outliers = drop_outliers(models["learn"].with_(init=start_beliefs(models["learn"], [test])), [test])
+    clean, outliers = set_aside(models["learn"], test)  # judged by learn's model, for both
     f = velocity_scores(face, [test])
     rec = {"robot": robot, "direction": direction, "seconds": {"learn": t_learn, "diagnose": t_diag},
            "face": {"vx_rms": f["vx_rms"], "vtheta_rms": f["vtheta_rms"]},
            "named": [e["name"] for e in json.loads((diag / "report.json").read_text())["effects"]],
            "outliers_set_aside": outliers}
     for name, m in models.items():
-        s = velocity_scores(m, [test])
-        rec[name] = {"vx_rms": s["vx_rms"], "vtheta_rms": s["vtheta_rms"], "vx_x_face": s["vx_rms"] / f["vx_rms"],
-                     "vtheta_x_face": s["vtheta_rms"] / f["vtheta_rms"],
-                     "motion_gap": motion_score(m, [clean], heldout_only=False).gap()}
+        s = half_scores(m, test, clean)
+        rec[name] = {**s, "vx_x_face": s["vx_rms"] / f["vx_rms"], "vtheta_x_face": s["vtheta_rms"] / f["vtheta_rms"]}
     return rec
 
 
