@@ -37,11 +37,11 @@ def test_a_range_read_3_percent_long_plus_50_mm_is_found_and_the_path_follows(dr
     half as far from the truth as the held curve's (measured: 14 against 131 mm RMS)."""
     values = drive.sighting_value.copy()
     values[:, 0] = 1.03 * values[:, 0] + 50.0
-    held, freed = _held_then_freed(replace(drive, sighting_value=values), tmp_path)
+    tr = replace(drive, sighting_value=values)
+    held, freed = _held_then_freed(tr, tmp_path)
     at = freed.sensor.mean(np.array([1000.0, 5000.0]))
     np.testing.assert_allclose(at, [1080.0, 5200.0], rtol=0.02)
     np.testing.assert_allclose(held.sensor.mean(np.array([1000.0, 5000.0])), [1000.0, 5000.0])
-    tr = replace(drive, sighting_value=values)
     assert pose_scores(freed, [tr])["pose_rms"] < 0.5 * pose_scores(held, [tr])["pose_rms"]
 
 
