@@ -38,7 +38,7 @@ class _Parser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     from aibo import commands
-    from learners.em.options import EMOptions
+    from learners.em.options import RANGE_CURVES, EMOptions
 
     p = _Parser(prog="aibo", description=__doc__.split("\n\n")[0])
     p.add_argument("--debug", action="store_true", help="show tracebacks of errors")
@@ -102,9 +102,9 @@ def build_parser() -> argparse.ArgumentParser:
                     "--paper-recipe 1; range sensors 1)")
     lr.add_argument("--sensor-basis", choices=["power", "inverse"], help="sensor curve: power (the paper's cubic "
                     "in d) or inverse (c0 + c1/d + c2/d^2); default: --init's, else inverse for heights, power for ranges")
-    lr.add_argument("--range-curve", choices=["held", "free"], help="range sensors (mm): held keeps the curve at "
+    lr.add_argument("--range-curve", choices=list(RANGE_CURVES), help="range sensors (mm): held keeps the curve at "
                     "range = distance (or --init's) and screens no stretched starts (default); free fits the cubic "
-                    "(paper)")
+                    "(paper); freed: held until the fit has found the world, then free")
     lr.add_argument("--range-shrink", action=argparse.BooleanOptionalAction, default=None,
                     help="range sensors (mm), from the paper's start: fit the range's shrink away from the image "
                          "centre, range x (1 - k phi^2) (a range from a landmark's apparent size is depth, not "

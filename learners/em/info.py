@@ -52,6 +52,9 @@ class FitInfo:
     #: the refit of a wrong world with spurious sightings (``EMOptions.spurious_refit``): {"off_field_fraction": the
     #: share of smoothed poses off the field of the fit it replaced}; None: no refit
     spurious_refit: dict | None = None
+    #: ``EMOptions.range_curve`` "freed": the fit with the curve held that the free curve started from,
+    #: {"iterations", "loglik" (nats), "curve" (its coefficients), "pruned"}; None: no such stage
+    held_curve_fit: dict | None = None
     timings: FitTimings = field(default_factory=FitTimings)
 
     def to_dict(self, timings: bool = True) -> dict[str, Any]:
@@ -85,6 +88,8 @@ class FitInfo:
             out["setback"] = self.setback
         if self.spurious_refit is not None:
             out["spurious_refit"] = self.spurious_refit
+        if self.held_curve_fit is not None:
+            out["held_curve_fit"] = self.held_curve_fit
         return out
 
     # Read access by key, as for the other learners' plain ``info`` dicts (``result.info["best_iteration"]``).

@@ -99,6 +99,12 @@ def spurious_checkpoint(path: str | os.PathLike | None, stage: int) -> str | Non
     return None if path is None else f"{os.fspath(path)}.spurious-{stage}.npz"
 
 
+def held_checkpoint(path: str | os.PathLike | None) -> str | None:
+    """The checkpoint of the held-curve stage (``EMOptions.range_curve`` "freed") beside ``path``: kept apart, so a
+    resumed run finishes the held fit from it and resumes the free one from ``path``."""
+    return None if path is None else f"{os.fspath(path)}.held.npz"
+
+
 def field_warnings(frac: float) -> list[str]:
     """The warning of a fit that ``check_field=False`` let through in a world that does not fit the field."""
     if frac <= MAX_OFF_FIELD:
@@ -332,6 +338,31 @@ class EMLearner:
         return first, (refit if refit.info.off_field_fraction <= MAX_OFF_FIELD else None)
 
     def _fit_from(self, logs: list[Trajectory], batch: Batch, start: Model, progress: ProgressFn | None) -> LearnResult:
+        """``_fit_once``, or for a range sensor's curve ``"freed"`` from a start that stands still, ``_freed``."""
+        if self.options.range_curve == "freed" and start.sensor.kind == "range_mm" and stands_still(start):
+            return self._freed(logs, batch, start, progress)
+        return self._fit_once(logs, batch, start, progress)
+
+    def _freed(self, logs: list[Trajectory], batch: Batch, start: Model, progress: ProgressFn | None) -> LearnResult:
+        """``EMOptions.range_curve`` "freed": the fit with the curve held at the start's (its own checkpoint beside the
+        fit's, no standard errors), then from its result the fit with the curve free, one start (the held fit found the
+        world; stretched starts differ only in the curve). Both stages are the whole fit: the first gated under the
+        commands' face value, the second at the held fit (``fit_options``)."""
+        given, path = self.options, self.checkpoint_path
+        try:
+            self.options = replace(given, range_curve="held", uncertainty=False)
+            self.checkpoint_path = held_checkpoint(path)
+            held = self._fit_once(logs, batch, start, progress)
+            self.options, self.checkpoint_path = replace(given, range_curve="free", starts=1), path
+            freed = self._fit_once(logs, batch, weighed_on(held.params, batch), progress)
+        finally:
+            self.options, self.checkpoint_path = given, path
+        freed.info.held_curve_fit = {"iterations": held.iterations, "loglik": float(max(held.loglik)),
+                                     "curve": [float(c) for c in held.params.sensor.coef],
+                                     "pruned": held.pruned_observations}
+        return freed
+
+    def _fit_once(self, logs: list[Trajectory], batch: Batch, start: Model, progress: ProgressFn | None) -> LearnResult:
         """``_fit`` with this start's options (``fit_options``) and the face-value gate's count."""
         given = self.options
         try:
@@ -518,8 +549,9 @@ class EMLearner:
 
     def discard_checkpoint(self) -> None:
         """Delete the checkpoint (call after the model is on disk)."""
-        for path in (self.checkpoint_path, spurious_checkpoint(self.checkpoint_path, 1),
-                     spurious_checkpoint(self.checkpoint_path, 2)):
+        stages = (self.checkpoint_path, spurious_checkpoint(self.checkpoint_path, 1),
+                  spurious_checkpoint(self.checkpoint_path, 2))
+        for path in [p for stage in stages for p in (stage, held_checkpoint(stage))]:
             if path and os.path.exists(path):
                 os.unlink(path)
 

@@ -15,6 +15,8 @@ DEFAULT_DEGREE = {"power": 3, "inverse": 2}
 #: The sensor basis of a fresh start when ``EMOptions.basis`` is None, per sensor kind: a pinhole height
 #: is c1/d (README, "EM at the information bound"); a range is d.
 DEFAULT_BASIS = {"height_px": "inverse", "range_mm": "power"}
+#: What EM does with a range sensor's curve (``EMOptions.range_curve``).
+RANGE_CURVES = ("held", "free", "freed")
 #: The switch to the scoring finish (``EMOptions.switch_gain``) looks at the best likelihood's gain over
 #: this many iterations, and not before this many E-steps (the screening's included).
 SWITCH_WINDOW = 10
@@ -69,8 +71,10 @@ class EMOptions:
     # states (``learners.discrepancy.final``; evidence: docs/results.md, calibration)
     polish: bool = False
     # a range sensor (range_mm): "held" keeps its curve at the start's (range = distance: the sensor reports metres)
-    # and screens no stretched starts; "free": EM fits the cubic as for a height (the paper). Default "held"
-    # (deviation from the paper, measured on the five MRCLAM robots: docs/results.md, "Why robots 3 and 4 ...")
+    # and screens no stretched starts; "free": EM fits the cubic as for a height (the paper); "freed": from a start
+    # that stands still (the paper's), the fit with the curve held, then the curve freed from that fit's world (a warm
+    # start's curve is free: its world is found). Default "held" (deviation from the paper: from the paper's start the
+    # free curve ended in wrong worlds on MRCLAM robots 3 and 4: docs/results.md, "Why robots 3 and 4 ...")
     range_curve: str = "held"
     # a range sensor (range_mm) from the paper's start: the range's shrink away from the image centre (the effect
     # ``off_center_shrink``, k from 0) fitted with the rest. A range computed from a landmark's apparent size is the
@@ -116,8 +120,8 @@ class EMOptions:
             raise ValueError(f"estep must be 'compiled' or 'numpy', got {self.estep!r}")
         if self.finish not in ("none", "scoring"):
             raise ValueError(f"finish must be 'none' or 'scoring', got {self.finish!r}")
-        if self.range_curve not in ("held", "free"):
-            raise ValueError(f"range_curve must be 'held' or 'free', got {self.range_curve!r}")
+        if self.range_curve not in RANGE_CURVES:
+            raise ValueError(f"range_curve must be one of {', '.join(RANGE_CURVES)}, got {self.range_curve!r}")
         if self.basis is not None and self.basis not in DEFAULT_DEGREE:
             raise ValueError(f"basis must be 'power' or 'inverse', got {self.basis!r}")
         for name in ("max_iter", "patience", "n_samples", "degree", "starts", "screen_iter"):
