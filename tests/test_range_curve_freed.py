@@ -4,6 +4,7 @@ path; where it reads the distance, the curve stays there (docs/results.md, "The 
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 
 import numpy as np
@@ -11,6 +12,7 @@ import pytest
 
 from aibo.cli import main
 from aibo_core import trajectory
+from aibo_gym.collect import collect
 from aibo_gym.collect_wheeled import collect_wheeled
 from learners.model.io import load_model
 from learners.scoring import pose_scores, velocity_scores
@@ -43,6 +45,37 @@ def test_a_range_read_3_percent_long_plus_50_mm_is_found_and_the_path_follows(dr
     np.testing.assert_allclose(at, [1080.0, 5200.0], rtol=0.02)
     np.testing.assert_allclose(held.sensor.mean(np.array([1000.0, 5000.0])), [1000.0, 5000.0])
     assert pose_scores(freed, [tr])["pose_rms"] < 0.5 * pose_scores(held, [tr])["pose_rms"]
+
+
+def test_range_curve_freed_is_the_two_commands_in_one(drive, tmp_path):
+    """``aibo learn LOG --range-curve freed``: the held fit, then the curve freed from it, in one command; its curve is
+    the two commands' (one start in the second stage, where ``--init`` screens three: the same optimum) and the held
+    stage is recorded in the model's info."""
+    values = drive.sighting_value.copy()
+    values[:, 0] = 1.03 * values[:, 0] + 50.0
+    tr = replace(drive, sighting_value=values)
+    held, two = _held_then_freed(tr, tmp_path)
+    one = tmp_path / "one.json"
+    assert main(["learn", str(tmp_path / "log.npz"), "--range-curve", "freed", "--out", str(one), "--no-resume"]) == 0
+    model = load_model(one)
+    grid = np.array([1000.0, 3000.0, 5000.0])
+    np.testing.assert_allclose(model.sensor.mean(grid), two.sensor.mean(grid), rtol=0.002)
+    stage = json.loads(one.read_text())["info"]["held_curve_fit"]
+    np.testing.assert_allclose(stage["curve"], held.sensor.coef, rtol=1e-6, atol=1e-9)
+    assert stage["iterations"] > 0 and np.isfinite(stage["loglik"])
+
+
+def test_range_curve_freed_leaves_a_height_sensor_as_held(tmp_path):
+    """A camera's heights (px) have no range curve to hold: ``freed`` is the default fit, number for number."""
+    tr = collect(None, 1500, seed=4)
+    log = tmp_path / "h.npz"
+    trajectory.save(tr, log)
+    for curve in ("held", "freed"):
+        assert main(["learn", str(log), "--range-curve", curve, "--out", str(tmp_path / f"{curve}.json"),
+                     "--no-resume"]) == 0
+    a, b = load_model(tmp_path / "held.json"), load_model(tmp_path / "freed.json")
+    np.testing.assert_array_equal(a.action.weights, b.action.weights)
+    np.testing.assert_array_equal(a.sensor.coef, b.sensor.coef)
 
 
 def test_a_range_that_reads_the_distance_keeps_its_curve_when_freed(drive, tmp_path):
