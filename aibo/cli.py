@@ -103,8 +103,9 @@ def build_parser() -> argparse.ArgumentParser:
     lr.add_argument("--sensor-basis", choices=["power", "inverse"], help="sensor curve: power (the paper's cubic "
                     "in d) or inverse (c0 + c1/d + c2/d^2); default: --init's, else inverse for heights, power for ranges")
     lr.add_argument("--range-curve", choices=list(RANGE_CURVES), help="range sensors (mm): held keeps the curve at "
-                    "range = distance (or --init's) and screens no stretched starts (default); free fits the cubic "
-                    "(paper); freed: held until the fit has found the world, then free")
+                    "range = distance (or --init's) and screens no stretched starts; free fits the cubic (paper); "
+                    "freed: from the paper's start, held until the fit has found the world, then free, one start "
+                    "(default; a warm start's curve is free)")
     lr.add_argument("--range-shrink", action=argparse.BooleanOptionalAction, default=None,
                     help="range sensors (mm), from the paper's start: fit the range's shrink away from the image "
                          "centre, range x (1 - k phi^2) (a range from a landmark's apparent size is depth, not "

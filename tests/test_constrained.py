@@ -139,7 +139,8 @@ def test_weights_the_unicycle_holds_at_zero_are_reported_as_fixed_not_estimated(
     from tests._diffdrive import diff_drive_log
 
     tr = diff_drive_log(120.0, seed=0)
-    res = EMLearner(EMOptions(finish="scoring")).fit([tr], action_model="unicycle")
+    # the curve held (a 2-minute log's sightings leave the free curve's far node undetermined: not this test's matter)
+    res = EMLearner(EMOptions(finish="scoring", range_curve="held")).fit([tr], action_model="unicycle")
     w, info = res.params.action.weights, res.info["information"]
     held = np.zeros((5, 3), dtype=bool)
     held[:, 1], held[[1, 3, 4], 0], held[4, 2] = True, True, True  # ZERO_OUTPUTS: dy; ZERO_CELLS: in dx, in dtheta
@@ -238,7 +239,7 @@ def test_the_height_scales_m_step_is_the_constrained_maximum():
 
 def test_a_range_curve_held_at_the_distance_stays_held_with_height_scales():
     """A wheeled log (range sensor, 8 landmarks) with per-landmark range factors at geometric mean 1: ``aibo
-    learn``'s fit of a range sensor holds the curve at range = distance (``EMOptions.range_curve``), and with
+    learn --range-curve held``'s fit of a range sensor holds the curve at range = distance (``EMOptions.range_curve``), and with
     ``beacon_height_scale`` it stays exactly there; the factors come back. (The effect's M-step used to move the
     unconstrained factors' common factor into the curve: on MRCLAM robot 4's first half the held curve drifted to
     1.069 x distance, and the forward speed with it.)"""
@@ -247,9 +248,10 @@ def test_a_range_curve_held_at_the_distance_stays_held_with_height_scales():
     true = np.array([1.04, 0.97, 1.02, 0.96, 1.03, 0.99, 1.01, 0.985])
     true /= np.exp(np.mean(np.log(true)))
     tr = collect_wheeled({"effects": {"beacon_height_scale": {"scale": true.tolist()}}}, 3000, seed=5)
-    plain = EMLearner(EMOptions(seed=0)).fit([tr], action_model="unicycle")
+    held = EMOptions(seed=0, range_curve="held")
+    plain = EMLearner(held).fit([tr], action_model="unicycle")
     start = plain.params.with_effect(BeaconHeightScale(np.ones(len(true))))
-    res = EMLearner(EMOptions(seed=0)).fit([tr], init=start)
+    res = EMLearner(held).fit([tr], init=start)
     np.testing.assert_array_equal(res.params.sensor.coef, plain.params.sensor.coef)
     assert list(plain.params.sensor.coef[:2]) == [0.0, 1.0]
     scale = res.params.effect("beacon_height_scale").scale

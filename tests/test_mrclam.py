@@ -138,7 +138,8 @@ def test_real_robot1_learned_beats_face_value(tmp_path, capsys):
 
     Measured (dt 0.1 s; forward-velocity RMS over 1 s windows): face value 14.2, diff_drive
     9.5, unicycle 9.8 mm/s before the lag search; 11.4 and 12.3 with the range curve held and the gate judged under
-    the face value (see the bar below). With
+    the face value (see the bar below); 8.9 and 6.6 at 2026-11-28, 9.4 and 6.1 with the curve freed from the held fit
+    (the default since). With
     the lag the default search keeps (0.2 s), the turn rate, worse than the face value without it, beats it. Lateral
     velocity: diff_drive wiggles sideways (29.3 mm/s RMS) where the unicycle, like the face value, has
     none (1.95 vs 1.99 mm/s): it must stay within 0.5 mm/s of the face value. The turn rate, range
@@ -157,8 +158,6 @@ def test_real_robot1_learned_beats_face_value(tmp_path, capsys):
         captured = capsys.readouterr()
         assert "face value" in captured.out and "smoothed pose RMS" in captured.out
         assert "may be wrong" not in captured.err
-        # the range errors drift per landmark (issue 17): said in one line, with what to run
-        assert "correlate from sighting to sighting" in captured.err and "aibo diagnose" in captured.err
         m = load_model(model)
         scores[action_model] = s = score(m, [tr])
         # 0.9x: this excerpt holds one biased pass (5 sightings at 93-95 s, ranges 360-490 mm short) that the paper's
@@ -174,6 +173,13 @@ def test_real_robot1_learned_beats_face_value(tmp_path, capsys):
         v = m.action.velocity(np.array([[67.0, 0.0]]))
         assert v.shape == (1, 3) and abs(v[0, 0] - 67.6) < 5.0, v
         assert abs(m.sensor.mean(np.array([3000.0]))[0] - 3000.0) < 500.0
+    # the range errors drift per landmark (issue 17): said in one line, with what to run. With the curve held at the
+    # distance the size errors' lag-1 autocorrelation per landmark is 0.31 on this excerpt; freed (the default) the
+    # curve takes the ranges' common excess and it falls below the warning's bar here (the whole logs: 0.16-0.28 on
+    # four robots, docs/results.md)
+    assert main(["learn", str(log), "--range-curve", "held", "--out", str(tmp_path / "held.json")]) == 0
+    captured = capsys.readouterr()
+    assert "correlate from sighting to sighting" in captured.err and "aibo diagnose" in captured.err
     uni = scores["unicycle"]
     assert np.all(load_model(tmp_path / "r1_unicycle.json").action.weights[:, 1] == 0.0)
     assert uni["learned"]["vy_rms"] < uni["face value"]["vy_rms"] + 0.5, uni
@@ -219,7 +225,7 @@ def test_real_robot3_the_gate_judged_at_the_face_value_keeps_the_right_world():
 
     tr = import_robot(DATA, 3, dt=0.1)
     train = training_log(tr)
-    learner = EMLearner(EMOptions(uncertainty=False))
+    learner = EMLearner(EMOptions(uncertainty=False, range_curve="held"))
     batch = make_batch([train])
     start = learner.start_params([train], None, batch, "unicycle")
     assert face_value_gate(batch, start, 50.0).mean() < 0.1

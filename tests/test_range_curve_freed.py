@@ -1,6 +1,7 @@
-"""The range curve freed from the held fit (``aibo learn LOG --out held.json``, then ``aibo learn LOG --range-curve
-free --init held.json``): where a range sensor reads a few percent long, the second fit finds its curve and the
-path; where it reads the distance, the curve stays there (docs/results.md, "The range curve freed from the held fit")."""
+"""The range curve freed from the held fit (``aibo learn LOG --range-curve held --out held.json``, then ``aibo learn
+LOG --range-curve free --init held.json``; in one command ``--range-curve freed``, the default): where a range sensor
+reads a few percent long, the second fit finds its curve and the path; where it reads the distance, the curve stays
+there (docs/results.md, "The range curve freed from the held fit")."""
 
 from __future__ import annotations
 
@@ -22,7 +23,7 @@ from tests.test_mrclam import DATA, needs_data
 def _held_then_freed(tr, tmp_path) -> tuple:
     log, held, freed = tmp_path / "log.npz", tmp_path / "held.json", tmp_path / "freed.json"
     trajectory.save(tr, log)
-    assert main(["learn", str(log), "--out", str(held), "--no-resume"]) == 0
+    assert main(["learn", str(log), "--range-curve", "held", "--out", str(held), "--no-resume"]) == 0
     assert main(["learn", str(log), "--range-curve", "free", "--init", str(held), "--out", str(freed), "--no-resume"]) == 0
     return load_model(held), load_model(freed)
 
@@ -56,7 +57,7 @@ def test_range_curve_freed_is_the_two_commands_in_one(drive, tmp_path):
     tr = replace(drive, sighting_value=values)
     held, two = _held_then_freed(tr, tmp_path)
     one = tmp_path / "one.json"
-    assert main(["learn", str(tmp_path / "log.npz"), "--range-curve", "freed", "--out", str(one), "--no-resume"]) == 0
+    assert main(["learn", str(tmp_path / "log.npz"), "--out", str(one), "--no-resume"]) == 0  # the default
     model = load_model(one)
     grid = np.array([1000.0, 3000.0, 5000.0])
     np.testing.assert_allclose(model.sensor.mean(grid), two.sensor.mean(grid), rtol=0.002)

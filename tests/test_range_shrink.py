@@ -31,13 +31,15 @@ def test_a_range_that_is_depth_is_learned_and_the_forward_speed_with_it():
     """k = 0.45 (MRCLAM's robots: 0.38-0.45): k comes back at 0.440-0.448 on seeds 0-2 (standard error 0.002; phi^2
     taken as its expectation given the observed bearing, ``expected_phi2``; with the observed phi^2 itself,
     0.438-0.445), the forward speed's RMS error 0.2-0.7 mm/s where the range held at the distance gives 3.1-6.9 (EM
-    reads the range's sweep across the image on arcs as motion)."""
+    reads the range's sweep across the image on arcs as motion). With the curve freed from the held fit (the
+    default since 2026-11-29) k 0.428-0.444 and the forward error 1.67 / 1.72 / 0.27 mm/s (the freed curve 0.3-1.6%
+    off the distance: docs/results.md, "The range curve freed by default"); without the shrink 13.4 on seed 0."""
     tr = collect_wheeled({"effects": {"off_center_shrink": {"k": 0.45}}}, 6000, seed=0)
     shrink, plain = _fits(tr)
     k, se = shrink.params.effect("off_center_shrink").k, shrink.info["standard_errors"]["effects.off_center_shrink.k"]
     assert abs(k - 0.45) < 0.03 and 0 < se < 0.01, (k, se)
     fwd, fwd_plain = (continuous_velocity_errors(r.params, [tr])["vx_rms"] for r in (shrink, plain))
-    assert fwd < 1.5 and fwd_plain > 2 * fwd, (fwd, fwd_plain)
+    assert fwd < 2.5 and fwd_plain > 2 * fwd, (fwd, fwd_plain)
 
 
 def test_without_a_shrink_k_is_zero_within_its_error_and_the_fit_no_worse():

@@ -219,13 +219,14 @@ def fit_options(opts: EMOptions, batch: Batch, start: Model) -> tuple[EMOptions,
     """(the options of this fit, its batch, sightings pruned by the face-value gate (None: not applied)). A start with
     effects and the default stop rule is fitted to the strict one (0.1 nat, patience 50).
 
-    A range sensor (``range_mm``) with ``range_curve="held"`` keeps its start's curve (range = distance) and
-    screens no stretched starts (they differ only in the curve). With ``face_value_gate``, continuous (v, omega)
+    A range sensor (``range_mm``) with ``range_curve="held"`` keeps its start's curve (range = distance); with
+    "held" or "freed" it screens no stretched starts (they differ only in the curve; "freed" from a start that stands
+    still is two fits, ``EMLearner._freed``). With ``face_value_gate``, continuous (v, omega)
     commands and a start that stands still (the paper's, ``stands_still``), the outlier gate is judged once under the
     commands' face value (``face_value_gate``) and EM runs without its own first-iteration gate, so every start sees
     the same sightings; a start that moves (a warm start) is judged by EM's first-iteration gate, at itself."""
-    if opts.range_curve == "held" and start.sensor.kind == "range_mm":
-        opts = replace(opts, hold_curve=True, starts=1)
+    if opts.range_curve != "free" and start.sensor.kind == "range_mm":
+        opts = replace(opts, hold_curve=opts.range_curve == "held", starts=1)
     if start.effects and (opts.min_improvement, opts.patience) == EARLY_STOP:
         # The default early stop (EMOptions.patience) rests on base models; EM moves an effect's parameters slowly (on
         # the 10-minute log of tests/test_landmark_bias.py it stopped landmark_bias at tau_s 12.6 s for 8, where the
@@ -347,7 +348,9 @@ class EMLearner:
         """``EMOptions.range_curve`` "freed": the fit with the curve held at the start's (its own checkpoint beside the
         fit's, no standard errors), then from its result the fit with the curve free, one start (the held fit found the
         world; stretched starts differ only in the curve). Both stages are the whole fit: the first gated under the
-        commands' face value, the second at the held fit (``fit_options``)."""
+        commands' face value, the second at the held fit (``fit_options``). The lag and alias searches run in the held
+        stage (the free one starts with what they kept) and their records are carried over: the actuation lag and its
+        interval are the held curve's, not profiled again under the freed one."""
         given, path = self.options, self.checkpoint_path
         try:
             self.options = replace(given, range_curve="held", uncertainty=False)
@@ -357,6 +360,10 @@ class EMLearner:
             freed = self._fit_once(logs, batch, weighed_on(held.params, batch), progress)
         finally:
             self.options, self.checkpoint_path = given, path
+        for name in ("alias_search", "lag_search"):  # run in the held stage; the free one starts with their result
+            if getattr(freed.info, name) is None and getattr(held.info, name) is not None:
+                setattr(freed.info, name, getattr(held.info, name))
+                setattr(freed.info.timings, name, getattr(held.info.timings, name))
         freed.info.held_curve_fit = {"iterations": held.iterations, "loglik": float(max(held.loglik)),
                                      "curve": [float(c) for c in held.params.sensor.coef],
                                      "pruned": held.pruned_observations}

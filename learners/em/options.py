@@ -73,9 +73,11 @@ class EMOptions:
     # a range sensor (range_mm): "held" keeps its curve at the start's (range = distance: the sensor reports metres)
     # and screens no stretched starts; "free": EM fits the cubic as for a height (the paper); "freed": from a start
     # that stands still (the paper's), the fit with the curve held, then the curve freed from that fit's world (a warm
-    # start's curve is free: its world is found). Default "held" (deviation from the paper: from the paper's start the
-    # free curve ended in wrong worlds on MRCLAM robots 3 and 4: docs/results.md, "Why robots 3 and 4 ...")
-    range_curve: str = "held"
+    # start's curve is free: its world is found). Default "freed" (deviation from the paper: from the paper's start the
+    # free curve ended in wrong worlds on MRCLAM robots 3 and 4, docs/results.md "Why robots 3 and 4 ..."; held, the
+    # robots' ranges read 2-5% longer than the curve; freed from the held fit, the forward speed on the unseen halves
+    # summed 55.1 -> 52.5 mm/s for learn and 54.5 -> 51.7 for diagnose's model: "The range curve freed by default")
+    range_curve: str = "freed"
     # a range sensor (range_mm) from the paper's start: the range's shrink away from the image centre (the effect
     # ``off_center_shrink``, k from 0) fitted with the rest. A range computed from a landmark's apparent size is the
     # depth along the camera's axis (d cos(phi)), not the distance; held at the distance, EM read the range's sweep

@@ -16,8 +16,9 @@ iterations on, so a few starts need not all be run to convergence:
    the sightings that disagree with it (scored only on the sightings no start pruned, a start that pruned
    8,408 of 13,397 won on the rest); the highest score (ties: the lowest k) continues to convergence.
 
-A range sensor (``range_mm``) screens no starts by default: its curve is held at range = distance
-(``EMOptions.range_curve``), and the starts differ only in the curve. What a real log's start can get wrong is the
+A range sensor (``range_mm``) screens no starts by default: its curve is held at range = distance until the fit has
+found the world, and then freed from there (``EMOptions.range_curve``); the starts would differ only in the curve.
+What a real log's start can get wrong is the
 first pose (estimated from its first sightings: ``learners.em.start``); ``chosen_start_pose`` picks it among the
 sightings' candidates by the whole log, under the commands' face value.
 
