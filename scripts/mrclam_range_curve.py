@@ -4,9 +4,10 @@ halves they were not fitted to.
     python scripts/mrclam_range_curve.py [DATA] [--robots 1,2,3,4,5]
 
 DATA defaults to ../shared/data/mrclam7 (never copied into the repository). Per robot, on the whole log and on each
-half: ``aibo learn``'s fit (``EMOptions()``: the range curve held at range = distance, its shrink fitted) and the
+half: ``aibo learn --range-curve held``'s fit (the range curve held at range = distance, its shrink fitted) and the
 same log fitted again from that model with the curve free (``range_curve="free"``, one start: the two commands
-``aibo learn LOG --out held.json`` and ``aibo learn LOG --range-curve free --init held.json``). Scored against
+``aibo learn LOG --range-curve held --out held.json`` and ``aibo learn LOG --range-curve free --init held.json``;
+since 2026-11-29 ``aibo learn``'s default, ``--range-curve freed``, does both in one). Scored against
 Vicon: the whole-log fits on the whole log (forward speed, turn rate over 1 s windows, smoothed pose RMS); the
 halves' fits on the other half (forward speed, turn rate, and the motion gap at 5 s, as ``scripts/mrclam_crossval.py``
 scores them: the half's gross outliers judged by the held fit and set aside once for both). The free curve's range at
@@ -33,7 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from mrclam_crossval import half_scores, halves, set_aside  # noqa: E402
 from study import DATA, data_folder, robots  # noqa: E402
 
-HELD = EMOptions(seed=0, uncertainty=False)
+HELD = EMOptions(seed=0, uncertainty=False, range_curve="held")
 #: the second fit: from the held fit, the curve free; one start and no searches (they ran in the first)
 FREED = replace(HELD, range_curve="free", starts=1, alias_search=False, lag_search=False)
 
