@@ -18,9 +18,8 @@ iterations on, so a few starts need not all be run to convergence:
 
 A range sensor (``range_mm``) screens no starts by default: its curve is held at range = distance until the fit has
 found the world, and then freed from there (``EMOptions.range_curve``); the starts would differ only in the curve.
-What a real log's start can get wrong is the
-first pose (estimated from its first sightings: ``learners.em.start``); ``chosen_start_pose`` picks it among the
-sightings' candidates by the whole log, under the commands' face value.
+What a real log's start can get wrong is the first pose (estimated from its first sightings: ``learners.em.start``);
+``chosen_start_pose`` picks it among the sightings' candidates by the whole log, under the commands' face value.
 
 The report (one row per start: scale, likelihood after screening, nats behind the winner) goes
 into the model file's ``info["starts"]``; ``disagreement`` is one line (a warning) when the given start
