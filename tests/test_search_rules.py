@@ -133,6 +133,15 @@ def test_a_bias_that_holds_for_minutes_is_not_a_pass_to_pass_bias():
     assert "104 s" in note and "beacon_height_scale" in note
 
 
+def test_a_bias_gone_within_a_second_is_white_noise_not_a_bias():
+    from learners.model.landmark_bias import MIN_PLAUSIBLE_TAU_S
+
+    assert LandmarkBias(0.005, 4.24).implausible() == ""  # MRCLAM robot 2's first half, the range curve freed
+    assert LandmarkBias(0.05, MIN_PLAUSIBLE_TAU_S).implausible() == ""
+    note = LandmarkBias(0.0067, 0.695).implausible()  # MRCLAM robot 4's whole-log final fit, named at 35.6 s
+    assert "0.69 s" in note and "white noise" in note
+
+
 @pytest.mark.parametrize("frac, warned", [(0.0, False), (MAX_OFF_FIELD, False), (0.975, True)])
 def test_a_fit_off_the_field_is_warned(frac, warned):
     w = field_warnings(frac)

@@ -56,6 +56,13 @@ MAX_PLAUSIBLE_SIGMA = 0.2
 #: per-beacon height factors of 1-4% (9 logs) and 437-575 s where it stood in for unmodelled wall contacts
 #: (``paper-sim`` noise, effect-free wall logs of seeds 3000 and 3008: docs/results.md).
 MAX_PLAUSIBLE_TAU_S = 60.0
+#: The shortest credible correlation time (s). A bias that loses most of its correlation within a second is gone
+#: before the robot comes back to the landmark (MRCLAM: consecutive sightings of one landmark 0.3-0.4 s apart at the
+#: median, a tenth of them more than 2.2-2.8 s apart): no pass-to-pass bias, but white noise on the sightings that the
+#: range noise or ``distance_dependent_noise`` carries. Measured with the range curve freed: 0.19-0.69 s where the
+#: real robots' fits took it there (four training halves' search fits; robot 4's whole-log final fit, from 35.6 s when
+#: named); 5-17 s on 11 simulated 5-minute logs with tau_s 8 (docs/results.md, "The range curve freed by default").
+MIN_PLAUSIBLE_TAU_S = 1.0
 POLISH_SIMPLEX = 0.05  # ``polish``'s first simplex: log sigma_rel +5%, log tau_s +10%
 POLISH_MAX_EVALS = 200  # ``polish``: forward passes at most (measured: 28-50 per call on 5-minute logs)
 WARM_GRID = ((0.01, 0.02, 0.04, 0.08), (1.0, 3.0, 10.0, 30.0))  # warm_start's sigma_rel and tau_s (s)
@@ -189,7 +196,7 @@ class LandmarkBias(EffectModel):
     def implausible(self) -> str:
         """A 'bias' above ``MAX_PLAUSIBLE_SIGMA`` is not one: the base model's sizes are off by more than a
         landmark's apparent size drifts, and the states stand in for a wrong world or outliers; nor is one that
-        holds longer than ``MAX_PLAUSIBLE_TAU_S``."""
+        holds longer than ``MAX_PLAUSIBLE_TAU_S`` or decorrelates faster than ``MIN_PLAUSIBLE_TAU_S``."""
         if self.sigma_rel > MAX_PLAUSIBLE_SIGMA:
             return (f"sigma_rel {self.sigma_rel:.2f} is no bias (above {MAX_PLAUSIBLE_SIGMA}): the bias states stand in "
                     "for something larger (a wrong world of the base model, or outliers: see the other candidates)")
@@ -197,6 +204,10 @@ class LandmarkBias(EffectModel):
             return (f"tau_s {self.tau_s:.0f} s is no pass-to-pass bias (above {MAX_PLAUSIBLE_TAU_S:.0f} s): the states "
                     "stand in for a per-landmark constant (beacon_height_scale) or a slow error of the pose (e.g. "
                     "unmodelled walls)")
+        if self.tau_s < MIN_PLAUSIBLE_TAU_S:
+            return (f"tau_s {self.tau_s:.2f} s is no pass-to-pass bias (below {MIN_PLAUSIBLE_TAU_S:.0f} s): it is gone "
+                    "before the landmark is seen again, white noise on the sightings (the range noise, "
+                    "distance_dependent_noise)")
         return ""
 
     def transitions(self, dt: float) -> tuple[float, float]:
