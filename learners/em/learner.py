@@ -348,15 +348,16 @@ class EMLearner:
         """``EMOptions.range_curve`` "freed": the fit with the curve held at the start's (its own checkpoint beside the
         fit's, no standard errors), then from its result the fit with the curve free, one start (the held fit found the
         world; stretched starts differ only in the curve). Both stages are the whole fit: the first gated under the
-        commands' face value, the second at the held fit (``fit_options``). The lag and alias searches run in the held
-        stage (the free one starts with what they kept) and their records are carried over: the actuation lag and its
-        interval are the held curve's, not profiled again under the freed one."""
+        commands' face value, the second a warm start under the given options, gated at the held fit, its curve free and
+        one start (``fit_options``). The lag and alias searches run in the held stage (the free one starts with what
+        they kept) and their records are carried over: the actuation lag and its interval are the held curve's, not
+        profiled again under the freed one."""
         given, path = self.options, self.checkpoint_path
         try:
             self.options = replace(given, range_curve="held", uncertainty=False)
             self.checkpoint_path = held_checkpoint(path)
             held = self._fit_once(logs, batch, start, progress)
-            self.options, self.checkpoint_path = replace(given, range_curve="free", starts=1), path
+            self.options, self.checkpoint_path = given, path
             freed = self._fit_once(logs, batch, weighed_on(held.params, batch), progress)
         finally:
             self.options, self.checkpoint_path = given, path
