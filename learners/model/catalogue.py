@@ -37,6 +37,7 @@ from learners.arrays.lowered import Lowered
 from learners.arrays.posterior import Posterior
 from learners.model.catalogue_more import WallSlowdown
 from learners.model.effects import EffectModel, register_effect
+from learners.model.image_angle import phi2_posterior
 from learners.model.parameters import Param
 
 if TYPE_CHECKING:
@@ -430,7 +431,7 @@ def _size_fit(model: "Model", batch: Batch, post: Posterior, skip: EffectModel):
 class OffCenterShrink(EffectModel):
     """The size measurement shrinks away from the image centre: size x (1 - k phi^2), phi the sighting's position in
     the image (rad: bearing - head pan, ``Batch.image_angle``; phi^2 taken as its expectation given the observed
-    bearing, ``expected_phi2``, which undoes about half of the attenuation the bearing's noise brings). On a
+    bearing, ``expected_phi2``, which undoes the attenuation the bearing's noise brings). On a
     camera's landmark heights: lens falloff. On a range computed from a landmark's apparent size (MRCLAM's): the depth
     along the camera's axis, d cos(phi) ~ d (1 - phi^2 / 2), not the distance d; ``aibo learn`` therefore fits it on
     every range sensor (``EMOptions.range_shrink``). A camera fixed to the body (no head pan) has phi = the bearing.
@@ -443,6 +444,7 @@ class OffCenterShrink(EffectModel):
     PARAMS: ClassVar[dict[str, Param]] = {"k": Param("1/rad^2", "scaled", 0.05, low=-10.0, high=10.0, shape=())}
     PROBE: ClassVar[dict[str, Any]] = {"k": 0.3}
     EXAMPLE: ClassVar[dict[str, Any]] = {"k": 0.2}
+    TAKES_ANGLE_NOISE: ClassVar[bool] = True
 
     def factor(self, batch: Batch, sigma_bearing: float) -> np.ndarray:
         """(S,) 1 - k E[phi^2 | the observed phi] (``expected_phi2``; ``sigma_bearing``: the sensor's, rad)."""
@@ -461,30 +463,41 @@ class OffCenterShrink(EffectModel):
 
 def expected_phi2(batch: Batch, sigma_bearing: float) -> np.ndarray:
     """(S,) E[phi^2 | phi_obs]: the true position in the image squared, expected given the observed one, phi_obs =
-    phi + e, e ~ N(0, s2 = sigma_bearing^2) (rad^2). Regression calibration (Carroll et al. 2006, ch. 4) with phi
-    taken as Gaussian over the used sightings (mean m, variance v = var(phi_obs) - s2): E[phi | phi_obs] = m + lam
-    (phi_obs - m), var = lam s2, lam = v / (v + s2). The size's shrink regressed on phi_obs^2 itself is attenuated by
-    the bearing's noise (k 4.5% low on ``aibo`` logs, 2.5-6 standard errors low at k 0.45 on wheeled ones); on a
-    bearing much sharper than the spread of phi (MRCLAM: 3-6 mrad against 0.3 rad) lam is 1 to 1e-4 and g is
-    phi_obs^2. Where the noise is a large part of the spread (lam below ``MIN_LAMBDA``: ``paper-sim``'s 0.5 rad, lam
-    about 0.2) the Gaussian stand-in is not to be trusted, and g's dependence on sigma_bearing let the size's fit move
-    the bearing noise (a false alarm at k 0.25 on an effect-free ``paper-sim`` log, +9.4 nats, where phi_obs^2 gives
-    +0.3): g is then phi_obs^2 itself."""
+    phi + e, e ~ N(0, s2 = sigma_bearing^2) (rad^2). Regression calibration (Carroll et al. 2006, ch. 4) with the prior
+    of phi deconvolved from the used sightings' angles (``learners.model.image_angle``: a field of view's sharp edge
+    stays sharp). The size's shrink regressed on phi_obs^2 itself is attenuated by the bearing's noise (k 4.5% low on
+    ``aibo`` logs, 2.5-6 standard errors low at k 0.45 on wheeled ones); a Gaussian prior of phi undid half of that and
+    put the sightings past the image's edge further out than the edge (docs/results.md, calibration, "off_center_shrink").
+    On a bearing much sharper than the spread of phi (MRCLAM: 3-6 mrad against 0.3 rad) g is phi_obs^2 to within
+    s2. Where the noise is a large part of the spread (lam = v / (v + s2) below ``MIN_LAMBDA``, v = var(phi_obs) - s2:
+    ``paper-sim``'s 0.5 rad, lam about 0.2) g's dependence on sigma_bearing let the size's fit move the bearing noise
+    (a false alarm at k 0.25 on an effect-free ``paper-sim`` log, +9.4 nats, where phi_obs^2 gives +0.3): g is then
+    phi_obs^2 itself."""
     phi = batch.image_angle
     if not len(phi):
         return phi ** 2
-    s2 = float(sigma_bearing) ** 2
+    noise = float(sigma_bearing if batch.angle_noise is None else batch.angle_noise)
     used = phi[batch.used] if batch.used.any() else phi
-    m, v = float(np.mean(used)), max(float(np.var(used)) - s2, 0.0)
-    lam = v / (v + s2) if v + s2 > 0 else 1.0
+    v = max(float(np.var(used)) - noise ** 2, 0.0)
+    lam = v / (v + noise ** 2) if v + noise ** 2 > 0 else 1.0
     if lam < MIN_LAMBDA:
         return phi ** 2
-    return (m + lam * (phi - m)) ** 2 + lam * s2
+    return _phi2_posterior_of(phi.tobytes(), used.tobytes(), noise)
+
+
+@functools.lru_cache(maxsize=8)
+def _phi2_posterior_of(angles: bytes, used: bytes, sigma_bearing: float) -> np.ndarray:
+    """``phi2_posterior``'s E[phi^2 | phi_obs] of float64 angle arrays given as bytes: remembered, since a fit lowers its
+    model several times per iteration at one ``sigma_bearing`` (the array returned is read-only)."""
+    out = phi2_posterior(np.frombuffer(angles), np.frombuffer(used), sigma_bearing)[0]
+    out.setflags(write=False)
+    return out
 
 
 #: ``expected_phi2``: the regression calibration's lam (the true phi's share of the observed one's variance) below
-#: which phi_obs^2 is taken as it is (``aibo``, wheeled, MRCLAM: 0.99-1; ``paper-sim``: about 0.2)
-MIN_LAMBDA = 0.5
+#: which phi_obs^2 is taken as it is (``aibo``, wheeled, MRCLAM: 0.99-1; ``paper-sim``: about 0.2; the paper's start,
+#: 0.2 rad, on wheeled and MRCLAM logs: 0.6-0.7, a bearing noise not yet learned; was 0.5 with the Gaussian prior)
+MIN_LAMBDA = 0.9
 
 
 @register_effect
