@@ -101,10 +101,10 @@ def test_on_mrclam_robot_2_the_freed_curve_reads_long_as_vicon_says_and_the_path
 
 
 def test_a_freed_fit_interrupted_in_its_free_stage_resumes_to_the_same_fit(drive, tmp_path):
-    """Each stage keeps its own checkpoint (``held_checkpoint`` beside the fit's): a run stopped in the free stage
+    """Each stage keeps its own checkpoint (``stage_checkpoint(path, "held")`` beside the fit's): a run stopped in the free stage
     finishes the held one from its checkpoint and resumes the free one from the other, to the same numbers; both are
     deleted with the fit's."""
-    from learners.em.learner import EMLearner, held_checkpoint
+    from learners.em.learner import EMLearner, stage_checkpoint
     from learners.em.options import EMOptions
 
     opts = EMOptions(seed=0, uncertainty=False, range_curve="freed")
@@ -119,11 +119,11 @@ def test_a_freed_fit_interrupted_in_its_free_stage_resumes_to_the_same_fit(drive
 
     with pytest.raises(KeyboardInterrupt):
         EMLearner(opts, checkpoint_path=ckpt, checkpoint_every=4).fit([drive], progress=stop_in_the_free_stage)
-    assert ckpt.exists() and (tmp_path / held_checkpoint(ckpt)).exists()
+    assert ckpt.exists() and (tmp_path / stage_checkpoint(ckpt, "held")).exists()
     learner = EMLearner(opts, checkpoint_path=ckpt, checkpoint_every=4)
     resumed = learner.fit([drive])
     assert 4 <= resumed.info["resumed_from"] < 9
     np.testing.assert_allclose(resumed.loglik, full.loglik, rtol=1e-12)
     np.testing.assert_allclose(resumed.params.sensor.coef, full.params.sensor.coef, rtol=1e-12)
     learner.discard_checkpoint()
-    assert not ckpt.exists() and not (tmp_path / held_checkpoint(ckpt)).exists()
+    assert not ckpt.exists() and not (tmp_path / stage_checkpoint(ckpt, "held")).exists()

@@ -17,7 +17,7 @@ from aibo_core import trajectory
 from aibo_core.trajectory import blind
 from aibo_gym.collect import collect
 from learners.arrays.batch import make_batch
-from learners.em.learner import EMDivergedError, EMLearner, spurious_checkpoint, spurious_start
+from learners.em.learner import EMDivergedError, EMLearner, spurious_start, stage_checkpoint
 from learners.em.options import EMOptions
 from learners.metrics import model_errors
 from learners.model.io import load_model
@@ -33,8 +33,8 @@ def test_the_refit_starts_in_the_papers_basis_with_spurious_sightings():
     assert refit.sensor.basis == "power" and refit.effect("false_sightings").rate == pytest.approx(0.05)
     d = np.linspace(*start.sensor.distance_range_mm, 20)
     np.testing.assert_allclose(refit.sensor.mean(d), start.sensor.mean(d), rtol=0.02)  # the same curve, re-expressed
-    assert spurious_checkpoint(None, 1) is None
-    assert spurious_checkpoint("m.json.checkpoint.npz", 2) == "m.json.checkpoint.npz.spurious-2.npz"
+    assert stage_checkpoint(None, "spurious-1") is None
+    assert stage_checkpoint("m.json.checkpoint.npz", "spurious-2") == "m.json.checkpoint.npz.spurious-2.npz"
 
 
 def test_a_mixtures_weights_are_computed_on_logs_its_fit_did_not_see(monkeypatch):

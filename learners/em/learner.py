@@ -93,16 +93,12 @@ def spurious_start(start: Model, batch: Batch) -> Model:
     return start.with_(sensor=sensor).with_effect(FalseSightings.start(batch))
 
 
-def spurious_checkpoint(path: str | os.PathLike | None, stage: int) -> str | None:
-    """The checkpoint of the refit's ``stage`` (1 or 2) with spurious sightings (``EMOptions.spurious_refit``) beside
-    ``path``: the first fit's is kept, so a resumed run finishes that fit from it and resumes the refit from this."""
-    return None if path is None else f"{os.fspath(path)}.spurious-{stage}.npz"
-
-
-def held_checkpoint(path: str | os.PathLike | None) -> str | None:
-    """The checkpoint of the held-curve stage (``EMOptions.range_curve`` "freed") beside ``path``: kept apart, so a
-    resumed run finishes the held fit from it and resumes the free one from ``path``."""
-    return None if path is None else f"{os.fspath(path)}.held.npz"
+def stage_checkpoint(path: str | os.PathLike | None, stage: str) -> str | None:
+    """The checkpoint of one stage of a fit beside ``path`` (``PATH.STAGE.npz``): "held" for the held-curve stage of
+    ``range_curve`` "freed", "spurious-1" and "spurious-2" for the refit with spurious sightings
+    (``EMOptions.spurious_refit``). Kept apart, so a resumed run finishes the stage it stopped in from its own and
+    resumes the next from its."""
+    return None if path is None else f"{os.fspath(path)}.{stage}.npz"
 
 
 def field_warnings(frac: float) -> list[str]:
@@ -355,7 +351,7 @@ class EMLearner:
         given, path = self.options, self.checkpoint_path
         try:
             self.options = replace(given, range_curve="held", uncertainty=False)
-            self.checkpoint_path = held_checkpoint(path)
+            self.checkpoint_path = stage_checkpoint(path, "held")
             held = self._fit_once(logs, batch, start, progress)
             self.options, self.checkpoint_path = given, path
             freed = self._fit_once(logs, batch, weighed_on(held.params, batch), progress)
@@ -387,16 +383,16 @@ class EMLearner:
                         wrong: EMDivergedError) -> LearnResult:
         """The fit again from ``start`` with a share of spurious sightings in the model (``EMOptions.spurious_refit``,
         ``spurious_start``: the paper's basis), then, from there, in ``start``'s basis (its first-iteration gate then
-        judges the sightings at a model that fits the field); each checkpointed apart (``spurious_checkpoint``). A
+        judges the sightings at a model that fits the field); each checkpointed apart (``stage_checkpoint``). A
         wrong world again raises, saying both."""
         path = self.checkpoint_path
         try:
-            self.checkpoint_path = spurious_checkpoint(path, 1)
+            self.checkpoint_path = stage_checkpoint(path, "spurious-1")
             result = self._fit_from(logs, batch, spurious_start(start, batch), progress)
             if result.params.sensor.basis != start.sensor.basis:
                 basis = start.sensor.basis
                 sensor = result.params.sensor.in_basis(basis, self.options.sensor_degree(basis))
-                self.checkpoint_path = spurious_checkpoint(path, 2)
+                self.checkpoint_path = stage_checkpoint(path, "spurious-2")
                 result = self._fit_from(logs, batch, result.params.with_(sensor=sensor), progress)
         except EMDivergedError as again:
             raise EMDivergedError(f"{wrong} Fitted again with a share of spurious sightings in the model "
@@ -558,9 +554,9 @@ class EMLearner:
 
     def discard_checkpoint(self) -> None:
         """Delete the checkpoint (call after the model is on disk)."""
-        stages = (self.checkpoint_path, spurious_checkpoint(self.checkpoint_path, 1),
-                  spurious_checkpoint(self.checkpoint_path, 2))
-        for path in [p for stage in stages for p in (stage, held_checkpoint(stage))]:
+        stages = (self.checkpoint_path, stage_checkpoint(self.checkpoint_path, "spurious-1"),
+                  stage_checkpoint(self.checkpoint_path, "spurious-2"))
+        for path in [p for stage in stages for p in (stage, stage_checkpoint(stage, "held"))]:
             if path and os.path.exists(path):
                 os.unlink(path)
 
