@@ -81,9 +81,9 @@ def test_a_bag_gives_the_mrclam_log(mrclam, tmp_path, fmt, detections, stamped, 
 @needs_data
 def test_a_bag_gives_the_mrclam_model(mrclam, tmp_path):
     """``aibo learn`` on the imported bag (marker poses: values equal to ~1e-12, not bit for bit) fits the model it
-    fits on the MRCLAM import: action weights equal to 1e-6 (measured 9e-8 at most, on a weight of 0.06: the fit's
-    stop rule and its image angle's noise taken again once converged carry the inputs' rounding that far; 5e-9
-    before 2026-11-29), their standard errors 5e-5 to 0.3."""
+    fits on the MRCLAM import: action weights equal to 1e-6 (measured 5e-8 at most: the image angle's deconvolved
+    prior and the fit's stop rule carry the inputs' rounding that far; 5e-9 before 2026-11-29), their standard errors
+    5e-5 to 0.3."""
     folder, rows, ref = mrclam
     bag = write_bag(tmp_path, rows, "mcap", "markers", stamped=True)
     out = tmp_path / "bag.npz"

@@ -67,7 +67,7 @@ def save(path: str | os.PathLike, state: EMState, fp: str) -> None:
         "best_iteration": state.best_iteration, "pruned": state.pruned, "rng_state": state.rng_state,
         "converged": state.converged, "record_iteration": state.record_iteration, "starts": state.starts,
         "polishes": state.polishes, "setbacks": state.setbacks,
-        "step_ref": state.step_ref, "angle_noise": state.angle_noise, "angle_refreshes": state.angle_refreshes,
+        "step_ref": state.step_ref, "angle_noise": state.angle_noise,
     }
     arrays = {"cur": np.array(_model_text(state.params)), "best": np.array(_model_text(state.best)),
               **_arrays("cur", state.params), **_arrays("best", state.best)}
@@ -101,7 +101,6 @@ def load(path: str | os.PathLike, fp: str) -> EMState | None:
             record_iteration=int(scalars["record_iteration"]), starts=list(scalars.get("starts", [])),
             polishes=int(scalars.get("polishes", 0)), setbacks=list(scalars.get("setbacks", [])),
             step_ref=scalars.get("step_ref"), angle_noise=scalars.get("angle_noise"),
-            angle_refreshes=int(scalars.get("angle_refreshes", 0)),
         )
     except (FileFormatError, KeyError, TypeError, OSError, json.JSONDecodeError, ValueError) as exc:
         if str(exc).startswith(f"{path}: checkpoint is for other"):

@@ -23,11 +23,6 @@ from learners.em.mstep import maximize
 from learners.em.options import DEFAULT_GATE, SWITCH_MIN_ITER, SWITCH_WINDOW, EMOptions
 from learners.model.model import Model
 
-#: A fit converged with the image angle's expectation taken at a bearing noise more than this fraction off its model's
-#: resumes with the model's (``_Loop.refresh``; from the paper's start, 0.2 rad, the sightings' phi_obs^2 as it is, then
-#: the learned noise), at most ANGLE_NOISE_ROUNDS times.
-ANGLE_NOISE_TOLERANCE = 0.1
-ANGLE_NOISE_ROUNDS = 3
 #: At most this many polish steps per fit (``EMOptions.polish``). Each is a few dozen forward passes; on 5-minute
 #: ``landmark_bias`` logs the first gained 0.8-3 nats and the later ones 0.01-0.2 (docs/results.md, calibration).
 POLISH_ROUNDS = 5
@@ -61,10 +56,10 @@ class EMState:
     step_ref: float | None = None  # log-likelihood of the model whose M-step gave ``params`` (None: no EM step's)
     #: rad: the bearing noise of the start model, with which the fit takes the image angle's expectation throughout
     #: (``Batch.angle_noise``; regression calibration's measurement error taken as known: with it following the
-    #: model's, the sensor M-step ignored what it moves and fits became sensitive to rounding, docs/results.md "The
-    #: range curve freed by default"); None: the model's own (a checkpoint written before it)
+    #: model's, the sensor M-step ignored what it moves and fits became sensitive to rounding; from the paper's start,
+    #: 0.2 rad, the observed phi^2 as it is: docs/results.md "The range curve freed by default"); None: the model's
+    #: own (a checkpoint written before it)
     angle_noise: float | None = None
-    angle_refreshes: int = 0  # times ``angle_noise`` was set to the converged model's (``_Loop.refresh``)
 
 
 def setback_from_best(state: EMState, within: float = 1.0) -> tuple[float, int]:
@@ -191,25 +186,6 @@ class _Loop:
         self.state.step_ref = None  # the polished model is no EM step's
         return True
 
-    def refresh(self) -> bool:
-        """Once EM has converged with the image angle's expectation taken at a bearing noise (``EMState.angle_noise``)
-        more than ``ANGLE_NOISE_TOLERANCE`` off its best model's, for a model with an effect that takes it
-        (``EffectModel.TAKES_ANGLE_NOISE``): the noise set to the model's and EM resumed from the best model, whose
-        likelihood is another function now (the best and the stop rule's record start again from its next E-step).
-        True when it resumed; at most ``ANGLE_NOISE_ROUNDS`` times."""
-        st = self.state
-        if not (st.converged and st.iteration < self.opts.max_iter and st.angle_refreshes < ANGLE_NOISE_ROUNDS
-                and st.angle_noise is not None and any(e.TAKES_ANGLE_NOISE for e in st.best.effects)):
-            return False
-        noise = float(st.best.sensor.sigma_bearing)
-        if abs(noise - st.angle_noise) <= ANGLE_NOISE_TOLERANCE * noise:
-            return False
-        st.angle_noise, st.angle_refreshes = noise, st.angle_refreshes + 1
-        self.batch = self.batch.with_angle_noise(noise)
-        st.params, st.converged, st.step_ref = st.best, False, None
-        st.best_loglik, st.record_iteration = -np.inf, st.iteration
-        return True
-
     def loglik(self, params: Model) -> float:
         """``params``' log-likelihood of the fit's sightings (nats): one forward pass, or for a mixture
         (``false_sightings``) the E-step's, which is the mixture's (``e_step``)."""
@@ -270,7 +246,7 @@ def run(
     opts.validate()
     loop = _Loop(batch, state, opts, on_iteration, on_cycle, switch)
     packer = Packer(opts) if opts.accel == "squarem" else None
-    while not loop.done() or loop.polish() or loop.refresh():
+    while not loop.done() or loop.polish():
         if packer is None:
             loop.em_cycle()
         else:

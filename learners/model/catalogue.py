@@ -444,7 +444,6 @@ class OffCenterShrink(EffectModel):
     PARAMS: ClassVar[dict[str, Param]] = {"k": Param("1/rad^2", "scaled", 0.05, low=-10.0, high=10.0, shape=())}
     PROBE: ClassVar[dict[str, Any]] = {"k": 0.3}
     EXAMPLE: ClassVar[dict[str, Any]] = {"k": 0.2}
-    TAKES_ANGLE_NOISE: ClassVar[bool] = True
 
     def factor(self, batch: Batch, sigma_bearing: float) -> np.ndarray:
         """(S,) 1 - k E[phi^2 | the observed phi] (``expected_phi2``; ``sigma_bearing``: the sensor's, rad)."""

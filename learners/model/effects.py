@@ -68,10 +68,6 @@ class EffectModel(Component):
     #: A realistic parameter set (every key of ``PARAMS``; array parameters of a 4-beacon field), valid
     #: for ``cls.start(batch).with_values(**EXAMPLE)`` and for the simulator twin: the tests use it.
     EXAMPLE: ClassVar[dict[str, Any]] = {}
-    #: Whether its lowering takes the image angle's expectation given the observed one (``expected_phi2``), which
-    #: depends on the bearing noise: EM holds that noise through a fit and sets it to the fitted one once converged
-    #: (``learners.em.fit._Loop.refresh``)
-    TAKES_ANGLE_NOISE: ClassVar[bool] = False
     #: Effects lower (``Model.lower``) in this order, the order they were added within one value: a constraint on
     #: the motion (``wall_contact``: 1) after every effect that moves the robot (a floor drift).
     LOWER_ORDER: ClassVar[int] = 0
