@@ -28,13 +28,14 @@ def _fits(tr):
 
 
 def test_a_range_that_is_depth_is_learned_and_the_forward_speed_with_it():
-    """k = 0.45 (MRCLAM's robots: 0.38-0.45): with the range curve held, k comes back at 0.445-0.453 on seeds 0-2
-    (standard error 0.002; phi^2 taken as its expectation given the observed bearing, ``expected_phi2``, under the
-    deconvolved prior; the Gaussian prior gave 0.440-0.448, the observed phi^2 itself 0.438-0.445), the forward speed's
-    RMS error 0.09-1.04 mm/s where the range held at the distance gives 3.1-6.9 (EM reads the range's sweep across the
-    image on arcs as motion). With the curve freed from the held fit (the default since 2026-11-29) k 0.436-0.451 and
-    the forward error 1.52 / 1.79 / 0.23 mm/s (the freed curve 0.3-1.6% off the distance: docs/results.md, "The range
-    curve freed by default"); without the shrink 13.4 on seed 0."""
+    """k = 0.45 (MRCLAM's robots: 0.38-0.45): with the range curve held, k comes back at 0.438-0.446 on seeds 0-2 from
+    the paper's start (standard error 0.002; the observed phi^2, the bearing noise not yet learned) and 0.445-0.453
+    fitted again from that model (phi^2 taken as its expectation given the observed bearing, ``expected_phi2``, under
+    the deconvolved prior; tests/test_image_angle.py), the forward speed's RMS error 0.24-0.74 mm/s where the range
+    held at the distance gives 3.1-6.9 (EM reads the range's sweep across the image on arcs as motion). With the curve
+    freed from the held fit (the default since 2026-11-29) k 0.436-0.451 and the forward error 1.53 / 1.80 / 0.23 mm/s
+    (the freed curve 0.3-1.6% off the distance: docs/results.md, "The range curve freed by default"); without the
+    shrink 13.4 on seed 0."""
     tr = collect_wheeled({"effects": {"off_center_shrink": {"k": 0.45}}}, 6000, seed=0)
     shrink, plain = _fits(tr)
     k, se = shrink.params.effect("off_center_shrink").k, shrink.info["standard_errors"]["effects.off_center_shrink.k"]

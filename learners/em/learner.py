@@ -433,7 +433,7 @@ class EMLearner:
 
         state = run(batch, state, self.options, on_iteration, on_cycle, switch=self._switches(batch, start))
         setback = setback_record(state)  # EM's own: the searches and the finish below may replace its best
-        # the sightings the fit applied (first-iteration outliers pruned), the image angle's noise it ended with
+        # the sightings the fit applied (first-iteration outliers pruned), the image angle's noise it held
         used = batch.with_used(state.used).with_angle_noise(state.angle_noise)
         alias = self._alias_search(used, state)
         lag = self._lag_search(used, state)

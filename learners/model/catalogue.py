@@ -471,7 +471,8 @@ def expected_phi2(batch: Batch, sigma_bearing: float) -> np.ndarray:
     s2. Where the noise is a large part of the spread (lam = v / (v + s2) below ``MIN_LAMBDA``, v = var(phi_obs) - s2:
     ``paper-sim``'s 0.5 rad, lam about 0.2) g's dependence on sigma_bearing let the size's fit move the bearing noise
     (a false alarm at k 0.25 on an effect-free ``paper-sim`` log, +9.4 nats, where phi_obs^2 gives +0.3): g is then
-    phi_obs^2 itself."""
+    phi_obs^2 itself. s is the noise an EM fit holds (``Batch.angle_noise``: its start model's), else
+    ``sigma_bearing``."""
     phi = batch.image_angle
     if not len(phi):
         return phi ** 2
