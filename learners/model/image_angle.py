@@ -24,8 +24,8 @@ RL_ITERATIONS = 100
 #: grid step as a fraction of the noise's s; the grid spans the used angles +- ``PAD_SD`` s
 STEP_PER_SD = 0.5
 PAD_SD = 5.0
-#: the most grid points: past it (a noise far below the angles' spread: MRCLAM's 3-6 mrad over 1 rad) the posterior is
-#: phi_obs to within the noise and the moments are taken from a Gaussian neighbourhood of phi_obs itself
+#: the most grid points: past it (a noise below 1/2000 of the angles' spread: under 0.6 mrad over 1.2 rad; MRCLAM's 3-6
+#: mrad take 400-800 points) phi is phi_obs to within the noise, and the moments are those of N(phi_obs, s^2)
 MAX_POINTS = 4000
 
 
