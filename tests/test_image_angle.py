@@ -19,12 +19,11 @@ from learners.model.image_angle import deconvolved_prior, phi2_posterior
 HALF_FOV, S = 0.59, 0.02  # rad: WheeledRobot-v0's field of view and bearing noise
 
 
-def _exact(obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """E and var of phi^2 given phi_obs for phi uniform on [-HALF_FOV, HALF_FOV] (numerical integration)."""
+def _exact(obs: np.ndarray) -> np.ndarray:
+    """E[phi^2 | phi_obs] for phi uniform on [-HALF_FOV, HALF_FOV] (numerical integration)."""
     x = np.linspace(-HALF_FOV, HALF_FOV, 20001)
     w = np.exp(-0.5 * ((obs[:, None] - x[None]) / S) ** 2)
-    m2 = (w * x**2).sum(1) / w.sum(1)
-    return m2, (w * x**4).sum(1) / w.sum(1) - m2**2
+    return (w * x**2).sum(1) / w.sum(1)
 
 
 def _gaussian_prior(obs: np.ndarray, angles: np.ndarray) -> np.ndarray:
@@ -46,13 +45,11 @@ def test_at_the_edge_of_the_field_of_view_the_posterior_knows_the_edge():
     sightings fall, at 0.64 rad an exact 0.341); the Gaussian prior's are 0.03-0.07 too large past 0.62."""
     _, obs_all = _observed()
     obs = np.linspace(-0.64, 0.64, 65)
-    mean, var = phi2_posterior(obs, obs_all, S)
-    exact_mean, exact_var = _exact(obs)
+    mean = phi2_posterior(obs, obs_all, S)
+    exact_mean = _exact(obs)
     edge = np.abs(obs) > 0.62
     err = np.abs(mean - exact_mean)
     assert err[~edge].max() < 0.005 and err[edge].max() < 0.01, (err[~edge].max(), err[edge].max())
-    inside = (np.abs(obs) > 0.2) & (np.abs(obs) < 0.5)
-    np.testing.assert_allclose(var[inside], exact_var[inside], rtol=0.2)
     assert np.min(_gaussian_prior(obs[edge], obs_all) - exact_mean[edge]) > 0.03
 
 
@@ -61,7 +58,7 @@ def test_over_many_sightings_the_expectation_is_unbiased_in_every_band_of_the_im
     three draws (the Gaussian prior: +0.035 past 0.6 rad)."""
     for seed in (1, 2, 3):
         phi, obs = _observed(seed=seed)
-        mean, _ = phi2_posterior(obs, obs, S)
+        mean = phi2_posterior(obs, obs, S)
         band = np.digitize(np.abs(obs), [0.3, 0.5, 0.55, 0.58, 0.6])
         for b in range(6):
             sel = band == b
@@ -76,7 +73,7 @@ def test_the_prior_is_a_density_on_its_grid_and_none_when_it_cannot_be_built():
     assert grid[0] < obs.min() and grid[-1] > obs.max()
     assert p[np.abs(grid) > HALF_FOV + 3 * S].sum() < 0.002  # the deconvolution puts next to nothing past the edge
     assert deconvolved_prior(obs, 1e-6) is None and deconvolved_prior(obs[:1], S) is None
-    mean, var = phi2_posterior(obs[:3], obs, 1e-6)  # no grid: phi_obs^2 + s^2
+    mean = phi2_posterior(obs[:3], obs, 1e-6)  # no grid: phi_obs^2 + s^2
     np.testing.assert_allclose(mean, obs[:3] ** 2 + 1e-12)
 
 

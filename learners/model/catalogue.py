@@ -489,7 +489,7 @@ def expected_phi2(batch: Batch, sigma_bearing: float) -> np.ndarray:
 def _phi2_posterior_of(angles: bytes, used: bytes, sigma_bearing: float) -> np.ndarray:
     """``phi2_posterior``'s E[phi^2 | phi_obs] of float64 angle arrays given as bytes: remembered, since a fit lowers its
     model several times per iteration at one ``sigma_bearing`` (the array returned is read-only)."""
-    out = phi2_posterior(np.frombuffer(angles), np.frombuffer(used), sigma_bearing)[0]
+    out = phi2_posterior(np.frombuffer(angles), np.frombuffer(used), sigma_bearing)
     out.setflags(write=False)
     return out
 
