@@ -105,6 +105,11 @@ class Batch:
     def with_angle_noise(self, sigma_bearing: float | None) -> "Batch":
         return replace(self, angle_noise=None if sigma_bearing is None else float(sigma_bearing))
 
+    def holding_angle_noise(self, sigma_bearing: float) -> "Batch":
+        """This batch with ``angle_noise`` held at ``sigma_bearing`` (rad) unless it holds one already: what a
+        computation that varies a model's parameters needs (its information, scoring steps), as EM holds it."""
+        return self if self.angle_noise is not None else self.with_angle_noise(sigma_bearing)
+
 
 def make_batch(logs: list[Trajectory]) -> Batch:
     """Concatenate logs (same dt, same landmarks, same kind of command) into a Batch."""

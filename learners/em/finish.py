@@ -138,8 +138,7 @@ def fisher_scoring(model: Model, batch: Batch, fixed: frozenset[str] = frozenset
     step that gained less than ``gain_tol`` nats, when no step length raises the likelihood, or after
     ``max_steps``; the information is always evaluated at the returned model (its standard errors)."""
     t0 = time.perf_counter()
-    if batch.angle_noise is None:  # the image angle's expectation with the bearing noise held, as in EM
-        batch = batch.with_angle_noise(model.sensor.sigma_bearing)
+    batch = batch.holding_angle_noise(model.sensor.sigma_bearing)  # the image angle's noise held, as in EM
     ll = loglik_at(model, batch)
     out = Finish(model, ll, None, {"start_loglik": ll, "steps": []}, passes=1)
     prev: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # (x, g, H^-1) of the last step

@@ -548,8 +548,7 @@ def parameter_uncertainty(model: Model, batch: Batch, fixed: frozenset[str] = fr
     (``held_coordinates``) are not differenced: reported as ``fixed`` (module docstring). The image angle's expectation
     is taken with the model's bearing noise held (``Batch.angle_noise``), as EM takes it: through it the sizes would
     otherwise speak of the bearing noise (MRCLAM robot 5's sigma_angle error 2e-5 rad instead of 9e-5)."""
-    if batch.angle_noise is None:
-        batch = batch.with_angle_noise(model.sensor.sigma_bearing)
+    batch = batch.holding_angle_noise(model.sensor.sigma_bearing)
     x0 = packed(model, fixed)
     names = _coordinate_names(model, fixed)
     rows = np.flatnonzero(batch.used)

@@ -38,6 +38,9 @@ def _kernel() -> np.ndarray:
     return k / k.sum()
 
 
+KERNEL = _kernel()
+
+
 def deconvolved_prior(angles: np.ndarray, s: float) -> tuple[np.ndarray, np.ndarray] | None:
     """(grid rad, prior probabilities) of phi from observed ``angles`` (rad) with noise sd ``s`` (rad); None when the
     grid would need more than ``MAX_POINTS`` points or there is nothing to deconvolve."""
@@ -56,12 +59,11 @@ def deconvolved_prior(angles: np.ndarray, s: float) -> tuple[np.ndarray, np.ndar
     left = np.clip(np.floor(at).astype(int), 0, n - 2)
     frac = np.clip(at - left, 0.0, 1.0)
     counts = np.bincount(left, weights=1.0 - frac, minlength=n) + np.bincount(left + 1, weights=frac, minlength=n)
-    kern = _kernel()
-    p = counts / counts.sum()
+    h = counts / counts.sum()
+    p = h
     for _ in range(RL_ITERATIONS):  # p <- p * K^T (h / K p); the kernel is symmetric
-        blurred = np.convolve(p, kern, mode="same")
-        ratio = np.divide(counts, blurred * counts.sum(), out=np.zeros(n), where=blurred > 0)
-        p = p * np.convolve(ratio, kern, mode="same")
+        blurred = np.convolve(p, KERNEL, mode="same")
+        p = p * np.convolve(np.divide(h, blurred, out=np.zeros(n), where=blurred > 0), KERNEL, mode="same")
         p /= p.sum()
     return grid, p
 
@@ -76,10 +78,9 @@ def phi2_posterior(observed: np.ndarray, used: np.ndarray, s: float) -> np.ndarr
     if prior is None:
         return mean
     grid, p = prior
-    kern = _kernel()
-    den = np.convolve(p, kern, mode="same")
+    den = np.convolve(p, KERNEL, mode="same")
     ok = den > 1e-12 * den.max()
-    g = np.divide(np.convolve(p * grid ** 2, kern, mode="same"), den, out=grid ** 2 + float(s) ** 2, where=ok)
+    g = np.divide(np.convolve(p * grid ** 2, KERNEL, mode="same"), den, out=grid ** 2 + float(s) ** 2, where=ok)
     inside = (observed >= grid[0]) & (observed <= grid[-1])
     mean[inside] = np.interp(observed[inside], grid, g)
     return mean
