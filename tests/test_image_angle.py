@@ -77,8 +77,6 @@ def test_the_prior_is_a_density_on_its_grid_and_none_when_it_cannot_be_built():
     np.testing.assert_allclose(mean, obs[:3] ** 2 + 1e-12)
 
 
-
-
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_a_warm_fit_takes_the_expectation_with_its_start_noise_and_the_shrink_is_not_attenuated(seed):
     """Simulated wheeled logs (range = distance x (1 - 0.45 phi^2), bearing noise 0.02 rad, 10 minutes), the range curve
