@@ -5,6 +5,7 @@ the truth"), each from logs of that study's seeds or fresh ones, every number re
     python scripts/calibration_causes.py tau-em                         # the final fit as diagnose stops it, then on
     python scripts/calibration_causes.py shrink                         # off_center_shrink: errors in the bearing
     python scripts/calibration_causes.py rate                           # false_sightings: the final fit's iterations
+    python scripts/calibration_causes.py sigma-short                    # landmark_bias: sigma_rel short on 5 minutes
 
 - ``tau-alone``: landmark_bias's process b_l (sigma_rel 0.05, tau_s 8 s) drawn anew at the sighting frames of the
   study's `aibo` logs 0, 2, 4 (seeds 8000, 8002, 8004), observed as b + e with each sighting's relative size noise
@@ -16,6 +17,10 @@ the truth"), each from logs of that study's seeds or fresh ones, every number re
   rad, against the attenuation that regressing the size's shrink on the observed phi^2 instead of the true one
   predicts (weighted by the true size squared, centered: the curve takes a constant factor); and that attenuation on
   the study's `paper-sim` logs 1, 3, 5.
+- ``sigma-short``: landmark_bias's sigma_rel on `aibo` logs of 5 and 15 minutes (seeds of the study's even logs),
+  from the final fit as diagnose makes it and from the same fit with the 40 commands' velocities held at the truth:
+  is the shortfall the velocities' (fitted from the same sightings, they take part of the bias's path, as fixed
+  effects take part of a variance component's in maximum likelihood) and does it fall with the log's length?
 - ``rate``: the final fit's iterations (log-likelihood, rate) on the study's logs 0, 4, 6 (`aibo`) and 7
   (`paper-sim`), as diagnose runs it, without its first-iteration gate, and without SQUAREM.
 """
@@ -193,13 +198,61 @@ def rate() -> None:
                   + ", ".join(f"({i}, {r:.3f})" for i, _, r in hist[:8]) + ", ...", flush=True)
 
 
+def _held_velocities_fit(found, opts, true_weights: np.ndarray):
+    """The final fit from the diagnosed model with the action weights held at ``true_weights`` (mm, mm, rad per
+    frame): the table's M-step (``table_means_compiled``, the path of discrete commands) returns them instead of the
+    regression; the rest (the motion noise, the curve, the bias) is fitted as diagnose fits it."""
+    import learners.inference.kernels as kernels
+    from learners.discrepancy.final import final_options
+    from learners.em.learner import EMLearner
+
+    calls, regress = [], kernels.table_means_compiled
+
+    def held(commands, mu_star, weights):
+        calls.append(1)
+        return true_weights.copy()
+
+    kernels.table_means_compiled = held
+    try:
+        start = found["model"].with_(action=found["model"].action.with_values(weights=true_weights.copy()))
+        res = EMLearner(replace(final_options(opts), uncertainty=False), check_field=False).fit(found["logs"], init=start)
+    finally:
+        kernels.table_means_compiled = regress
+    if not calls:
+        raise RuntimeError("the action M-step did not take the table's path: the velocities were not held")
+    return res
+
+
+def sigma_short(seeds: list[int]) -> None:
+    from learners.discrepancy.final import diagnosed
+
+    print("| seed | minutes | sigma_rel, tau_s: final fit | velocities held at the truth | motion sd x, y (mm/frame; "
+          "truth 3): final / held |\n|---|---|---|---|---|")
+    for minutes in (5, 15):
+        for seed in seeds:
+            tr = collect({"noise": "aibo", "effects": {"landmark_bias": BIAS}}, minutes * 1800, seed=seed)
+            found, opts = _search(blind(tr), "landmark_bias")
+            if not found["named"]:
+                print(f"| {seed} | {minutes} | not named | | |")
+                continue
+            final = diagnosed(found, opts).result.params
+            held = _held_velocities_fit(found, opts, np.asarray(tr.meta["truth"]["velocities"]) * tr.dt).params
+            e, h = final.effect("landmark_bias"), held.effect("landmark_bias")
+            sd = [np.sqrt(np.diag(m.action.cov))[:2] for m in (final, held)]
+            print(f"| {seed} | {minutes} | {e.sigma_rel:.4f}, {e.tau_s:.1f} s | {h.sigma_rel:.4f}, {h.tau_s:.1f} s | "
+                  f"{sd[0][0]:.2f}, {sd[0][1]:.2f} / {sd[1][0]:.2f}, {sd[1][1]:.2f} |")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("what", choices=["tau-alone", "tau-em", "shrink", "rate"])
+    ap.add_argument("what", choices=["tau-alone", "tau-em", "shrink", "rate", "sigma-short"])
     ap.add_argument("--replicates", type=int, default=30, help="tau-alone: draws of the process per log")
+    ap.add_argument("--seeds", default="8000,8002,8004,8006,8008,8010,8012,8014,8016,8018",
+                    help="sigma-short: the `aibo` seeds (the calibration study's even logs)")
     args = ap.parse_args()
     sys.stdout.reconfigure(line_buffering=True)
-    {"tau-alone": lambda: tau_alone(args.replicates), "tau-em": tau_em, "shrink": shrink, "rate": rate}[args.what]()
+    {"tau-alone": lambda: tau_alone(args.replicates), "tau-em": tau_em, "shrink": shrink, "rate": rate,
+     "sigma-short": lambda: sigma_short([int(s) for s in args.seeds.split(",")])}[args.what]()
 
 
 if __name__ == "__main__":

@@ -151,8 +151,8 @@ def test_strength_overrides_set_one_parameter_and_refuse_what_is_not_one():
 
 def test_the_final_fit_starts_from_the_searchs_model_and_from_learns_and_keeps_the_more_likely(monkeypatch):
     """``final_fit``: one fit from the search's model and one from ``found["learned"]``'s (``aibo learn``'s model of the
-    same logs) action model, sensor model and start poses with the search's effects; the more likely kept. Without
-    ``found["learned"]``, the search's model alone."""
+    same logs) action model, sensor model and start poses with the search's effects, its curve held until EM has
+    converged and then freed; the more likely kept. Without ``found["learned"]``, the search's model alone."""
     from learners.arrays.batch import make_batch
     from learners.discrepancy import final
     from learners.discrepancy.fitting import train_loglik
@@ -177,10 +177,16 @@ def test_the_final_fit_starts_from_the_searchs_model_and_from_learns_and_keeps_t
     monkeypatch.setattr(final, "EMLearner", Recording)
     opts = EMOptions(seed=0, lag_search=False, max_iter=3)
     kept, record = final.final_fit({"model": searched, "logs": [tr], "learned": learned}, opts)
-    from_search, from_learned = starts
+    from_search, from_learned, from_held = starts
     assert from_search is searched
     assert from_learned.action is learned.action and from_learned.sensor is learned.sensor
     assert from_learned.init is learned.init and from_learned.effects == searched.effects
+    # learn's start: EM with learn's curve held (HOLD_LEARNED_CURVE), then the final fit from where it stopped
+    held = fits[1]
+    assert np.array_equal(held.params.sensor.coef, learned.sensor.coef) and from_held is held.params
+    assert not np.array_equal(fits[2].params.sensor.coef, learned.sensor.coef)
+    assert not held.info.get("standard_errors") and fits[2].info.get("standard_errors")
+    fits = [fits[0], fits[2]]
     ll = [train_loglik(f.params, [tr]) for f in fits]
     assert ll[0] != ll[1] and kept is fits[int(np.argmax(ll))]
     # the record report.json["final_fit_starts"] states: each start's likelihood, the more likely marked kept

@@ -127,3 +127,22 @@ def test_a_freed_fit_interrupted_in_its_free_stage_resumes_to_the_same_fit(drive
     np.testing.assert_allclose(resumed.params.sensor.coef, full.params.sensor.coef, rtol=1e-12)
     learner.discard_checkpoint()
     assert not ckpt.exists() and not (tmp_path / stage_checkpoint(ckpt, "held")).exists()
+
+
+@pytest.mark.parametrize("kind", ["range_mm", "height_px"])
+def test_a_warm_fit_with_the_curve_held_keeps_its_starts_curve_for_either_sensor(drive, kind):
+    """``EMOptions.hold_curve`` (the first stage of ``aibo diagnose``'s final fit from learn's model): the start's
+    curve, not range = distance (a range sensor's ``range_curve`` "freed" would otherwise free it) nor a refitted one;
+    the rest is fitted. The start's curve reads 2% long, so a free fit would move it."""
+    from learners.em.learner import EMLearner
+    from learners.em.options import EMOptions
+
+    tr = drive if kind == "range_mm" else collect(None, 1500, seed=4)
+    opts = EMOptions(seed=0, lag_search=False, max_iter=6, uncertainty=False)
+    first = EMLearner(opts).fit([tr]).params
+    start = first.with_(sensor=first.sensor.with_values(coef=first.sensor.coef * 1.02))
+    held = EMLearner(replace(opts, hold_curve=True), check_field=False).fit([tr], init=start).params
+    free = EMLearner(opts, check_field=False).fit([tr], init=start).params
+    np.testing.assert_array_equal(held.sensor.coef, start.sensor.coef)
+    assert not np.array_equal(free.sensor.coef, start.sensor.coef)
+    assert not np.array_equal(held.action.weights, start.action.weights)

@@ -215,14 +215,15 @@ def fit_options(opts: EMOptions, batch: Batch, start: Model) -> tuple[EMOptions,
     """(the options of this fit, its batch, sightings pruned by the face-value gate (None: not applied)). A start with
     effects and the default stop rule is fitted to the strict one (0.1 nat, patience 50).
 
-    A range sensor (``range_mm``) with ``range_curve="held"`` keeps its start's curve (range = distance); with
+    A range sensor (``range_mm``) with ``range_curve="held"`` keeps its start's curve (range = distance), as any fit
+    with ``hold_curve`` does (``aibo diagnose``'s final fit from learn's model, its first stage); with
     "held" or "freed" it screens no stretched starts (they differ only in the curve; "freed" from a start that stands
     still is two fits, ``EMLearner._freed``). With ``face_value_gate``, continuous (v, omega)
     commands and a start that stands still (the paper's, ``stands_still``), the outlier gate is judged once under the
     commands' face value (``face_value_gate``) and EM runs without its own first-iteration gate, so every start sees
     the same sightings; a start that moves (a warm start) is judged by EM's first-iteration gate, at itself."""
     if opts.range_curve != "free" and start.sensor.kind == "range_mm":
-        opts = replace(opts, hold_curve=opts.range_curve == "held", starts=1)
+        opts = replace(opts, hold_curve=opts.hold_curve or opts.range_curve == "held", starts=1)
     if start.effects and (opts.min_improvement, opts.patience) == EARLY_STOP:
         # The default early stop (EMOptions.patience) rests on base models; EM moves an effect's parameters slowly (on
         # the 10-minute log of tests/test_landmark_bias.py it stopped landmark_bias at tau_s 12.6 s for 8, where the

@@ -95,7 +95,7 @@ class EMOptions:
     # the rate (docs/results.md, "Spurious sightings: the refit of a wrong world"). Paper: off (the wrong world is an
     # error).
     spurious_refit: bool = True
-    hold_curve: bool = False  # internal: set by the learner for the fit of a range sensor with range_curve "held"
+    hold_curve: bool = False  # internal: the curve held at its start (range_curve "held"; a final fit's first stage)
 
     def comparable(self) -> "EMOptions":
         """These options with the stop rule of fits whose likelihoods are compared with each other (a likelihood-ratio
