@@ -198,10 +198,10 @@ def rate() -> None:
                   + ", ".join(f"({i}, {r:.3f})" for i, _, r in hist[:8]) + ", ...", flush=True)
 
 
-def _held_velocities_fit(found, opts, true_weights: np.ndarray):
-    """The final fit from the diagnosed model with the action weights held at ``true_weights`` (mm, mm, rad per
-    frame): the table's M-step (``table_means_compiled``, the path of discrete commands) returns them instead of the
-    regression; the rest (the motion noise, the curve, the bias) is fitted as diagnose fits it."""
+def _held_velocities_fit(found, opts, final, true_weights: np.ndarray):
+    """EM with the final fit's options from the diagnosed model ``final`` with the action weights held at
+    ``true_weights`` (mm, mm, rad per frame): the table's M-step (``table_means_compiled``, the path of discrete
+    commands) returns them instead of the regression; the rest (the motion noise, the curve, the bias) is fitted."""
     import learners.inference.kernels as kernels
     from learners.discrepancy.final import final_options
     from learners.em.learner import EMLearner
@@ -214,7 +214,7 @@ def _held_velocities_fit(found, opts, true_weights: np.ndarray):
 
     kernels.table_means_compiled = held
     try:
-        start = found["model"].with_(action=found["model"].action.with_values(weights=true_weights.copy()))
+        start = final.with_(action=final.action.with_values(weights=true_weights.copy()))
         res = EMLearner(replace(final_options(opts), uncertainty=False), check_field=False).fit(found["logs"], init=start)
     finally:
         kernels.table_means_compiled = regress
@@ -224,7 +224,7 @@ def _held_velocities_fit(found, opts, true_weights: np.ndarray):
 
 
 def sigma_short(seeds: list[int]) -> None:
-    from learners.discrepancy.final import diagnosed
+    from learners.discrepancy.final import plausible_diagnosis
 
     print("| seed | minutes | sigma_rel, tau_s: final fit | velocities held at the truth | motion sd x, y (mm/frame; "
           "truth 3): final / held |\n|---|---|---|---|---|")
@@ -235,8 +235,9 @@ def sigma_short(seeds: list[int]) -> None:
             if not found["named"]:
                 print(f"| {seed} | {minutes} | not named | | |")
                 continue
-            final = diagnosed(found, opts).result.params
-            held = _held_velocities_fit(found, opts, np.asarray(tr.meta["truth"]["velocities"]) * tr.dt).params
+            found, final = plausible_diagnosis(found, opts, progress=lambda s: None)  # as diagnose: both starts
+            final = final.result.params
+            held = _held_velocities_fit(found, opts, final, np.asarray(tr.meta["truth"]["velocities"]) * tr.dt).params
             e, h = final.effect("landmark_bias"), held.effect("landmark_bias")
             sd = [np.sqrt(np.diag(m.action.cov))[:2] for m in (final, held)]
             print(f"| {seed} | {minutes} | {e.sigma_rel:.4f}, {e.tau_s:.1f} s | {h.sigma_rel:.4f}, {h.tau_s:.1f} s | "
