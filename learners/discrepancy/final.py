@@ -134,7 +134,10 @@ def final_fit(found: dict[str, Any], opts: EMOptions, pool: Any = None) -> tuple
 #: them EM moved the curve and the effect together along a ridge and stopped there. Measured: `aibo` 15-minute log
 #: of seed 8002, `landmark_bias` 0.05 / 8 s: both starts ended with the curve 4-6% high and sigma_rel 0.072, tau_s
 #: 34 s (its interval [0.059, 0.086]), 52 nats below EM from the truth; the held stage then freed 0.0515 / 10.7 s,
-#: +51.5 nats (docs/results.md, calibration).
+#: +51.5 nats. On the calibration study's 25 `paper-sim` logs 0-49: +37 to +296 nats on every one, the effect kept on
+#: 21 (13), sigma_rel's bias +0.90 -> +0.05 SE; on `aibo` and for three other effects within a few nats; MRCLAM: the
+#: same names, learn's start 7-18 nats more likely, one more disagreement of the calibrated check on robots 2-4
+#: (docs/results.md, "The final fit from learn's model: its curve held first").
 HOLD_LEARNED_CURVE = True
 
 #: the final fit's starts, in :func:`final_starts`' order
