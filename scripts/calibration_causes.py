@@ -235,8 +235,8 @@ def sigma_short(seeds: list[int]) -> None:
             if not found["named"]:
                 print(f"| {seed} | {minutes} | not named | | |")
                 continue
-            found, final = plausible_diagnosis(found, opts, progress=lambda s: None)  # as diagnose: both starts
-            final = final.result.params
+            found, diagnosis = plausible_diagnosis(found, opts, progress=lambda s: None)  # as diagnose: both starts
+            final = diagnosis.result.params
             held = _held_velocities_fit(found, opts, final, np.asarray(tr.meta["truth"]["velocities"]) * tr.dt).params
             e, h = final.effect("landmark_bias"), held.effect("landmark_bias")
             sd = [np.sqrt(np.diag(m.action.cov))[:2] for m in (final, held)]
