@@ -1,7 +1,7 @@
-"""What the MRCLAM study scripts share (``mrclam_diagnose.py``, ``mrclam_crossval.py``, ``lag_recovery.py``): their
-arguments (the dataset folder, ``--out``, ``--robots``), the ``aibo`` command run and timed as a user runs it, and
-the resumable loop that runs each unfinished row, keeps the finished ones in a JSON-lines file and rewrites
-OUT/table.md after each."""
+"""What the MRCLAM study scripts share (``mrclam_diagnose.py``, ``mrclam_crossval.py``, ``mrclam_ablation.py``,
+``lag_recovery.py``): their arguments (the dataset folder, ``--out``, ``--robots``), the ``aibo`` command run and
+timed as a user runs it, and the resumable loop that runs each unfinished row, keeps the finished ones in a
+JSON-lines file and rewrites OUT/table.md after each."""
 
 from __future__ import annotations
 
