@@ -1,6 +1,6 @@
 """Which named effect moves the forward speed: per MRCLAM Dataset 7 robot half, ``aibo learn``'s model of the half with
 each effect ``aibo diagnose`` named on it added alone, and with all of them, each fitted on that half as diagnose's
-final fit fits learn's start (``learners.discrepancy.final._final_job``: the curve held until EM converges, then
+final fit fits learn's start (``learners.discrepancy.final.fit_from``: the curve held until EM converges, then
 freed), and scored against Vicon on the other half.
 
     python scripts/mrclam_ablation.py [DATA] [--crossval /tmp/mrclam_crossval] [--out /tmp/mrclam_ablation]
@@ -25,7 +25,7 @@ from mrclam_crossval import halves  # noqa: E402
 from study import data_folder, mrclam_parser, resume, robots  # noqa: E402
 
 import aibo  # noqa: E402,F401  (one BLAS thread per process, as the commands run)
-from learners.discrepancy.final import _final_job, final_options  # noqa: E402
+from learners.discrepancy.final import HOLD_LEARNED_CURVE, FinalStart, final_options, fit_from  # noqa: E402
 from learners.discrepancy.fitting import train_loglik  # noqa: E402
 from learners.discrepancy.search import drop_outliers  # noqa: E402
 from learners.em.options import EMOptions  # noqa: E402
@@ -62,7 +62,7 @@ def row(data: Path, crossval: Path, robot: int, direction: str) -> dict:
         for n in names:
             starts["all"] = starts["all"].with_effect(diag.effect(n))
     for key, start in starts.items():
-        fits[key] = _final_job((fopts, [clean], start, True)).params
+        fits[key] = fit_from(FinalStart(key, start, HOLD_LEARNED_CURVE), [clean], fopts).params
     rec = {"robot": robot, "direction": direction, "named": names}
     for key, m in fits.items():
         rec[key] = {**forward(m, test), "loglik": train_loglik(m, [clean])}

@@ -92,20 +92,36 @@ def learned(logs: list[Trajectory], opts: EMOptions, action_model: str | None = 
     return (first if refit is None else refit).params
 
 
-def _final_job(args: tuple[EMOptions, list[Trajectory], Model, bool]) -> LearnResult:
-    """One start's final fit (a worker's job): EM with the final fit's options on the logs from the start; with
-    ``curve_first`` the sensor curve held at the start's until EM has converged (no standard errors), then freed."""
-    fopts, logs, start, curve_first = args
-    if curve_first and HOLD_LEARNED_CURVE:
-        start = EMLearner(replace(fopts, hold_curve=True, uncertainty=False), check_field=False).fit(logs, init=start).params
-    return EMLearner(fopts, check_field=False).fit(logs, init=start)
+@dataclass(frozen=True)
+class FinalStart:
+    """One start of the final fit (:func:`final_starts`)."""
+
+    name: str  # as ``report.json["final_fit_starts"]`` names it (:data:`START_NAMES`)
+    model: Model
+    #: EM with the start's sensor curve held until it has converged (no standard errors), then the final fit from
+    #: there (:data:`HOLD_LEARNED_CURVE`: learn's start)
+    curve_held_first: bool = False
+
+
+def fit_from(start: FinalStart, logs: list[Trajectory], fopts: EMOptions) -> LearnResult:
+    """The final fit from one start (a worker's job): EM with the final fit's options ``fopts`` on ``logs``; where
+    ``start.curve_held_first``, first with the curve held until EM converges (no standard errors), then freed."""
+    model = start.model
+    if start.curve_held_first:
+        model = EMLearner(replace(fopts, hold_curve=True, uncertainty=False), check_field=False).fit(logs, init=model).params
+    return EMLearner(fopts, check_field=False).fit(logs, init=model)
+
+
+def _final_job(args: tuple[FinalStart, list[Trajectory], EMOptions]) -> LearnResult:
+    """:func:`fit_from` as a worker pool's job (one argument)."""
+    return fit_from(*args)
 
 
 def final_fit(found: dict[str, Any], opts: EMOptions, pool: Any = None) -> tuple[LearnResult, list[dict[str, Any]]]:
     """The final fit: EM on the whole logs ``found["logs"]`` with :func:`final_options` of the search's ``opts``
     (standard errors included) from each of :func:`final_starts`, the more likely kept (the E-step's likelihood of
     the whole logs, ungated; the search's start on a tie). Returns (the fit kept, one record per start:
-    {"start": :data:`START_NAMES`' name, "loglik": nats, "kept": bool}; "loglik" None for a single start). ``pool``:
+    {"start": the start's name (:data:`START_NAMES`), "loglik": nats, "kept": bool}; "loglik" None for a single start). ``pool``:
     a worker pool (``aibo_core.workers.process_pool``) to fit the starts side by side, else one after the other.
 
     Why two starts: the velocities lie on ridges the logs hardly determine (the arc loss, v |omega|, on MRCLAM
@@ -120,17 +136,18 @@ def final_fit(found: dict[str, Any], opts: EMOptions, pool: Any = None) -> tuple
     half to half"; rerun after ``distance_dependent_noise``'s M-step, 8 of 10 again, robot 4's first half now keeping
     the search's start by 0.03 nats, inside EM's stop rule, at 6.2 mm/s)."""
     fopts = final_options(opts)
-    fits = pool_map(pool, _final_job, [(fopts, found["logs"], start, k == 1) for k, start in enumerate(final_starts(found))])
+    starts = final_starts(found)
+    fits = pool_map(pool, _final_job, [(start, found["logs"], fopts) for start in starts])
     if len(fits) == 1:
-        return fits[0], [{"start": START_NAMES[0], "loglik": None, "kept": True}]
+        return fits[0], [{"start": starts[0].name, "loglik": None, "kept": True}]
     ll = [train_loglik(f.params, found["logs"]) for f in fits]
     best = int(np.argmax(ll))
-    return fits[best], [{"start": name, "loglik": float(v), "kept": k == best}
-                        for k, (name, v) in enumerate(zip(START_NAMES, ll))]
+    return fits[best], [{"start": start.name, "loglik": float(v), "kept": k == best}
+                        for k, (start, v) in enumerate(zip(starts, ll))]
 
 
-#: Whether learn's start (the second) is fitted with its curve held first (:func:`_final_job`). Why: the curve learn
-#: fitted without the effect is right on average, and the named effect's values come from the training half; from
+#: Whether learn's start (the second) is fitted with its curve held first (``FinalStart.curve_held_first``). Why: the
+#: curve learn fitted without the effect is right on average, and the named effect's values come from the training half; from
 #: them EM moved the curve and the effect together along a ridge and stopped there. Measured: `aibo` 15-minute log
 #: of seed 8002, `landmark_bias` 0.05 / 8 s: both starts ended with the curve 4-6% high and sigma_rel 0.072, tau_s
 #: 34 s (its interval [0.059, 0.086]), 52 nats below EM from the truth; the held stage then freed 0.0515 / 10.7 s,
@@ -144,14 +161,15 @@ HOLD_LEARNED_CURVE = True
 START_NAMES = ("the search's model", "aibo learn's model with the search's effects")
 
 
-def final_starts(found: dict[str, Any]) -> list[Model]:
+def final_starts(found: dict[str, Any]) -> list[FinalStart]:
     """Where the final fit starts: the search's model ``found["model"]``, and, where the search made one
     (``found["learned"]``: ``aibo learn``'s model of the same logs, :func:`learned`), its action model, sensor model
-    and start poses with the search's effects."""
-    starts = [found["model"]]
+    and start poses with the search's effects, its curve held first (:data:`HOLD_LEARNED_CURVE`)."""
+    starts = [FinalStart(START_NAMES[0], found["model"])]
     if found.get("learned") is not None:
         base = found["learned"]
-        starts.append(found["model"].with_(action=base.action, sensor=base.sensor, init=base.init))
+        starts.append(FinalStart(START_NAMES[1], found["model"].with_(action=base.action, sensor=base.sensor,
+                                                                      init=base.init), HOLD_LEARNED_CURVE))
     return starts
 
 
