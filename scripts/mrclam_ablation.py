@@ -21,7 +21,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from mrclam_crossval import halves  # noqa: E402
+from mrclam_crossval import halves, stem  # noqa: E402
 from study import data_folder, mrclam_parser, resume, robots  # noqa: E402
 
 import aibo  # noqa: E402,F401  (one BLAS thread per process, as the commands run)
@@ -49,9 +49,8 @@ def row(data: Path, crossval: Path, robot: int, direction: str) -> dict:
     per named effect alone, "all"}, each with its scores and ``train_loglik``."""
     h1, h2 = halves(data, robot)
     fit, test = (h1, h2) if direction == "first->second" else (h2, h1)
-    stem = f"r{robot}_{direction.split('->')[0]}"
-    learn = load_model(crossval / f"{stem}_learn.json")
-    diag = load_model(crossval / f"{stem}_diagnose" / "model.json")
+    learn = load_model(crossval / f"{stem(robot, direction)}_learn.json")
+    diag = load_model(crossval / f"{stem(robot, direction)}_diagnose" / "model.json")
     names = [e.name for e in diag.effects if e.name not in {b.name for b in learn.effects}]
     (clean,), _ = drop_outliers(learn, [fit])
     fopts = final_options(EMOptions(lag_search=False))
@@ -97,7 +96,7 @@ def main(argv=None) -> int:
         return 2
     crossval = Path(args.crossval)
     keys = [{"robot": r, "direction": d} for r in robots(args.robots) for d in DIRECTIONS]
-    missing = [k for k in keys if not (crossval / f"r{k['robot']}_{k['direction'].split('->')[0]}_learn.json").is_file()]
+    missing = [k for k in keys if not (crossval / f"{stem(k['robot'], k['direction'])}_learn.json").is_file()]
     if missing:
         print(f"mrclam_ablation: {crossval}: no models of robot {missing[0]['robot']} "
               f"({missing[0]['direction']}): run scripts/mrclam_crossval.py --out {crossval} first", file=sys.stderr)

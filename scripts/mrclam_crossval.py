@@ -44,6 +44,11 @@ def halves(data: Path, robot: int) -> tuple:
     return import_robot(data, robot, seconds=half), import_robot(data, robot, start_s=half)
 
 
+def stem(robot: int, direction: str) -> str:
+    """The file stem of a (robot, direction) row's log and models in OUT, e.g. ``r5_first``."""
+    return f"r{robot}_{direction.split('->')[0]}"
+
+
 def set_aside(model, test) -> tuple:
     """(the scored half ``test`` without its gross outliers, how many): judged by ``model`` (fitted on the other half)
     from the half's own start belief, and set aside once for every model scored on it (robot 3's first half: a burst
@@ -73,7 +78,7 @@ def row(data: Path, robot: int, direction: str, out: Path, jobs: int, options: l
     (``study.diagnose_options``)."""
     h1, h2 = halves(data, robot)
     fit, test = (h1, h2) if direction == "first->second" else (h2, h1)
-    log = out / f"r{robot}_{direction.split('->')[0]}.npz"
+    log = out / f"{stem(robot, direction)}.npz"
     trajectory.save(fit, log)
     learned, diag = out / f"{log.stem}_learn.json", out / f"{log.stem}_diagnose"
     t_learn = run(["learn", str(log), "--out", str(learned), "--no-resume"])
