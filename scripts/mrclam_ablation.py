@@ -11,14 +11,17 @@ half's ``aibo learn`` model and ``aibo diagnose`` model. The effects are added a
 final fit's), and the sightings are the half's without the gross outliers learn's model gates out (as the search sets
 them aside). Scores (``learners.scoring.velocity_scores``, 1 s windows): forward speed RMS error (mm/s) on the other
 half, and the model's mean forward speed there against Vicon's (a scale of the velocities shows as a mean short or
-long); with each fit's log-likelihood of the half it was fitted on (nats, ``train_loglik``). One row per (robot,
-direction) in OUT/rows.jsonl (a rerun skips finished rows); OUT/table.md rewritten after each.
+long); with each fit's log-likelihood of the half it was fitted on (nats, ``train_loglik``), and the robot's own gain
+driving straight in each half (``straight_gain``). One row per (robot, direction) in OUT/rows.jsonl (a rerun skips
+finished rows); OUT/table.md rewritten after each.
 """
 
 from __future__ import annotations
 
 import sys
 from pathlib import Path
+
+import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from mrclam_crossval import halves, stem  # noqa: E402
@@ -44,6 +47,19 @@ def forward(model, test) -> dict:
             "mean_vicon": float(v[:, 0].mean())}
 
 
+def straight_gain(half, lag_s: float) -> tuple[float, int]:
+    """(Vicon's forward speed over the commanded one, median over the 1 s windows of ``half`` driven straight at a steady
+    command: the commands shifted by ``lag_s`` (s), constant over the window, above 20 mm/s and below 0.05 rad/s; how
+    many windows): the robot's own gain where no model of turns or changes of command is involved."""
+    win, v = measured_window_velocities(half)
+    shift = int(round(lag_s / half.dt))
+    c = np.vstack([np.repeat(half.controls[:1], shift, axis=0), half.controls[:len(half.controls) - shift]])
+    steady = np.array([np.ptp(c[a:b, 0]) < 1.0 and np.ptp(c[a:b, 1]) < 1e-3 for a, b in win], dtype=bool)
+    cmd = np.array([c[a:b].mean(axis=0) for a, b in win])
+    m = steady & (cmd[:, 0] > 20.0) & (np.abs(cmd[:, 1]) < 0.05)
+    return float(np.median(v[m, 0] / cmd[m, 0])), int(m.sum())
+
+
 def row(data: Path, crossval: Path, robot: int, direction: str) -> dict:
     """The fits of one half (module docstring): {"learn", "diagnose", "held" (learn's model refitted alone), one entry
     per named effect alone, "all"}, each with its scores and ``train_loglik``."""
@@ -62,7 +78,9 @@ def row(data: Path, crossval: Path, robot: int, direction: str) -> dict:
             starts["all"] = starts["all"].with_effect(diag.effect(n))
     for key, start in starts.items():
         fits[key] = fit_from(FinalStart(key, start, HOLD_LEARNED_CURVE), [clean], fopts).params
-    rec = {"robot": robot, "direction": direction, "named": names}
+    lag = float(learn.effect("actuation_lag").lag_s) if "actuation_lag" in {e.name for e in learn.effects} else 0.0
+    rec = {"robot": robot, "direction": direction, "named": names,
+           "straight_gain": {"fitted": straight_gain(fit, lag), "scored": straight_gain(test, lag)}}
     for key, m in fits.items():
         rec[key] = {**forward(m, test), "loglik": train_loglik(m, [clean])}
     return rec
@@ -71,7 +89,8 @@ def row(data: Path, crossval: Path, robot: int, direction: str) -> dict:
 def table(rows: list[dict]) -> str:
     head = ("| robot | fitted on -> scored on | forward mm/s against Vicon (learn's model refitted as learn's start is; "
             "+ each effect alone; + all; diagnose's model) | mean forward mm/s: Vicon / learn / diagnose | "
-            "log-likelihood gain over the refitted learn (nats) |\n|---|---|---|---|---|")
+            "log-likelihood gain over the refitted learn (nats) | driving straight, Vicon / command: fitted half / "
+            "scored half (windows) |\n|---|---|---|---|---|---|")
     lines = []
     for r in sorted(rows, key=lambda r: (r["robot"], r["direction"])):
         keys = ["held", *r["named"], *(["all"] if len(r["named"]) > 1 else [])]
@@ -82,7 +101,8 @@ def table(rows: list[dict]) -> str:
         gains = "; ".join(f"{k} {r[k]['loglik'] - r['held']['loglik']:+.0f}" for k in keys[1:])
         lines.append(f"| {r['robot']} | {r['direction'].replace('->', ' -> ')} | {errors} | "
                      f"{r['learn']['mean_vicon']:.1f} / {r['learn']['mean_model']:.1f} / {r['diagnose']['mean_model']:.1f}"
-                     f" | {gains} |")
+                     f" | {gains} | {r['straight_gain']['fitted'][0]:.3f} ({r['straight_gain']['fitted'][1]}) / "
+                     f"{r['straight_gain']['scored'][0]:.3f} ({r['straight_gain']['scored'][1]}) |")
     return head + "\n" + "\n".join(lines) + "\n"
 
 

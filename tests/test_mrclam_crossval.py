@@ -33,8 +33,9 @@ def test_robot_5s_forward_excess_is_the_distance_noise_slowing_the_model(tmp_pat
     """``scripts/mrclam_ablation.py`` on the one half where diagnose's forward speed is not within 3% of learn's (robot 5
     fitted on its first half, scored on the second): ``distance_dependent_noise`` added alone to learn's model is far
     more likely (measured +536 nats), slows the model's mean forward speed on the scored half (51.65 -> 51.12 mm/s,
-    Vicon 52.4) and makes its forward error worse (4.20 -> 4.59 mm/s), while the height factors alone do not (4.19)
-    (docs/results.md, "Which named effect moves the forward speed")."""
+    Vicon 52.4) and makes its forward error worse (4.20 -> 4.59 mm/s), while the height factors alone do not (4.19);
+    and driving straight the robot's own gain is the same in both halves (docs/results.md, "Which named effect moves
+    the forward speed")."""
     cv, ablation = load_script("mrclam_crossval"), load_script("mrclam_ablation")
     cv.row(DATA, 5, "first->second", tmp_path, jobs=2)
     r = ablation.row(DATA, tmp_path, 5, "first->second")
@@ -45,3 +46,6 @@ def test_robot_5s_forward_excess_is_the_distance_noise_slowing_the_model(tmp_pat
     assert noise["vx_rms"] > 1.05 * held["vx_rms"], r
     for name in set(r["named"]) - {"distance_dependent_noise"}:
         assert r[name]["vx_rms"] < 1.03 * held["vx_rms"], (name, r)
+    # not the robot's own gain: driving straight, Vicon over the command is the same in both halves (1.007 / 1.004)
+    (fitted, n_fitted), (scored, n_scored) = r["straight_gain"]["fitted"], r["straight_gain"]["scored"]
+    assert min(n_fitted, n_scored) >= 30 and abs(fitted - scored) < 0.01 and abs(fitted - 1.0) < 0.03, r
