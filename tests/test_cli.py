@@ -194,6 +194,10 @@ def test_bench_quick_writes_every_figure(tmp_path):
     w = rep["workflows"]
     assert w["learn"]["wall_s"] > 0 and w["learn"]["command_wall_s"] > 0
     assert w["diagnose"]["wall_s"] > 0 and w["diagnose"]["named"] == ["actuation_lag"]
+    d = w["diagnose"]  # where its time went: the report's stages, and the candidate that took longest
+    assert d["seconds_by_stage"]["search"] > 0 and sum(d["seconds_by_stage"].values()) <= d["wall_s"]
+    assert d["slowest_candidate"]["name"] in {"actuation_lag", "floor_drift"} and d["slowest_candidate"]["seconds"] > 0
+    assert "its stages: search" in r.stdout and "the slowest candidate" in r.stdout
     assert all(row["peak_mb"] >= 0 and row["estep_s"] > 0 for row in rep["scaling"])
 
 

@@ -200,8 +200,12 @@ def workflows(quick: bool) -> dict:
         with _silenced():
             main(["diagnose", str(lag_log), "--out", str(Path(tmp) / "d"), *extra])
         report = json.loads((Path(tmp) / "d" / "report.json").read_text())
+        slowest = max(report["candidates"], key=lambda c: c["seconds"], default=None)
         out["diagnose"] = {"minutes": minutes, "hidden": "actuation_lag 0.2 s", "wall_s": time.perf_counter() - t0,
-                           "named": [e["name"] for e in report["effects"]], "quick": quick}
+                           "named": [e["name"] for e in report["effects"]], "quick": quick,
+                           "seconds_by_stage": report["seconds_by_stage"],
+                           "slowest_candidate": None if slowest is None else
+                           {"name": slowest["name"], "round": slowest["round"], "seconds": slowest["seconds"]}}
     return out
 
 
@@ -262,6 +266,11 @@ def run(args) -> int:
           f"imports and the kernels' cache load); aibo diagnose, "
           f"{w['diagnose']['minutes']}-minute log: {w['diagnose']['wall_s']:.1f} s (named: "
           f"{', '.join(w['diagnose']['named']) or 'none'})", flush=True)
+    d = w["diagnose"]
+    stages = ", ".join(f"{k} {v:.1f} s" for k, v in d["seconds_by_stage"].items())
+    slowest = d["slowest_candidate"]
+    print(f"    its stages: {stages}" + (f"; the slowest candidate {slowest['name']} (round {slowest['round']}) "
+                                         f"{slowest['seconds']:.1f} s" if slowest else ""), flush=True)
 
     print("scaling (each size in its own process) ...", flush=True)
     with tempfile.TemporaryDirectory() as tmp:
