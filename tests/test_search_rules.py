@@ -605,3 +605,25 @@ def test_the_search_run_again_without_a_named_effect_names_what_a_search_without
     assert again["state"].starts[1][1] == found["state"].starts[1][1]  # from the state round 2 started from
     assert [e["from"] for e in again["escapes"]] == ["actuation_lag"]  # replayed, not tried again
     assert found["winners"] == ["beacon_height_scale", "actuation_lag"]  # the search it resumed is left as it was
+
+
+@pytest.mark.parametrize("tau_s, refitted", [(0.4, False), (8.0, False), (150.0, True)])
+def test_the_staged_refit_is_for_a_ridge_not_for_the_white_noise_limit(monkeypatch, tau_s, refitted):
+    """``fit_candidate`` fits an implausible fit again in stages only where it may have climbed a ridge
+    (``EffectModel.ridge_possible``): a bias that holds for 150 s may (seed 2001's direct fit, rescued by the staged
+    one: ``tests/test_landmark_bias.py``); one gone within a second is the model's white-noise limit, to which the
+    staged refit returned on 9 of 9 effect-free logs, so it is not refitted; a plausible fit never is."""
+    from learners.model.landmark_bias import MIN_PLAUSIBLE_TAU_S
+
+    bias = LandmarkBias(0.01, tau_s)
+    assert bias.ridge_possible() == (tau_s >= MIN_PLAUSIBLE_TAU_S)
+    start = _Model((_Effect("landmark_bias"),))
+    fitted = _Model((bias,))
+    calls = []
+    monkeypatch.setattr(search_module, "candidate_start", lambda name, ctx: start)
+    monkeypatch.setattr(search_module, "staged", lambda *a: calls.append(a) or (a[2], a[3]))
+    monkeypatch.setattr(search_module, "tested", lambda name, model, ll, ctx: Candidate(name, {}, 0.0, 0.0, 2, 1.0))
+    ctx = _Context(train_ll={frozenset({"landmark_bias"}): -10.0})
+    ctx.fit = lambda init, opts=None: fitted
+    search_module.fit_candidate("landmark_bias", ctx)
+    assert bool(calls) == refitted

@@ -84,7 +84,7 @@ def fit_candidate(name: str, ctx: SearchContext, previous: Model | None = None) 
         again = ctx.fit(previous)
         ll_again = ctx.loglik(again)
         model, ll = (again, ll_again) if ll_again > ll else (model, ll)
-    if model.effect(name).implausible():
+    if model.effect(name).implausible() and model.effect(name).ridge_possible():
         model, ll = staged(name, start, model, ll, ctx)
     c = tested(name, model, ll, ctx)
     c.start = start

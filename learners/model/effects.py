@@ -97,6 +97,13 @@ class EffectModel(Component):
         outliers), so it is not named. Default: always credible."""
         return ""
 
+    def ridge_possible(self) -> bool:
+        """Whether a fit that ended at implausible values (:meth:`implausible`) may have climbed a ridge before the
+        base model adapted to the effect, so that the search's staged refit (``learners.discrepancy.search.staged``:
+        the rest first with the effect frozen at its warm start, then everything) may end elsewhere. False where the
+        implausible values are the model's own limit, which EM returns to from any start. Default: True."""
+        return True
+
     def dof(self) -> int:
         """Free numbers the effect adds (for the likelihood-ratio test): grid parameters count one each.
         A normalization declared by a parameter's transform (``Param.constraints``: a ``"logcontrast"``
