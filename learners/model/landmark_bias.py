@@ -213,9 +213,9 @@ class LandmarkBias(EffectModel):
     def ridge_possible(self) -> bool:
         """A correlation time below ``MIN_PLAUSIBLE_TAU_S`` is the model's white-noise limit (the states take the
         sightings' own noise), not a ridge: the staged refit returned there on every log it was tried on (9 of 9
-        effect-free 5-minute logs, seeds 7000-7011, tau_s 0.27-0.75 s after it, 0-0.9 nats gained; the MRCLAM
-        training halves' 0.19-0.69 s), at the cost of two more fits (docs/results.md, "The search's checks"). A
-        correlation time above ``MAX_PLAUSIBLE_TAU_S`` may be a ridge."""
+        effect-free 5-minute logs, seeds 7000-7011, tau_s 0.27-0.75 s after it, 0-0.9 nats gained), at the cost of
+        two more fits (docs/results.md, "Staged fits"). A correlation time above ``MAX_PLAUSIBLE_TAU_S`` may be a
+        ridge (seed 2001's 150 s, which the staged refit rescues)."""
         return self.tau_s >= MIN_PLAUSIBLE_TAU_S
 
     def transitions(self, dt: float) -> tuple[float, float]:
