@@ -67,7 +67,7 @@ def row(data: Path, crossval: Path, robot: int, direction: str) -> dict:
     fit, test = (h1, h2) if direction == "first->second" else (h2, h1)
     learn = load_model(crossval / f"{stem(robot, direction)}_learn.json")
     diag = load_model(crossval / f"{stem(robot, direction)}_diagnose" / "model.json")
-    names = [e.name for e in diag.effects if e.name not in {b.name for b in learn.effects}]
+    names = [e.name for e in diag.effects if learn.effect(e.name) is None]  # learn may hold the lag and the shrink
     (clean,), _ = drop_outliers(learn, [fit])
     fopts = final_options(EMOptions(lag_search=False))
     fits = {"learn": learn, "diagnose": diag}
@@ -78,9 +78,10 @@ def row(data: Path, crossval: Path, robot: int, direction: str) -> dict:
             starts["all"] = starts["all"].with_effect(diag.effect(n))
     for key, start in starts.items():
         fits[key] = fit_from(FinalStart(key, start, HOLD_LEARNED_CURVE), [clean], fopts).params
-    lag = float(learn.effect("actuation_lag").lag_s) if "actuation_lag" in {e.name for e in learn.effects} else 0.0
+    lag = learn.effect("actuation_lag")
+    lag_s = 0.0 if lag is None else float(lag.lag_s)
     rec = {"robot": robot, "direction": direction, "named": names,
-           "straight_gain": {"fitted": straight_gain(fit, lag), "scored": straight_gain(test, lag)}}
+           "straight_gain": {"fitted": straight_gain(fit, lag_s), "scored": straight_gain(test, lag_s)}}
     for key, m in fits.items():
         rec[key] = {**forward(m, test), "loglik": train_loglik(m, [clean])}
     return rec
