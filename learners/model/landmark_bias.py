@@ -215,7 +215,8 @@ class LandmarkBias(EffectModel):
         sightings' own noise), not a ridge: the staged refit returned there on every log it was tried on (9 of 9
         effect-free 5-minute logs, seeds 7000-7011, tau_s 0.27-0.75 s after it, 0-0.9 nats gained), at the cost of
         two more fits (docs/results.md, "Staged fits"). A correlation time above ``MAX_PLAUSIBLE_TAU_S`` may be a
-        ridge (seed 2001's 150 s, which the staged refit rescues)."""
+        ridge (seed 2001's 150 s, which the staged refit rescues). Below 1 s no refit is made whatever else is
+        implausible (a sigma_rel above ``MAX_PLAUSIBLE_SIGMA`` there is white noise too)."""
         return self.tau_s >= MIN_PLAUSIBLE_TAU_S
 
     def transitions(self, dt: float) -> tuple[float, float]:
