@@ -1,6 +1,7 @@
 """Calibration of `aibo diagnose`'s estimates: do the named effects' 95% intervals cover the truth, is the estimate biased?
 
-    python scripts/calibration.py [--logs 100] [--effects a,b,...] [--minutes 5] [--first-log 0] [--out runs/calibration]
+    python scripts/calibration.py [--logs 100] [--effects a,b,...] [--minutes 5] [--first-log 0] [--presets aibo,paper-sim]
+                                  [--out runs/calibration]
     python scripts/calibration.py --out runs/calibration --table      # print the table of the rows so far
     python scripts/calibration.py --effects actuation_lag --strength actuation_lag.lag_s=0.15 --out runs/calibration-lag15
 
@@ -26,7 +27,11 @@ per component) and noise preset, over the logs where the effect was named:
   its half-width / 1.96 stands in); bias / SE with its Monte Carlo standard error (the spread of estimate - truth
   over the logs / sqrt(n) / SE); spread / SE: the spread of the estimates over the logs against the mean reported
   standard error (1 when the standard errors are right);
-- missing: named logs whose interval is None.
+- missing: named logs whose interval is None;
+- not warned: the coverage over the named logs whose report gives no warning about the effect's values (no interval,
+  moved since named, short of the likelihood's maximum: ``effect_sizes.read_with_care``, what `aibo diagnose` prints).
+
+``--presets paper-sim`` runs only the logs of that preset (odd i), e.g. to rerun one preset's shortfall.
 
 ``--strength EFFECT.PARAM=VALUE`` (repeatable; VALUE a number or a JSON list) simulates an effect at another strength
 than ``STRENGTH``'s, e.g. a lag between the grid's values; its rows go to their own ``--out`` (a folder holding rows of
@@ -114,6 +119,13 @@ def set_strength(items: list[str]) -> None:
             raise ValueError(f"--strength {item!r}: VALUE must be a number or a JSON list") from None
 
 
+def wheeled(effect: str) -> bool:
+    """Whether ``effect``'s logs are a wheeled robot's (it needs continuous commands: ``EffectModel.NEEDS``)."""
+    from learners.model.effects import EFFECT_MODELS
+
+    return "controls" in EFFECT_MODELS[effect].NEEDS
+
+
 def one(effect: str, i: int, minutes: float) -> dict[str, Any]:
     """Log ``i`` of ``effect``: simulated, searched and, the effect named, its final estimates and intervals."""
     from aibo_core.trajectory import blind
@@ -122,10 +134,9 @@ def one(effect: str, i: int, minutes: float) -> dict[str, Any]:
     from learners.discrepancy.final import plausible_diagnosis
     from learners.discrepancy.search import search
     from learners.em.options import EMOptions
-    from learners.model.effects import EFFECT_MODELS
 
     params, seed, preset = STRENGTH[effect], SEED + i, PRESETS[i % len(PRESETS)]
-    if "controls" in EFFECT_MODELS[effect].NEEDS:
+    if wheeled(effect):
         preset = WHEELED
         tr = collect_wheeled({"effects": {effect: params}, "start_pose": "random"}, int(round(minutes * 600)), seed)
     else:
@@ -196,11 +207,28 @@ def summary(values: list[float], ses: list[float | None], intervals: list[list[f
             "spread": spread, "spread_ratio": spread / se}
 
 
+def warned(row: dict[str, Any]) -> bool:
+    """Whether `aibo diagnose` would warn about the row's named effect's stated values
+    (``effect_sizes.read_with_care``: no interval, moved since named, short of the likelihood's maximum)."""
+    from learners.discrepancy.effect_sizes import read_with_care
+
+    entry = next((e for e in row.get("effects", []) if e["name"] == row["effect"]), None)
+    return entry is not None and bool(read_with_care(entry))
+
+
+def unwarned_coverage(cells: list[tuple], flags: list[bool], true: float) -> str:
+    """The coverage over the cells whose log the report does not warn about (``warned``), as "c of n" with its share."""
+    quiet = [iv for (_, _, iv), w in zip(cells, flags) if not w and iv is not None]
+    covered = sum(lo <= true <= hi for lo, hi in quiet)
+    return f"{covered / len(quiet):.0%} ({covered} of {len(quiet)})" if quiet else "-"
+
+
 def table(rows: list[dict[str, Any]], fisher: bool = False) -> str:
     """The markdown table (module docstring): per effect, parameter (component) and noise preset, over the logs where
-    the effect was named, with how many logs named it (``fisher``: of the Fisher intervals, ``cell``)."""
+    the effect was named, with how many logs named it (``fisher``: of the Fisher intervals, ``cell``), and the coverage
+    over the logs whose report gives no warning about the effect's values (``warned``)."""
     lines = ["| effect | parameter | preset | truth | named | coverage (+- s.e.) | bias | SE | bias / SE (+- MC s.e.) | "
-             "spread / SE | missing |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "spread / SE | missing | not warned: coverage |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     order = {e: k for k, e in enumerate(STRENGTH)}
     for effect in sorted({r["effect"] for r in rows}, key=lambda e: (order.get(e, len(order)), e)):
         rs = [r for r in rows if r["effect"] == effect]
@@ -209,15 +237,17 @@ def table(rows: list[dict[str, Any]], fisher: bool = False) -> str:
             label = pname if j is None else f"{pname}[{j}]"
             for preset in [p for p in (*PRESETS, WHEELED) if any(r["preset"] == p for r in rs)]:
                 logs = [r for r in rs if r["preset"] == preset]
-                cells = [cell(e[pname], j, fisher) for e in (estimates(r) for r in logs) if e is not None]
+                named = [r for r in logs if estimates(r) is not None]
+                cells = [cell(estimates(r)[pname], j, fisher) for r in named]
                 head = f"| {effect} | {label} | {preset} | {true:.4g} | {len(cells)} of {len(logs)} |"
                 if not cells:
-                    lines.append(head + " | | | | | |")
+                    lines.append(head + " | | | | | | |")
                     continue
                 s = summary([c[0] for c in cells], [c[1] for c in cells], [c[2] for c in cells], true)
                 lines.append(head + f" {s['coverage']:.0%} +- {s['coverage_se']:.0%} ({s['covered']} of "
                              f"{s['n'] - s['missing']}) | {s['bias']:+.3g} | {s['se']:.3g} | {s['ratio']:+.2f} +- "
-                             f"{s['ratio_mcse']:.2f} | {s['spread_ratio']:.2f} | {s['missing']} |")
+                             f"{s['ratio_mcse']:.2f} | {s['spread_ratio']:.2f} | {s['missing']} | "
+                             f"{unwarned_coverage(cells, [warned(r) for r in named], true)} |")
     return "\n".join(lines) + "\n"
 
 
@@ -233,6 +263,8 @@ def main() -> None:
     ap.add_argument("--first-log", type=int, default=0, help="start at this log (a second process can take others)")
     ap.add_argument("--effects", default=",".join(STRENGTH), help="comma-separated, in the order run (default: all)")
     ap.add_argument("--minutes", type=float, default=5.0, help="log length (default 5: 9000 frames)")
+    ap.add_argument("--presets", default=",".join(PRESETS),
+                    help="run only the logs of these noise presets (an effect of continuous commands: every log)")
     ap.add_argument("--out", default="runs/calibration")
     ap.add_argument("--table", action="store_true", help="only print the table of the rows in OUT")
     ap.add_argument("--strength", action="append", default=[], metavar="EFFECT.PARAM=VALUE",
@@ -259,8 +291,11 @@ def main() -> None:
                      f"{STRENGTH[other['effect']]}: give this strength its own --out")
         # log by log, each effect in turn: a study stopped early has as many logs of every effect
         done = {(r["effect"], r["log"], r["minutes"]) for r in rows}
+        presets = {p.strip() for p in args.presets.split(",")}
+        if not presets <= set(PRESETS):
+            ap.error(f"--presets {args.presets!r}: valid presets are {', '.join(PRESETS)}")
         keys = [{"effect": e, "log": i, "minutes": args.minutes} for i in range(args.first_log, args.logs) for e in effects
-                if (e, i, args.minutes) not in done]
+                if (e, i, args.minutes) not in done and (PRESETS[i % len(PRESETS)] in presets or wheeled(e))]
         rows_file = "rows.jsonl" if args.first_log == 0 else f"rows-from-{args.first_log}.jsonl"
 
         def progress(r: dict[str, Any], md: str) -> None:

@@ -202,3 +202,21 @@ def test_the_final_fit_starts_from_the_searchs_model_and_from_learns_and_keeps_t
     starts.clear()
     _, record = final.final_fit({"model": searched, "logs": [tr]}, opts)
     assert starts == [searched] and record == [{"start": final.START_NAMES[0], "loglik": None, "kept": True}]
+
+
+def test_the_table_gives_the_coverage_of_the_intervals_the_report_does_not_warn_about():
+    """A log whose effect moved outside its final interval since it was named (``effect_sizes.moved_since_named``,
+    one of the report's warnings about the effect) counts in the coverage, and not in the "not warned" one."""
+    cal = _load()
+
+    def row(log, value, when_named):
+        return {"effect": "turn_heading_noise", "log": log, "preset": "paper-sim", "truth": {"gain_s": 1.5},
+                "named": ["turn_heading_noise"],
+                "effects": [{"name": "turn_heading_noise", "parameters_when_named": {"gain_s": when_named},
+                             "intervals": {"gain_s": {"value": value, "se": 0.5,
+                                                      "interval_95": [value - 1.0, value + 1.0]}}}]}
+
+    rows = [row(1, 1.4, 1.3), row(3, 6.0, 1.1), row(5, 2.0, 1.9)]  # log 3: named at 1.1, 6.0 [5, 7] in the final fit
+    assert [cal.warned(r) for r in rows] == [False, True, False]
+    line = next(line for line in cal.table(rows).splitlines() if line.startswith("| turn_heading_noise"))
+    assert "67% +- 27% (2 of 3)" in line and line.endswith("| 100% (2 of 2) |")

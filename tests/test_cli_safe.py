@@ -842,7 +842,7 @@ def test_diagnose_warns_when_a_held_fit_beat_the_diagnosed_model():
     """A parameter whose interval records a fit held elsewhere more likely than the diagnosed model by more than
     1.92 nats (``beaten_by_nats``: the value stated is outside its own profile interval) becomes a warning naming the
     effect, the parameter and the nats; by less (the stop rules' slack) or none, no warning."""
-    from aibo.commands.diagnose import short_of_maximum
+    from learners.discrepancy.effect_sizes import short_of_maximum
 
     effects = [{"name": "distance_dependent_noise", "intervals": {"exponent": {"value": 0.31, "beaten_by_nats": 37.3}}},
                {"name": "actuation_lag", "intervals": {"lag_s": {"value": 0.2, "beaten_by_nats": 1.2}}},

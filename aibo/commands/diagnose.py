@@ -18,9 +18,8 @@ from aibo_core.compat import check_compatible
 from aibo_core.workers import process_pool
 from learners.arrays.batch import make_batch
 from learners.discrepancy.checks import RobustLikelihoodRatio
-from learners.discrepancy.effect_sizes import base_shift, holds_off, moved_since_named, without_interval
+from learners.discrepancy.effect_sizes import base_shift, holds_off, read_with_care
 from learners.discrepancy.final import plausible_diagnosis
-from learners.discrepancy.profile import HALF_CHI2_1_95
 from learners.discrepancy.score import (
     GAP_METRIC,
     MOTION_GAP_METRIC,
@@ -155,11 +154,8 @@ def run(args) -> int:
     report["warnings"] += [f"{d['name']}: named by the search, dropped from the diagnosed model: in the final fit on the "
                            f"whole log(s), {d['why']}" for d in found["dropped_in_final"]]
     report["warnings"] += negligible_when_final(final.result.params, report["effects"], logs)
-    report["warnings"] += short_of_maximum(report["effects"])
-    report["warnings"] += [w for e in report["effects"] if (w := without_interval(e["name"], e["intervals"]))]
+    report["warnings"] += [w for e in report["effects"] for w in read_with_care(e)]
     report["warnings"] += off_held(report["effects"], logs)
-    report["warnings"] += [w for e in report["effects"]
-                           if (w := moved_since_named(e["name"], e["intervals"], e["parameters_when_named"]))]
     report["warnings"] += motion_warning(report)
     report["warnings"] += round_limit(report["search_rounds"], report["candidates"])
     for w in report["warnings"]:
@@ -392,18 +388,6 @@ against the probe's fitted factor)."""
                     "why_not_named": "no effect of the catalogue is this dependence; the named effects do not explain it",
                     "signature": sig.as_dict() if sig is not None else None})
     return out
-
-
-def short_of_maximum(effects: list[dict]) -> list[str]:
-    """A warning per named effect's parameter for which a fit held at another value beat the diagnosed model by more
-    than 1.92 nats (its interval's ``beaten_by_nats``, ``learners.discrepancy.profile``): the value stated is then
-    outside its own 95% profile interval, not the likelihood's maximum. (By less, only the interval's note says so:
-    of 75 simulated logs that named ``distance_dependent_noise``, a held fit beat the final fit by 0.5-1.8 nats on
-    20, the stop rules' slack, and by 2.0-19.5 on 6; scripts/calibration.py, docs/results.md.)"""
-    return [f"{e['name']}: {pname} {iv['value']:.3g} is not the likelihood's maximum: a fit with it held elsewhere is "
-            f"{iv['beaten_by_nats']:.1f} nats more likely (more than the 95% interval's {HALF_CHI2_1_95:.2f}); "
-            "the value stated may be off by more than its interval says"
-            for e in effects for pname, iv in e["intervals"].items() if iv.get("beaten_by_nats", 0.0) > HALF_CHI2_1_95]
 
 
 def negligible_when_final(final: Model, named: list[dict], logs: list) -> list[str]:
