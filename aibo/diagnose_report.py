@@ -262,6 +262,10 @@ def _none_of_the_above(unexplained: list[dict[str, Any]]) -> str:
         + ".</p>" for u in unexplained if "probe" in u)
 
 
+#: beside a named effect whose values the report warns about (``report.json["effects"][i]["warnings"]``)
+READ_WITH_CARE = "read with care: a warning below says why its value or interval may be off"
+
+
 def _verdict(report: dict[str, Any]) -> str:
     """The page's first line: the named effects with their values and intervals, and how far they moved the base."""
     odd = [u for u in report.get("unexplained", []) if "probe" in u]
@@ -275,8 +279,9 @@ def _verdict(report: dict[str, Any]) -> str:
     for e in report["effects"]:
         interval = interval_text(e.get("intervals", {}))
         step = "" if interval else grid_note(e["name"])  # an interval states the grid's step itself
+        care = f"; <i>{READ_WITH_CARE}</i>" if e.get("warnings") else ""
         named.append(f"<b>{html.escape(e['name'])}</b> ({html.escape(short(e['parameters']) + step)}"
-                     f"{html.escape('; ' + interval) if interval else ''})")
+                     f"{html.escape('; ' + interval) if interval else ''}{care})")
     shift = f"; {html.escape(shift_text(report['base_change']))}" if report.get("base_change") else ""
     rest = "; and something outside the catalogue (none of the above, below)" if odd else ""
     return "Verdict: the base model misses " + ", ".join(named) + shift + rest

@@ -861,3 +861,30 @@ def test_an_arrays_interval_is_printed_as_its_half_widths_or_its_ends():
     assert interval_text({"scale": {**iv, "clipped": False}}) == "95%: scale +- [0.0039, 0.0059]"
     clipped = {"value": [0.002, 0.01], "interval_95": [[0.0, 0.005], [0.006, 0.015]], "clipped": True}
     assert interval_text({"rate": clipped}) == "95%: rate [[0, 0.006], [0.005, 0.015]]"
+
+
+def test_a_named_effects_warnings_are_in_its_entry_among_the_reports_and_marked_on_the_page(tmp_path, capsys):
+    """``report.json["effects"][i]["warnings"]`` is what ``effect_sizes.read_with_care`` says of that entry (through
+    the command: a 0.2 s lag, named); the page's verdict marks an effect with warnings "read with care" and not one
+    without."""
+    import json
+
+    from aibo.diagnose_report import READ_WITH_CARE, html_page
+    from learners.discrepancy.effect_sizes import read_with_care
+
+    log, out = tmp_path / "lag.npz", tmp_path / "D"
+    config = json.dumps({"effects": {"actuation_lag": {"lag_s": 0.2}}})
+    assert main(["collect", "--steps", "3000", "--seed", "3", "--blind", "--config", config, "--out", str(log)]) == 0
+    assert main(["diagnose", str(log), "--out", str(out), "--candidates", "actuation_lag", "--jobs", "1",
+                 "--replicas", "0"]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert [e["name"] for e in report["effects"]] == ["actuation_lag"]
+    entry = report["effects"][0]
+    assert entry["warnings"] == read_with_care(entry) and set(entry["warnings"]) <= set(report["warnings"])
+    moved = {**entry, "parameters_when_named": {"lag_s": 0.6}}  # named far outside its final interval
+    assert read_with_care(moved) and "moved it outside its interval" in read_with_care(moved)[0]
+    base = {"candidates": [], "gap_metric": "heldout_nll_per_sighting", "gap_before": 3.0, "gap_after": 2.5}
+    for warnings in ([], read_with_care(moved)):
+        html_page(tmp_path / "p.html", {**base, "effects": [{**entry, "warnings": warnings}]}, "text", [])
+        verdict = next(line for line in (tmp_path / "p.html").read_text().splitlines() if "Verdict:" in line)
+        assert (READ_WITH_CARE in verdict) == bool(warnings)

@@ -105,6 +105,8 @@ def run(args) -> int:
     motion = motion_gaps(found["base"], found["model"], logs)
     sig_before, sig_after = signatures(found["base"], logs), signatures(found["model"], logs)
     report = _report(found, final.effects, before, after, sig_before)
+    for e in report["effects"]:  # what the report says about each effect's values (also among its warnings)
+        e["warnings"] = read_with_care(e)
     report.update(motion)
     report["final_fit_starts"] = final.starts
     say("")
@@ -112,7 +114,8 @@ def run(args) -> int:
     for e in report["effects"]:
         interval = fig.interval_text(e["intervals"])
         step = "" if interval else fig.grid_note(e["name"])  # an interval states the grid's step itself
-        say(f"  {e['name']}: {fig.short(e['parameters'])}{step}{'; ' + interval if interval else ''}")
+        say(f"  {e['name']}: {fig.short(e['parameters'])}{step}{'; ' + interval if interval else ''}"
+            + (f" ({fig.READ_WITH_CARE})" if e["warnings"] else ""))
     if report["base_change"]:
         say(f"  {fig.shift_text(report['base_change'])}")
     say(f"  {fig.starts_text(final.starts)}")
@@ -154,7 +157,7 @@ def run(args) -> int:
     report["warnings"] += [f"{d['name']}: named by the search, dropped from the diagnosed model: in the final fit on the "
                            f"whole log(s), {d['why']}" for d in found["dropped_in_final"]]
     report["warnings"] += negligible_when_final(final.result.params, report["effects"], logs)
-    report["warnings"] += [w for e in report["effects"] for w in read_with_care(e)]
+    report["warnings"] += [w for e in report["effects"] for w in e["warnings"]]
     report["warnings"] += off_held(report["effects"], logs)
     report["warnings"] += motion_warning(report)
     report["warnings"] += round_limit(report["search_rounds"], report["candidates"])
@@ -410,7 +413,8 @@ def base_effects(final: Model, named: list[dict]) -> list[dict]:
 def _report(found: dict, effects: list[dict], before, after, sig_before) -> dict:
     """report.json's body. ``effects``: the named effects' entries (``learners.discrepancy.final.diagnosed``: the
     parameters of the diagnosed model, model.json, every kept effect refitted on the whole logs, with standard errors
-    and 95% intervals; ``parameters_when_named``: the candidate's fit in its round); ``base_change``: how far the
+    and 95% intervals; ``parameters_when_named``: the candidate's fit in its round; ``warnings``, added by the
+    command: ``effect_sizes.read_with_care``); ``base_change``: how far the
     named effects moved the base model (both fits on the training half)."""
     # "named": this try is the one that named the effect, and the diagnosed model holds it (not pruned)
     tried = [dict(c.as_dict(), round=k + 1, named=any(c is n for n in found["named"]))
