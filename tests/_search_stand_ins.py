@@ -62,7 +62,7 @@ class StandInContext:
         return self.heldout_ll[frozenset(e.name for e in model.effects)]
 
     def overstatement(self, model, name):
-        return self.factor
+        return self.factor, {}
 
     def test(self, gain, held_gain, dof):
         return lr_test(gain, held_gain, dof, self.n_tests)

@@ -275,6 +275,23 @@ def test_a_final_estimate_outside_its_interval_from_the_value_when_named_is_said
     assert "lag_s 0.1 when named" in moved_since_named("actuation_lag", lag, {"lag_s": 0.1})
 
 
+def test_the_disagreement_since_named_allows_for_the_training_halfs_own_error():
+    """A drift named at 8.5 mm/s on the training half, 12.0 +- 1.4 in the final fit (interval [9.26, 14.74]): with the
+    training half's robust error 3.0 the difference's error is sqrt(3^2 - 1.4^2) = 2.65 (nested estimates, Hausman),
+    its allowance +-5.2: nothing said. With the error half the sightings would give (1.4 sqrt 2: the allowance is the
+    interval itself), or none known, it is said; far beyond the allowance, said either way."""
+    from learners.discrepancy.effect_sizes import moved_since_named, read_with_care
+
+    iv = {"drift_mm_s": {"value": [12.0, 0.0], "se": [1.4, 1.4], "interval_95": [[9.256, -2.744], [14.744, 2.744]]}}
+    named = {"drift_mm_s": [8.5, 0.3]}
+    assert moved_since_named("floor_drift", iv, named, {"drift_mm_s": [3.0, 3.0]}) == ""
+    assert moved_since_named("floor_drift", iv, named, {"drift_mm_s": [1.4 * 2 ** 0.5] * 2}) != ""
+    assert moved_since_named("floor_drift", iv, named) != "" and moved_since_named("floor_drift", iv, named, {}) != ""
+    assert moved_since_named("floor_drift", iv, {"drift_mm_s": [4.0, 0.3]}, {"drift_mm_s": [3.0, 3.0]}) != ""
+    entry = {"name": "floor_drift", "intervals": iv, "parameters_when_named": named}
+    assert read_with_care({**entry, "se_when_named": {"drift_mm_s": [3.0, 3.0]}}) == [] and read_with_care(entry)
+
+
 def test_a_named_effect_without_an_interval_is_said():
     """MRCLAM robot 4's whole log, the twin's recipe: heavy_tailed_noise named at its start (0.1, 2), EM having kept its
     start, and the final fit's information giving neither parameter an interval: the report says so, naming both;

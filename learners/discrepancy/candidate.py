@@ -21,7 +21,8 @@ class Verdict:
     ``identifiable``: False when the check found that the data cannot tell the effect from the base model;
     ``gains``: the check's likelihood gains in nats (``train``, ``heldout``); ``p``: its test's p-value (None without
     a test); ``overstatement``: the factor by which the Fisher information overstated the data's information about the
-    effect's parameters, where the check measured it (``checks.RobustLikelihoodRatio``); ``escape``: a base model
+    effect's parameters, where the check measured it (``checks.RobustLikelihoodRatio``), and ``standard_errors``: their
+    robust standard errors on the training halves there (by parameter, the model file's units); ``escape``: a base model
     without the effect that the check fitted, with its training log-likelihood (the search may continue from it; not
     reported)."""
 
@@ -33,12 +34,14 @@ class Verdict:
     note: str = ""
     identifiable: bool = True
     overstatement: float | None = None
+    standard_errors: dict[str, Any] | None = None
     escape: tuple[Model, float] | None = field(default=None, repr=False)
 
     def as_dict(self) -> dict[str, Any]:
         out = {"name": self.name, "passed": self.passed, "decides": self.decides, "gains": dict(self.gains),
                "p": self.p, "note": self.note}
-        return out | ({"overstatement": self.overstatement} if self.overstatement is not None else {})
+        return (out | ({"overstatement": self.overstatement} if self.overstatement is not None else {})
+                | ({"standard_errors": self.standard_errors} if self.standard_errors is not None else {}))
 
 
 @dataclass
@@ -79,6 +82,12 @@ class Candidate:
     def note(self) -> str:
         """The last check's word on it (the one that decided, or the last annotation)."""
         return next((v.note for v in reversed(self.checks) if v.note), "")
+
+    @property
+    def standard_errors(self) -> dict[str, Any]:
+        """Its parameters' robust standard errors in its fit on the training halves, where a check measured them
+        (``Verdict.standard_errors``; {} where none did: a grid parameter, a candidate not tested that far)."""
+        return next((v.standard_errors for v in self.checks if v.standard_errors), {})
 
     @property
     def escape(self) -> Model | None:

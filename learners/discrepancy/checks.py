@@ -195,12 +195,12 @@ class RobustLikelihoodRatio(Check):
         return c.significant and c.model is not None and c.dof > 0 and not _class_of(c.name).GRID
 
     def run(self, ctx: SearchContext, c: Candidate) -> Verdict:
-        factor = ctx.overstatement(c.model, c.name)
+        factor, errors = ctx.overstatement(c.model, c.name)
         gain = c.gain_train / factor
         p, ok = ctx.test(gain, c.gain_heldout, c.dof)
         note = (f"the Fisher information overstates the data's by x{factor:.2f} (sandwich, {OVERSTATEMENT_BLOCK_S:g} s "
                 f"blocks): train +{c.gain_train:.1f} nats count as +{gain:.1f}, p = {p:.2g}" + ("" if ok else ": not significant"))
-        return self.verdict(ok, gains={"train": gain}, p=p, note=note, overstatement=factor)
+        return self.verdict(ok, gains={"train": gain}, p=p, note=note, overstatement=factor, standard_errors=errors)
 
 
 class FlatGridProfile(Check):

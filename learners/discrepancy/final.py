@@ -56,7 +56,8 @@ class Diagnosed:
     """The final fit and the named effects' entries of ``report.json["effects"]``."""
 
     result: LearnResult  # the final fit (``model.json``; ``info["standard_errors"]``, ``info["warnings"]``)
-    #: per named effect, in the order named: {"name", "parameters", "intervals", "parameters_when_named"}
+    #: per named effect, in the order named: {"name", "parameters", "intervals", "parameters_when_named",
+    #: "se_when_named"}
     effects: list[dict[str, Any]]
     profiled: list[str]  # the effects whose interval is a profile (or conditional) likelihood one
     seconds: dict[str, float] = field(default_factory=dict)  # by stage: FINAL_FIT_STAGE, PROFILE_STAGE when profiled
@@ -179,7 +180,8 @@ def diagnosed(found: dict[str, Any], opts: EMOptions, again: bool = True, final:
     returned when given ``opts``) and each named effect's entry: its parameters in the final fit, their intervals
     (``effect_intervals``; profiled where Wald fails, ``profile_where_wald_fails``, or where fits held at its ends
     show it too narrow, ``check_wald_intervals``; a grid parameter's on the whole logs, ``refine_grid_intervals``) and
-    ``parameters_when_named`` (the candidate's fit in its round). Where a held fit of those finds a value more likely
+    ``parameters_when_named`` (the candidate's fit in its round) with ``se_when_named`` (its robust standard errors
+    there, ``Candidate.standard_errors``). Where a held fit of those finds a value more likely
     than the final fit's (the final fit refines a lag with the rest held: on `paper-sim` logs of a 0.15 s lag it kept
     6 frames where 5, the rest refitted, were 3 nats more likely; a distance-noise exponent stopped on a ridge at 0.27
     where 0.5 was 46 nats more likely), the final fit is made once ``again``: from the search's model with that value
@@ -199,7 +201,8 @@ def diagnosed(found: dict[str, Any], opts: EMOptions, again: bool = True, final:
     conditional = _conditional_keys(final, [c.name for c in found["named"]])
     effects = [{"name": c.name, "parameters": _values(final.params.effect(c.name)),
                 "intervals": effect_intervals(final.params, c.name, se, c.profile, robust or None),
-                "parameters_when_named": c.as_dict()["parameters"]} for c in found["named"]]
+                "parameters_when_named": c.as_dict()["parameters"], "se_when_named": c.standard_errors}
+               for c in found["named"]]
     for e in effects:
         for pname in conditional.get(e["name"], ()):
             e["intervals"][pname]["method"] = CONDITIONAL_WALD

@@ -129,17 +129,22 @@ class SearchContext:
         """``model``'s held-out log-likelihood (nats; ``learners.discrepancy.score``)."""
         return score(model, self.logs).heldout_loglik
 
-    def overstatement(self, model: Model, name: str) -> float:
-        """How many times the Fisher information of ``model`` on the training halves overstates what they carry about
-        effect ``name``'s parameters (``learners.em.uncertainty.information_overstatement`` over blocks of
-        ``OVERSTATEMENT_BLOCK_S``; its standard errors with the coordinates the fit held, held)."""
+    def overstatement(self, model: Model, name: str) -> tuple[float, dict[str, list | float]]:
+        """(How many times the Fisher information of ``model`` on the training halves overstates what they carry about
+        effect ``name``'s parameters, ``learners.em.uncertainty.information_overstatement`` over blocks of
+        ``OVERSTATEMENT_BLOCK_S``; those parameters' robust standard errors there, by parameter name, in the model
+        file's units), from one ``parameter_uncertainty`` with the coordinates the fit held, held."""
         from learners.em.accel import Packer
         from learners.em.learner import fit_options
         from learners.em.uncertainty import OVERSTATEMENT_BLOCK_S, information_overstatement, parameter_uncertainty
 
         fixed = Packer(fit_options(self.opts, self.batch, model)[0]).fixed
-        return information_overstatement(parameter_uncertainty(model, self.batch, fixed), f"effects.{name}.",
-                                         OVERSTATEMENT_BLOCK_S)
+        unc = parameter_uncertainty(model, self.batch, fixed)
+        prefix = f"effects.{name}."
+        errors = {k[len(prefix):]: np.asarray(v, dtype=float).tolist()
+                  for k, v in (unc.robust_standard_errors or unc.standard_errors).items()
+                  if k.startswith(prefix) and v is not None and np.all(np.isfinite(np.asarray(v, dtype=float)))}
+        return information_overstatement(unc, prefix, OVERSTATEMENT_BLOCK_S), errors
 
     def test(self, gain: float, held_gain: float, dof: int) -> tuple[float, bool]:
         """:func:`lr_test` as one of this round's ``n_tests``."""
