@@ -29,7 +29,8 @@ per component) and noise preset, over the logs where the effect was named:
   standard error (1 when the standard errors are right);
 - missing: named logs whose interval is None;
 - not warned: the coverage over the named logs whose report gives no warning about the effect's values (no interval,
-  moved since named, short of the likelihood's maximum: ``effect_sizes.read_with_care``, what `aibo diagnose` prints).
+  moved since named, short of the likelihood's maximum: ``effect_sizes.read_with_care``, what `aibo diagnose` prints),
+  and how many of the intervals that miss the truth come with such a warning.
 
 ``--presets paper-sim`` runs only the logs of that preset (odd i), e.g. to rerun one preset's shortfall.
 
@@ -217,10 +218,13 @@ def warned(row: dict[str, Any]) -> bool:
 
 
 def unwarned_coverage(cells: list[tuple], flags: list[bool], true: float) -> str:
-    """The coverage over the cells whose log the report does not warn about (``warned``), as "c of n" with its share."""
-    quiet = [iv for (_, _, iv), w in zip(cells, flags) if not w and iv is not None]
-    covered = sum(lo <= true <= hi for lo, hi in quiet)
-    return f"{covered / len(quiet):.0%} ({covered} of {len(quiet)})" if quiet else "-"
+    """The coverage over the cells whose log the report does not warn about (``warned``), "share (c of n)", and how
+    many of the intervals that miss the truth the report warns about ("misses warned: w of m")."""
+    held = [(lo <= true <= hi, w) for (_, _, iv), w in zip(cells, flags) if iv is not None for lo, hi in [iv]]
+    quiet = [ok for ok, w in held if not w]
+    misses = [w for ok, w in held if not ok]
+    share = f"{sum(quiet) / len(quiet):.0%} ({sum(quiet)} of {len(quiet)})" if quiet else "-"
+    return share + (f"; misses warned: {sum(misses)} of {len(misses)}" if misses else "")
 
 
 def table(rows: list[dict[str, Any]], fisher: bool = False) -> str:

@@ -219,4 +219,4 @@ def test_the_table_gives_the_coverage_of_the_intervals_the_report_does_not_warn_
     rows = [row(1, 1.4, 1.3), row(3, 6.0, 1.1), row(5, 2.0, 1.9)]  # log 3: named at 1.1, 6.0 [5, 7] in the final fit
     assert [cal.warned(r) for r in rows] == [False, True, False]
     line = next(line for line in cal.table(rows).splitlines() if line.startswith("| turn_heading_noise"))
-    assert "67% +- 27% (2 of 3)" in line and line.endswith("| 100% (2 of 2) |")
+    assert "67% +- 27% (2 of 3)" in line and line.endswith("| 100% (2 of 2); misses warned: 1 of 1 |")
