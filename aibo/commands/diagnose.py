@@ -105,8 +105,10 @@ def run(args) -> int:
     motion = motion_gaps(found["base"], found["model"], logs)
     sig_before, sig_after = signatures(found["base"], logs), signatures(found["model"], logs)
     report = _report(found, final.effects, before, after, sig_before)
+    batch = make_batch(logs)
     for e in report["effects"]:  # what the report says about each effect's values (also among its warnings)
-        e["warnings"] = read_with_care(e)
+        e["warnings"] = (negligible_when_final(final.result.params, [e], logs) + read_with_care(e)
+                         + off_held([e], batch))
     report.update(motion)
     report["final_fit_starts"] = final.starts
     say("")
@@ -156,9 +158,7 @@ def run(args) -> int:
     report["warnings"] += [f"{e.name}: {e.implausible()}" for e in final.result.params.effects if e.implausible()]
     report["warnings"] += [f"{d['name']}: named by the search, dropped from the diagnosed model: in the final fit on the "
                            f"whole log(s), {d['why']}" for d in found["dropped_in_final"]]
-    report["warnings"] += negligible_when_final(final.result.params, report["effects"], logs)
     report["warnings"] += [w for e in report["effects"] for w in e["warnings"]]
-    report["warnings"] += off_held(report["effects"], logs)
     report["warnings"] += motion_warning(report)
     report["warnings"] += round_limit(report["search_rounds"], report["candidates"])
     for w in report["warnings"]:
@@ -275,10 +275,10 @@ def round_limit(rounds: dict, candidates: list[dict]) -> list[str]:
             + ("it" if len(left) == 1 else "them") + " again"]
 
 
-def off_held(effects: list[dict], logs: list) -> list[str]:
+def off_held(effects: list[dict], batch) -> list[str]:
     """A warning per named effect whose every 95% interval holds the value that switches it off
-    (``effect_sizes.holds_off``; effects whose start is that value, ``EffectModel.STARTS_OFF``)."""
-    batch = make_batch(logs)
+    (``effect_sizes.holds_off``; effects whose start is that value, ``EffectModel.STARTS_OFF``, on ``batch``, the
+    logs' ``make_batch``)."""
     out = []
     for e in effects:
         cls = EFFECT_MODELS[e["name"]]
@@ -414,7 +414,8 @@ def _report(found: dict, effects: list[dict], before, after, sig_before) -> dict
     """report.json's body. ``effects``: the named effects' entries (``learners.discrepancy.final.diagnosed``: the
     parameters of the diagnosed model, model.json, every kept effect refitted on the whole logs, with standard errors
     and 95% intervals; ``parameters_when_named``: the candidate's fit in its round; ``warnings``, added by the
-    command: ``effect_sizes.read_with_care``); ``base_change``: how far the
+    command: negligible in the final fit, ``effect_sizes.read_with_care``'s, every interval holding the value that
+    switches it off); ``base_change``: how far the
     named effects moved the base model (both fits on the training half)."""
     # "named": this try is the one that named the effect, and the diagnosed model holds it (not pruned)
     tried = [dict(c.as_dict(), round=k + 1, named=any(c is n for n in found["named"]))
