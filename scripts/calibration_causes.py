@@ -6,6 +6,7 @@ the truth"), each from logs of that study's seeds or fresh ones, every number re
     python scripts/calibration_causes.py shrink                         # off_center_shrink: errors in the bearing
     python scripts/calibration_causes.py rate                           # false_sightings: the final fit's iterations
     python scripts/calibration_causes.py sigma-short                    # landmark_bias: sigma_rel short on 5 minutes
+    python scripts/calibration_causes.py share --out runs/calibration   # false_sightings: the rate or the log's share?
 
 - ``tau-alone``: landmark_bias's process b_l (sigma_rel 0.05, tau_s 8 s) drawn anew at the sighting frames of the
   study's `aibo` logs 0, 2, 4 (seeds 8000, 8002, 8004), observed as b + e with each sighting's relative size noise
@@ -22,6 +23,8 @@ the truth"), each from logs of that study's seeds or fresh ones, every number re
   from the final fit as diagnose makes it and from the same fit with the 40 commands' velocities held at the truth:
   is the shortfall the velocities' (fitted from the same sightings, they take part of the bias's path, as fixed
   effects take part of a variance component's in maximum likelihood) and does it fall with the log's length?
+- ``share``: ``false_sightings``' intervals in a calibration study's rows against each log's own share of spurious
+  sightings (the simulator's truth, the log made again from its seed), beside the rate simulated.
 - ``rate``: the final fit's iterations (log-likelihood, rate) on the study's logs 0, 4, 6 (`aibo`) and 7
   (`paper-sim`), as diagnose runs it, without its first-iteration gate, and without SQUAREM.
 """
@@ -249,16 +252,42 @@ def sigma_short(seeds: list[int]) -> None:
                   f"{sd[0][0]:.2f}, {sd[0][1]:.2f} / {sd[1][0]:.2f}, {sd[1][1]:.2f} |")
 
 
+def share(out: str) -> None:
+    """``false_sightings``' intervals in the calibration rows of ``out`` against each log's own share of spurious
+    sightings (the simulator's ``meta["truth"]["spurious_sightings"]``, the log made again from its seed)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from calibration import STRENGTH, all_rows, estimates
+
+    rows = [r for r in all_rows(Path(out)) if r["effect"] == "false_sightings" and estimates(r) is not None]
+    for preset in sorted({r["preset"] for r in rows}):
+        diffs, ses, held_share, held_rate = [], [], 0, 0
+        for r in (r for r in rows if r["preset"] == preset):
+            tr = collect({"noise": preset, "effects": {"false_sightings": r["params"]}},
+                         int(round(r["minutes"] * 60 * 30)), seed=r["seed"])
+            own = len(tr.meta["truth"]["spurious_sightings"]) / tr.n_sightings
+            iv = estimates(r)["rate"]
+            lo, hi = iv["interval_95"]
+            diffs.append(iv["value"] - own)
+            ses.append(iv["se"])
+            held_share += lo <= own <= hi
+            held_rate += lo <= STRENGTH["false_sightings"]["rate"] <= hi
+        n = len(diffs)
+        print(f"{preset}: {n} logs named it; the interval holds the rate on {held_rate}, the log's own share on "
+              f"{held_share}; estimate - share {np.mean(diffs):+.4f} (sd {np.std(diffs, ddof=1):.4f}, its mean's "
+              f"+-{np.std(diffs, ddof=1) / np.sqrt(n):.4f}), mean SE {np.mean(ses):.4f}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("what", choices=["tau-alone", "tau-em", "shrink", "rate", "sigma-short"])
+    ap.add_argument("what", choices=["tau-alone", "tau-em", "shrink", "rate", "sigma-short", "share"])
+    ap.add_argument("--out", default="runs/calibration", help="share: the calibration study's folder")
     ap.add_argument("--replicates", type=int, default=30, help="tau-alone: draws of the process per log")
     ap.add_argument("--seeds", default="8000,8002,8004,8006,8008,8010,8012,8014,8016,8018",
                     help="sigma-short: the `aibo` seeds (the calibration study's even logs)")
     args = ap.parse_args()
     sys.stdout.reconfigure(line_buffering=True)
     {"tau-alone": lambda: tau_alone(args.replicates), "tau-em": tau_em, "shrink": shrink, "rate": rate,
-     "sigma-short": lambda: sigma_short([int(s) for s in args.seeds.split(",")])}[args.what]()
+     "sigma-short": lambda: sigma_short([int(s) for s in args.seeds.split(",")]), "share": lambda: share(args.out)}[args.what]()
 
 
 if __name__ == "__main__":
