@@ -162,9 +162,14 @@ def one(effect: str, i: int, minutes: float) -> dict[str, Any]:
     return row
 
 
+def named_entry(row: dict[str, Any]) -> dict[str, Any] | None:
+    """The target effect's entry (``report.json["effects"][k]``: values, intervals, when named), None when not named."""
+    return next((e for e in row.get("effects", []) if e["name"] == row["effect"]), None)
+
+
 def estimates(row: dict[str, Any]) -> dict[str, dict[str, Any]] | None:
     """The named target effect's interval entries (``report.json["effects"][k]["intervals"]``), None when not named."""
-    entry = next((e for e in row.get("effects", []) if e["name"] == row["effect"]), None)
+    entry = named_entry(row)
     return None if entry is None else entry["intervals"]
 
 
@@ -213,7 +218,7 @@ def warned(row: dict[str, Any]) -> bool:
     (``effect_sizes.read_with_care``: no interval, moved since named, short of the likelihood's maximum)."""
     from learners.discrepancy.effect_sizes import read_with_care
 
-    entry = next((e for e in row.get("effects", []) if e["name"] == row["effect"]), None)
+    entry = named_entry(row)
     return entry is not None and bool(read_with_care(entry))
 
 
@@ -241,8 +246,8 @@ def table(rows: list[dict[str, Any]], fisher: bool = False) -> str:
             label = pname if j is None else f"{pname}[{j}]"
             for preset in [p for p in (*PRESETS, WHEELED) if any(r["preset"] == p for r in rs)]:
                 logs = [r for r in rs if r["preset"] == preset]
-                named = [r for r in logs if estimates(r) is not None]
-                cells = [cell(estimates(r)[pname], j, fisher) for r in named]
+                named = [r for r in logs if named_entry(r) is not None]
+                cells = [cell(named_entry(r)["intervals"][pname], j, fisher) for r in named]
                 head = f"| {effect} | {label} | {preset} | {true:.4g} | {len(cells)} of {len(logs)} |"
                 if not cells:
                     lines.append(head + " | | | | | | |")

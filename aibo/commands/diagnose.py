@@ -16,7 +16,7 @@ from aibo_core import trajectory
 from aibo_core.atomic import atomic_folder, write_json
 from aibo_core.compat import check_compatible
 from aibo_core.workers import process_pool
-from learners.arrays.batch import make_batch
+from learners.arrays.batch import Batch, make_batch
 from learners.discrepancy.checks import RobustLikelihoodRatio
 from learners.discrepancy.effect_sizes import base_shift, holds_off, read_with_care
 from learners.discrepancy.final import plausible_diagnosis
@@ -275,7 +275,7 @@ def round_limit(rounds: dict, candidates: list[dict]) -> list[str]:
             + ("it" if len(left) == 1 else "them") + " again"]
 
 
-def off_held(effects: list[dict], batch) -> list[str]:
+def off_held(effects: list[dict], batch: Batch) -> list[str]:
     """A warning per named effect whose every 95% interval holds the value that switches it off
     (``effect_sizes.holds_off``; effects whose start is that value, ``EffectModel.STARTS_OFF``, on ``batch``, the
     logs' ``make_batch``)."""
