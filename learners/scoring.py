@@ -183,6 +183,8 @@ def motion_noise_scores(model: Model, logs: list[Trajectory], window_s: float = 
     ``noise_sd_lat`` (mm), ``noise_sd_head`` (rad): the model's RMS standard deviations."""
     pairs = [window_travel_errors(model, tr, window_s) for tr in logs]
     err, sd = np.concatenate([e for e, _ in pairs]), np.concatenate([s for _, s in pairs])
+    if not len(err):  # no window of window_s free of ground-truth gaps: nothing measured, said as NaN
+        return {f"noise{part}_{name}": float("nan") for name in ("fwd", "lat", "head") for part in ("", "_sd")}
     rms_err, rms_sd = np.sqrt(np.mean(err**2, axis=0)), np.sqrt(np.mean(sd**2, axis=0))
     out = {}
     for name, e, s in zip(("fwd", "lat", "head"), rms_err, rms_sd):

@@ -9,6 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from aibo_core import trajectory
 from learners.em.learner import EMLearner
 from learners.em.options import EMOptions
 from learners.model.landmark_bias import LandmarkBias
@@ -96,3 +97,13 @@ def test_the_learn_table_shows_the_three_rows(plain):
     for row in ("forward error / model sd", "lateral error / model sd", "heading error / model sd"):
         line = next(ln for ln in text.splitlines() if ln.startswith(row))
         assert float(line.split()[-1]) > 0.5
+
+
+def test_a_log_shorter_than_the_window_scores_nan_without_a_warning(plain, recwarn):
+    """No window free of ground-truth gaps (a 1 s log scored over 5 s): NaN for every key (``aibo learn``'s table
+    prints "-"), no NumPy warning of an empty mean."""
+    tr, learned, _ = plain
+    short = trajectory.head(tr, 20)  # 1 s of 0.05 s frames
+    got = motion_noise_scores(learned, [short], 5.0)
+    assert all(np.isnan(v) for v in got.values()) and len(got) == 6
+    assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]
