@@ -276,8 +276,9 @@ def score(model: Model, logs: list[Trajectory], window_s: float = 1.0) -> dict[s
         row = velocity_scores(m, logs, window_s)
         row.update(sensor_scores(m, logs))
         row.update(pose_scores(m, logs))
-        row.update(motion_noise_scores(m, logs, window_s))
         out[name] = row
+    # the motion noise is the learned model's alone: the other columns borrow it, beside means it was not fitted with
+    out["learned"].update(motion_noise_scores(model, logs, window_s))
     out["face value"].update(sigma_range=float("nan"), sigma_bearing=float("nan"))
     return out
 

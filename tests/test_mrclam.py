@@ -158,6 +158,12 @@ def test_real_robot1_learned_beats_face_value(tmp_path, capsys):
         captured = capsys.readouterr()
         assert "face value" in captured.out and "smoothed pose RMS" in captured.out
         assert "may be wrong" not in captured.err
+        # the motion noise against Vicon, the learned model's alone ("-" where a column borrows its noise): the
+        # unicycle's robot (the default) wanders sideways ten times more than the real one (0.10; docs/results.md, "The
+        # twin's motion noise"); the diff_drive's sideways mean errs as much as its noise is wide (1.08)
+        lateral = next(ln for ln in captured.out.splitlines() if ln.startswith("lateral error / model sd")).split()
+        assert lateral[-3] == "-" and lateral[-1] == "-", lateral
+        assert (float(lateral[-2]) < 0.3) == (action_model == "unicycle"), lateral
         m = load_model(model)
         scores[action_model] = s = score(m, [tr])
         # 0.9x: this excerpt holds one biased pass (5 sightings at 93-95 s, ranges 360-490 mm short) that the paper's
