@@ -62,19 +62,28 @@ def _named(rec: dict) -> str:
 def table(records: list[dict]) -> str:
     head = ("| robot | forward mm/s: face / diagnosed | turn rad/s: face / diagnosed | pose mm: face / diagnosed | "
             "autocorr.: face / diagnosed | gap: base -> model | s (by stage: report.json's seconds_by_stage) | named | "
-            "none of the above | statistics disagreeing after (calibrated check) | warnings |\n|" + "---|" * 11)
+            "none of the above | statistics disagreeing after (calibrated check) | warnings | motion noise against Vicon, "
+            "diagnosed: error / model sd over 1 s, forward / lateral / heading |\n|" + "---|" * 12)
     rows = []
     for r in records:
         if "error" in r:
-            rows.append(f"| {r['robot']} | failed: {r['error']} |" + " |" * 10)
+            rows.append(f"| {r['robot']} | failed: {r['error']} |" + " |" * 11)
             continue
         f, d, st = r["face"], r["diagnosed"], r["stages"]
         rows.append(f"| {r['robot']} | {f['vx_rms']:.1f} / {d['vx_rms']:.1f} | {f['vtheta_rms']:.4f} / "
                     f"{d['vtheta_rms']:.4f} | {f['pose_rms']:.0f} / {d['pose_rms']:.0f} | {f['ac1']:.2f} / {d['ac1']:.2f} | "
                     f"{r['gap_before']:.2f} -> {r['gap_after']:.2f} | {r['wall_s']:.0f} ("
                     + ", ".join(f"{k} {v:.0f}" for k, v in st.items()) + f") | {_named(r)} | "
-                    f"{'; '.join(r['none_of_the_above']) or '-'} | {_disagreeing(r)} | {len(r['warnings'])} |")
+                    f"{'; '.join(r['none_of_the_above']) or '-'} | {_disagreeing(r)} | {len(r['warnings'])} | "
+                    f"{_noise(d)} |")
     return head + "\n" + "\n".join(rows) + "\n"
+
+
+def _noise(row: dict) -> str:
+    """The motion noise against Vicon (``learners.scoring.motion_noise_scores``, 1 s windows); "?" for a record
+    written before it was kept."""
+    keys = ("noise_fwd", "noise_lat", "noise_head")
+    return " / ".join(f"{row[k]:.2f}" for k in keys) if all(k in row for k in keys) else "?"
 
 
 def _disagreeing(rec: dict) -> str:
