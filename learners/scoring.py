@@ -41,7 +41,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from aibo_core.geometry import wrap
+from aibo_core.geometry import motion, wrap
 from aibo_core.trajectory import VELOCITY_CONTROLS, Trajectory
 from learners.arrays.batch import make_batch
 from learners.arrays.lowered import fit_polynomial
@@ -154,8 +154,8 @@ def window_travel_errors(model: Model, tr: Trajectory, window_s: float = 1.0) ->
     travel), both in the start's robot frame (forward mm, lateral mm, heading rad). The prediction is the filter's
     prediction step run open loop: the lowered model's per-frame displacements and world offsets composed (effects
     on the commands, e.g. a lag, included) and its per-frame covariances propagated to first order from zero."""
-    from aibo_core.geometry import motion
-
+    if tr.pose is None:
+        raise ValueError("the motion noise against ground truth needs a log with ground truth ('pose')")
     win = _windows(tr, window_s)
     lo = model.lower(make_batch([tr]))
     cov = lo.frame_cov()

@@ -107,3 +107,9 @@ def test_a_log_shorter_than_the_window_scores_nan_without_a_warning(plain, recwa
     got = motion_noise_scores(learned, [short], 5.0)
     assert all(np.isnan(v) for v in got.values()) and len(got) == 6
     assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]
+
+
+def test_a_log_without_ground_truth_is_refused_in_one_line(plain):
+    tr, learned, _ = plain
+    with pytest.raises(ValueError, match="needs a log with ground truth"):
+        motion_noise_scores(learned, [replace(tr, pose=None)])
