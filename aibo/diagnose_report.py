@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import base64
 import html
-import io
 from pathlib import Path
 from typing import Any
 
@@ -14,14 +13,8 @@ import numpy as np
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
+from aibo.figures import save_png  # noqa: E402
 from aibo_core.atomic import atomic_write  # noqa: E402
-
-
-def _save(fig, path: Path) -> None:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=100, bbox_inches="tight")
-    plt.close(fig)
-    atomic_write(path, lambda f: f.write(buf.getvalue()))
 
 
 def lead_signatures(signatures: list, named: dict[str, str], n: int = 6) -> list[tuple[Any, str]]:
@@ -60,7 +53,7 @@ def signature_panels(path: Path, before: list, after: list, named: dict[str, str
     fig.suptitle(f"Residual signatures of the base model (mean residual per bin, +- 1 s.e.; p adjusted for the {len(before)}"
                  " pairs tried and for serial correlation). The verdict rests on the candidates' tests", fontsize=10)
     fig.tight_layout()
-    _save(fig, path)
+    save_png(fig, path, dpi=100)
 
 
 def gap_bars(path: Path, before: dict[str, float], after: dict[str, float]) -> None:
@@ -74,7 +67,7 @@ def gap_bars(path: Path, before: dict[str, float], after: dict[str, float]) -> N
         ax.set_title(label, fontsize=9)
     fig.suptitle("Before and after adding the named effects (held-out half)")
     fig.tight_layout()
-    _save(fig, path)
+    save_png(fig, path, dpi=100)
 
 
 def _z_by_statistic(check: dict[str, Any] | None) -> dict[str, float | None]:
@@ -120,7 +113,7 @@ def calibrated_bars(path: Path, before: dict[str, Any], after: dict[str, Any] | 
     # the legend in a strip of its own under the axes: inside them it covered the lowest bars
     fig.legend(*ax.get_legend_handles_labels(), fontsize=8, loc="lower center", ncol=3, frameon=False)
     fig.tight_layout(rect=(0.0, LEGEND_STRIP_IN / fig.get_figheight(), 1.0, 1.0))
-    _save(fig, path)
+    save_png(fig, path, dpi=100)
 
 
 def z_text(z: float | None) -> str:

@@ -16,9 +16,10 @@ from aibo_core.atomic import atomic_write  # noqa: E402
 from learners.model.sensor import SensorModel  # noqa: E402
 
 
-def _save(fig, path: str | Path) -> None:
+def save_png(fig, path: str | Path, dpi: int = 110) -> None:
+    """``fig`` written to ``path`` as a PNG, atomically (a reader never sees half a file), and closed."""
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
+    fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
     plt.close(fig)
     atomic_write(path, lambda f: f.write(buf.getvalue()))
 
@@ -40,7 +41,7 @@ def sensor_models(path, d_range: tuple[float, float], curves: dict[str, SensorMo
     ax.set_title(title)
     ax.legend()
     ax.grid(alpha=0.3)
-    _save(fig, path)
+    save_png(fig, path)
 
 
 def loglik_curve(path, loglik: Sequence[float], best_iteration: int | None = None, title: str = "EM log-likelihood") -> None:
@@ -57,7 +58,7 @@ def loglik_curve(path, loglik: Sequence[float], best_iteration: int | None = Non
     ax.set_ylabel("log-likelihood")
     ax.set_title(title)
     ax.grid(alpha=0.3)
-    _save(fig, path)
+    save_png(fig, path)
 
 
 def velocity_error_curves(path, errors: dict[str, Sequence[float]], oracle: dict[str, float] | None = None,
@@ -75,4 +76,4 @@ def velocity_error_curves(path, errors: dict[str, Sequence[float]], oracle: dict
     ax.set_title(title)
     ax.legend(ncol=2, fontsize=8)
     ax.grid(alpha=0.3, which="both")
-    _save(fig, path)
+    save_png(fig, path)

@@ -102,6 +102,8 @@ def figure(curves: dict[int, list[np.ndarray]], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from aibo.figures import save_png
+
     fig, axes = plt.subplots(1, 3, figsize=(12, 3.8), sharey=True)
     for r, rows in curves.items():
         arr = np.array(rows)
@@ -119,9 +121,7 @@ def figure(curves: dict[int, list[np.ndarray]], path: Path) -> None:
     fig.suptitle("MRCLAM Dataset 7, aibo learn's model (whole log): its motion noise against Vicon; below 1 its robot "
                  "wanders more than the real one", fontsize=10)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_png(fig, path)  # atomically, its folder made
 
 
 def main(argv=None) -> int:

@@ -64,6 +64,8 @@ def figure(rows: dict[int, list[tuple[str, int, np.ndarray, float]]], path: Path
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from aibo.figures import save_png
+
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
     for r, rs in rows.items():
         moving = [x for x in rs if x[0] != "standing still"]
@@ -82,9 +84,7 @@ def figure(rows: dict[int, list[tuple[str, int, np.ndarray, float]]], path: Path
     axes[0].legend(fontsize=8)
     fig.suptitle("MRCLAM Dataset 7: each frame's motion against Vicon, minus aibo learn's commanded motion", fontsize=10)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_png(fig, path)  # atomically, its folder made
 
 
 def main(argv=None) -> int:
