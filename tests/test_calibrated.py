@@ -165,6 +165,7 @@ def test_aibo_collect_model_replay_end_to_end(tmp_path, fitted, capsys):
 
 def test_a_disagreement_left_after_the_search_names_the_effect_whose_signature_it_is():
     from aibo.commands.diagnose import unexplained
+    from learners.model.effects import EFFECT_MODELS
 
     report = {"effects": [{"name": "beacon_height_scale", "parameters": {}}],
               "candidates": [{"name": "floor_drift", "note": "", "gain_train": 50.3, "p_value": 1e-22, "gain_heldout": -63.0},
@@ -172,14 +173,16 @@ def test_a_disagreement_left_after_the_search_names_the_effect_whose_signature_i
               "calibrated_simulation": {"after": {"disagreements": [
                   {"statistic": "forward motion (sigma) vs world heading (rad) (strength)", "z": 17.6},
                   {"statistic": "size (sigma) vs landmark (strength)", "z": 6.0},  # named: not unexplained
-                  {"statistic": "size-innovation autocorrelation (lag 1, per landmark)", "z": 6.5}]}}}  # no effect's signature
+                  {"statistic": "size-innovation autocorrelation (lag 1, per landmark)", "z": 6.5}]}}}  # landmark_bias'
+    assert EFFECT_MODELS["landmark_bias"].SIGNATURE in report["calibrated_simulation"]["after"]["disagreements"][2]["statistic"]
     u, named, other = unexplained(report)  # every disagreement, with a plain reading
     assert u["effect"] == "floor_drift" and u["z"] == 17.6 and "held-out gain -63.0 nats" in u["why_not_named"]
     assert "heading" in u["reading"] and "more strongly than in its simulation" in u["reading"]
     assert named["effect"] is None and "beacon_height_scale do not remove it" in named["why_not_named"]
     assert "landmark to landmark" in named["reading"]
-    assert other["effect"] is None and other["why_not_named"] == "no effect of the catalogue leaves this signature"
+    assert other["effect"] == "landmark_bias" and other["why_not_named"] == "not among the candidates"
     assert other["reading"].startswith("the log's size errors persist") and other["z"] == 6.5
+    assert "taken up as motion noise" in other["reading"]  # what persisting errors do to the twin (docs/results.md)
     assert unexplained({"calibrated_simulation": {"note": "not run"}}) == []
 
 

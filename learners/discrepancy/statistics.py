@@ -100,7 +100,9 @@ def plain_reading(statistic: str, z: float) -> str:
         return f"the log's {residual} residuals {what} {how} in its simulation"
     if statistic.startswith("size-innovation autocorrelation"):
         return ("the log's size errors persist from one sighting of a landmark to the next "
-                + ("more" if more else "less") + " than in its simulation")
+                + ("more" if more else "less") + " than in its simulation"
+                + (" (errors that persist and have no state in the model are taken up as motion noise: its robot "
+                   "wanders more than the real one)" if more else ""))
     if statistic.startswith("share of NIS outside"):
         return ("more" if more else "fewer") + (" of the log's sightings fall outside the model's 95% band than of its "
                                                 "simulation's (heavier tails: outliers or errors the model's noise does "

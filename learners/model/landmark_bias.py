@@ -148,6 +148,8 @@ class LandmarkBias(EffectModel):
     tau_s: float  # correlation time (s)
 
     name: ClassVar[str] = "landmark_bias"
+    #: the calibrated check's statistic that reads it (a bias that persists over a landmark's consecutive sightings)
+    SIGNATURE: ClassVar[str] = "size-innovation autocorrelation"
     PARAMS: ClassVar[dict[str, Param]] = {
         "sigma_rel": Param("fraction of the size", "log", low=0.0, high=0.5, shape=()),  # as the simulator's bounds
         "tau_s": Param("s", "log", low=1e-3, high=1e6, shape=()),
