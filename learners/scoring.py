@@ -179,7 +179,8 @@ def motion_noise_scores(model: Model, logs: list[Trajectory], window_s: float = 
     """The model's motion noise against ground truth (``window_travel_errors``): per component, the RMS of the travel
     errors over the RMS of the model's standard deviations, ``noise_fwd``, ``noise_lat``, ``noise_head``. 1: the
     model's noise is the size of its errors over ``window_s``; below 1 the model's robot wanders more than the
-    measured one (a twin driven with it is too noisy); above 1 the model is overconfident. ``noise_sd_fwd`` (mm),
+    measured one (a twin driven with it is too noisy); above 1 the model is overconfident (its means err, over the
+    window, by more than its noise allows, or its noise is too small). ``noise_sd_fwd`` (mm),
     ``noise_sd_lat`` (mm), ``noise_sd_head`` (rad): the model's RMS standard deviations."""
     pairs = [window_travel_errors(model, tr, window_s) for tr in logs]
     err, sd = np.concatenate([e for e, _ in pairs]), np.concatenate([s for _, s in pairs])

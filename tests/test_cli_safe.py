@@ -888,3 +888,27 @@ def test_a_named_effects_warnings_are_in_its_entry_among_the_reports_and_marked_
         html_page(tmp_path / "p.html", {**base, "effects": [{**entry, "warnings": warnings}]}, "text", [])
         verdict = next(line for line in (tmp_path / "p.html").read_text().splitlines() if "Verdict:" in line)
         assert (READ_WITH_CARE in verdict) == bool(warnings)
+
+
+def test_diagnose_scores_the_motion_noise_against_ground_truth_only_where_the_log_has_it(blind_log, tmp_path, capsys):
+    """A log with its true pose (a simulated one, or a real one with motion capture): report.json's
+    ``against_ground_truth`` holds the base and the diagnosed model's travel error over 1 s against their own sd
+    (``learners.scoring.motion_noise_scores``; the fit never reads the pose), and the console says it; a blind log
+    has none. On this 100 s log (40 commands, few sightings each) the models err more than they say (above 1)."""
+    import json
+
+    from aibo_core import trajectory
+
+    sighted = tmp_path / "sighted.npz"
+    assert main(["collect", "--steps", "3000", "--seed", "2", "--out", str(sighted)]) == 0
+    assert trajectory.load(sighted).pose is not None
+    assert _diagnose(sighted, tmp_path / "S") == 0
+    text = capsys.readouterr().out
+    truth = json.loads((tmp_path / "S" / "report.json").read_text())["against_ground_truth"]
+    assert truth["window_s"] == 1.0 and set(truth) == {"window_s", "base", "diagnosed"}
+    for row in (truth["base"], truth["diagnosed"]):
+        assert set(row) == {"noise_fwd", "noise_lat", "noise_head"} and all(v > 1.0 for v in row.values()), truth
+    assert "against the log's ground truth (not read by the fit)" in text
+    assert _diagnose(blind_log, tmp_path / "B") == 0
+    assert "against_ground_truth" not in json.loads((tmp_path / "B" / "report.json").read_text())
+    assert "ground truth" not in capsys.readouterr().out

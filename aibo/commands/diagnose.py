@@ -111,6 +111,9 @@ def run(args) -> int:
                          + off_held([e], batch))
     report.update(motion)
     report["final_fit_starts"] = final.starts
+    truth = against_ground_truth(found["base"], final.result.params, logs)
+    if truth:
+        report["against_ground_truth"] = truth
     say("")
     say(f"named effects, in order: {', '.join(e['name'] for e in report['effects']) or 'none'}")
     for e in report["effects"]:
@@ -135,6 +138,8 @@ def run(args) -> int:
         "commands alone; in brackets its excess over the one-step gap): "
         + "; ".join(f"{k} s {motion['motion_gap_before'][k]:.4f} -> {v:.4f} ({motion['motion_excess_before'][k]:.4f} "
                     f"-> {motion['motion_excess_after'][k]:.4f})" for k, v in motion["motion_gap_after"].items()))
+    if truth:
+        say(ground_truth_text(truth))
     say(f"the base model's residual signatures (the named effects' first, then the strongest; p adjusted for the "
         f"{len(sig_before)} pairs tried; the verdict rests on the candidates' tests above):")
     for s, whose in fig.lead_signatures(sig_before, named_signatures(report)):
@@ -242,6 +247,40 @@ def motion_gaps(base, model, logs: list) -> dict:
     return {"motion_gap_metric": MOTION_GAP_METRIC, "motion_gap_before": mb.gap(), "motion_gap_after": ma.gap(),
             "motion_excess_before": mb.excess(), "motion_excess_after": ma.excess(),
             "motion_gap_change": motion_trade(mb, ma)}
+
+
+#: ``report.json["against_ground_truth"]``'s models and their keys (``learners.scoring.motion_noise_scores``)
+TRUTH_MODELS = ("base", "diagnosed")
+NOISE_KEYS = ("noise_fwd", "noise_lat", "noise_head")
+
+
+def against_ground_truth(base: Model, final: Model, logs: list) -> dict:
+    """Where every log carries ground truth (``pose``: a simulated log, or a real one with motion capture), which the
+    fit never reads: the motion noise of the base model (the search's, training half) and of the diagnosed one
+    (``model.json``) against it over 1 s windows (``learners.scoring.motion_noise_scores``: the travel's error over the
+    model's own sd; 1 when right, below 1 when the model's robot wanders more than the real one, above 1 when it errs
+    more than it says). {} without truth.
+    What a check of the sightings cannot see (docs/results.md, "The twin's motion noise against Vicon")."""
+    from learners.scoring import motion_noise_scores
+
+    if not logs or any(tr.pose is None for tr in logs):
+        return {}
+    rows = {name: motion_noise_scores(m, logs, 1.0) for name, m in zip(TRUTH_MODELS, (base, final))}
+    return {"window_s": 1.0, **{name: {k: _finite(r[k]) for k in NOISE_KEYS} for name, r in rows.items()}}
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
+
+
+def ground_truth_text(truth: dict) -> str:
+    """One line of ``against_ground_truth``."""
+    def row(r: dict) -> str:
+        return " / ".join("-" if r[k] is None else f"{r[k]:.2f}" for k in NOISE_KEYS)
+    return (f"against the log's ground truth (not read by the fit), the travel's error over {truth['window_s']:g} s "
+            f"windows / the model's sd, forward / lateral / heading (1: the model's spread is its errors'; below 1 its "
+            f"robot wanders more than the real one; above 1 it errs more than it says, by its means or too little "
+            f"noise): base {row(truth['base'])}; diagnosed {row(truth['diagnosed'])}")
 
 
 def motion_warning(report: dict) -> list[str]:
