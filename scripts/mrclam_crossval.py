@@ -26,7 +26,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from study import add_diagnose_options, data_folder, diagnose_options, mrclam_parser, resume, robots, run_aibo  # noqa: E402
+from study import add_diagnose_options, data_folder, diagnose_options, mrclam_parser, noise_cell, resume, robots, run_aibo  # noqa: E402
 
 from aibo_core import trajectory  # noqa: E402
 from aibo_core.mrclam import import_robot  # noqa: E402
@@ -34,7 +34,7 @@ from learners.discrepancy.score import motion_score  # noqa: E402
 from learners.discrepancy.search import drop_outliers  # noqa: E402
 from learners.em.starts import start_beliefs  # noqa: E402
 from learners.model.io import load_model  # noqa: E402
-from learners.scoring import face_value_model, velocity_scores  # noqa: E402
+from learners.scoring import face_value_model, motion_noise_scores, velocity_scores  # noqa: E402
 
 
 def halves(data: Path, robot: int) -> tuple:
@@ -59,10 +59,13 @@ def set_aside(model, test) -> tuple:
 
 def half_scores(model, test, clean) -> dict:
     """``model``'s scores on the half ``test`` it was not fitted to (module docstring): forward speed and turn rate
-    against Vicon (RMS, mm/s and rad/s), and the motion gap on ``clean`` (``set_aside``) per horizon."""
+    against Vicon (RMS, mm/s and rad/s), the motion gap on ``clean`` (``set_aside``) per horizon, and the motion noise
+    against Vicon over 1 s (``learners.scoring.motion_noise_scores``: the travel's error over the model's sd,
+    ``noise_fwd``, ``noise_lat``, ``noise_head``)."""
     s = velocity_scores(model, [test])
+    noise = {k: v for k, v in motion_noise_scores(model, [test]).items() if not k.startswith("noise_sd")}
     return {"vx_rms": s["vx_rms"], "vtheta_rms": s["vtheta_rms"],
-            "motion_gap": motion_score(model, [clean], heldout_only=False).gap()}
+            "motion_gap": motion_score(model, [clean], heldout_only=False).gap(), **noise}
 
 
 def run(args: list[str]) -> float:
@@ -100,14 +103,16 @@ def row(data: Path, robot: int, direction: str, out: Path, jobs: int, options: l
 def table(rows: list[dict]) -> str:
     head = ("| robot | fitted on -> scored on | forward mm/s: face / learn / diagnose | x face: learn / diagnose | "
             "turn rad/s: face / learn / diagnose | x face: learn / diagnose | motion gap 5 s: learn / diagnose | "
-            "named | s: learn / diagnose |\n|" + "---|" * 9)
+            "motion noise over 1 s, error / model sd, forward / lateral / heading: learn; diagnose | "
+            "named | s: learn / diagnose |\n|" + "---|" * 10)
     lines = []
     for r in rows:
         f, a, d = r["face"], r["learn"], r["diagnose"]
         lines.append(f"| {r['robot']} | {r['direction'].replace('->', ' -> ')} | {f['vx_rms']:.1f} / {a['vx_rms']:.1f} / "
                      f"{d['vx_rms']:.1f} | {a['vx_x_face']:.2f} / {d['vx_x_face']:.2f} | {f['vtheta_rms']:.4f} / "
                      f"{a['vtheta_rms']:.4f} / {d['vtheta_rms']:.4f} | {a['vtheta_x_face']:.2f} / {d['vtheta_x_face']:.2f} "
-                     f"| {a['motion_gap']['5']:.2f} / {d['motion_gap']['5']:.2f} | {', '.join(r['named']) or 'none'} | "
+                     f"| {a['motion_gap']['5']:.2f} / {d['motion_gap']['5']:.2f} | {noise_cell(a)}; {noise_cell(d)} | "
+                     f"{', '.join(r['named']) or 'none'} | "
                      f"{r['seconds']['learn']:.0f} / {r['seconds']['diagnose']:.0f} |")
     return head + "\n" + "\n".join(lines) + "\n"
 

@@ -29,7 +29,7 @@ from learners.scoring import face_value_model  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from mrclam_bias import model_row  # noqa: E402
-from study import add_diagnose_options, data_folder, diagnose_options, mrclam_parser, resume, robots, run_aibo  # noqa: E402
+from study import add_diagnose_options, data_folder, diagnose_options, mrclam_parser, noise_cell, resume, robots, run_aibo  # noqa: E402
 
 
 def diagnose_robot(data: Path, robot: int, out: Path, options: list[str] | None = None) -> dict:
@@ -75,15 +75,8 @@ def table(records: list[dict]) -> str:
                     f"{r['gap_before']:.2f} -> {r['gap_after']:.2f} | {r['wall_s']:.0f} ("
                     + ", ".join(f"{k} {v:.0f}" for k, v in st.items()) + f") | {_named(r)} | "
                     f"{'; '.join(r['none_of_the_above']) or '-'} | {_disagreeing(r)} | {len(r['warnings'])} | "
-                    f"{_noise(d)} |")
+                    f"{noise_cell(d)} |")
     return head + "\n" + "\n".join(rows) + "\n"
-
-
-def _noise(row: dict) -> str:
-    """The motion noise against Vicon (``learners.scoring.motion_noise_scores``, 1 s windows); "?" for a record
-    written before it was kept."""
-    keys = ("noise_fwd", "noise_lat", "noise_head")
-    return " / ".join(f"{row[k]:.2f}" for k in keys) if all(k in row for k in keys) else "?"
 
 
 def _disagreeing(rec: dict) -> str:
