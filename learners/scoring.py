@@ -41,7 +41,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from aibo_core.geometry import motion, wrap
+from aibo_core.geometry import motion, rel_disp, rel_disp_jac, wrap
 from aibo_core.trajectory import VELOCITY_CONTROLS, Trajectory
 from learners.arrays.batch import make_batch
 from learners.arrays.lowered import fit_polynomial
@@ -165,14 +165,16 @@ def window_travel_errors(model: Model, tr: Trajectory, window_s: float = 1.0) ->
         g, F, R = motion(mean, lo.disp[i])
         mean = g + lo.offset[i]
         P = F @ P @ np.swapaxes(F, 1, 2) + R @ cov[i] @ np.swapaxes(R, 1, 2)
-    err = tr.pose[win[:, 1]] - mean
+    start = tr.pose[win[:, 0]]
+    err = rel_disp(start, tr.pose[win[:, 1]]) - rel_disp(start, mean)
     err[:, 2] = wrap(err[:, 2])
-    th = tr.pose[win[:, 0], 2]
-    c, s, z, o = np.cos(th), np.sin(th), np.zeros(len(win)), np.ones(len(win))
-    Rt = np.stack([np.stack([c, s, z], 1), np.stack([-s, c, z], 1), np.stack([z, z, o], 1)], 1)  # world -> robot
-    err = np.einsum("nij,nj->ni", Rt, err)
-    var = np.einsum("nij,njk,nik->ni", Rt, P, Rt)  # the diagonal of Rt P Rt^T
+    _, L2, _ = rel_disp_jac(start, mean)  # the travel's derivative in the end pose: R3(-theta0)
+    var = np.einsum("nij,njk,nik->ni", L2, P, L2)  # the diagonal of L2 P L2^T
     return err, np.sqrt(np.maximum(var, 0.0))
+
+
+#: ``motion_noise_scores``' ratios (forward, lateral, heading), each beside its ``noise_sd_*``
+NOISE_KEYS = ("noise_fwd", "noise_lat", "noise_head")
 
 
 def motion_noise_scores(model: Model, logs: list[Trajectory], window_s: float = 1.0) -> dict[str, float]:
@@ -185,12 +187,12 @@ def motion_noise_scores(model: Model, logs: list[Trajectory], window_s: float = 
     pairs = [window_travel_errors(model, tr, window_s) for tr in logs]
     err, sd = np.concatenate([e for e, _ in pairs]), np.concatenate([s for _, s in pairs])
     if not len(err):  # no window of window_s free of ground-truth gaps: nothing measured, said as NaN
-        return {f"noise{part}_{name}": float("nan") for name in ("fwd", "lat", "head") for part in ("", "_sd")}
+        return {key: float("nan") for k in NOISE_KEYS for key in (k, k.replace("noise_", "noise_sd_"))}
     rms_err, rms_sd = np.sqrt(np.mean(err**2, axis=0)), np.sqrt(np.mean(sd**2, axis=0))
     out = {}
-    for name, e, s in zip(("fwd", "lat", "head"), rms_err, rms_sd):
-        out[f"noise_{name}"] = float(e / s) if s > 0 else float("nan")
-        out[f"noise_sd_{name}"] = float(s)
+    for k, e, s in zip(NOISE_KEYS, rms_err, rms_sd):
+        out[k] = float(e / s) if s > 0 else float("nan")
+        out[k.replace("noise_", "noise_sd_")] = float(s)
     return out
 
 

@@ -45,7 +45,7 @@ from learners.em.learner import EMLearner  # noqa: E402
 from learners.em.start import initial_state_for  # noqa: E402
 from learners.em.whiteness import normalized_size_innovations, size_error_lag1  # noqa: E402
 from learners.model.landmark_bias import LandmarkBias  # noqa: E402
-from learners.scoring import face_value_model, motion_noise_scores, pose_scores, velocity_scores  # noqa: E402
+from learners.scoring import NOISE_KEYS, face_value_model, motion_noise_scores, pose_scores, velocity_scores  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 COLUMNS = ("face", "base", "bias")
@@ -67,7 +67,8 @@ def model_row(model, tr, pair_s: float) -> dict:
     row["pose_rms"] = pose_scores(model, [tr])["pose_rms"]
     row["gap"] = float(heldout_score(model, [tr]).gap)
     row["ac1"], row["pairs"] = size_error_lag1(model, make_batch([tr]), pair_s)
-    row.update({k: v for k, v in motion_noise_scores(model, [tr]).items() if not k.startswith("noise_sd")})
+    noise = motion_noise_scores(model, [tr])
+    row.update({k: noise[k] for k in NOISE_KEYS})
     return row
 
 

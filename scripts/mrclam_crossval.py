@@ -34,7 +34,7 @@ from learners.discrepancy.score import motion_score  # noqa: E402
 from learners.discrepancy.search import drop_outliers  # noqa: E402
 from learners.em.starts import start_beliefs  # noqa: E402
 from learners.model.io import load_model  # noqa: E402
-from learners.scoring import face_value_model, motion_noise_scores, velocity_scores  # noqa: E402
+from learners.scoring import NOISE_KEYS, face_value_model, motion_noise_scores, velocity_scores  # noqa: E402
 
 
 def halves(data: Path, robot: int) -> tuple:
@@ -63,9 +63,9 @@ def half_scores(model, test, clean) -> dict:
     against Vicon over 1 s (``learners.scoring.motion_noise_scores``: the travel's error over the model's sd,
     ``noise_fwd``, ``noise_lat``, ``noise_head``)."""
     s = velocity_scores(model, [test])
-    noise = {k: v for k, v in motion_noise_scores(model, [test]).items() if not k.startswith("noise_sd")}
+    noise = motion_noise_scores(model, [test])
     return {"vx_rms": s["vx_rms"], "vtheta_rms": s["vtheta_rms"],
-            "motion_gap": motion_score(model, [clean], heldout_only=False).gap(), **noise}
+            "motion_gap": motion_score(model, [clean], heldout_only=False).gap(), **{k: noise[k] for k in NOISE_KEYS}}
 
 
 def run(args: list[str]) -> float:

@@ -33,7 +33,7 @@ from learners.arrays.batch import make_batch  # noqa: E402
 from learners.em.learner import EMLearner  # noqa: E402
 from learners.em.options import EMOptions  # noqa: E402
 from learners.model.io import load_model  # noqa: E402
-from learners.scoring import motion_noise_scores  # noqa: E402
+from learners.scoring import NOISE_KEYS, motion_noise_scores  # noqa: E402
 
 WINDOWS_S = (1.0, 5.0)
 FIGURE_WINDOWS_S = (0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0)
@@ -87,7 +87,7 @@ def ratios(model, tr, windows) -> list[np.ndarray]:
     out = []
     for w in windows:
         s = motion_noise_scores(model, [tr], w)
-        out.append(np.array([s["noise_fwd"], s["noise_lat"], s["noise_head"]]))
+        out.append(np.array([s[k] for k in NOISE_KEYS]))
     return out
 
 

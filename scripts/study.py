@@ -87,5 +87,6 @@ def resume(out: Path, rows_file: str, keys: list[dict[str, Any]], run: Callable[
 def noise_cell(scores: dict) -> str:
     """A table cell of ``learners.scoring.motion_noise_scores``: forward / lateral / heading error over the model's sd;
     "?" for a record kept before the motion noise was."""
-    keys = ("noise_fwd", "noise_lat", "noise_head")
-    return " / ".join(f"{scores[k]:.2f}" for k in keys) if all(k in scores for k in keys) else "?"
+    from learners.scoring import NOISE_KEYS
+
+    return " / ".join(f"{scores[k]:.2f}" for k in NOISE_KEYS) if all(k in scores for k in NOISE_KEYS) else "?"

@@ -38,6 +38,7 @@ from learners.em.support import TESTS_BIAS
 from learners.model.effects import EFFECT_MODELS
 from learners.model.io import save_result
 from learners.model.model import Model
+from learners.scoring import NOISE_KEYS, motion_noise_scores
 
 FIGURES = ("signatures.png", "gap.png", "calibrated.png")
 #: Every file of a diagnosis: the --out folder holds these and nothing else (it is replaced whole).
@@ -251,7 +252,6 @@ def motion_gaps(base, model, logs: list) -> dict:
 
 #: ``report.json["against_ground_truth"]``'s models and their keys (``learners.scoring.motion_noise_scores``)
 TRUTH_MODELS = ("base", "diagnosed")
-NOISE_KEYS = ("noise_fwd", "noise_lat", "noise_head")
 
 
 def against_ground_truth(base: Model, final: Model, logs: list) -> dict:
@@ -261,8 +261,6 @@ def against_ground_truth(base: Model, final: Model, logs: list) -> dict:
     model's own sd; 1 when right, below 1 when the model's robot wanders more than the real one, above 1 when it errs
     more than it says). {} without truth.
     What a check of the sightings cannot see (docs/results.md, "The twin's motion noise against Vicon")."""
-    from learners.scoring import motion_noise_scores
-
     if not logs or any(tr.pose is None for tr in logs):
         return {}
     rows = {name: motion_noise_scores(m, logs, 1.0) for name, m in zip(TRUTH_MODELS, (base, final))}
