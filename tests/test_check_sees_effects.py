@@ -5,7 +5,8 @@ blind 5-minute log (``MINUTES`` where that holds too little of it for any test; 
 needs continuous commands), the check of the model fitted WITHOUT it (``experiments.calibrated.predictive_check``) has
 at least one statistic that disagrees with the log, and at least one of those no longer disagrees once the effect is
 fitted too. The effects the check cannot see by construction are listed with why (``UNSEEN``); those it does not see
-yet at that strength are expected failures with what was measured (``NOT_YET``).
+yet at that strength are expected failures with what was measured (``NOT_YET``); an effect that a default of the base
+fit stands in for is checked against the model without that default too (``STAND_IN``).
 """
 
 from __future__ import annotations
@@ -37,11 +38,17 @@ NOT_YET = {
                      "replicas' -0.011..0.055 (z 0.4); one M-step's estimate, 0.0012/min (z 2.5). On 10 minutes (2026-11-28, "
                      "seed 4) at 0.02 and at 0.01/min: none either ('forward motion vs elapsed time' 0.68 against the "
                      "replicas' 0.42-1.5)",
-    "response_time": "tau 0.15 s on a 5-minute wheeled log (commands held 1 s): no statistic disagrees, while EM "
-                     "recovers it (tests/test_response_time.py); none at 0.25 s either; on 10 minutes a statistic disagrees "
-                     "only once it is fitted (bearing vs elapsed time; 2026-11-28, seed 4)",
 }
 
+
+#: effect -> the default of the base fit that stands in for it: the model "without it" is fitted without that default
+#: as well. EM's lag search (on by default for continuous commands) fits a delay, and a delay moves the robot as a
+#: first-order response does to within what a 5-minute log tells apart: on the wheeled log of seed 4 (5) with tau
+#: 0.15 s the search's delay is 0.103 s (0.080 s), and the true effect refitted in its place is 8.7 (7.6) nats more
+#: likely, one parameter for one (2026-11-29; ``test_response_time.py``). With the delay the check has nothing to see;
+#: without any timing effect, "turn vs change of the commanded turn rate" disagrees (seeds 4, 5, 6) and stops once the
+#: response time is fitted. Before that signature: no statistic disagreed, with or without the delay.
+STAND_IN = {"response_time": "lag_search"}
 
 #: effect -> the minutes of the log it is checked on, where 5 minutes hold too little of it for any test: the search
 #: names a 6 mm/s floor drift on 1 of 10 five-minute logs (docs/results.md, the confusion matrix), and on 5 minutes no
@@ -62,7 +69,7 @@ def _separating(name: str, seed: int = 4, replicas: int = 8, minutes: float = 5.
         log = collect_wheeled({"effects": {name: params}, "start_pose": "random"}, round(minutes * 600), seed=seed)
     else:
         log = trajectory.blind(collect({"noise": "aibo", "effects": {name: params}}, round(minutes * 1800), seed=seed))
-    opts = EMOptions(starts=1, uncertainty=False)
+    opts = EMOptions(starts=1, uncertainty=False, **{STAND_IN[name]: False} if name in STAND_IN else {})
     base = EMLearner(opts, check_field=False).fit([log]).params
     before = predictive_check(base, [log], replicas=replicas, seed=0, jobs=2).disagreements()
     effect = cls.start(make_batch([log]))
@@ -84,4 +91,5 @@ def test_the_calibrated_check_sees_each_effect_and_stops_once_it_is_fitted(name)
 
 def test_every_unseen_effect_is_in_the_catalogue():
     """The exemptions name real effects (a renamed effect would otherwise escape the test silently)."""
-    assert set(UNSEEN) <= set(EFFECT_MODELS) and set(NOT_YET) | set(MINUTES) <= set(EFFECT_MODELS) - set(UNSEEN)
+    assert set(UNSEEN) <= set(EFFECT_MODELS) and set(NOT_YET) | set(MINUTES) | set(STAND_IN) <= set(EFFECT_MODELS) - set(UNSEEN)
+    assert all(hasattr(EMOptions, option) for option in STAND_IN.values())

@@ -84,6 +84,8 @@ _VARIABLE_READING = {
     "turn rate": "change with the turn rate (timing: a sensor's time offset or the motion's lag)",
     "commanded turn rate": "change with how fast the robot is commanded to turn (a motion noise that grows with the "
                            "turn)",
+    "change of the commanded": "follow a change of the command otherwise than the model says (timing: the motion's "
+                               "lag or its response time)",
 }
 
 
