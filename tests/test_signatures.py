@@ -179,3 +179,10 @@ def test_the_plain_reading_of_a_signature_against_the_image_position_is_about_th
 
     reading = plain_reading("size (sigma) vs position in the image, predicted (rad) (strength)", 5.0)
     assert "across the image" in reading and "field" not in reading
+
+
+def test_the_plain_reading_of_a_timing_signature_is_about_timing_not_the_turn_rate():
+    from learners.discrepancy.statistics import plain_reading
+
+    reading = plain_reading(f"turn (sigma) vs {CHANGE_OF['turn']} (strength)", 7.7)
+    assert "lag or its response time" in reading and "how fast" not in reading, reading

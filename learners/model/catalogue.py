@@ -215,7 +215,9 @@ class ResponseTime(EffectModel):
     tau_s), starting at each log's first command (after ``actuation_lag``'s delay when both act: the two commute).
     Discrete commands (indices) cannot be averaged: the effect needs continuous ones (``NEEDS``). Residual signature:
     time since the last command change, as a lag's; a lag moves the robot the old command's way for a moment, a
-    response time part of the way, fading. Not a default candidate (``DEFAULT_CANDIDATE``; ``aibo diagnose
+    response time part of the way, fading; signed, the turn against the change of the commanded turn rate
+    (``signatures.CHANGE_OF``). EM's lag search fits a delay that stands in for it to within a few nats on 5 minutes
+    (``tests/test_response_time.py``). Not a default candidate (``DEFAULT_CANDIDATE``; ``aibo diagnose
     --candidates`` names it): on MRCLAM robots 1, 2, 3 and 5 it is named with the lag (tau 0.10-0.23 s, the lag 0.23-0.26
     -> 0.16-0.18 s), the held-out and motion gaps better, the turn rate against Vicon 1-11% closer, but the forward
     speed 3-19% further and the calibrated check's disagreements not fewer (docs/results.md, "A first-order response
