@@ -11,7 +11,8 @@ What the log gets (frames of ``dt`` seconds from the first command, ``t0``):
   command held between rows, averaged over each frame (exact integral of the zero-order hold, so
   the commanded travel per frame is kept whatever ``dt``);
 - sightings of the 15 landmarks (subjects 6-20, mapped through ``Barcodes.dat``) at the frame whose
-  end is nearest their image time (several per frame allowed); ``sensor_kind="range_mm"``
+  end is nearest their image time (several per frame allowed), that time from the frame's end in
+  ``sighting_time`` (s, within +-dt / 2); ``sensor_kind="range_mm"``
   (range m -> mm), bearing wrapped to [-pi, pi]; ``landmarks`` (15, 2) in mm;
 - ``pose`` (T+1, 3): Vicon ground truth interpolated at the frame boundaries (x, y linear, theta
   unwrapped); poses inside a ground-truth dropout longer than ``GAP_S`` are flagged in
@@ -32,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from .geometry import wrap
-from .timed_log import held_average, increasing, nearest_frame_end, pose_valid, truth_at  # noqa: F401 (pose_valid: re-exported)
+from .timed_log import after_frame_end, held_average, increasing, nearest_frame_end, pose_valid, truth_at  # noqa: F401 (pose_valid: re-exported)
 from .trajectory import VELOCITY_CONTROLS, Trajectory
 
 #: Subjects 1-5 are the robots, 6-20 the landmarks (Barcodes.dat).
@@ -185,5 +186,6 @@ def import_robot(folder: str | os.PathLike, robot: int, dt: float = DEFAULT_DT, 
     }
     tr = Trajectory(dt=float(dt), landmarks=landmarks, sighting_frame=frame[order],
                     sighting_landmark=landmark[order], sighting_value=values, sensor_kind="range_mm",
+                    sighting_time=after_frame_end(meas[order, 0], frame[order], t0, dt),
                     controls=controls, control_names=CONTROL_NAMES, pose=pose, meta=meta)
     return tr.validate(f"MRCLAM robot {robot}")

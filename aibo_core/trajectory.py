@@ -20,6 +20,8 @@ sighting_frame     (S,) int         frame at whose end each sighting was made (n
 sighting_landmark  (S,) int         index into ``landmarks``
 sighting_value     (S, 2) float     [size measurement (> 0), bearing rad (CCW from the body's
                                     heading, wrapped to [-pi, pi])]
+sighting_time      (S,) float       optional: when each sighting was made, s after its frame's
+                                    end (negative: before it; |t| <= dt); absent: at the end
 sensor_kind        str              ``"height_px"`` (pinhole height, px) or ``"range_mm"``
 landmarks          (B, 2) float     landmark positions, mm
 head_pan           (T,) float       optional: head pan at the end of each frame, rad
@@ -48,7 +50,7 @@ SENSOR_KINDS = ("height_px", "range_mm")
 #: ``control_names`` of commands that are velocities (forward mm/s, turn rad/s): their face value is a motion
 VELOCITY_CONTROLS = ("v_mm_s", "omega_rad_s")
 KEYS = ("format", "dt", "actions", "attempted", "controls", "control_names", "sighting_frame",
-        "sighting_landmark", "sighting_value", "sensor_kind", "landmarks", "head_pan", "field", "pose", "meta")
+        "sighting_landmark", "sighting_value", "sighting_time", "sensor_kind", "landmarks", "head_pan", "field", "pose", "meta")
 KEYS_V1 = ("format", "dt", "actions", "obs", "beacon", "head_pan", "beacons", "field", "attempted", "pose", "meta")
 #: Most frames, sightings, landmarks, commands or control dimensions a log may declare.
 MAX_ROWS = 2**31 - 1
@@ -76,6 +78,8 @@ class Trajectory:
     field: np.ndarray | None = None
     pose: np.ndarray | None = None
     meta: dict[str, Any] = dataclass_field(default_factory=dict)
+    #: (S,) s after the end of its frame each sighting was made (negative: before it), None: every one at the end
+    sighting_time: np.ndarray | None = None
 
     @property
     def n_frames(self) -> int:
@@ -94,6 +98,13 @@ class Trajectory:
     def truth(self) -> dict[str, Any] | None:
         """Ground truth of a simulated log (``meta["truth"]``), or None for real/blind logs."""
         return self.meta.get("truth")
+
+    def with_sightings(self, keep: np.ndarray) -> "Trajectory":
+        """The same log with only the sightings ``keep`` (a boolean mask or increasing indices) and every per-sighting
+        array subset alike. ``self`` is not changed."""
+        times = None if self.sighting_time is None else self.sighting_time[keep]
+        return replace(self, sighting_frame=self.sighting_frame[keep], sighting_landmark=self.sighting_landmark[keep],
+                       sighting_value=self.sighting_value[keep], sighting_time=times)
 
     def validate(self, source: str = "<trajectory>") -> "Trajectory":
         """Check shapes, dtypes and ranges; raise TrajectoryError naming ``source`` and the field."""
@@ -147,6 +158,12 @@ def _validate(tr: Trajectory, source: str) -> None:
     if S and np.any(np.abs(tr.sighting_value[:, 1]) > np.pi + 1e-9):
         i = int(np.argmax(np.abs(tr.sighting_value[:, 1]) > np.pi + 1e-9))
         _fail(source, "sighting_value", f"bearing {tr.sighting_value[i, 1]} rad at row {i} is not wrapped to [-pi, pi]")
+    if tr.sighting_time is not None:
+        _check_array(source, "sighting_time", tr.sighting_time, (S,))
+        if S and np.any(np.abs(tr.sighting_time) > tr.dt * (1 + 1e-9)):
+            i = int(np.argmax(np.abs(tr.sighting_time) > tr.dt * (1 + 1e-9)))
+            _fail(source, "sighting_time", f"{tr.sighting_time[i]} s at row {i} is more than a frame ({tr.dt} s) from "
+                                           "its frame's end")
     if tr.sensor_kind not in SENSOR_KINDS:
         _fail(source, "sensor_kind", f"{tr.sensor_kind!r} (valid choices: {', '.join(SENSOR_KINDS)})")
     if tr.head_pan is not None:
@@ -211,7 +228,7 @@ def _header_check(source: str, allowed: tuple[str, ...]):
             if T is not None and n != want:
                 _fail(source, key, f"declares {n} rows but the log has {T} frames ({want} expected)")
         sizes = {key: headers[key][0][0] for key in ("sighting_frame", "sighting_landmark", "sighting_value",
-                                                       "obs", "beacon") if key in headers and headers[key][0]}
+                                                       "sighting_time", "obs", "beacon") if key in headers and headers[key][0]}
         if len(set(sizes.values())) > 1:
             _fail(source, sorted(sizes)[-1], f"declared lengths disagree: {sizes}")
 
@@ -275,6 +292,7 @@ def _from_v2(source: str, data: dict[str, np.ndarray], meta: dict[str, Any]) -> 
         sensor_kind=_as_str(source, "sensor_kind", data["sensor_kind"]), actions=data.get("actions"),
         attempted=data.get("attempted"), controls=data.get("controls"), control_names=names,
         head_pan=data.get("head_pan"), field=data.get("field"), pose=data.get("pose"), meta=meta,
+        sighting_time=data.get("sighting_time"),
     )
 
 
@@ -304,7 +322,7 @@ def _from_v1(source: str, data: dict[str, np.ndarray], meta: dict[str, Any]) -> 
 def _canonical(tr: Trajectory) -> Trajectory:
     """Arrays in their canonical dtypes (int64 indices, float64 values)."""
     f64 = {k: np.asarray(getattr(tr, k), dtype=np.float64) for k in
-           ("landmarks", "sighting_value", "attempted", "controls", "head_pan", "field", "pose")
+           ("landmarks", "sighting_value", "sighting_time", "attempted", "controls", "head_pan", "field", "pose")
            if getattr(tr, k) is not None}
     i64 = {k: np.asarray(getattr(tr, k), dtype=np.int64) for k in ("sighting_frame", "sighting_landmark", "actions")
            if getattr(tr, k) is not None}
@@ -359,6 +377,4 @@ def head(tr: Trajectory, k: int) -> Trajectory:
         raise ValueError(f"k must be in 1..{tr.n_frames}, got {k}")
     n = int(np.searchsorted(tr.sighting_frame, k))
     cut = {key: getattr(tr, key)[:k].copy() for key in ("actions", "controls", "head_pan") if getattr(tr, key) is not None}
-    return replace(tr, sighting_frame=tr.sighting_frame[:n].copy(), sighting_landmark=tr.sighting_landmark[:n].copy(),
-                   sighting_value=tr.sighting_value[:n].copy(),
-                   pose=None if tr.pose is None else tr.pose[: k + 1].copy(), **cut)
+    return replace(tr.with_sightings(np.arange(n)), pose=None if tr.pose is None else tr.pose[: k + 1].copy(), **cut)

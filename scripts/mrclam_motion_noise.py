@@ -79,7 +79,7 @@ def whitened(tr, which: str, rng: np.random.Generator):
         z[:, 0] = curve + rng.normal(0.0, er[ok].std(), len(z))
     if which in ("bearing", "both"):
         z[:, 1] = wrap(b + eb[ok].mean() + rng.normal(0.0, eb[ok].std(), len(z)))
-    return replace(tr, sighting_frame=f[ok], sighting_landmark=tr.sighting_landmark[ok], sighting_value=z[ok])
+    return replace(tr, sighting_value=z, sighting_time=None).with_sightings(ok)  # made at the frame's end pose
 
 
 def ratios(model, tr, windows) -> list[np.ndarray]:

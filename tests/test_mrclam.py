@@ -48,6 +48,7 @@ def test_import_tiny_dataset(tmp_path):
     np.testing.assert_allclose(tr.controls, [[100.0, 0.0]] * 100)
     np.testing.assert_allclose(tr.landmarks, [[2000, 1000], [4000, -1000], [6000, 1000]])
     np.testing.assert_array_equal(tr.sighting_frame, [2, 2, 19])  # frame whose end is nearest
+    np.testing.assert_allclose(tr.sighting_time, [0.0, 0.0, 0.04], atol=1e-9)  # its time after that end (s)
     np.testing.assert_array_equal(tr.sighting_landmark, [0, 1, 2])
     np.testing.assert_allclose(tr.sighting_value[:, 0], [2200, 4100, 5900])
     d = tr.meta["dropped"]
@@ -63,6 +64,7 @@ def test_import_tiny_dataset(tmp_path):
     trajectory.save(tr, tmp_path / "log.npz")
     back = trajectory.load(tmp_path / "log.npz")
     assert back.meta["pose_gaps"]["flagged_runs"] == gaps["flagged_runs"]
+    np.testing.assert_array_equal(back.sighting_time, tr.sighting_time)
 
 
 def test_commands_are_averaged_over_frames(tmp_path):

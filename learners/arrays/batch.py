@@ -33,6 +33,9 @@ class Batch:
     landmarks: np.ndarray  # (B, 2) float mm
     head_pan: np.ndarray | None = None  # (N,) rad, or None (fixed camera)
     field: np.ndarray | None = None  # (2,) field length and width (mm, origin at the centre) shared by the logs, or None
+    #: (S,) s after its frame's end each sighting was made (negative: before it; the logs' ``sighting_time``, 0 for a
+    #: log without it), None: every sighting at its frame's end
+    sight_time: np.ndarray | None = None
     #: rad: the bearing noise the image angle's expectation is taken with (``learners.model.catalogue.expected_phi2``)
     #: during one EM fit, held there so that EM stays EM (``EMState.angle_noise``); None: the model's own
     angle_noise: float | None = None
@@ -142,7 +145,16 @@ def make_batch(logs: list[Trajectory]) -> Batch:
         landmarks=np.asarray(landmarks, dtype=np.float64),
         head_pan=np.concatenate([tr.head_pan for tr in logs]).astype(np.float64) if has_pan else None,
         field=_shared_field(logs),
+        sight_time=_sighting_times(logs),
     )
+
+
+def _sighting_times(logs: list[Trajectory]) -> np.ndarray | None:
+    """(S,) the logs' ``sighting_time`` concatenated (0 for a log without it), None when no log has it."""
+    if all(tr.sighting_time is None for tr in logs):
+        return None
+    return np.concatenate([np.zeros(tr.n_sightings) if tr.sighting_time is None else np.asarray(tr.sighting_time, float)
+                           for tr in logs])
 
 
 def _shared_field(logs: list[Trajectory]) -> np.ndarray | None:

@@ -248,8 +248,7 @@ def drop_outliers(model: Model, logs: list[Trajectory]) -> tuple[list[Trajectory
     for tr in logs:
         keep = ~bad[at:at + tr.n_sightings]
         at += tr.n_sightings
-        out.append(replace(tr, sighting_frame=tr.sighting_frame[keep], sighting_landmark=tr.sighting_landmark[keep],
-                           sighting_value=tr.sighting_value[keep]))
+        out.append(tr.with_sightings(keep))
     return out, int(bad.sum())
 
 

@@ -3,8 +3,6 @@ every part of the field and every stretch of time."""
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 
 from aibo_core.trajectory import Trajectory
@@ -23,5 +21,4 @@ def heldout_mask(tr: Trajectory, block_s: float = BLOCK_S) -> np.ndarray:
 def training_log(tr: Trajectory, block_s: float = BLOCK_S) -> Trajectory:
     """The log with the held-out sightings removed (commands and frames kept)."""
     keep = ~heldout_mask(tr, block_s)
-    return replace(tr, sighting_frame=tr.sighting_frame[keep], sighting_landmark=tr.sighting_landmark[keep],
-                   sighting_value=tr.sighting_value[keep])
+    return tr.with_sightings(keep)

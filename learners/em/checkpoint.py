@@ -53,7 +53,7 @@ def fingerprint(batch: Batch, start: Model, options_json: str) -> str:
     """SHA-256 over the data, the start model and the options."""
     h = hashlib.sha256()
     for a in (batch.frame_start, batch.actions, batch.controls, batch.sight_start, batch.sight_landmark,
-              batch.sight_value, batch.landmarks):
+              batch.sight_value, batch.landmarks, batch.sight_time):  # sight_time last: None for most logs
         if a is not None:
             h.update(np.ascontiguousarray(a).tobytes())
     h.update(_model_text(start).encode())

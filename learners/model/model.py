@@ -14,6 +14,7 @@ import numpy as np
 from aibo_core.trajectory import VELOCITY_CONTROLS
 from learners.arrays.batch import Batch
 from learners.arrays.lowered import Lowered
+from learners.arrays.sighting_times import at_sighting_times
 from learners.model.action import ActionModel, per_component
 from learners.model.effects import EffectModel
 from learners.model.initial import DEFAULT_INITIAL, InitialState
@@ -57,7 +58,8 @@ class Model:
 
     # ------------------------------------------------------------------ inference arrays
     def lower(self, batch: Batch) -> Lowered:
-        """The per-frame and per-sighting arrays of this model on ``batch`` (base model, then effects)."""
+        """The per-frame and per-sighting arrays of this model on ``batch`` (base model, then effects, then each sighting
+        predicted at its own time within its frame: ``learners.arrays.sighting_times``)."""
         if len(self.init) != batch.n_logs:
             raise ValueError(f"model has {len(self.init)} initial states for {batch.n_logs} logs")
         commands, scale = self.effective_commands(batch)
@@ -69,6 +71,7 @@ class Model:
         )
         for e in sorted(self.effects, key=lambda e: e.LOWER_ORDER):  # stable: the order added within one value
             e.lower(lo, batch)
+        at_sighting_times(lo, batch, range_sensor=self.sensor.kind == "range_mm")
         return lo
 
     def effective_commands(self, batch: Batch) -> tuple[np.ndarray, np.ndarray | None]:
