@@ -39,10 +39,9 @@ the left and more at one to the right, so the residual falls with the change. A 
 (``response_time``) under a model without any timing effect, 5-minute wheeled log of seed 4: "turn vs change of the
 commanded turn rate" p = 2e-12 (the magnitudes' against the time since the change: none below 0.05); with the lag
 search's delay in the model (a delay stands in for such a response), 0.028 (seed 5: 0.4); effect-free: 0.13 and 0.31
-(seeds 4, 5).
-On 100 effect-free logs (seeds 6000-6049 of both presets) each is below 0.05 on 7 or 8 and below 0.001 on none. Kept
-on the frame of each change and the next as well, they were below 0.05 on 20 of 100 each: the two frames' residuals
-are correlated and the reference took them for independent.
+(seeds 4, 5). On 100 effect-free logs (seeds 6000-6049 of both presets) each is below 0.05 on 7 or 8 and below 0.001
+on none. Kept on the frame of each change and the next as well, they were below 0.05 on 20 of 100 each: the two
+frames' residuals are correlated and the reference took them for independent.
 
 The bearing's magnitudes against the commanded turn rate (``TURN_RATE``) show a motion noise that grows with the
 turn: the bearing's innovation carries the heading's uncertainty (MRCLAM robots under ``aibo learn``'s model: the
