@@ -27,13 +27,15 @@ needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"MRCLAM Dataset 7 not
 
 
 def assert_same_log(a: trajectory.Trajectory, b: trajectory.Trajectory) -> None:
-    """Commands, sightings and truth equal to 1e-9 (mm, rad), frames and landmarks exactly."""
+    """Commands, sightings and truth equal to 1e-9 (mm, rad), the sightings' times to 1e-6 s, frames and landmarks exactly."""
     assert (a.n_frames, a.dt, a.control_names, a.sensor_kind) == (b.n_frames, b.dt, b.control_names, b.sensor_kind)
     np.testing.assert_allclose(a.controls, b.controls, rtol=0, atol=1e-9)
     np.testing.assert_array_equal(a.landmarks, b.landmarks)
     np.testing.assert_array_equal(a.sighting_frame, b.sighting_frame)
     np.testing.assert_array_equal(a.sighting_landmark, b.sighting_landmark)
     np.testing.assert_allclose(a.sighting_value, b.sighting_value, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(a.sighting_time, b.sighting_time, rtol=0, atol=1e-6)  # s: a bag stamps in ns
+    assert np.abs(a.sighting_time).max() > 0.01  # the slice's sightings are not on the frame ends
     np.testing.assert_allclose(a.pose[:, :2], b.pose[:, :2], rtol=0, atol=1e-9)
     np.testing.assert_allclose(np.angle(np.exp(1j * (a.pose[:, 2] - b.pose[:, 2]))), 0.0, atol=1e-9)
     assert a.meta["pose_gaps"] == b.meta["pose_gaps"]

@@ -27,6 +27,8 @@ def test_the_layout_gives_the_drive(tmp_path):
     assert log.meta["dropped"]["sightings_outside_span"] == 3 and log.n_sightings == len(rows.detections) - 3
     np.testing.assert_array_equal(log.sighting_frame[:3], [1, 1, 1])
     np.testing.assert_allclose(log.sighting_value[:, 0], rows.detections[3:, 2] * 1000.0, atol=1e-9)
+    np.testing.assert_allclose(1000.0 + 0.1 * (log.sighting_frame + 1) + log.sighting_time, rows.detections[3:, 0],
+                               atol=1e-9)  # each sighting's time kept: its frame's end plus sighting_time
     i = np.searchsorted(rows.truth[:, 0], 1000.0 + 0.1 * np.arange(60) - 1e-9)
     np.testing.assert_allclose(log.pose[:, :2], rows.truth[i, 1:3] * 1000.0, atol=1e-9)
     np.testing.assert_allclose(wrap(log.pose[:, 2] - rows.truth[i, 3]), 0.0, atol=1e-9)
