@@ -196,18 +196,40 @@ def motion_noise_scores(model: Model, logs: list[Trajectory], window_s: float = 
     return out
 
 
-def true_sightings(logs: list[Trajectory]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(true distance mm, measured range mm, bearing residual rad) of the sightings of valid poses."""
-    d, z, eb = [], [], []
+def truth_at_sightings(tr: Trajectory) -> tuple[np.ndarray, np.ndarray]:
+    """((S,) bool, (S, 3) pose): the true pose when each sighting was made and whether it is known. At its frame's
+    end, or with a ``sighting_time`` that far between the end pose and the boundary pose before (or after) it (x, y
+    linearly, the heading the shorter way round); known when both poses are outside the ground truth's gaps."""
+    f = tr.sighting_frame + 1
+    valid = _valid_poses(tr)
+    if tr.sighting_time is None:
+        return valid[f], tr.pose[f]
+    a = tr.sighting_time / tr.dt  # frames after the end pose (negative: before it)
+    other = np.clip(np.where(a < 0, f - 1, f + 1), 0, tr.n_frames)
+    w = np.where(other == f, 0.0, np.abs(a))
+    p0, p1 = tr.pose[f], tr.pose[other]
+    step = np.concatenate([p1[:, :2] - p0[:, :2], wrap(p1[:, 2] - p0[:, 2])[:, None]], axis=1)
+    return valid[f] & (valid[other] | (w == 0.0)), p0 + w[:, None] * step
+
+
+def _true_sightings(logs: list[Trajectory]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """((S,) bool over every log's sightings: with a known true pose; and ``true_sightings``' three arrays of those)."""
+    known, d, z, eb = [], [], [], []
     for tr in logs:
-        f = tr.sighting_frame + 1
-        ok = _valid_poses(tr)[f]
-        p = tr.pose[f[ok]]
+        ok, pose = truth_at_sightings(tr)
+        p = pose[ok]
         L = tr.landmarks[tr.sighting_landmark[ok]]
+        known.append(ok)
         d.append(np.hypot(L[:, 0] - p[:, 0], L[:, 1] - p[:, 1]))
         z.append(tr.sighting_value[ok, 0])
         eb.append(wrap(tr.sighting_value[ok, 1] - (np.arctan2(L[:, 1] - p[:, 1], L[:, 0] - p[:, 0]) - p[:, 2])))
-    return np.concatenate(d), np.concatenate(z), np.concatenate(eb)
+    return np.concatenate(known), np.concatenate(d), np.concatenate(z), np.concatenate(eb)
+
+
+def true_sightings(logs: list[Trajectory]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(true distance mm, measured range mm, bearing residual rad) of the sightings with a known true pose, each at
+    the pose when it was made (``truth_at_sightings``)."""
+    return _true_sightings(logs)[1:]
 
 
 def measured_sensor(model: Model, logs: list[Trajectory]) -> tuple[np.ndarray, float, float, tuple[float, float]]:
@@ -233,9 +255,10 @@ def sensor_scores(model: Model, logs: list[Trajectory]) -> dict[str, float]:
     coef, _, _, (lo, hi) = measured_sensor(model, logs)
     grid = np.linspace(lo, hi, 400)
     truth = replace(model.sensor, coef=coef).mean(grid)
-    d, z, _ = true_sightings(logs)
-    lowered = model.lower(make_batch(logs))  # each sighting's scale and offset of the model's effects (a range's shrink)
-    ok = np.concatenate([_valid_poses(tr)[tr.sighting_frame + 1] for tr in logs])
+    ok, d, z, _ = _true_sightings(logs)
+    # each sighting's scale and offset of the model's effects (a range's shrink), not its move to the sighting's time:
+    # the true distance is the one at that time already
+    lowered = model.lower(make_batch([replace(tr, sighting_time=None) for tr in logs]))
     mean = lowered.size_scale[ok] * model.sensor.mean(d) + lowered.size_offset[ok]
     return {"range_curve_rms": float(np.sqrt(np.mean((model.sensor.mean(grid) - truth) ** 2))),
             "range_rms": float(np.sqrt(np.mean((z - mean) ** 2))),

@@ -134,12 +134,14 @@ def test_on_a_camera_with_its_own_clock_em_finds_the_cameras_bearing_noise():
     of up to 1.2 rad/s moves a bearing by up to 60 mrad. Predicted at the frame's end, EM takes that up as heading
     noise: 27 mrad per frame for the generator's 1.6 (sqrt(10) x 0.05 rad/s x 10 ms), the turns widening the bearing
     innovations ("|bearing| vs commanded turn rate" p = 9e-54), 2,206 nats less likely. At each sighting's own time:
-    1.8 mrad, p = 0.35, and the bearing noise the camera's 10 mrad either way (10.7 / 10.8)."""
+    1.8 mrad, p = 0.35, and the bearing noise the camera's 10 mrad either way (10.7 / 10.8). Scored against the truth
+    (``learners.scoring``), the true pose is taken when each sighting was made."""
     from dataclasses import replace
 
     from learners.discrepancy.signatures import TURN_RATE, signatures
     from learners.em.learner import EMLearner
     from learners.em.options import EMOptions
+    from learners.scoring import measured_sensor
 
     tr = build(asynchronous_drive(), 0.1, {}, "asynchronous drive")
     found = {}
@@ -151,3 +153,8 @@ def test_on_a_camera_with_its_own_clock_em_finds_the_cameras_bearing_noise():
     assert abs(found["own time"][2] / heading_sd - 1.0) < 0.25 and found["frame end"][2] > 5 * heading_sd, found
     assert found["frame end"][1] < 1e-6 < 1e-3 < found["own time"][1], found
     assert abs(found["own time"][0] / BEARING_SD - 1.0) < 0.1, found
+    # the truth's side too: the bearing error against the true pose when each sighting was made is the camera's (10.3
+    # mrad), against the pose at its frame's end 25.4
+    measured = {name: measured_sensor(model, [log])[2] for name, log in (("own time", tr), ("frame end", replace(
+        tr, sighting_time=None)))}
+    assert abs(measured["own time"] / BEARING_SD - 1.0) < 0.1 and measured["frame end"] > 2 * BEARING_SD, measured
