@@ -37,6 +37,7 @@ import numpy as np
 from scipy import stats
 
 from aibo_core.actions import N_ACTIONS
+from aibo_core.atomic import finite_json
 from aibo_core.trajectory import Trajectory
 from aibo_core.workers import process_pool
 from experiments.calibrated_wheeled import image_frames, wheeled_config
@@ -162,15 +163,11 @@ class Check:
     def as_dict(self) -> dict[str, Any]:
         z = self.z
         mean, sd = self.moments
-        rows = [{"statistic": n, "measured": _num(m), "simulated_mean": _num(a), "simulated_sd": _num(s), "z": _num(q)}
+        rows = [{"statistic": n, "measured": m, "simulated_mean": a, "simulated_sd": s, "z": q}
                 for n, m, a, s, q in zip(self.names, self.measured, mean, sd, z)]
-        return {"replicas": int(len(self.replicas)), "disagree_z": _num(self.threshold), "statistics": rows,
-                "disagreements": [{"statistic": n, "z": _num(q)} for n, q in self.disagreements()],
-                "failed_replicas": self.failed}
-
-
-def _num(x: float) -> float | None:
-    return float(x) if np.isfinite(x) else None
+        return finite_json({"replicas": int(len(self.replicas)), "disagree_z": self.threshold, "statistics": rows,
+                            "disagreements": [{"statistic": n, "z": q} for n, q in self.disagreements()],
+                            "failed_replicas": self.failed})
 
 
 def replica_statistics(model: Model, logs: list[Trajectory], seed: int) -> dict[str, float]:

@@ -13,7 +13,7 @@ from aibo.data_errors import naming_files
 from aibo.errors import CLIError
 from aibo.paths import check_files, check_replaceable, declared_inputs
 from aibo_core import trajectory
-from aibo_core.atomic import atomic_folder, write_json
+from aibo_core.atomic import atomic_folder, finite_json, write_json
 from aibo_core.compat import check_compatible
 from aibo_core.workers import process_pool
 from learners.arrays.batch import Batch, make_batch
@@ -264,11 +264,7 @@ def against_ground_truth(base: Model, final: Model, logs: list) -> dict:
     if not logs or any(tr.pose is None for tr in logs):
         return {}
     rows = {name: motion_noise_scores(m, logs, 1.0) for name, m in zip(TRUTH_MODELS, (base, final))}
-    return {"window_s": 1.0, **{name: {k: _finite(r[k]) for k in NOISE_KEYS} for name, r in rows.items()}}
-
-
-def _finite(x: float) -> float | None:
-    return float(x) if np.isfinite(x) else None
+    return {"window_s": 1.0, **{name: finite_json({k: r[k] for k in NOISE_KEYS}) for name, r in rows.items()}}
 
 
 def ground_truth_text(truth: dict) -> str:
