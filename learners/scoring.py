@@ -42,6 +42,7 @@ from dataclasses import replace
 import numpy as np
 
 from aibo_core.geometry import motion, rel_disp, rel_disp_jac, wrap
+from aibo_core.timed_log import pose_valid
 from aibo_core.trajectory import VELOCITY_CONTROLS, Trajectory
 from learners.arrays.batch import make_batch
 from learners.arrays.lowered import fit_polynomial
@@ -49,13 +50,6 @@ from learners.em.options import DEFAULT_GATE
 from learners.model.model import Model
 
 COLUMNS = ("face value", "learned", "fit to Vicon")
-
-
-def _valid_poses(tr: Trajectory) -> np.ndarray:
-    ok = np.ones(tr.n_frames + 1, bool)
-    for a, b in tr.meta.get("pose_gaps", {}).get("flagged_runs", []):
-        ok[a: b + 1] = False
-    return ok
 
 
 def face_value_model(model: Model) -> Model:
@@ -77,7 +71,7 @@ def _windows(tr: Trajectory, window_s: float) -> np.ndarray:
     """(n, 2) [first frame, end frame) of non-overlapping windows free of ground-truth gaps."""
     W = max(1, int(round(window_s / tr.dt)))
     starts = np.arange(0, tr.n_frames - W + 1, W)
-    bad = np.concatenate([[0], np.cumsum(~_valid_poses(tr))])
+    bad = np.concatenate([[0], np.cumsum(~pose_valid(tr))])
     keep = bad[starts + W + 1] - bad[starts] == 0
     return np.stack([starts[keep], starts[keep] + W], axis=1)
 
@@ -201,7 +195,7 @@ def truth_at_sightings(tr: Trajectory) -> tuple[np.ndarray, np.ndarray]:
     end, or with a ``sighting_time`` that far between the end pose and the boundary pose before (or after) it (x, y
     linearly, the heading the shorter way round); known when both poses are outside the ground truth's gaps."""
     f = tr.sighting_frame + 1
-    valid = _valid_poses(tr)
+    valid = pose_valid(tr)
     if tr.sighting_time is None:
         return valid[f], tr.pose[f]
     a = tr.sighting_time / tr.dt  # frames after the end pose (negative: before it)
@@ -281,7 +275,7 @@ def pose_scores(model: Model, logs: list[Trajectory], gate: float | None = DEFAU
     tracks, loglik = smoothed_poses(model, logs, gate)
     err_xy, err_th = [], []
     for tr, mu in zip(logs, tracks):
-        ok = _valid_poses(tr)
+        ok = pose_valid(tr)
         err_xy.append(np.hypot(*(mu[ok, :2] - tr.pose[ok, :2]).T))
         err_th.append(wrap(mu[ok, 2] - tr.pose[ok, 2]))
     e, t = np.concatenate(err_xy), np.concatenate(err_th)
