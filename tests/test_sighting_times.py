@@ -4,6 +4,8 @@ bearing noise EM finds is the camera's, not the camera's plus the turn over the 
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -117,8 +119,6 @@ def test_the_prediction_moved_to_the_sightings_time_is_the_geometry_there_to_fir
 
 def test_a_log_without_sighting_times_is_predicted_at_the_frames_end():
     tr = build(asynchronous_drive(seconds=20.0), 0.1, {}, "asynchronous drive")
-    from dataclasses import replace
-
     plain = make_batch([replace(tr, sighting_time=None)])
     assert plain.sight_time is None
     lo = Lowered.plain(np.ones((tr.n_frames, 3)), np.eye(3), 0, np.array([0.0, 1.0]), 1.0, 1.0, np.zeros(3), np.eye(3),
@@ -136,8 +136,6 @@ def test_on_a_camera_with_its_own_clock_em_finds_the_cameras_bearing_noise():
     innovations ("|bearing| vs commanded turn rate" p = 9e-54), 2,206 nats less likely. At each sighting's own time:
     1.8 mrad, p = 0.35, and the bearing noise the camera's 10 mrad either way (10.7 / 10.8). Scored against the truth
     (``learners.scoring``), the true pose is taken when each sighting was made."""
-    from dataclasses import replace
-
     from learners.discrepancy.signatures import TURN_RATE, signatures
     from learners.em.learner import EMLearner
     from learners.em.options import EMOptions
