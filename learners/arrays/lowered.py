@@ -100,6 +100,12 @@ class Lowered:
         displacement residual in the units of cov's standard deviations, before cov_scale."""
         return v / _of_frames(self.cov_sd, frames)
 
+    def information(self, v: np.ndarray, frames=None) -> np.ndarray:
+        """(n, 3) Sigma_i^-1 v_i of per-frame robot-frame vectors ``v`` (n, 3) of ``frames`` (default every frame):
+        each frame's motion information applied to ``v`` (1/mm, 1/mm, 1/rad for a displacement in mm, mm, rad)."""
+        c = _of_frames(self.cov_scale, frames)
+        return self.whiten(self.whiten(v, frames) @ np.linalg.inv(np.asarray(self.cov)), frames) / c[:, None]
+
     def unshaped(self, m: np.ndarray, frames=None) -> np.ndarray:
         """(n, 3, 3) D_i^-1 m_i D_i^-1 of per-frame second moments ``m`` (n, 3, 3) of ``frames`` (default every frame):
         the per-component factors taken out, ``cov_scale`` left in (``shaped_cov``'s inverse). Unit factors give m

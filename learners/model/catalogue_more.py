@@ -377,7 +377,7 @@ class WallSlowdown(EffectModel):
         scale = self.disp_scale(batch)
         rows = np.flatnonzero(self.near)
         p = lo.disp[rows] / (1.0 if scale is None else scale[rows, None])
-        pw = lo.whiten(lo.whiten(p, rows) @ np.linalg.inv(np.asarray(model.action.cov)), rows) / lo.cov_scale[rows, None]
+        pw = lo.information(p, rows)
         den = float(np.sum(pw * p))
         if den <= 0:
             return model

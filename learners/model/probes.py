@@ -98,7 +98,7 @@ class SpeedProbe(EffectModel):
         f = self._factor(batch)
         p = lo.disp if f is None else lo.disp / np.stack([f, f, np.ones_like(f)], axis=1)
         q = p * np.array([1.0, 1.0, 0.0])
-        qw = lo.whiten(lo.whiten(q) @ np.linalg.inv(np.asarray(model.action.cov))) / lo.cov_scale[:, None]  # W_i q_i
+        qw = lo.information(q)  # W_i q_i
         a = np.einsum("ij,ij->i", qw, q)
         b = np.einsum("ij,ij->i", qw, mu_star - p)
         lhs = np.einsum("i,ik,il->kl", a, self.basis, self.basis)
