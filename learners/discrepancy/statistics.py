@@ -2,7 +2,7 @@
 measured logs and on logs simulated from the fitted model (``experiments.calibrated``), so that the
 simulated spread calibrates every one of them (a parametric-bootstrap, posterior predictive check).
 
-Three kinds:
+Four kinds:
 
 - fit consistency (:func:`learners.discrepancy.score.score`): the held-out gap (nats per sighting),
   the mean normalized innovation squared (NIS), its share outside the chi-square 95% band, its median (the
@@ -13,6 +13,8 @@ Three kinds:
   residuals and are optimistic; the simulated spread of the strength is the honest reference. The
   square root makes its tail Gaussian-like (-log10 p of a true null is exponential, its root
   Rayleigh), so a z-score against a few replicas means what it says;
+- score statistics (:mod:`learners.discrepancy.score_tests`): how strongly the log pulls the model towards a generic
+  alternative (a speed that changes over the log), where a signature of the smoothed motion is attenuated;
 - the data alone: sightings per frame, size quantiles (px or mm), spread of the bearings (rad).
 """
 
@@ -26,6 +28,7 @@ from aibo_core.trajectory import Trajectory
 from learners.model.model import Model
 
 from .score import score
+from .score_tests import SPEED_TREND, score_statistics
 from .signatures import signatures
 
 MAX_STRENGTH = 300.0  # -log10(p) cap (p below 1e-300 underflows)
@@ -52,6 +55,7 @@ def check_statistics(model: Model, logs: list[Trajectory]) -> dict[str, float]:
     }
     for sig in signatures(model, logs):
         out[signature_key(sig.residual, sig.variable) + " (strength)"] = strength(sig.p_value)
+    out.update(score_statistics(model, logs))
     out.update(data_statistics(logs))
     return out
 
@@ -93,6 +97,10 @@ def plain_reading(statistic: str, z: float) -> str:
     """A sentence on what the measured log does that its calibrated simulation does not, for a statistic of the
     check (``check_statistics``) whose z = (measured - simulated mean) / simulated sd disagrees."""
     more = z > 0
+    if statistic == SPEED_TREND:
+        return ("the log's robot moves " + ("faster" if more else "slower") + " later in the log, against what the "
+                "model commands, than its simulation's" + ("" if more else " (a speed that fades: a draining battery, "
+                                                                       "worn feet)"))
     if " vs " in statistic:
         residual, variable = statistic.split(" vs ", 1)
         variable = variable.replace(" (strength)", "")
