@@ -9,10 +9,13 @@ import pytest
 
 from aibo_core import trajectory
 from aibo_gym.collect import collect
+from learners.discrepancy.fitting import held
 from learners.discrepancy.score_tests import SPEED_TREND, factor_score, score_statistics
 from learners.discrepancy.statistics import check_statistics, plain_reading
 from learners.em.learner import EMLearner
 from learners.em.options import EMOptions
+from learners.inference.batch import make_batch
+from learners.model.effects import EFFECT_MODELS
 
 
 def _frames(n: int = 400, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -68,3 +71,19 @@ def test_the_speed_trend_score_sees_a_fade_the_model_lacks(fade, sign):
 def test_the_plain_reading_of_the_speed_trend_says_which_way():
     assert "slower later" in plain_reading(SPEED_TREND, -8.0) and "battery" in plain_reading(SPEED_TREND, -8.0)
     assert "faster later" in plain_reading(SPEED_TREND, 8.0)
+
+
+@pytest.mark.parametrize("effect", ["landmark_bias", "actuation_lag"])
+def test_the_score_is_computed_under_bias_states_and_a_lag(effect):
+    """Bias states take the augmented E-step's displacement beliefs (the first version read the plain E-step's and
+    failed on ``landmark_bias`` in the calibrated check); with a lag the commands in force centre the time. A 2-minute
+    log with the effect, fitted with it: no trend."""
+    cls = EFFECT_MODELS[effect]
+    params = {k: (v.tolist() if hasattr(v, "tolist") else v) for k, v in cls.EXAMPLE.items()}
+    log = trajectory.blind(collect({"noise": "aibo", "effects": {effect: params}}, 3600, seed=3))
+    opts = EMOptions(starts=1, uncertainty=False, max_iter=40)
+    base = EMLearner(opts, check_field=False).fit([log]).params
+    start = base.with_effect(cls.start(make_batch([log])).with_values(**cls.EXAMPLE))
+    model = EMLearner(held(opts, effect) if cls.GRID else opts, check_field=False).fit([log], init=start).params
+    s = score_statistics(model, [log])[SPEED_TREND]
+    assert np.isfinite(s) and abs(s) < 3.0, s

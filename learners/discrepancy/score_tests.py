@@ -10,15 +10,16 @@ The score of the alternative (the gradient of the log-likelihood at the fitted m
 score's expectation under the smoothed path) weights every frame by what the alternative would change, which is the
 locally most powerful test of it (Rao's score test). For a factor (1 + c phi_i) on every component of frame i's
 displacement p_i (mm, mm, rad), with W_i the frame's motion information (``Lowered.frame_cov``'s inverse) and mu*_i
-the posterior mean displacement (``action_statistics``):
+the posterior mean displacement (``learners.arrays.displacement``):
 
     b_i = p_i' W_i (mu*_i - p_i),   a_i = p_i' W_i p_i,   S = sum_i b_i phi~_i / sqrt(sum_i a_i phi~_i^2),
 
-phi~ the covariate centred within each discrete command (weights a_i; continuous commands: over all frames), so the
-commands' own velocities, which the fit sets, take none of it. S is the score over its complete-data standard error,
-about N(0, 1) where the model is right; the calibrated check compares it with its replicas' spread, the honest
-reference (the complete-data information overstates the observed one). On the log above: S = -9.0 against replicas
-between -0.6 and +0.7 (z -20); on 5 minutes -2.1 (z -2.6); effect-free, 5 minutes: +0.6 (z +0.8).
+phi~ the covariate centred within each discrete command in force (after a lag; weights a_i; continuous commands: over
+all frames), so the commands' own velocities, which the fit sets, take none of it. S is the score over its
+complete-data standard error, about N(0, 1) where the model is right; the calibrated check compares it with its
+replicas' spread, the honest reference (the complete-data information overstates the observed one). On the log above:
+S = -9.0 against replicas between -0.6 and +0.7 (z -20); on 5 minutes -2.1 (z -2.6); effect-free, 5 minutes: +0.6
+(z +0.8).
 """
 
 from __future__ import annotations
@@ -28,10 +29,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from learners.arrays.batch import Batch, make_batch
+from learners.arrays.displacement import displacement_beliefs
 from learners.arrays.lowered import Lowered
 from learners.em.estep import e_step
 from learners.em.options import DEFAULT_GATE
-from learners.inference.action_stats import action_statistics
 
 if TYPE_CHECKING:
     from aibo_core.trajectory import Trajectory
@@ -61,19 +62,20 @@ def factor_score(p: np.ndarray, w_p: np.ndarray, mu_star: np.ndarray, phi: np.nd
     return score / np.sqrt(info), score / info
 
 
-def speed_trend_score(lo: Lowered, batch: Batch, mu_star: np.ndarray) -> float:
+def speed_trend_score(lo: Lowered, batch: Batch, mu_star: np.ndarray, commands: np.ndarray | None) -> float:
     """S (module docstring) of a speed factor linear in the elapsed time (min) on ``batch``'s frames, the model lowered
-    as ``lo``; ``mu_star`` (N, 3) its posterior mean displacements. Negative: the log moves slower later than the
-    model says."""
-    w_p = lo.information(lo.disp)
-    return factor_score(lo.disp, w_p, mu_star, batch.frame_time / 60.0, batch.actions)[0]
+    as ``lo``; ``mu_star`` (N, 3) its posterior mean displacements; ``commands`` (N,) the discrete commands in force
+    (after a lag) or None. Negative: the log moves slower later than the model says."""
+    return factor_score(lo.disp, lo.information(lo.disp), mu_star, batch.frame_time / 60.0, commands)[0]
 
 
 def score_statistics(model: "Model", logs: list["Trajectory"]) -> dict[str, float]:
     """Every score statistic of ``model`` on ``logs``, by name (the calibrated check's: ``statistics.check_statistics``),
-    from one E-step with the sightings beyond the default gate set aside, as the signatures have it."""
+    from one E-step with the sightings beyond the default gate set aside, as the signatures have it (with bias states,
+    the augmented E-step's displacement beliefs)."""
     batch = make_batch(logs)
     lo = model.lower(batch)
     post = e_step(model, batch, "compiled", DEFAULT_GATE, lo=lo)
-    mu_star, _ = action_statistics(lo, batch, post, False)
-    return {SPEED_TREND: speed_trend_score(lo, batch, mu_star)}
+    mu_star, _ = displacement_beliefs(lo, batch, post)
+    commands = model.effective_commands(batch)[0] if model.action.discrete else None
+    return {SPEED_TREND: speed_trend_score(lo, batch, mu_star, commands)}
