@@ -23,7 +23,11 @@ statistic of :mod:`learners.discrepancy.statistics`); the measured value of a st
 with the replicas' spread as z = (measured - mean) / sd. Where the model is right, the measured log
 looks like one more replica. A statistic disagrees when the measured value is outside the replicas'
 prediction interval at level 1 - ``FAMILY_ALPHA`` / K (K statistics, Bonferroni; Student t with
-R - 1 dof, widened by sqrt(1 + 1/R)): a model that is right shows no disagreement in 95% of checks.
+R - 1 dof, widened by sqrt(1 + 1/R)): a model that is right shows no disagreement in 95% of checks. Measured on 100
+effect-free 5-minute logs (``scripts/check_null.py``, docs/results.md "The calibrated check on effect-free logs"): the
+whole log's fit disagreed on 10 (two or more statistics on 1); the search's base model, a fit of the training half, on
+38, where that fit sat in a local optimum of EM, which the replicas, refitted warm from the model that made them, do
+not repeat.
 """
 
 from __future__ import annotations

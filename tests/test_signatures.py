@@ -186,3 +186,12 @@ def test_the_plain_reading_of_a_timing_signature_is_about_timing_not_the_turn_ra
 
     reading = plain_reading(f"turn (sigma) vs {CHANGE_OF['turn']} (strength)", 7.7)
     assert "lag or its response time" in reading and "how fast" not in reading, reading
+
+
+def test_the_plain_reading_of_a_worse_held_out_fit_names_a_fit_short_of_its_best_too():
+    """On effect-free simulated logs the check's held-out NLL disagreed where the base fit sat in a local optimum
+    (docs/results.md, "The calibrated check on effect-free logs"): the reading says so; a better fit's does not."""
+    from learners.discrepancy.statistics import plain_reading
+
+    assert "short of its best" in plain_reading("held-out NLL per sighting (nats)", 8.0)
+    assert "short of its best" not in plain_reading("held-out NLL per sighting (nats)", -8.0)

@@ -125,5 +125,7 @@ def plain_reading(statistic: str, z: float) -> str:
                                                           "tails heavier: a scale mixture of the noise)"))
     if statistic.startswith("mean NIS") or statistic.startswith("held-out NLL"):
         return ("the model predicts the log's sightings " + ("worse" if more else "better")
-                + " than it predicts its own simulation's")
+                + " than it predicts its own simulation's" + (" (an effect it lacks, or a fit short of its best: a "
+                                                             "local optimum of EM; docs/results.md, 'The calibrated "
+                                                             "check on effect-free logs')" if more else ""))
     return f"the log's {statistic} is {'higher' if more else 'lower'} than its simulation's"
