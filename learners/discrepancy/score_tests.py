@@ -6,7 +6,7 @@ keeps each frame's displacement near the model's. A 2% per minute speed fade (``
 ``aibo`` log, seed 4) moves the true speed 7% below the model's in the last two minutes; the smoothed displacement
 moves 1%, and "forward motion vs elapsed time" stayed within its replicas' spread (strength 0.68 against 0.42-1.5).
 
-The score of the alternative (the gradient of the log-likelihood at the fitted model, Louis 1982: the complete-data
+The score of the alternative (the gradient of the log-likelihood at the fitted model; by Fisher's identity the complete-data
 score's expectation under the smoothed path) weights every frame by what the alternative would change, which is the
 locally most powerful test of it (Rao's score test). For a factor (1 + c phi_i) on every component of frame i's
 displacement p_i (mm, mm, rad), with W_i the frame's motion information (``Lowered.frame_cov``'s inverse) and mu*_i
