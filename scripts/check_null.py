@@ -23,9 +23,8 @@ import sys
 from collections import Counter
 from pathlib import Path
 
-from scipy import stats
-
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from diagnose_power import upper95  # noqa: E402
 from signatures_null import fitted_base  # noqa: E402
 
 from aibo_core.atomic import atomic_write, read_jsonl, write_jsonl  # noqa: E402
@@ -57,11 +56,6 @@ def one(seed: int, preset: str, minutes: float, models: Path, which: str, replic
             "disagreements": [[n, z] for n, z in check.disagreements()]}
 
 
-def upper_bound(k: int, n: int) -> float:
-    """Exact (Clopper-Pearson) one-sided 95% upper bound of a rate seen k times in n."""
-    return 1.0 if k >= n else float(stats.beta.ppf(0.95, k + 1, n - k))
-
-
 def summary(done: list[dict]) -> list[str]:
     """The tables of the module docstring, as markdown lines."""
     lines = ["| preset | logs | with any disagreement | 95% upper bound | disagreements per log: 0 / 1 / 2+ | "
@@ -71,7 +65,7 @@ def summary(done: list[dict]) -> list[str]:
         n, counts = len(runs), Counter(min(len(r["disagreements"]), 2) for r in runs)
         k = n - counts[0]
         which = Counter(name for r in runs for name, _ in r["disagreements"])
-        lines.append(f"| {preset} | {n} | **{k}** ({100 * k / max(n, 1):.0f}%) | {100 * upper_bound(k, n):.1f}% | "
+        lines.append(f"| {preset} | {n} | **{k}** ({100 * k / max(n, 1):.0f}%) | {100 * upper95(k, n):.1f}% | "
                      f"{counts[0]} / {counts[1]} / {counts[2]} | "
                      + "; ".join(f"{name} ({c})" for name, c in which.most_common()) + " |")
     return lines
