@@ -3,10 +3,11 @@ robot, and whether the robots agree on it.
 
     python scripts/mrclam_landmark_positions.py [DATA] [--robots 1,2,3,4,5] [--dt 0.1]
 
-DATA defaults to ../shared/data/mrclam7 (never copied into the repository). At the Vicon pose of each sighting's frame
-end: the range residual (measured - true distance to the mapped landmark, mm; a cubic in the distance removed: the
-range curve) and the bearing residual (wrapped, rad; its mean removed), each in its own standard deviation; sightings
-with |bearing residual| >= 0.3 rad or |range residual| >= 500 mm are left out (other robots, misread barcodes).
+DATA defaults to ../shared/data/mrclam7 (never copied into the repository). At the Vicon pose when each sighting was
+made (``learners.scoring.truth_at_sightings``; sightings in the ground truth's gaps left out): the range residual
+(measured - true distance to the mapped landmark, mm; a cubic in the distance removed: the range curve) and the bearing
+residual (wrapped, rad; its mean removed), each in its own standard deviation; sightings with |bearing residual| >=
+0.3 rad or |range residual| >= 500 mm are left out (other robots, misread barcodes).
 
 A landmark truly at its mapped position + delta (mm, world frame) shifts the range by -u . delta and the bearing by
 u_perp . delta / r (u the unit vector from the robot to the landmark): a term that changes with the viewing direction,
@@ -28,6 +29,7 @@ from scipy import stats
 
 from aibo_core.geometry import wrap
 from aibo_core.mrclam import import_robot
+from learners.scoring import truth_at_sightings
 
 OUTLIER_RAD, OUTLIER_MM = 0.3, 500.0
 MIN_SIGHTINGS = 30
@@ -39,18 +41,17 @@ def residuals(folder: Path, robot: int, dt: float) -> dict[str, np.ndarray]:
     sds (``sr`` mm, ``sb`` rad), the distance (mm), the world direction to the landmark and the robot-frame bearing
     (rad), the landmark and the time (s)."""
     tr = import_robot(folder, robot, dt=dt)
-    f = tr.sighting_frame
-    pose = tr.pose[f + 1]
+    known, pose = truth_at_sightings(tr)
     d = tr.landmarks[tr.sighting_landmark, :2] - pose[:, :2]
     dist, psi = np.hypot(d[:, 0], d[:, 1]), np.arctan2(d[:, 1], d[:, 0])
     bearing = wrap(psi - pose[:, 2])
     rr, rb = tr.sighting_value[:, 0] - dist, wrap(tr.sighting_value[:, 1] - bearing)
-    ok = (np.abs(rb) < OUTLIER_RAD) & (np.abs(rr) < OUTLIER_MM)
+    ok = known & (np.abs(rb) < OUTLIER_RAD) & (np.abs(rr) < OUTLIER_MM)
     curve = np.vander(dist[ok] / 1000.0, 4)
     rr = rr[ok] - curve @ np.linalg.lstsq(curve, rr[ok], rcond=None)[0]
     rb = rb[ok] - rb[ok].mean()
     return {"rr": rr / rr.std(), "rb": rb / rb.std(), "sr": rr.std(), "sb": rb.std(), "dist": dist[ok], "psi": psi[ok],
-            "bearing": bearing[ok], "landmark": tr.sighting_landmark[ok], "time": f[ok] * tr.dt}
+            "bearing": bearing[ok], "landmark": tr.sighting_landmark[ok], "time": tr.sighting_frame[ok] * tr.dt}
 
 
 def clustered_fit(a: np.ndarray, y: np.ndarray, block: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
