@@ -27,6 +27,8 @@ NOTHING_WRITTEN = "no output was written or changed (each is written whole, at t
 #: ``aibo diagnose --rounds``' default: ``learners.discrepancy.search.MAX_ROUNDS``, not imported (``--help`` loads no
 #: NumPy; a test checks the two agree)
 DIAGNOSE_ROUNDS = 3
+#: ``aibo diagnose --replicas``' default: ``experiments.calibrated.REPLICAS``, not imported (as ``DIAGNOSE_ROUNDS``)
+DIAGNOSE_REPLICAS = 16
 
 
 class _Parser(argparse.ArgumentParser):
@@ -158,9 +160,9 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument("--action-model", choices=["table", "features", "unicycle"], default=None,
                     help="the base fit's action model, as in 'aibo learn' (default: table for discrete logs, unicycle "
                          "for (v_mm_s, omega_rad_s) commands, features otherwise)")
-    dg.add_argument("--replicas", type=replica_count, default=8,
-                    help="replays of the measured commands in the calibrated simulator, before and after (default 8; "
-                         "0: none; else at least 3)")
+    dg.add_argument("--replicas", type=replica_count, default=DIAGNOSE_REPLICAS,
+                    help="replays of the measured commands in the calibrated simulator, before and after (default "
+                         f"{DIAGNOSE_REPLICAS}; 0: none; else at least 3)")
     dg.set_defaults(run=commands.run_diagnose)
 
     b = sub.add_parser("bench", help="measure E-step and fit speed on this machine")

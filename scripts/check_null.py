@@ -3,7 +3,8 @@ right model shows no disagreement in 95% of checks (``experiments.calibrated``: 
 Student t over the replicas); this measures it.
 
     python scripts/check_null.py [--seeds 50] [--first-seed 6000] [--presets aibo,paper-sim] [--minutes 5]
-                                 [--model base|learn] [--replicas 8] [--jobs 2] [--out DIR] [--table]
+                                 [--model base|learn] [--replicas 16] [--jobs 2] [--out DIR] [--table]
+                                 [--exchangeable R]
 
 Blind simulated logs with no effect, ``--seeds`` per noise preset (interleaved, so a run stopped early covers both);
 on each, a model of it and the calibrated check of that model (``predictive_check``, the replicas' seed 0). The model
@@ -13,7 +14,15 @@ checks; ``learn``, ``aibo learn``'s fit of the whole log (its default options; o
 ``aibo diagnose``'s final fit, which writes the model the check "after" checks. Reported: per preset, the logs with
 any disagreement (target: at most 5%, with its exact 95% upper bound), the count of disagreements per log, and which
 statistics disagreed. Resumable (``runs.jsonl`` in
-``--out``, default ``runs/check_null/MODEL``); writes ``check_null.md`` there.
+``--out``, default ``runs/check_null/MODEL``); writes ``check_null.md`` there. ``--presets`` may name ``wheeled``
+(``WheeledRobot-v0``, random start, 10 frames a second; ``--model learn`` only).
+
+``--exchangeable R`` measures the threshold alone, where the model is exactly right by construction: per log, R
+replicas of its model (``replica_statistics``, saved in ``replicas/``), and each check made of one replica as the
+measured log against ``--replicas`` others drawn at random (``DRAWS`` draws, seeded): the share of those checks with
+any disagreement is the threshold's family false-alarm rate given the statistics' real (not Gaussian) spread. Also
+tabulated with the residual signatures' strength as sqrt(-log10 p) (the stored (-log10 p)^(1/3) to the power 3/2),
+the transform the check used before: the evidence for the cube root (``learners.discrepancy.statistics``).
 """
 
 from __future__ import annotations
@@ -23,6 +32,8 @@ import sys
 from collections import Counter
 from pathlib import Path
 
+import numpy as np
+
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from diagnose_power import upper95  # noqa: E402
 from signatures_null import fitted_base  # noqa: E402
@@ -30,7 +41,8 @@ from signatures_null import fitted_base  # noqa: E402
 from aibo_core.atomic import atomic_write, read_jsonl, write_jsonl  # noqa: E402
 from aibo_core.trajectory import Trajectory, blind  # noqa: E402
 from aibo_gym.collect import collect  # noqa: E402
-from experiments.calibrated import predictive_check  # noqa: E402
+from aibo_gym.collect_wheeled import collect_wheeled  # noqa: E402
+from experiments.calibrated import REPLICAS, Check, predictive_check, replica_statistics  # noqa: E402
 from learners.discrepancy.search import drop_outliers  # noqa: E402
 from learners.em.learner import EMLearner  # noqa: E402
 from learners.em.options import EMOptions  # noqa: E402
@@ -45,15 +57,69 @@ def fitted(tr: Trajectory, which: str, cache: Path) -> tuple[Model, list[Traject
     return model, drop_outliers(model, [tr])[0]
 
 
+DRAWS = 2000  # --exchangeable: checks drawn per log
+
+
+def effect_free(seed: int, preset: str, minutes: float) -> Trajectory:
+    """A blind effect-free log: ``AiboBeacons-v0`` with the noise ``preset``, or ``WheeledRobot-v0`` (``wheeled``)."""
+    if preset == "wheeled":
+        return blind(collect_wheeled({"start_pose": "random"}, int(minutes * 600), seed=seed))
+    return blind(collect({"noise": preset, "effects": {}}, int(minutes * 60 * 30), seed=seed))
+
+
 def one(seed: int, preset: str, minutes: float, models: Path, which: str, replicas: int, jobs: int) -> dict:
     """One effect-free blind log: the check of its ``which`` model, (statistic, z) of every disagreement."""
-    tr = blind(collect({"noise": preset, "effects": {}}, int(minutes * 60 * 30), seed=seed))
+    tr = effect_free(seed, preset, minutes)
     model, logs = fitted(tr, which, models / f"{preset}-{seed}.json")
     check = predictive_check(model, logs, replicas=replicas, seed=0, jobs=jobs)
     return {"seed": seed, "preset": preset, "minutes": minutes, "model": which, "replicas": replicas,
             "statistics": len(check.names),
             "threshold": check.threshold, "failed_replicas": len(check.failed),
             "disagreements": [[n, z] for n, z in check.disagreements()]}
+
+
+def exchangeable(seed: int, preset: str, minutes: float, models: Path, which: str, n: int, replicas: int,
+                 jobs: int) -> dict:
+    """One effect-free log: ``n`` replicas of its ``which`` model, and the share of checks (one replica against
+    ``replicas`` others) with any disagreement, with the strengths as stored and as sqrt(-log10 p)."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    tr = effect_free(seed, preset, minutes)
+    model, logs = fitted(tr, which, models / f"{preset}-{seed}.json")
+    with ProcessPoolExecutor(jobs) as pool:
+        rows = list(pool.map(replica_statistics, [model] * n, [logs] * n, [1000 + 17 * i for i in range(n)]))
+    names = sorted(set.intersection(*(set(r) for r in rows)))
+    values = np.array([[r[k] for k in names] for r in rows])
+    np.savez(models.parent / "replicas" / f"{preset}-{seed}.npz", values=values, names=np.array(names))
+    strengths = np.array([k.endswith("(strength)") for k in names])
+    as_sqrt = np.where(strengths, values ** 1.5, values)
+    return {"seed": seed, "preset": preset, "minutes": minutes, "model": which, "replicas": replicas,
+            "exchangeable": n, "false_alarm": alarm_share(names, values, replicas, seed),
+            "false_alarm_sqrt": alarm_share(names, as_sqrt, replicas, seed)}
+
+
+def alarm_share(names: list[str], values: np.ndarray, replicas: int, seed: int) -> float:
+    """Share of ``DRAWS`` checks (one row of ``values`` as the measured log, ``replicas`` other rows as its replicas)
+    with any disagreement."""
+    rng = np.random.default_rng(seed)
+    hits = 0
+    for _ in range(DRAWS):
+        pick = rng.choice(len(values), replicas + 1, replace=False)
+        hits += bool(Check(names, values[pick[0]], values[pick[1:]]).disagreements())
+    return hits / DRAWS
+
+
+def exchangeable_summary(done: list[dict]) -> list[str]:
+    """Per preset: the mean family false-alarm share of the exchangeable checks, with each strength transform."""
+    lines = ["| preset | logs (replicas each) | any disagreement: (-log10 p)^(1/3), mean (range) | sqrt(-log10 p) |",
+             "|---|---|---|---|"]
+    for preset in sorted({r["preset"] for r in done}) + ["all"]:
+        runs = [r for r in done if preset in ("all", r["preset"])]
+        cube, root = (np.array([r[k] for r in runs]) for k in ("false_alarm", "false_alarm_sqrt"))
+        lines.append(f"| {preset} | {len(runs)} ({runs[0]['exchangeable']}) | **{100 * cube.mean():.1f}%** "
+                     f"({100 * cube.min():.1f}-{100 * cube.max():.1f}%) | {100 * root.mean():.1f}% "
+                     f"({100 * root.min():.1f}-{100 * root.max():.1f}%) |")
+    return lines
 
 
 def summary(done: list[dict]) -> list[str]:
@@ -78,14 +144,18 @@ def main() -> None:
     ap.add_argument("--minutes", type=float, default=5.0)
     ap.add_argument("--first-seed", type=int, default=6000, help="the logs' seeds are this and the next --seeds - 1")
     ap.add_argument("--model", choices=("base", "learn"), default="base")
-    ap.add_argument("--replicas", type=int, default=8)
+    ap.add_argument("--replicas", type=int, default=REPLICAS)
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--out", default=None, help="default runs/check_null/MODEL")
     ap.add_argument("--table", action="store_true", help="print the table of the rows so far and stop")
+    ap.add_argument("--exchangeable", type=int, default=0, metavar="R",
+                    help="measure the threshold alone: R replicas per log, each checked against --replicas others")
     args = ap.parse_args()
-    out = Path(args.out or f"runs/check_null/{args.model}")
+    out = Path(args.out or f"runs/check_null/{args.model}" + ("-exchangeable" if args.exchangeable else ""))
     models = out / "models"
     models.mkdir(parents=True, exist_ok=True)
+    if args.exchangeable:
+        (out / "replicas").mkdir(exist_ok=True)
     done_path = out / "runs.jsonl"
     done = read_jsonl(done_path)
     have = {(r["seed"], r["preset"]) for r in done}
@@ -93,12 +163,18 @@ def main() -> None:
         for preset in args.presets.split(","):
             if (args.first_seed + s, preset) in have:
                 continue
-            r = one(args.first_seed + s, preset, args.minutes, models, args.model, args.replicas, args.jobs)
+            if args.exchangeable:
+                r = exchangeable(args.first_seed + s, preset, args.minutes, models, args.model, args.exchangeable,
+                                 args.replicas, args.jobs)
+                said = f"false alarms {100 * r['false_alarm']:.1f}% ({100 * r['false_alarm_sqrt']:.1f}% with sqrt)"
+            else:
+                r = one(args.first_seed + s, preset, args.minutes, models, args.model, args.replicas, args.jobs)
+                said = "; ".join(f"{n} z = {z:+.1f}" for n, z in r["disagreements"]) or "no disagreement"
             done.append(r)
             write_jsonl(done_path, done)
-            said = "; ".join(f"{n} z = {z:+.1f}" for n, z in r["disagreements"]) or "no disagreement"
             print(f"{preset} seed {r['seed']}: {said}", flush=True)
-    text = "\n".join([f"# The calibrated check of the {args.model} model on effect-free logs", "", *summary(done)]) + "\n"
+    table = exchangeable_summary(done) if args.exchangeable else summary(done)
+    text = "\n".join([f"# The calibrated check of the {args.model} model on effect-free logs", "", *table]) + "\n"
     atomic_write(out / "check_null.md", lambda f: f.write(text.encode()))
     print(text)
 

@@ -2,7 +2,7 @@
 calibrated simulator on): the table of effect, true parameters, what was named with its estimate,
 gap before and after, calibrated-simulator disagreements before and after, and seconds.
 
-    python scripts/diagnose_table.py [--minutes 10] [--seed 11] [--replicas 8] [--out runs/diagnose_table]
+    python scripts/diagnose_table.py [--minutes 10] [--seed 11] [--replicas 16] [--out runs/diagnose_table]
 
 Logs: ``aibo`` noise preset, random-balanced policy; ``wall_contact`` with paths that leave the field
 by 800 mm (the policy's ``margin_mm``), so that the walls are hit. Writes ``OUT/table.md`` and each
@@ -19,7 +19,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from aibo.cli import main  # noqa: E402
+from aibo.cli import DIAGNOSE_REPLICAS, main  # noqa: E402
 from aibo.diagnose_report import short  # noqa: E402
 from aibo_core.trajectory import blind, save  # noqa: E402
 from aibo_gym.collect import collect  # noqa: E402
@@ -77,7 +77,7 @@ def main_script() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--minutes", type=float, default=10.0)
     ap.add_argument("--seed", type=int, default=11)
-    ap.add_argument("--replicas", type=int, default=8)
+    ap.add_argument("--replicas", type=int, default=DIAGNOSE_REPLICAS)
     ap.add_argument("--cases", default=",".join(CASES))
     ap.add_argument("--out", default="runs/diagnose_table")
     args = ap.parse_args()

@@ -16,7 +16,7 @@ import pytest
 from aibo_core import trajectory
 from aibo_gym.collect import collect
 from aibo_gym.collect_wheeled import collect_wheeled
-from experiments.calibrated import predictive_check
+from experiments.calibrated import REPLICAS, predictive_check
 from learners.discrepancy.fitting import held
 from learners.em.learner import EMLearner
 from learners.em.options import EMOptions
@@ -30,7 +30,7 @@ UNSEEN = {
 }
 
 
-#: effect -> what was measured where the check does not yet see it at the EXAMPLE strength (5-minute logs, 8 replicas;
+#: effect -> what was measured where the check does not yet see it at the EXAMPLE strength (5-minute logs, REPLICAS;
 #: a strict xfail: the day a statistic sees it, the test says so)
 NOT_YET: dict[str, str] = {}
 
@@ -61,7 +61,7 @@ STAND_IN = {"response_time": "lag_search"}
 MINUTES = {"floor_drift": 10.0, "beacon_height_scale": 10.0, "landmark_bearing_offset": 10.0, "velocity_fade": 10.0}
 
 
-def _separating(name: str, seed: int = 4, replicas: int = 8, minutes: float = 5.0) -> tuple[list[str], list[str]]:
+def _separating(name: str, seed: int = 4, replicas: int = REPLICAS, minutes: float = 5.0) -> tuple[list[str], list[str]]:
     """(the statistics that disagree without effect ``name`` on a log of ``minutes``, those that still disagree with it
     fitted)."""
     cls = EFFECT_MODELS[name]

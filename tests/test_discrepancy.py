@@ -133,6 +133,8 @@ def test_a_log_from_another_generator(tmp_path):
     # a continuous-command model with a range sensor gets the wheeled simulator (WheeledRobot-v0): the check runs,
     # and the named drift takes the world-heading signature out of the disagreements
     cal = report["calibrated_simulation"]
-    assert {"before", "after"} <= set(cal) and cal["before"]["replicas"] == 8, cal.get("note")
+    from experiments.calibrated import REPLICAS
+
+    assert {"before", "after"} <= set(cal) and cal["before"]["replicas"] == REPLICAS, cal.get("note")
     named = [d["statistic"] for d in cal["after"]["disagreements"]]
     assert not any("world heading" in n for n in named), named

@@ -534,6 +534,13 @@ def test_the_rounds_default_of_the_command_is_the_searchs():
     assert DIAGNOSE_ROUNDS == MAX_ROUNDS
 
 
+def test_the_replicas_default_of_the_command_is_the_checks():
+    from aibo.cli import DIAGNOSE_REPLICAS
+    from experiments.calibrated import REPLICAS
+
+    assert DIAGNOSE_REPLICAS == REPLICAS
+
+
 def _tried(name, round_, significant=True, gain=100.0):
     return {"name": name, "round": round_, "significant": significant, "gain_train": gain, "gain_heldout": gain,
             "p_value": 1e-20, "note": "the Fisher information overstates the data's by x4.14 (sandwich, 30 s blocks)"}

@@ -195,3 +195,16 @@ def test_the_plain_reading_of_a_worse_held_out_fit_names_a_fit_short_of_its_best
 
     assert "short of its best" in plain_reading("held-out NLL per sighting (nats)", 8.0)
     assert "short of its best" not in plain_reading("held-out NLL per sighting (nats)", -8.0)
+
+
+def test_a_signature_s_strength_is_near_gaussian_where_the_signature_is_absent():
+    """The check compares a statistic with its replicas as if Gaussian; a signature's strength is (-log10 p)^(1/3).
+    Under a true null p is uniform, -log10 p an exponential / ln 10, its cube root a Weibull of shape 3: skewness
+    0.168 (the square root, a Rayleigh: 0.631). A p a rounding above 1 has strength 0; one below 1e-300 the cap's."""
+    from learners.discrepancy.statistics import MAX_STRENGTH, strength
+
+    p = np.random.default_rng(3).uniform(size=200_000)
+    s = np.array([strength(x) for x in p])
+    assert abs(stats.skew(s) - 0.168) < 0.02, stats.skew(s)
+    assert strength(1.0 + 1e-12) == 0.0 and strength(1.0) == 0.0
+    assert strength(0.0) == pytest.approx(MAX_STRENGTH ** (1 / 3)) and strength(1e-3) == pytest.approx(3 ** (1 / 3))
