@@ -23,11 +23,12 @@ statistic of :mod:`learners.discrepancy.statistics`); the measured value of a st
 with the replicas' spread as z = (measured - mean) / sd. Where the model is right, the measured log
 looks like one more replica. A statistic disagrees when the measured value is outside the replicas'
 prediction interval at level 1 - ``FAMILY_ALPHA`` / K (K statistics, Bonferroni; Student t with
-R - 1 dof, widened by sqrt(1 + 1/R)): a model that is right shows no disagreement in 95% of checks. Measured on 100
-effect-free 5-minute logs (``scripts/check_null.py``, docs/results.md "The calibrated check on effect-free logs"): the
-whole log's fit disagreed on 10 (two or more statistics on 1); the search's base model, a fit of the training half, on
-38, where that fit sat in a local optimum of EM, which the replicas, refitted warm from the model that made them, do
-not repeat.
+R - 1 dof, widened by sqrt(1 + 1/R)): a model that is right shows no disagreement in 95% of checks, where each
+statistic's spread over the replicas is near Gaussian (a residual signature's strength is (-log10 p)^(1/3) for that:
+:mod:`learners.discrepancy.statistics`). Measured on 100 effect-free 5-minute logs (``scripts/check_null.py``,
+docs/results.md "The calibrated check on effect-free logs"): the whole log's fit disagreed on 3 (16 replicas; none on
+two statistics); the search's base model, a fit of the training half, on more, where that fit sat in a local optimum of
+EM, which the replicas, refitted warm from the model that made them, do not repeat.
 """
 
 from __future__ import annotations
@@ -60,10 +61,11 @@ FAMILY_ALPHA = 0.05  # chance that a right model shows any disagreement in one c
 #: disagrees whatever the data); ``aibo diagnose --replicas`` refuses 1 and 2.
 MIN_REPLICAS = 3
 #: The replicas of a check by default (``aibo diagnose --replicas``). With the signatures' strengths as (-log10 p)^(1/3)
-#: the family's false alarms stay at 4.6-5.1% whatever the number (4, 8, 16, 24; 30 effect-free models, each replica in
-#: turn checked against the others: docs/results.md, "The calibrated check on effect-free logs"), and more replicas
-#: lower the threshold (|z| 5.5 with 8, 4.1 with 16): an effect is seen at half the strength in (4.1 / 5.5)^2 of the
-#: log. 16 replicas of a 15-minute MRCLAM log take about 10 s on 2 cores.
+#: the family's false alarms stay at 4.3-5.2% whatever the number (4, 8, 16 or 24; 30 effect-free models of three
+#: generators, one replica checked against others: docs/results.md, "The calibrated check on effect-free logs"), and
+#: more replicas lower the threshold (|z| 5.54 with 8, 4.08 with 16), so the check sees weaker effects: with 8 the cube
+#: root left two catalogue effects below it (``tests/test_check_sees_effects.py``), with 16 none. The check of a
+#: 15-minute MRCLAM log then takes 8-10 s on 2 cores (4-5 s with 8).
 REPLICAS = 16
 #: The replicas' refit: a warm-started polish, as the search's fits of the measured log are (one start, no alias
 #: search: from the generating model there is no heading alias to escape, and it took 0.8 of a replica's 1.8 s on a

@@ -18,9 +18,10 @@ statistics disagreed. Resumable (``runs.jsonl`` in
 (``WheeledRobot-v0``, random start, 10 frames a second; ``--model learn`` only).
 
 ``--exchangeable R`` measures the threshold alone, where the model is exactly right by construction: per log, R
-replicas of its model (``replica_statistics``, saved in ``replicas/``), and each check made of one replica as the
-measured log against ``--replicas`` others drawn at random (``DRAWS`` draws, seeded): the share of those checks with
-any disagreement is the threshold's family false-alarm rate given the statistics' real (not Gaussian) spread. Also
+replicas of its model (``replica_statistics``, saved in ``replicas/`` and reused), and each check made of one replica
+as the measured log against 4, 8, 16 or 24 others (``COUNTS``) drawn at random (``DRAWS`` draws each, seeded): the
+share of those checks with any disagreement is the threshold's family false-alarm rate given the statistics' real (not
+Gaussian) spread. Also
 tabulated with the residual signatures' strength as sqrt(-log10 p) (the stored (-log10 p)^(1/3) to the power 3/2),
 the transform the check used before: the evidence for the cube root (``learners.discrepancy.statistics``).
 """
@@ -57,7 +58,8 @@ def fitted(tr: Trajectory, which: str, cache: Path) -> tuple[Model, list[Traject
     return model, drop_outliers(model, [tr])[0]
 
 
-DRAWS = 2000  # --exchangeable: checks drawn per log
+DRAWS = 2000  # --exchangeable: checks drawn per log and count of replicas
+COUNTS = (4, 8, 16, 24)  # --exchangeable: the counts of replicas a check is made with
 
 
 def effect_free(seed: int, preset: str, minutes: float) -> Trajectory:
@@ -78,24 +80,30 @@ def one(seed: int, preset: str, minutes: float, models: Path, which: str, replic
             "disagreements": [[n, z] for n, z in check.disagreements()]}
 
 
-def exchangeable(seed: int, preset: str, minutes: float, models: Path, which: str, n: int, replicas: int,
-                 jobs: int) -> dict:
-    """One effect-free log: ``n`` replicas of its ``which`` model, and the share of checks (one replica against
-    ``replicas`` others) with any disagreement, with the strengths as stored and as sqrt(-log10 p)."""
+def exchangeable(seed: int, preset: str, minutes: float, models: Path, which: str, n: int, jobs: int) -> dict:
+    """One effect-free log: ``n`` replicas of its ``which`` model (saved in ``replicas/``, reused when there), and per
+    count of ``COUNTS`` the share of checks (one replica against that many others) with any disagreement, with the
+    strengths as stored and as sqrt(-log10 p)."""
     from concurrent.futures import ProcessPoolExecutor
 
-    tr = effect_free(seed, preset, minutes)
-    model, logs = fitted(tr, which, models / f"{preset}-{seed}.json")
-    with ProcessPoolExecutor(jobs) as pool:
-        rows = list(pool.map(replica_statistics, [model] * n, [logs] * n, [1000 + 17 * i for i in range(n)]))
-    names = sorted(set.intersection(*(set(r) for r in rows)))
-    values = np.array([[r[k] for k in names] for r in rows])
-    np.savez(models.parent / "replicas" / f"{preset}-{seed}.npz", values=values, names=np.array(names))
-    strengths = np.array([k.endswith("(strength)") for k in names])
-    as_sqrt = np.where(strengths, values ** 1.5, values)
-    return {"seed": seed, "preset": preset, "minutes": minutes, "model": which, "replicas": replicas,
-            "exchangeable": n, "false_alarm": alarm_share(names, values, replicas, seed),
-            "false_alarm_sqrt": alarm_share(names, as_sqrt, replicas, seed)}
+    saved = models.parent / "replicas" / f"{preset}-{seed}.npz"
+    if saved.exists():
+        with np.load(saved) as z:
+            names, values = [str(k) for k in z["names"]], z["values"]
+    else:
+        tr = effect_free(seed, preset, minutes)
+        model, logs = fitted(tr, which, models / f"{preset}-{seed}.json")
+        with ProcessPoolExecutor(jobs) as pool:
+            rows = list(pool.map(replica_statistics, [model] * n, [logs] * n, [1000 + 17 * i for i in range(n)]))
+        names = sorted(set.intersection(*(set(r) for r in rows)))
+        values = np.array([[r[k] for k in names] for r in rows])
+        atomic_write(saved, lambda f: np.savez(f, values=values, names=np.array(names)))
+    as_sqrt = values.copy()
+    strengths = [k.endswith("(strength)") for k in names]
+    as_sqrt[:, strengths] = values[:, strengths] ** 1.5
+    return {"seed": seed, "preset": preset, "minutes": minutes, "model": which, "exchangeable": len(values),
+            "false_alarm": {str(r): alarm_share(names, values, r, seed) for r in COUNTS},
+            "false_alarm_sqrt": {str(r): alarm_share(names, as_sqrt, r, seed) for r in COUNTS}}
 
 
 def alarm_share(names: list[str], values: np.ndarray, replicas: int, seed: int) -> float:
@@ -110,15 +118,17 @@ def alarm_share(names: list[str], values: np.ndarray, replicas: int, seed: int) 
 
 
 def exchangeable_summary(done: list[dict]) -> list[str]:
-    """Per preset: the mean family false-alarm share of the exchangeable checks, with each strength transform."""
-    lines = ["| preset | logs (replicas each) | any disagreement: (-log10 p)^(1/3), mean (range) | sqrt(-log10 p) |",
-             "|---|---|---|---|"]
+    """Per preset and count of replicas: the mean family false-alarm share of the exchangeable checks (range over
+    the logs), with each strength transform."""
+    lines = ["| preset | logs | replicas | any disagreement: (-log10 p)^(1/3), mean (range over the logs) | "
+             "sqrt(-log10 p) |", "|---|---|---|---|---|"]
     for preset in sorted({r["preset"] for r in done}) + ["all"]:
         runs = [r for r in done if preset in ("all", r["preset"])]
-        cube, root = (np.array([r[k] for r in runs]) for k in ("false_alarm", "false_alarm_sqrt"))
-        lines.append(f"| {preset} | {len(runs)} ({runs[0]['exchangeable']}) | **{100 * cube.mean():.1f}%** "
-                     f"({100 * cube.min():.1f}-{100 * cube.max():.1f}%) | {100 * root.mean():.1f}% "
-                     f"({100 * root.min():.1f}-{100 * root.max():.1f}%) |")
+        for count in COUNTS:
+            cube, root = (np.array([r[k][str(count)] for r in runs]) for k in ("false_alarm", "false_alarm_sqrt"))
+            lines.append(f"| {preset} | {len(runs)} | {count} of {runs[0]['exchangeable']} | "
+                         f"**{100 * cube.mean():.1f}%** ({100 * cube.min():.1f}-{100 * cube.max():.1f}%) | "
+                         f"{100 * root.mean():.1f}% ({100 * root.min():.1f}-{100 * root.max():.1f}%) |")
     return lines
 
 
@@ -165,8 +175,8 @@ def main() -> None:
                 continue
             if args.exchangeable:
                 r = exchangeable(args.first_seed + s, preset, args.minutes, models, args.model, args.exchangeable,
-                                 args.replicas, args.jobs)
-                said = f"false alarms {100 * r['false_alarm']:.1f}% ({100 * r['false_alarm_sqrt']:.1f}% with sqrt)"
+                                 args.jobs)
+                said = "false alarms " + ", ".join(f"{100 * r['false_alarm'][str(c)]:.1f}% with {c}" for c in COUNTS)
             else:
                 r = one(args.first_seed + s, preset, args.minutes, models, args.model, args.replicas, args.jobs)
                 said = "; ".join(f"{n} z = {z:+.1f}" for n, z in r["disagreements"]) or "no disagreement"

@@ -16,7 +16,8 @@ Four kinds:
   Measured (30 models of effect-free 5-minute logs, `aibo`, `paper-sim` and `WheeledRobot-v0`, 40 replicas each,
   each replica in turn checked against 8 others; docs/results.md, "The calibrated check on effect-free logs"):
   the signatures' median skewness over the replicas 0.08-0.14 with the cube root, 0.45-0.55 with the square root
-  used before, and the check's family false alarms 4.7-5.0% against 7.1-8.7%;
+  used before, and the check's family false alarms with 8 replicas 4.9-5.2% against 7.3-9.1% (with 4 to 24 replicas
+  4.3-5.2%, where the square root's grow to 8.9-12.4%);
 - score statistics (:mod:`learners.discrepancy.score_tests`): how strongly the log pulls the model towards a generic
   alternative (a speed that changes over the log), where a signature of the smoothed motion is attenuated;
 - the data alone: sightings per frame, size quantiles (px or mm), spread of the bearings (rad).
