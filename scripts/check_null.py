@@ -21,9 +21,9 @@ statistics disagreed. Resumable (``runs.jsonl`` in
 replicas of its model (``replica_statistics``, saved in ``replicas/`` and reused), and each check made of one replica
 as the measured log against 4, 8, 16 or 24 others (``COUNTS``) drawn at random (``DRAWS`` draws each, seeded): the
 share of those checks with any disagreement is the threshold's family false-alarm rate given the statistics' real (not
-Gaussian) spread. Also
-tabulated with the residual signatures' strength as sqrt(-log10 p) (the stored (-log10 p)^(1/3) to the power 3/2),
-the transform the check used before: the evidence for the cube root (``learners.discrepancy.statistics``).
+Gaussian) spread. Also tabulated (and drawn: ``false_alarms.png``) with the residual signatures' strength as
+sqrt(-log10 p) (the stored (-log10 p)^(1/3) to the power 3/2), the transform the check used before: the evidence for
+the cube root (``learners.discrepancy.statistics``).
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ from aibo_core.atomic import atomic_write, read_jsonl, write_jsonl  # noqa: E402
 from aibo_core.trajectory import Trajectory, blind  # noqa: E402
 from aibo_gym.collect import collect  # noqa: E402
 from aibo_gym.collect_wheeled import collect_wheeled  # noqa: E402
-from experiments.calibrated import REPLICAS, Check, predictive_check, replica_statistics  # noqa: E402
+from experiments.calibrated import FAMILY_ALPHA, REPLICAS, Check, predictive_check, replica_statistics  # noqa: E402
 from learners.discrepancy.search import drop_outliers  # noqa: E402
 from learners.em.learner import EMLearner  # noqa: E402
 from learners.em.options import EMOptions  # noqa: E402
@@ -132,6 +132,32 @@ def exchangeable_summary(done: list[dict]) -> list[str]:
     return lines
 
 
+def false_alarm_figure(done: list[dict], path: Path) -> None:
+    """The exchangeable checks' mean false-alarm share against the count of replicas, per generator and strength
+    transform, beside the nominal 5%."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.5, 4))
+    for preset, color in zip(sorted({r["preset"] for r in done}), ("C0", "C1", "C2", "C3")):
+        runs = [r for r in done if r["preset"] == preset]
+        for key, style, label in (("false_alarm", "-o", "(-log10 p)^(1/3)"), ("false_alarm_sqrt", "--s", "sqrt(-log10 p)")):
+            rates = [100 * np.mean([r[key][str(c)] for r in runs]) for c in COUNTS]
+            ax.plot(COUNTS, rates, style, color=color, label=f"{preset}, {label}")
+    ax.axhline(100 * FAMILY_ALPHA, color="k", ls=":", label="nominal")
+    ax.set_xticks(COUNTS)
+    ax.set_xlabel("replicas in the check")
+    ax.set_ylabel("checks with any disagreement (%)")
+    ax.set_ylim(0, None)
+    ax.legend(fontsize=7, ncol=2)
+    ax.set_title("The calibrated check where the model is right (one replica against others)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
 def summary(done: list[dict]) -> list[str]:
     """The tables of the module docstring, as markdown lines."""
     lines = ["| preset | logs | with any disagreement | 95% upper bound | disagreements per log: 0 / 1 / 2+ | "
@@ -184,6 +210,8 @@ def main() -> None:
             write_jsonl(done_path, done)
             print(f"{preset} seed {r['seed']}: {said}", flush=True)
     table = exchangeable_summary(done) if args.exchangeable else summary(done)
+    if args.exchangeable:
+        false_alarm_figure(done, out / "false_alarms.png")
     text = "\n".join([f"# The calibrated check of the {args.model} model on effect-free logs", "", *table]) + "\n"
     atomic_write(out / "check_null.md", lambda f: f.write(text.encode()))
     print(text)
