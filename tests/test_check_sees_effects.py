@@ -30,8 +30,8 @@ UNSEEN = {
 }
 
 
-#: effect -> what was measured where the check does not yet see it at the EXAMPLE strength (5-minute logs, REPLICAS;
-#: a strict xfail: the day a statistic sees it, the test says so)
+#: effect -> what was measured where the check does not yet see it at the EXAMPLE strength (5-minute logs, ``REPLICAS``
+#: replicas; a strict xfail: the day a statistic sees it, the test says so)
 NOT_YET: dict[str, str] = {}
 
 
