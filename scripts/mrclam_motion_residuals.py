@@ -10,6 +10,13 @@ over the turning ones in thirds of the commanded turn rate |omega|, and over tho
 DATA defaults to ../shared/data/mrclam7 (never copied into the repository). Vicon's own noise is in every row alike.
 The evidence for ``turn_heading_noise`` (docs/results.md, "Motion noise that grows with the turn"): the heading's
 residual grows with |omega|, the forward one does not.
+
+Then two tables on where in the turns it grows (docs/results.md, "The heading's noise comes at the changes of the
+command"): the heading residual's sd by the time since the commanded turn rate last changed (by more than
+``CHANGE_RAD_S``), turning and driving straight; and the heading residuals' Gaussian log-likelihood with a standard
+deviation s0 sqrt(1 + (g x_i)^2), (s0, g) fitted per robot, for x_i the commanded |omega_i| (``turn_heading_noise``'s
+form) or the largest change of the commanded turn rate |omega_j - omega_(j-1)| over a window of frames j around i, in
+nats against a constant sd.
 """
 
 from __future__ import annotations
@@ -32,15 +39,28 @@ MAX_HEADING_STEP = 0.5  # rad: a frame whose Vicon heading jumps more is a track
 STRAIGHT_RAD_S = 0.01  # a frame commanded to turn slower than this drives straight
 
 
-def residual_rows(tr) -> list[tuple[str, int, np.ndarray, float]]:
-    """(label, frames, sd of the (forward mm, lateral mm, heading mrad) residual, mean commanded |omega| rad/s): the
-    frames driving straight, the turning ones in thirds of |omega|, the frames commanded to stand still."""
+CHANGE_RAD_S = 0.02  # a change of the commanded turn rate between frames larger than this is a change of the command
+SINCE_BINS_S = (0.0, 0.3, 1.0, 3.0, np.inf)  # the time-since-change bins (s)
+#: the variables of the heading variance compared: label -> frame offsets j - i of the window (None: |omega| itself)
+WINDOWS = {"|omega| (turn_heading_noise)": None, "change into the frame": (0,), "changes over frames i-2..i": (-2, -1, 0),
+           "changes over frames i-1..i+1": (-1, 0, 1), "changes over frames i-2..i+2": (-2, -1, 0, 1, 2)}
+
+
+def frame_residuals(tr) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(each frame's residual: Vicon's displacement minus the one ``aibo learn``'s model commands (mm, mm, rad), the
+    frames to use, the commanded turn rate (rad/s, signed), the commanded forward speed (mm/s))."""
     model = EMLearner(EMOptions(uncertainty=False), check_field=False).fit([tr]).params
     lo = model.lower(make_batch([tr]))
     res = rel_disp(tr.pose[:-1], tr.pose[1:]) - lo.disp
     ok = np.all(np.isfinite(res), axis=1) & (np.abs(res[:, 2]) < MAX_HEADING_STEP)
-    omega = np.abs(lo.disp[:, 2]) / tr.dt
-    speed = np.abs(lo.disp[:, 0]) / tr.dt
+    return res, ok, lo.disp[:, 2] / tr.dt, lo.disp[:, 0] / tr.dt
+
+
+def residual_rows(res: np.ndarray, ok: np.ndarray, omega: np.ndarray, speed: np.ndarray) -> list[tuple[str, int, np.ndarray, float]]:
+    """(label, frames, sd of the (forward mm, lateral mm, heading mrad) residual, mean commanded |omega| rad/s) of
+    ``frame_residuals``' output: the frames driving straight, the turning ones in thirds of |omega|, the frames
+    commanded to stand still."""
+    omega, speed = np.abs(omega), np.abs(speed)
     straight = ok & (omega < STRAIGHT_RAD_S) & (speed >= 1.0)
     rows = [("straight (|omega| < 0.01 rad/s)", int(straight.sum()), res[straight].std(axis=0) * [1, 1, 1000],
              float(omega[straight].mean()))]
@@ -54,6 +74,53 @@ def residual_rows(tr) -> list[tuple[str, int, np.ndarray, float]]:
     rows.append(("standing still", int(still.sum()), res[still].std(axis=0) * [1, 1, 1000] if still.any() else
                  np.full(3, np.nan), 0.0))
     return rows
+
+
+def command_changes(omega: np.ndarray) -> np.ndarray:
+    """(N,) |omega_i - omega_(i-1)| (rad/s), 0 for the first frame."""
+    return np.abs(np.diff(omega, prepend=omega[0]))
+
+
+def change_rows(res: np.ndarray, ok: np.ndarray, omega: np.ndarray, dt: float) -> list[tuple[str, int, float, float]]:
+    """(label, frames, heading residual sd mrad, mean commanded |omega| rad/s) by the time since the commanded turn rate
+    last changed by more than ``CHANGE_RAD_S``, for the turning frames and those driving straight."""
+    changed = command_changes(omega) > CHANGE_RAD_S
+    since = np.empty(len(omega))
+    t = np.inf
+    for i, c in enumerate(changed):
+        t = 0.0 if c else t + dt
+        since[i] = t
+    rows = []
+    for what, moving in (("turning", np.abs(omega) >= STRAIGHT_RAD_S), ("straight", np.abs(omega) < STRAIGHT_RAD_S)):
+        for a, b in zip(SINCE_BINS_S[:-1], SINCE_BINS_S[1:]):
+            sel = ok & moving & (since >= a) & (since < b)
+            rows.append((f"{what}, {a:g}-{b:g} s since a change", int(sel.sum()),
+                         float(res[sel, 2].std() * 1000) if sel.any() else np.nan,
+                         float(np.abs(omega[sel]).mean()) if sel.any() else np.nan))
+    return rows
+
+
+def variance_gains(res: np.ndarray, ok: np.ndarray, omega: np.ndarray) -> dict[str, tuple[float, float]]:
+    """Per variable of ``WINDOWS``: (log-likelihood gain in nats of sd = s0 sqrt(1 + (g x)^2) over a constant sd, the
+    fitted g in s/rad) for the heading residuals of the frames ``ok``."""
+    from scipy.optimize import minimize
+
+    h = res[ok, 2]
+    constant = 0.5 * len(h) * (np.log(h.var()) + 1.0)
+    change = command_changes(omega)
+    out = {}
+    for label, window in WINDOWS.items():
+        x = np.abs(omega) if window is None else np.max([np.roll(change, -j) for j in window], axis=0)
+        x = x[ok]
+
+        def nll(p: np.ndarray) -> float:
+            var = np.exp(2.0 * p[0]) * (1.0 + (np.exp(p[1]) * x) ** 2)
+            return 0.5 * float(np.sum(np.log(var) + h * h / var))
+
+        fits = [minimize(nll, [np.log(h.std()), g0], method="Nelder-Mead") for g0 in (0.0, 2.0, 4.0)]
+        best = min(fits, key=lambda f: f.fun)
+        out[label] = (constant - best.fun, float(np.exp(best.x[1])))
+    return out
 
 
 def figure(rows: dict[int, list[tuple[str, int, np.ndarray, float]]], path: Path) -> None:
@@ -95,11 +162,22 @@ def main(argv=None) -> int:
     if data is None:
         return 2
     print("| robot | frames commanded | n | forward mm | lateral mm | heading mrad |\n|---|---|---|---|---|---|")
-    found = {}
+    found, by_change, gains = {}, {}, {}
     for r in robots(args.robots):
-        found[r] = residual_rows(import_robot(data, r))
+        tr = import_robot(data, r)
+        res, ok, omega, speed = frame_residuals(tr)
+        found[r] = residual_rows(res, ok, omega, speed)
+        by_change[r] = change_rows(res, ok, omega, tr.dt)
+        gains[r] = variance_gains(res, ok, omega)
         for label, n, sd, _ in found[r]:
             print(f"| {r} | {label} | {n} | {sd[0]:.2f} | {sd[1]:.2f} | {sd[2]:.2f} |", flush=True)
+    print("\n| robot | frames | n | heading mrad | mean commanded \\|omega\\| rad/s |\n|---|---|---|---|---|")
+    for r, rows in by_change.items():
+        for label, n, sd, om in rows:
+            print(f"| {r} | {label} | {n} | {sd:.2f} | {om:.3f} |")
+    print("\n| robot | " + " | ".join(k.replace("|", "\\|") for k in WINDOWS) + " |\n" + "|---" * (len(WINDOWS) + 1) + "|")
+    for r, g in gains.items():
+        print(f"| {r} | " + " | ".join(f"+{v:.0f} (g {k:.0f} s/rad)" for v, k in g.values()) + " |")
     if args.png:
         figure(found, Path(args.png))
         print(f"wrote {args.png}")
