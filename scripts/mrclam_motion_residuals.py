@@ -11,12 +11,12 @@ DATA defaults to ../shared/data/mrclam7 (never copied into the repository). Vico
 The evidence for ``turn_heading_noise`` (docs/results.md, "Motion noise that grows with the turn"): the heading's
 residual grows with |omega|, the forward one does not.
 
-Then two tables on where in the turns it grows (docs/results.md, "The heading's noise comes at the changes of the
-command"): the heading residual's sd by the time since the commanded turn rate last changed (by more than
-``CHANGE_RAD_S``), turning and driving straight; and the heading residuals' Gaussian log-likelihood with a standard
-deviation s0 sqrt(1 + (g x_i)^2), (s0, g) fitted per robot, for x_i the commanded |omega_i| (``turn_heading_noise``'s
-form) or the largest change of the commanded turn rate |omega_j - omega_(j-1)| over a window of frames j around i, in
-nats against a constant sd.
+Then two tables on where in the turns it grows (docs/results.md, "Where in the turns the heading's noise is"): the
+heading residual's per-frame sd by the time since the commanded turn rate last changed (by more than
+``CHANGE_RAD_S``), turning and driving straight; and the sd of its sum over 1 s windows (``WINDOW_FRAMES``) driving
+straight, turning steadily (no change in the window or the ``QUIET_BEFORE`` frames before it) and turning with
+changes. Vicon's own per-frame noise is negatively correlated from frame to frame (a difference of noisy poses), so
+per frame it hides how much the heading wanders while turning; summed over a second it cancels.
 """
 
 from __future__ import annotations
@@ -41,9 +41,8 @@ STRAIGHT_RAD_S = 0.01  # a frame commanded to turn slower than this drives strai
 
 CHANGE_RAD_S = 0.02  # a change of the commanded turn rate between frames larger than this is a change of the command
 SINCE_BINS_S = (0.0, 0.3, 1.0, 3.0, np.inf)  # the time-since-change bins (s)
-#: the variables of the heading variance compared: label -> frame offsets j - i of the window (None: |omega| itself)
-WINDOWS = {"|omega| (turn_heading_noise)": None, "change into the frame": (0,), "changes over frames i-2..i": (-2, -1, 0),
-           "changes over frames i-1..i+1": (-1, 0, 1), "changes over frames i-2..i+2": (-2, -1, 0, 1, 2)}
+WINDOW_FRAMES = 10  # the sums' windows (frames: 1 s at MRCLAM's 0.1 s)
+QUIET_BEFORE = 3  # frames before a steady turn's window without a change of the command
 
 
 def frame_residuals(tr) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -100,27 +99,24 @@ def change_rows(res: np.ndarray, ok: np.ndarray, omega: np.ndarray, dt: float) -
     return rows
 
 
-def variance_gains(res: np.ndarray, ok: np.ndarray, omega: np.ndarray) -> dict[str, tuple[float, float]]:
-    """Per variable of ``WINDOWS``: (log-likelihood gain in nats of sd = s0 sqrt(1 + (g x)^2) over a constant sd, the
-    fitted g in s/rad) for the heading residuals of the frames ``ok``."""
-    from scipy.optimize import minimize
-
-    h = res[ok, 2]
-    constant = 0.5 * len(h) * (np.log(h.var()) + 1.0)
-    change = command_changes(omega)
-    out = {}
-    for label, window in WINDOWS.items():
-        x = np.abs(omega) if window is None else np.max([np.roll(change, -j) for j in window], axis=0)
-        x = x[ok]
-
-        def nll(p: np.ndarray) -> float:
-            var = np.exp(2.0 * p[0]) * (1.0 + (np.exp(p[1]) * x) ** 2)
-            return 0.5 * float(np.sum(np.log(var) + h * h / var))
-
-        fits = [minimize(nll, [np.log(h.std()), g0], method="Nelder-Mead") for g0 in (0.0, 2.0, 4.0)]
-        best = min(fits, key=lambda f: f.fun)
-        out[label] = (constant - best.fun, float(np.exp(best.x[1])))
-    return out
+def window_rows(res: np.ndarray, ok: np.ndarray, omega: np.ndarray, speed: np.ndarray) -> list[tuple[str, int, float, float]]:
+    """(label, windows, sd of the heading residual's sum over ``WINDOW_FRAMES`` frames in mrad, mean commanded |omega|
+    rad/s) for the windows driving straight without a change, turning (|omega| > 0.05 rad/s in every frame) without a
+    change in the window or the ``QUIET_BEFORE`` frames before it, and turning with one."""
+    changed = command_changes(omega) > CHANGE_RAD_S
+    kinds: dict[str, list[tuple[float, float]]] = {"straight, steady": [], "turning, steady": [],
+                                                   "turning, with changes": []}
+    for i in range(QUIET_BEFORE, len(omega) - WINDOW_FRAMES, WINDOW_FRAMES):
+        w = slice(i, i + WINDOW_FRAMES)
+        if not ok[w].all():
+            continue
+        quiet = not changed[i - QUIET_BEFORE:i + WINDOW_FRAMES].any()
+        if (np.abs(omega[w]) > 0.05).all():
+            kinds["turning, steady" if quiet else "turning, with changes"].append((res[w, 2].sum(), np.abs(omega[w]).mean()))
+        elif quiet and (np.abs(omega[w]) < STRAIGHT_RAD_S).all() and (np.abs(speed[w]) >= 1.0).all():
+            kinds["straight, steady"].append((res[w, 2].sum(), 0.0))
+    return [(k, len(v), float(np.std([a for a, _ in v]) * 1000) if v else np.nan,
+             float(np.mean([b for _, b in v])) if v else np.nan) for k, v in kinds.items()]
 
 
 def figure(rows: dict[int, list[tuple[str, int, np.ndarray, float]]], path: Path) -> None:
@@ -162,22 +158,24 @@ def main(argv=None) -> int:
     if data is None:
         return 2
     print("| robot | frames commanded | n | forward mm | lateral mm | heading mrad |\n|---|---|---|---|---|---|")
-    found, by_change, gains = {}, {}, {}
+    found, by_change, windows = {}, {}, {}
     for r in robots(args.robots):
         tr = import_robot(data, r)
         res, ok, omega, speed = frame_residuals(tr)
         found[r] = residual_rows(res, ok, omega, speed)
         by_change[r] = change_rows(res, ok, omega, tr.dt)
-        gains[r] = variance_gains(res, ok, omega)
+        windows[r] = window_rows(res, ok, omega, speed)
         for label, n, sd, _ in found[r]:
             print(f"| {r} | {label} | {n} | {sd[0]:.2f} | {sd[1]:.2f} | {sd[2]:.2f} |", flush=True)
-    print("\n| robot | frames | n | heading mrad | mean commanded \\|omega\\| rad/s |\n|---|---|---|---|---|")
+    print("\n| robot | frames | n | heading mrad per frame | mean commanded \\|omega\\| rad/s |\n|---|---|---|---|---|")
     for r, rows in by_change.items():
         for label, n, sd, om in rows:
             print(f"| {r} | {label} | {n} | {sd:.2f} | {om:.3f} |")
-    print("\n| robot | " + " | ".join(k.replace("|", "\\|") for k in WINDOWS) + " |\n" + "|---" * (len(WINDOWS) + 1) + "|")
-    for r, g in gains.items():
-        print(f"| {r} | " + " | ".join(f"+{v:.0f} (g {k:.0f} s/rad)" for v, k in g.values()) + " |")
+    print(f"\n| robot | {WINDOW_FRAMES}-frame windows | n | heading mrad per window | mean commanded \\|omega\\| rad/s |"
+          "\n|---|---|---|---|---|")
+    for r, rows in windows.items():
+        for label, n, sd, om in rows:
+            print(f"| {r} | {label} | {n} | {sd:.1f} | {om:.2f} |")
     if args.png:
         figure(found, Path(args.png))
         print(f"wrote {args.png}")
