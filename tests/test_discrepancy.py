@@ -106,13 +106,16 @@ def test_no_effect_names_none(tmp_path, seed):
 
 @pytest.mark.slow
 def test_two_effects_at_once_are_both_found(tmp_path):
-    """... and the calibrated simulator, which disagrees with the measured log before, agrees after."""
+    """... and the calibrated simulator (its default replicas), which disagrees with the measured log before, agrees
+    after."""
+    from experiments.calibrated import REPLICAS
+
     report = _diagnose(tmp_path, {"floor_drift": {"drift_mm_s": [15.0, -10.0]},
                                   "beacon_height_scale": {"scale": [1.08, 0.94, 1.04, 0.95]}}, ALL, steps=18000,
-                       replicas=6)
+                       replicas=REPLICAS)
     assert {e["name"] for e in report["effects"]} == {"floor_drift", "beacon_height_scale"}
     cal = report["calibrated_simulation"]
-    assert cal["before"]["replicas"] == cal["after"]["replicas"] == 6
+    assert cal["before"]["replicas"] == cal["after"]["replicas"] == REPLICAS
     before = {d["statistic"] for d in cal["before"]["disagreements"]}
     assert any("landmark" in s for s in before) and any("world heading" in s for s in before), before
     assert len(cal["after"]["disagreements"]) < len(before), cal["after"]["disagreements"]
