@@ -41,6 +41,7 @@ from signatures_null import fitted_base  # noqa: E402
 
 from aibo_core.atomic import atomic_write, read_jsonl, write_jsonl  # noqa: E402
 from aibo_core.trajectory import Trajectory, blind  # noqa: E402
+from aibo_core.workers import process_pool  # noqa: E402
 from aibo_gym.collect import collect  # noqa: E402
 from aibo_gym.collect_wheeled import collect_wheeled  # noqa: E402
 from experiments.calibrated import FAMILY_ALPHA, REPLICAS, Check, predictive_check, replica_statistics  # noqa: E402
@@ -84,8 +85,6 @@ def exchangeable(seed: int, preset: str, minutes: float, models: Path, which: st
     """One effect-free log: ``n`` replicas of its ``which`` model (saved in ``replicas/``, reused when there), and per
     count of ``COUNTS`` the share of checks (one replica against that many others) with any disagreement, with the
     strengths as stored and as sqrt(-log10 p)."""
-    from concurrent.futures import ProcessPoolExecutor
-
     saved = models.parent / "replicas" / f"{preset}-{seed}.npz"
     if saved.exists():
         with np.load(saved) as z:
@@ -93,7 +92,7 @@ def exchangeable(seed: int, preset: str, minutes: float, models: Path, which: st
     else:
         tr = effect_free(seed, preset, minutes)
         model, logs = fitted(tr, which, models / f"{preset}-{seed}.json")
-        with ProcessPoolExecutor(jobs) as pool:
+        with process_pool(jobs) as pool:  # its workers exit with this process (a study stopped by hand)
             rows = list(pool.map(replica_statistics, [model] * n, [logs] * n, [1000 + 17 * i for i in range(n)]))
         names = sorted(set.intersection(*(set(r) for r in rows)))
         values = np.array([[r[k] for k in names] for r in rows])
@@ -187,6 +186,9 @@ def main() -> None:
     ap.add_argument("--exchangeable", type=int, default=0, metavar="R",
                     help="measure the threshold alone: R replicas per log, each checked against --replicas others")
     args = ap.parse_args()
+    if 0 < args.exchangeable <= max(COUNTS):
+        ap.error(f"--exchangeable: at least {max(COUNTS) + 1} replicas (one checked against up to {max(COUNTS)} others), "
+                 f"got {args.exchangeable}")
     out = Path(args.out or f"runs/check_null/{args.model}" + ("-exchangeable" if args.exchangeable else ""))
     models = out / "models"
     models.mkdir(parents=True, exist_ok=True)

@@ -43,6 +43,7 @@ CHANGE_RAD_S = 0.02  # a change of the commanded turn rate between frames larger
 SINCE_BINS_S = (0.0, 0.3, 1.0, 3.0, np.inf)  # the time-since-change bins (s)
 WINDOW_FRAMES = 10  # the sums' windows (frames: 1 s at MRCLAM's 0.1 s)
 QUIET_BEFORE = 3  # frames before a steady turn's window without a change of the command
+TURNING_RAD_S = 0.05  # a window turns when every frame of it is commanded to turn faster than this
 
 
 def frame_residuals(tr) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -101,7 +102,7 @@ def change_rows(res: np.ndarray, ok: np.ndarray, omega: np.ndarray, dt: float) -
 
 def window_rows(res: np.ndarray, ok: np.ndarray, omega: np.ndarray, speed: np.ndarray) -> list[tuple[str, int, float, float]]:
     """(label, windows, sd of the heading residual's sum over ``WINDOW_FRAMES`` frames in mrad, mean commanded |omega|
-    rad/s) for the windows driving straight without a change, turning (|omega| > 0.05 rad/s in every frame) without a
+    rad/s) for the windows driving straight without a change, turning (|omega| > ``TURNING_RAD_S`` in every frame) without a
     change in the window or the ``QUIET_BEFORE`` frames before it, and turning with one."""
     changed = command_changes(omega) > CHANGE_RAD_S
     kinds: dict[str, list[tuple[float, float]]] = {"straight, steady": [], "turning, steady": [],
@@ -111,7 +112,7 @@ def window_rows(res: np.ndarray, ok: np.ndarray, omega: np.ndarray, speed: np.nd
         if not ok[w].all():
             continue
         quiet = not changed[i - QUIET_BEFORE:i + WINDOW_FRAMES].any()
-        if (np.abs(omega[w]) > 0.05).all():
+        if (np.abs(omega[w]) > TURNING_RAD_S).all():
             kinds["turning, steady" if quiet else "turning, with changes"].append((res[w, 2].sum(), np.abs(omega[w]).mean()))
         elif quiet and (np.abs(omega[w]) < STRAIGHT_RAD_S).all() and (np.abs(speed[w]) >= 1.0).all():
             kinds["straight, steady"].append((res[w, 2].sum(), 0.0))

@@ -11,6 +11,7 @@ import pytest
 from aibo.cli import main
 from aibo_core.trajectory import blind, save
 from aibo_gym.collect import collect
+from experiments.calibrated import REPLICAS
 from learners.arrays.batch import make_batch
 from learners.discrepancy.score import predictive_logdens
 from learners.discrepancy.signatures import signatures
@@ -108,8 +109,6 @@ def test_no_effect_names_none(tmp_path, seed):
 def test_two_effects_at_once_are_both_found(tmp_path):
     """... and the calibrated simulator (its default replicas), which disagrees with the measured log before, agrees
     after."""
-    from experiments.calibrated import REPLICAS
-
     report = _diagnose(tmp_path, {"floor_drift": {"drift_mm_s": [15.0, -10.0]},
                                   "beacon_height_scale": {"scale": [1.08, 0.94, 1.04, 0.95]}}, ALL, steps=18000,
                        replicas=REPLICAS)
@@ -136,8 +135,6 @@ def test_a_log_from_another_generator(tmp_path):
     # a continuous-command model with a range sensor gets the wheeled simulator (WheeledRobot-v0): the check runs,
     # and the named drift takes the world-heading signature out of the disagreements
     cal = report["calibrated_simulation"]
-    from experiments.calibrated import REPLICAS
-
     assert {"before", "after"} <= set(cal) and cal["before"]["replicas"] == REPLICAS, cal.get("note")
     named = [d["statistic"] for d in cal["after"]["disagreements"]]
     assert not any("world heading" in n for n in named), named
