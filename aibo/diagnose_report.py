@@ -17,18 +17,19 @@ from aibo.figures import save_png  # noqa: E402
 from aibo_core.atomic import atomic_write  # noqa: E402
 
 
-def lead_signatures(signatures: list, named: dict[str, str], n: int = 6) -> list[tuple[Any, str]]:
+def lead_signatures(signatures: list, named: dict[str, tuple[str, ...]], n: int = 6) -> list[tuple[Any, str]]:
     """The ``n`` signatures a reader sees first, each with the named effect it is the signature of ("" for none):
-    the named effects' signatures (``named``: effect -> its ``EffectModel.SIGNATURE``) first, then the rest by
+    the named effects' signatures (``named``: effect -> its ``EffectModel.signatures()``) first, then the rest by
     p-value (``signatures`` sorted so). A drift the verdict does not name never comes before one it does."""
     def whose(s: Any) -> str:
         key = f"{s.residual} vs {s.variable}"
-        return next((name for name, sig in named.items() if sig and sig in key), "")
+        return next((name for name, sigs in named.items() if any(sig in key for sig in sigs)), "")
     tagged = [(s, whose(s)) for s in signatures]
     return ([t for t in tagged if t[1]] + [t for t in tagged if not t[1]])[:n]
 
 
-def signature_panels(path: Path, before: list, after: list, named: dict[str, str] | None = None, n: int = 6) -> None:
+def signature_panels(path: Path, before: list, after: list, named: dict[str, tuple[str, ...]] | None = None,
+                     n: int = 6) -> None:
     """The residual signatures of the base model a reader sees first (``lead_signatures``), with the same pairs after
     the refit; each titled with its p-value adjusted for every pair tried (Holm, ``Signature.p_holm``)."""
     top = lead_signatures(before, named or {}, n)

@@ -169,7 +169,7 @@ def test_the_page_leads_with_the_named_effects_signatures():
         return Signature(res, var, [0.0], [0.0], [1.0], p)
     sigs = [sig("bearing (sigma)", "elapsed time (min)", 1e-9), sig("lateral motion (sigma)", "world heading (rad)", 0.2),
             sig("forward motion (sigma)", "world heading (rad)", 0.01)]
-    lead = lead_signatures(sigs, {"floor_drift": "motion (sigma) vs world heading"}, n=2)
+    lead = lead_signatures(sigs, {"floor_drift": ("motion (sigma) vs world heading",)}, n=2)
     assert [(s.variable, who) for s, who in lead] == [("world heading (rad)", "floor_drift")] * 2
     assert [w for _, w in lead_signatures(sigs, {}, n=3)] == ["", "", ""]  # nothing named: by p-value
 

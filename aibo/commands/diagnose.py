@@ -204,9 +204,9 @@ def bias_tried(found: dict) -> str:
     return TESTS_BIAS
 
 
-def named_signatures(report: dict) -> dict[str, str]:
-    """Each named effect's residual signature (``EffectModel.SIGNATURE``; "" for an effect without one)."""
-    return {e["name"]: EFFECT_MODELS[e["name"]].SIGNATURE for e in report["effects"] if e["name"] in EFFECT_MODELS}
+def named_signatures(report: dict) -> dict[str, tuple[str, ...]]:
+    """Each named effect's residual signatures (``EffectModel.signatures``; () for an effect without one)."""
+    return {e["name"]: EFFECT_MODELS[e["name"]].signatures() for e in report["effects"] if e["name"] in EFFECT_MODELS}
 
 
 def calibrated(base, final, logs: list, args, say) -> dict:
@@ -324,7 +324,7 @@ def off_held(effects: list[dict], batch: Batch) -> list[str]:
 def unexplained(report: dict) -> list[dict]:
     """Every disagreement of the final model's calibrated simulation with the log, with its z and a plain reading
     (``plain_reading``) of what the log does that the twin does not. One that is the residual signature
-    (``EffectModel.SIGNATURE``) of an effect that was not named names it, with why it was not: where the search
+    (``EffectModel.leaves``) of an effect that was not named names it, with why it was not: where the search
     and the simulator part ways, the user should look; one that no effect's signature matches has ``effect`` None
     (the catalogue holds nothing that makes it)."""
     after = report["calibrated_simulation"].get("after")
@@ -335,7 +335,7 @@ def unexplained(report: dict) -> list[dict]:
     out = []
     for d in after["disagreements"]:
         row = {"statistic": d["statistic"], "z": d["z"], "reading": plain_reading(d["statistic"], d["z"])}
-        matches = [name for name, cls in sorted(EFFECT_MODELS.items()) if cls.SIGNATURE and cls.SIGNATURE in d["statistic"]]
+        matches = [name for name, cls in sorted(EFFECT_MODELS.items()) if cls.leaves(d["statistic"])]
         whose = [{"effect": name, "why_not_named": why_unnamed(name, tried.get(name), report)}
                  for name in matches if name not in named]
         if whose:  # one row per statistic: the first effect whose signature it is, the others beside it

@@ -44,6 +44,9 @@ if TYPE_CHECKING:
     from learners.model.model import Model
 
 REFERENCE_DISTANCE_MM = 2500.0  # distance_dependent_noise: the factor is 1 at this distance (as the simulator)
+#: The timing effects' signed signature: the turn and the forward motion on the frames where the model's command
+#: changes, against how much it changed (``learners.discrepancy.signatures.CHANGE_OF``'s variables)
+CHANGE_SIGNATURE = "vs change of the commanded"
 
 
 def _cubature_distances(batch: Batch, post: Posterior, idx: np.ndarray) -> np.ndarray:
@@ -161,6 +164,7 @@ class ActuationLag(EffectModel):
 
     name: ClassVar[str] = "actuation_lag"
     SIGNATURE: ClassVar[str] = "vs time since command change"
+    ALSO_SIGNATURES: ClassVar[tuple[str, ...]] = (CHANGE_SIGNATURE,)
     PARAMS: ClassVar[dict[str, Param]] = {"lag_s": Param("s", "scaled", 0.1, trainable=False, low=0.0, high=60.0,
                                                                  shape=())}
     GRID: ClassVar[dict[str, tuple[float, ...]]] = {"lag_s": (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)}
@@ -227,6 +231,7 @@ class ResponseTime(EffectModel):
 
     name: ClassVar[str] = "response_time"
     SIGNATURE: ClassVar[str] = "vs time since command change"
+    ALSO_SIGNATURES: ClassVar[tuple[str, ...]] = (CHANGE_SIGNATURE,)
     NEEDS: ClassVar[tuple[str, ...]] = ("controls",)
     PARAMS: ClassVar[dict[str, Param]] = {"tau_s": Param("s", "scaled", 0.1, low=0.0, high=RESPONSE_GRID[-1], shape=())}
     PROBE: ClassVar[dict[str, Any]] = {"tau_s": 0.2}

@@ -54,6 +54,9 @@ class EffectModel(Component):
     #: the residual signature (part of a ``learners.discrepancy.signatures`` "residual vs variable" name)
     #: that shows when the effect is missing; "" when none (a constant offset, outliers)
     SIGNATURE: ClassVar[str] = ""
+    #: other statistics of the calibrated check that show it missing, beside ``SIGNATURE`` (parts of their names): a
+    #: delay shows against the time since a command changed and, signed, against how much the command changed
+    ALSO_SIGNATURES: ClassVar[tuple[str, ...]] = ()
     #: Parameters estimated by profile likelihood over a grid (outside EM), e.g. a lag: name -> grid.
     GRID: ClassVar[dict[str, tuple[float, ...]]] = {}
     #: What the effect needs from the logs besides commands and sightings (``"head_pan"``, ``"field"``).
@@ -84,6 +87,17 @@ class EffectModel(Component):
     #: Nuisances the effect can stand in for (classes with ``around(post, batch)``, ``n_frames()``, ``given()``; e.g.
     #: ``WallSlowdown``): the search tests a significant candidate again given each (``checks.GivenNuisance``).
     CONFOUNDERS: ClassVar[tuple[type, ...]] = ()
+
+    @classmethod
+    def signatures(cls) -> tuple[str, ...]:
+        """Every residual signature of the effect: ``SIGNATURE`` and ``ALSO_SIGNATURES`` (none: ())."""
+        return tuple(s for s in (cls.SIGNATURE, *cls.ALSO_SIGNATURES) if s)
+
+    @classmethod
+    def leaves(cls, statistic: str) -> bool:
+        """Whether ``statistic`` (a calibrated check's statistic or a "residual vs variable" signature name) is one
+        of the effect's residual signatures: what a model without the effect gets wrong."""
+        return any(s in statistic for s in cls.signatures())
 
     def negligible(self, n_sightings: int) -> str:
         """Why the fitted effect is too small to name ("" when it is not), on data of ``n_sightings``
