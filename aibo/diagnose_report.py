@@ -224,8 +224,9 @@ def _still_unlike(u: dict[str, Any]) -> str:
     of = ("; ".join(f"the residual signature of <b>{html.escape(w['effect'])}</b>, which was not named "
                     f"({html.escape(w['why_not_named'])})" for w in whose)
           if whose else f"unexplained ({html.escape(u['why_not_named'])})")
+    where = f" Where: {html.escape(u['where'])}." if u.get("where") else ""
     return (f"<p><b>Still unlike its simulation:</b> {html.escape(u['statistic'])} ({z_text(u['z'])}): "
-            f"{html.escape(u.get('reading', ''))}; {of}.</p>")
+            f"{html.escape(u.get('reading', ''))}; {of}.{where}</p>")
 
 
 def _calibrated(cal: dict[str, Any] | None, unexplained: list[dict[str, Any]]) -> str:

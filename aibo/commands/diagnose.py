@@ -20,6 +20,7 @@ from learners.arrays.batch import Batch, make_batch
 from learners.discrepancy.checks import RobustLikelihoodRatio
 from learners.discrepancy.effect_sizes import base_shift, holds_off, read_with_care
 from learners.discrepancy.final import plausible_diagnosis
+from learners.discrepancy.innovation_shape import innovation_shape, shape_text
 from learners.discrepancy.score import (
     GAP_METRIC,
     MOTION_GAP_METRIC,
@@ -149,11 +150,12 @@ def run(args) -> int:
     t1 = time.perf_counter()
     report["calibrated_simulation"] = calibrated(found["base"], final.result.params, logs, args, say)
     seconds["calibrated check"] = time.perf_counter() - t1
+    report["innovation_shape"] = innovation_shape(final.result.params, logs)  # where a NIS disagreement is
     report["unexplained"] = unexplained(report)
     for u in report["unexplained"]:
         of = "; ".join(f"the signature of {w['effect']}, not named ({w['why_not_named']})" for w in fig.signature_of(u))
         say(f"  still unlike its simulation: {u['statistic']} ({fig.z_text(u['z'])}): {u['reading']}; "
-            + (of or f"unexplained ({u['why_not_named']})"))
+            + (f"where: {u['where']}; " if u.get("where") else "") + (of or f"unexplained ({u['why_not_named']})"))
     report["unexplained"] += none_of_the_above(found, logs)
     for u in (u for u in report["unexplained"] if u["effect"] == NONE_OF_THE_ABOVE):
         say(f"none of the above: {u['describes']} (train +{u['gain_train']:.1f} nats, held-out {u['gain_heldout']:+.1f} "
@@ -326,7 +328,9 @@ def unexplained(report: dict) -> list[dict]:
     (``plain_reading``) of what the log does that the twin does not. One that is the residual signature
     (``EffectModel.leaves``) of an effect that was not named names it, with why it was not: where the search
     and the simulator part ways, the user should look; one that no effect's signature matches has ``effect`` None
-    (the catalogue holds nothing that makes it)."""
+    (the catalogue holds nothing that makes it). A NIS statistic's row says ``where`` the log's innovations depart
+    from the model's Gaussian (``report["innovation_shape"]``: which side of the band, which measurement, which turn
+    rates)."""
     after = report["calibrated_simulation"].get("after")
     if not after:
         return []
@@ -335,6 +339,8 @@ def unexplained(report: dict) -> list[dict]:
     out = []
     for d in after["disagreements"]:
         row = {"statistic": d["statistic"], "z": d["z"], "reading": plain_reading(d["statistic"], d["z"])}
+        where = shape_text(d["statistic"], report.get("innovation_shape", {}))
+        row |= {"where": where} if where else {}
         matches = [name for name, cls in sorted(EFFECT_MODELS.items()) if cls.leaves(d["statistic"])]
         whose = [{"effect": name, "why_not_named": why_unnamed(name, tried.get(name), report)}
                  for name in matches if name not in named]

@@ -120,8 +120,9 @@ def plain_reading(statistic: str, z: float) -> str:
                    "wanders more than the real one)" if more else ""))
     if statistic.startswith("share of NIS outside"):
         return ("more" if more else "fewer") + (" of the log's sightings fall outside the model's 95% band than of its "
-                                                "simulation's (heavier tails: outliers or errors the model's noise does "
-                                                "not hold)" if more else " of the log's sightings fall outside the "
+                                                "simulation's (below it: predicted more closely than the model's noise "
+                                                "says; above it: errors the noise does not hold; the band has two "
+                                                "sides)" if more else " of the log's sightings fall outside the "
                                                 "model's 95% band than of its simulation's (the model's noise is too "
                                                 "wide)")
     if statistic.startswith("median NIS"):

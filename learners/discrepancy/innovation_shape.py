@@ -1,0 +1,87 @@
+"""Where a model's one-step innovations on a log depart from their Gaussian: the shape behind the calibrated check's
+NIS statistics, for the report's reading of them.
+
+The check compares the normalized innovation squared (NIS, 2-d: size and bearing) of the log with its simulation's
+(``learners.discrepancy.statistics``); its "share outside the 95% band" counts both sides of the chi-square(2) band,
+NIS below 0.05 (a sighting predicted more closely than the model's noise says) and above 7.38 (an error the noise
+does not hold). A larger share can be either: on the MRCLAM Dataset 7 robots under ``aibo diagnose``'s default model
+(2026-11-30) 4.7-6.5% of the sightings fell below the band and 4.7-5.2% above it, 2.5% expected on each side
+(docs/results.md, "Where the innovations' shape departs"). This module says which side, which measurement (each
+component's normalized innovation against its own standard deviation) and at which commanded turn rates, so the
+reading names what the log does instead of guessing "heavier tails".
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+from aibo_core.trajectory import Trajectory
+from learners.arrays.batch import make_batch
+from learners.em.estep import e_step, weighed_on
+from learners.em.options import DEFAULT_GATE
+from learners.model.model import Model
+
+from .signatures import TURN_RATE, sighting_residuals
+
+#: the chi-square(2) band the check's "share of NIS outside the 95% band" uses (``score.score``)
+NIS_BAND = tuple(float(x) for x in stats.chi2.ppf([0.025, 0.975], 2))
+#: a Gaussian component's share outside +-1.96 sd, and the median of its |normalized innovation|
+OUTSIDE_EXPECTED, MEDIAN_ABS_EXPECTED = 0.05, float(stats.norm.ppf(0.75))
+TURN_THIRDS = 3  # the sightings split into this many equal parts by their commanded turn rate
+COMPONENTS = ("size", "bearing")
+
+
+def innovation_shape(model: Model, logs: list[Trajectory]) -> dict[str, Any]:
+    """The shape of ``model``'s one-step innovations on ``logs`` (the forward filter over every sighting, gross
+    outliers beyond ``DEFAULT_GATE`` left out, as the check's NIS statistics): the NIS's share below and above its 95%
+    band; per component (size, bearing) the share of |normalized innovation| above 1.96 and its median; and the
+    share above 1.96 per component in each third of the sightings by commanded turn rate (rad/s). Expected under the
+    model: 0.025 on each side of the band, 0.05 and 0.674 per component."""
+    batch = make_batch(logs)
+    model = weighed_on(model, batch)  # a mixture's weights on these logs, as ``score``
+    post = e_step(model, batch, "compiled", DEFAULT_GATE)
+    nis = np.asarray(post.mahal2, float)
+    kept = batch.used & np.isfinite(nis) & (nis <= DEFAULT_GATE)
+    r = sighting_residuals(model, batch.with_used(kept), post)
+    lo, hi = NIS_BAND
+    z = nis[kept]
+    turn = r[TURN_RATE]
+    edges = np.quantile(turn, np.linspace(0.0, 1.0, TURN_THIRDS + 1)) if len(turn) else np.zeros(TURN_THIRDS + 1)
+    part = np.clip(np.searchsorted(edges, turn, side="right") - 1, 0, TURN_THIRDS - 1)
+    out: dict[str, Any] = {
+        "sightings": int(kept.sum()),
+        "nis_band": [lo, hi],
+        "nis_below_band": _share(z < lo),
+        "nis_above_band": _share(z > hi),
+        "turn_rate_edges_rad_s": [float(e) for e in edges],
+    }
+    for c in COMPONENTS:
+        big = np.abs(r[c]) > 1.96
+        out[c] = {"outside_95": _share(big), "median_abs": float(np.median(np.abs(r[c]))) if len(big) else float("nan"),
+                  "outside_95_by_turn_rate": [_share(big[part == k]) for k in range(TURN_THIRDS)]}
+    return out
+
+
+def _share(mask: np.ndarray) -> float:
+    return float(np.mean(mask)) if len(mask) else float("nan")
+
+
+def shape_text(statistic: str, shape: dict[str, Any]) -> str:
+    """A sentence on where the log's innovations depart from the model's Gaussian, for a NIS statistic of the check
+    ("" for any other statistic or without a shape)."""
+    if not shape or "NIS" not in statistic or not shape.get("sightings"):
+        return ""
+    pct = lambda x: f"{100 * x:.1f}%"  # noqa: E731
+    sides = (f"{pct(shape['nis_below_band'])} of the sightings fall below the model's 95% NIS band (predicted more "
+             f"closely than its noise says) and {pct(shape['nis_above_band'])} above it (2.5% each expected)")
+    parts = "; ".join(f"the {c}'s normalized innovation is beyond 1.96 on {pct(shape[c]['outside_95'])} (5% expected), "
+                      f"its median |value| {shape[c]['median_abs']:.2f} (0.67)" for c in COMPONENTS)
+    edges = shape["turn_rate_edges_rad_s"]
+    worst = max(COMPONENTS, key=lambda c: shape[c]["outside_95"])
+    thirds = " / ".join(pct(x) for x in shape[worst]["outside_95_by_turn_rate"])
+    turns = (f"the {worst}'s beyond 1.96 on {thirds} in the slowest / middle / fastest third of the commanded turn "
+             f"rates ({' / '.join(f'{e:.2g}' for e in edges)} rad/s)")
+    return f"{sides}; {parts}; {turns}"
