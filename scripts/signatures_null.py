@@ -25,7 +25,7 @@ from aibo_core.atomic import atomic_write, read_jsonl, write_jsonl
 from aibo_core.trajectory import Trajectory, blind
 from aibo_gym.collect import collect
 from learners.discrepancy.fitting import SEARCH_PATIENCE, fit
-from learners.discrepancy.search import base_fit, drop_outliers
+from learners.discrepancy.search import base_and_outliers, drop_outliers
 from learners.discrepancy.signatures import signatures
 from learners.discrepancy.split import training_log
 from learners.em.options import EMOptions
@@ -43,8 +43,7 @@ def fitted_base(tr: Trajectory, cache: Path, refit: bool) -> tuple[Model, list[T
         base = load_model(cache)
         logs, _ = drop_outliers(base, [tr])
         return base, logs
-    base = base_fit([tr], opts)
-    logs, _ = drop_outliers(base, [tr])
+    base, _, logs, _ = base_and_outliers([tr], opts, progress=lambda line: None)
     polish = replace(opts, gate=None, max_iter=min(opts.max_iter, 200), patience=min(opts.patience, SEARCH_PATIENCE))
     base = fit([training_log(t) for t in logs], base, polish)
     save_model(cache, base, {})

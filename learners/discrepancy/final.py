@@ -28,7 +28,7 @@ from learners.em.options import EMOptions
 from learners.model.model import Model
 
 from .effect_sizes import effect_intervals
-from .fitting import SEARCH_PATIENCE, train_loglik, with_values
+from .fitting import SEARCH_PATIENCE, learned, train_loglik, with_values
 from .profile import check_wald_intervals, profile_where_wald_fails, refine_grid_intervals
 from .search import search_without
 
@@ -83,14 +83,6 @@ def _conditional_keys(final: LearnResult, names: list[str]) -> dict[str, list[st
 
 def _values(effect) -> dict[str, Any]:
     return {k: np.asarray(v).tolist() for k, v in effect.values().items()}
-
-
-def learned(logs: list[Trajectory], opts: EMOptions, action_model: str | None = None) -> Model:
-    """``aibo learn``'s model of ``logs`` (EM from the paper's start with the user's options ``opts``, no standard
-    errors; a wrong world refitted with spurious sightings as learn refits it, ``EMLearner.fit_in_field``): the second
-    start of the final fit's action model, sensor model and start poses (:func:`final_starts`)."""
-    first, refit = EMLearner(replace(opts, uncertainty=False), check_field=False).fit_in_field(logs, action_model)
-    return (first if refit is None else refit).params
 
 
 @dataclass(frozen=True)

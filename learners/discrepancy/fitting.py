@@ -67,6 +67,15 @@ def fit_from_paper_start(logs: list[Trajectory], opts: EMOptions, action_model: 
     return first.params, refit
 
 
+def learned(logs: list[Trajectory], opts: EMOptions, action_model: str | None = None) -> Model:
+    """``aibo learn``'s model of ``logs`` (EM from the paper's start with the options ``opts``, no standard errors; a
+    wrong world refitted with spurious sightings as learn refits it, ``EMLearner.fit_in_field``): the final fit's second
+    start (``final.final_starts``), and the judge of the outliers where the search's base fit gates many
+    (``search.base_and_outliers``)."""
+    first, refit = EMLearner(replace(opts, uncertainty=False), check_field=False).fit_in_field(logs, action_model)
+    return (first if refit is None else refit).params
+
+
 def train_loglik(model: Model, train: list[Trajectory]) -> float:
     """``model``'s log-likelihood (nats) of the sightings of ``train`` (the E-step's, ungated)."""
     return float(e_step(model, make_batch(train), "compiled").loglik)
