@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import numpy as np
 import pytest
 
 from learners.discrepancy import search as search_module
@@ -316,7 +317,8 @@ def _scripted_search(monkeypatch, ctx, rounds, candidates, progress, refit=None)
     from learners.em.options import EMOptions
 
     monkeypatch.setattr(search_module, "base_fits", lambda logs, opts, action_model=None: (_Model(()), refit))
-    monkeypatch.setattr(search_module, "drop_outliers", lambda model, logs: (logs, 0))
+    monkeypatch.setattr(search_module, "outliers", lambda model, logs: np.zeros(0, dtype=bool))  # none set aside
+    monkeypatch.setattr(search_module, "without", lambda logs, bad: logs)
     monkeypatch.setattr(search_module, "training_log", lambda tr: tr)
     monkeypatch.setattr(search_module, "applicable", lambda name, logs: True)
     monkeypatch.setattr(search_module, "SearchContext", lambda tr, logs, opts: ctx)
