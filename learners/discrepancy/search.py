@@ -262,7 +262,7 @@ def without(logs: list[Trajectory], bad: np.ndarray) -> list[Trajectory]:
 
 #: Above this share of the sightings gated out as outliers, ``aibo learn``'s model of the WHOLE logs judges them too
 #: (``base_and_outliers``). On 100 effect-free 5-minute logs (seeds 6000-6049, ``aibo`` and ``paper-sim``,
-#: 2026-11-30) the search's base fit set aside none on 57 and 65-2,511 sightings (1-53%) on 14, where the fit of the
+#: 2026-11-30) the search's base fit set aside none on 52 and 47-2,511 sightings (1-53%) on 17, where the fit of the
 #: training half had stopped in a poorer world; on the MRCLAM logs and halves it sets aside 0-11 (at most 0.6%).
 OUTLIER_SHARE = 0.01
 
