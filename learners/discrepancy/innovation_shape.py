@@ -24,10 +24,9 @@ from learners.em.estep import e_step, weighed_on
 from learners.em.options import DEFAULT_GATE
 from learners.model.model import Model
 
+from .score import NIS_BAND
 from .signatures import TURN_RATE, sighting_residuals
 
-#: the chi-square(2) band the check's "share of NIS outside the 95% band" uses (``score.score``)
-NIS_BAND = tuple(float(x) for x in stats.chi2.ppf([0.025, 0.975], 2))
 #: a Gaussian component's share outside +-1.96 sd, and the median of its |normalized innovation|
 OUTSIDE_EXPECTED, MEDIAN_ABS_EXPECTED = 0.05, float(stats.norm.ppf(0.75))
 TURN_THIRDS = 3  # the sightings split into this many equal parts by their commanded turn rate
@@ -77,8 +76,9 @@ def shape_text(statistic: str, shape: dict[str, Any]) -> str:
     pct = lambda x: f"{100 * x:.1f}%"  # noqa: E731
     sides = (f"{pct(shape['nis_below_band'])} of the sightings fall below the model's 95% NIS band (predicted more "
              f"closely than its noise says) and {pct(shape['nis_above_band'])} above it (2.5% each expected)")
-    parts = "; ".join(f"the {c}'s normalized innovation is beyond 1.96 on {pct(shape[c]['outside_95'])} (5% expected), "
-                      f"its median |value| {shape[c]['median_abs']:.2f} (0.67)" for c in COMPONENTS)
+    parts = "; ".join(f"the {c}'s normalized innovation is beyond 1.96 on {pct(shape[c]['outside_95'])} "
+                      f"({100 * OUTSIDE_EXPECTED:g}% expected), its median |value| {shape[c]['median_abs']:.2f} "
+                      f"({MEDIAN_ABS_EXPECTED:.2f})" for c in COMPONENTS)
     edges = shape["turn_rate_edges_rad_s"]
     worst = max(COMPONENTS, key=lambda c: shape[c]["outside_95"])
     thirds = " / ".join(pct(x) for x in shape[worst]["outside_95_by_turn_rate"])

@@ -33,8 +33,10 @@ MOTION_HORIZONS_S = (1.0, 2.0, 5.0)
 #: Time blocks (s) over which a motion gap's paired difference is summed before its standard error: open-loop
 #: errors of sightings a few seconds apart share the same stretch of motion, so they are not independent.
 MOTION_BLOCK_S = 30.0
-__all__ = ["GAP_METRIC", "WHITENESS_METRIC", "MOTION_GAP_METRIC", "MOTION_HORIZONS_S", "MotionScore", "Score", "motion_score",
-           "motion_trade", "predictive_logdens", "score"]
+#: The chi-square(2) 95% band of the NIS (both sides): ``Score.nis_outside`` counts the sightings outside it
+NIS_BAND = tuple(float(x) for x in stats.chi2.ppf([0.025, 0.975], 2))
+__all__ = ["GAP_METRIC", "WHITENESS_METRIC", "MOTION_GAP_METRIC", "MOTION_HORIZONS_S", "NIS_BAND", "MotionScore", "Score",
+           "motion_score", "motion_trade", "predictive_logdens", "score"]
 
 
 @dataclass
@@ -68,7 +70,7 @@ def score(model: Model, logs: list[Trajectory], gate: float | None = None) -> Sc
     heldout = float(np.sum(sightings_logdens(model, batch, post_all, idx)))
     n = len(idx)
     ok = np.isfinite(nis) & (nis <= DEFAULT_GATE)
-    lo, hi = stats.chi2.ppf([0.025, 0.975], 2)
+    lo, hi = NIS_BAND
     z = nis[ok]
     white = lag1(consecutive_pairs(batch, normalized_size_innovations(model, batch)))
     return Score(heldout, n, -heldout / max(n, 1), float(np.mean(z)), float(np.mean((z < lo) | (z > hi))),
