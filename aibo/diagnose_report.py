@@ -305,6 +305,15 @@ def _motion(report: dict[str, Any]) -> str:
             f"<th>sightings</th></tr>{rows}</table>")
 
 
+def _set_aside(outliers: dict[str, Any] | None) -> str:
+    """How many sightings the search set aside as gross errors before any model was fitted (report.json["outliers"])."""
+    if not outliers:
+        return ""
+    return (f"Sightings set aside as gross errors before the diagnosis (Mahalanobis^2 &gt; "
+            f"{outliers['gate_mahalanobis2']:g} under the search's base model): {outliers['set_aside']} of "
+            f"{outliers['sightings']} ({outliers['share']:.1%}); no fit or score here sees them.")
+
+
 def _trail(checks: list[dict[str, Any]]) -> str:
     """A candidate's checks in the order they ran: the name, with a cross where a deciding check refused and a
     circle where an annotating one found something to say."""
@@ -337,7 +346,7 @@ pre{{background:#f6f6f6;padding:1em;overflow:auto}}</style></head><body>
 sighting; lower is better): <b>{report['gap_before']:.4f}</b> before, <b>{report['gap_after']:.4f}</b> after
 {f"the named effects: {change} nats per sighting" if report["effects"] else "(nothing named: the same model)"}.</p>
 <p>The diagnosed model (model.json): {html.escape(starts_text(report.get("final_fit_starts", [])))} (the likelihood of
-the whole log(s), ungated).</p>
+the whole log(s), ungated). {_set_aside(report.get("outliers"))}</p>
 {_motion(report)}
 <p>The residual signatures below show where the base model's residuals drift: sighting innovations against predicted
 quantities, motion residuals within each command. Each p-value allows for the residuals' serial correlation and is

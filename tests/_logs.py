@@ -50,6 +50,9 @@ def diagnose(tmp_path, tr, candidates: str, jobs: int = 2, replicas: int = 0) ->
     for key in ("motion_gap_before", "motion_gap_after", "motion_excess_before", "motion_excess_after"):
         assert set(report[key]) == {"1", "2", "5"}, (key, report[key])  # horizons in seconds
     assert "Motion gap" in (out / "report.html").read_text()
+    o = report["outliers"]  # the sightings the search set aside before any fit, said on the page too
+    assert o["sightings"] == tr.n_sightings and 0 <= o["set_aside"] <= o["sightings"]
+    assert o["share"] == (o["set_aside"] / o["sightings"]) and "set aside as gross errors" in (out / "report.html").read_text()
     shape = report["innovation_shape"]  # where the final model's innovations depart from its Gaussian
     assert shape["sightings"] > 0 and all(0.0 <= shape[k] <= 1.0 for k in ("nis_below_band", "nis_above_band"))
     assert len(shape["bearing"]["outside_95_by_turn_rate"]) == len(shape["turn_rate_edges_rad_s"]) - 1

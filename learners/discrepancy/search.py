@@ -510,13 +510,14 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
     candidates, the named effects in order (``"winners"``: each round's, pruned ones included; ``"left_at_cap"``: the
     candidates still significant in the last round when the search stopped at ``max_rounds``, which another round
     would have tried again), and the current model after each addition (all fitted on the training half),
-    the logs without outliers that every score uses, the candidates the logs cannot support
-    (``"skipped"``: name -> what the log lacks), the fits' context (``"context"``: a refit on the training
-    halves) and where the rounds stand (``"state"``, :class:`SearchState`). ``action_model``: of the base fit (``aibo
-    learn --action-model``). ``pool``: a worker pool of ``jobs`` workers to run in
+    the logs without outliers that every score uses (``"outliers"``: how many of how many sightings were set aside),
+    the candidates the logs cannot support (``"skipped"``: name -> what the log lacks), the fits' context
+    (``"context"``: a refit on the training halves) and where the rounds stand (``"state"``, :class:`SearchState`).
+    ``action_model``: of the base fit (``aibo learn --action-model``). ``pool``: a worker pool of ``jobs`` workers to run in
     (``aibo_core.workers.process_pool``; the caller's, left open), else one of its own."""
     t0 = time.perf_counter()
     opts = opts.comparable()  # every fit of the search is compared with another: converged to 0.1 nats (EMOptions)
+    n_sightings = sum(tr.n_sightings for tr in logs)
     base, refit, logs, n_out = base_and_outliers(logs, opts, action_model, progress)
     train = [training_log(tr) for tr in logs]
     # candidates are warm-started
@@ -545,8 +546,8 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
         run_rounds(st, ctx, workers, jobs, max_rounds, progress)
         found = finish(st, ctx, workers, max_rounds, progress)
     return {"base": base, "base_refit": None if refit is None else refit.info.spurious_refit, "logs": logs,
-            "skipped": skipped, "context": ctx, "action_model": action_model, "jobs": jobs,
-            **found}
+            "outliers": {"set_aside": n_out, "sightings": n_sightings}, "skipped": skipped, "context": ctx,
+            "action_model": action_model, "jobs": jobs, **found}
 
 
 def search_without(found: dict[str, Any], name: str, pool: Any = None,
