@@ -1,0 +1,176 @@
+"""How a real robot follows its turn-rate commands, against Vicon: a delay, a delay and a first-order response, or a
+delay and a rate limit (an acceleration limit)?
+
+    python scripts/mrclam_turn_response.py [DATA] [--robots 1,2,3,4,5] [--signal turn|forward]
+
+Per MRCLAM Dataset 7 robot, from the raw files (the command stream at its own ~100 Hz, Vicon at ~100 Hz): the heading
+change over each 0.1 s frame (``--signal forward``: the displacement along the heading, mm) that Vicon measures, and
+the one each response model predicts from the commands held between their stamps, on a 5 ms grid:
+
+- ``delay``: the command L seconds late;
+- ``first_order``: then through a first-order lag of time constant tau (a step reached as 1 - exp(-t / tau); the
+  catalogue's ``response_time``);
+- ``rate_limit``: then followed at most at rate a (rad/s^2, forward m/s^2; a step d reached as a ramp in |d| / a s).
+
+Each model's parameters are chosen on a grid by the RMS of Vicon's change less gain x the predicted one (the gain
+fitted by least squares, the robot's scale); reported: that RMS over every frame and over the frames within 0.6 s
+after a change of the command (larger than 0.1 rad/s; forward 0.025 m/s), where the models differ. Frames spanning a
+gap of Vicon's longer than 50 ms and changes beyond 0.3 rad (forward 60 mm) per frame (tracking glitches) are left
+out, the same frames for every model. Vicon's own noise is in every row alike.
+
+DATA defaults to ../shared/data/mrclam7 (never copied into the repository). docs/results.md, "A first-order response
+of the commands (`response_time`)".
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numba
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from study import data_folder, mrclam_parser, robots  # noqa: E402
+
+GRID_S = 0.005  # the commands' time grid (s)
+FRAME_S = 0.1  # the frames the changes are measured over (s)
+LAGS_S = np.round(np.arange(0.0, 0.36, 0.01), 2)
+PARAMETERS = {"delay": (0.0,), "first_order": (0.03, 0.06, 0.1, 0.15, 0.2, 0.3, 0.4, 0.6),  # tau (s)
+              # a: rad/s^2 for the turn, m/s^2 for the forward command
+              "rate_limit": (0.1, 0.2, 0.3, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 5.0, 8.0, 12.0, 20.0)}
+AFTER_CHANGE_S = 0.6
+CHANGE = {"turn": 0.1, "forward": 0.025}  # a change of the command (rad/s, m/s)
+GLITCH = {"turn": 0.3, "forward": 60.0}  # per frame (rad, mm)
+MAX_GAP_S = 0.05  # a frame spanning a longer gap of Vicon's is left out
+
+
+@numba.njit(cache=True)
+def rate_limited(u: np.ndarray, a: float, h: float) -> np.ndarray:
+    """``u`` (a command sampled every ``h`` s) followed at most at rate ``a`` per second."""
+    y = np.empty_like(u)
+    c = u[0]
+    step = a * h
+    for i in range(len(u)):
+        c += min(max(u[i] - c, -step), step)
+        y[i] = c
+    return y
+
+
+@numba.njit(cache=True)
+def first_order(u: np.ndarray, tau: float, h: float) -> np.ndarray:
+    """``u`` (sampled every ``h`` s) through a first-order lag of time constant ``tau`` (s); the exact response of a
+    command held over each step."""
+    y = np.empty_like(u)
+    c = u[0]
+    alpha = 1.0 - np.exp(-h / tau)
+    for i in range(len(u)):
+        c += alpha * (u[i] - c)
+        y[i] = c
+    return y
+
+
+def respond(u: np.ndarray, model: str, p: float, h: float = GRID_S) -> np.ndarray:
+    """The velocity a robot with response ``model`` (parameter ``p``) drives at under the (already delayed) command
+    ``u`` sampled every ``h`` s."""
+    if model == "delay":
+        return u
+    return first_order(u, p, h) if model == "first_order" else rate_limited(u, p, h)
+
+
+def held(t: np.ndarray, values: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """The command stamped ``t`` with ``values``, each held until the next, at times ``at`` (0 before the first)."""
+    k = np.searchsorted(t, at, side="right") - 1
+    return np.where(k >= 0, values[np.clip(k, 0, None)], 0.0)
+
+
+def frame_sums(v: np.ndarray, grid0: float, starts: np.ndarray, h: float = GRID_S) -> np.ndarray:
+    """The integral of ``v`` (sampled every ``h`` s from ``grid0``) over each frame [start, start + FRAME_S)."""
+    cs = np.concatenate([[0.0], np.cumsum(v) * h])
+    i0 = np.round((starts - grid0) / h).astype(int)
+    return cs[i0 + int(round(FRAME_S / h))] - cs[i0]
+
+
+def vicon_changes(truth: np.ndarray, starts: np.ndarray, signal: str) -> tuple[np.ndarray, np.ndarray]:
+    """(Vicon's change over each frame: heading (rad) or displacement along the heading (mm); the frames it measures
+    well: no gap longer than MAX_GAP_S within, no glitch). ``truth``: rows (t, x m, y m, heading rad)."""
+    t, x, y, th = truth[:, 0], truth[:, 1], truth[:, 2], np.unwrap(truth[:, 3])
+    ends = starts + FRAME_S
+    if signal == "turn":
+        change = np.interp(ends, t, th) - np.interp(starts, t, th)
+    else:
+        mid = np.interp(starts + FRAME_S / 2, t, th)
+        dx, dy = (np.interp(ends, t, c) - np.interp(starts, t, c) for c in (x, y))
+        change = 1000.0 * (np.cos(mid) * dx + np.sin(mid) * dy)
+    first, last = np.searchsorted(t, starts), np.searchsorted(t, ends)
+    gaps = np.flatnonzero(np.diff(t) > MAX_GAP_S)
+    spans_gap = np.zeros(len(starts), bool)
+    for g in gaps:  # gap g lies between samples g and g + 1
+        spans_gap |= (first <= g + 1) & (last >= g)
+    return change, ~spans_gap & (np.abs(change) < GLITCH[signal])
+
+
+@dataclass
+class Fit:
+    """A response model's best fit: its parameter, lag (s), gain, RMS over every frame and after changes."""
+
+    model: str
+    parameter: float
+    lag_s: float
+    gain: float
+    rms: float
+    rms_after_change: float
+
+
+def fit_models(commands: np.ndarray, truth: np.ndarray, signal: str) -> dict[str, Fit]:
+    """Each response model's best (parameter, lag) by the RMS over every frame. ``commands``: rows (t, v m/s, omega
+    rad/s); ``truth``: Vicon's rows (t, x m, y m, heading rad)."""
+    col = 2 if signal == "turn" else 1
+    scale = 1.0 if signal == "turn" else 1000.0
+    t0, t1 = max(commands[0, 0], truth[0, 0]) + 1.0, min(commands[-1, 0], truth[-1, 0]) - 1.0
+    grid = np.arange(t0 - 1.0, t1 + 1e-9, GRID_S)
+    starts = np.arange(t0, t1 - FRAME_S, FRAME_S)
+    observed, ok = vicon_changes(truth, starts, signal)
+    changes = commands[1:, 0][np.abs(np.diff(commands[:, col])) > CHANGE[signal]]
+    j = np.searchsorted(changes, starts + FRAME_S, side="right") - 1
+    after = ok & (j >= 0) & (starts - changes[np.clip(j, 0, None)] < AFTER_CHANGE_S)
+    best: dict[str, Fit] = {}
+    for lag in LAGS_S:
+        u = held(commands[:, 0], commands[:, col], grid - lag)
+        for model, values in PARAMETERS.items():
+            for p in values:
+                pred = scale * frame_sums(respond(u, model, p), grid[0], starts)
+                gain = float(pred[ok] @ observed[ok] / (pred[ok] @ pred[ok]))
+                e = observed - gain * pred
+                rms = float(np.sqrt(np.mean(e[ok] ** 2)))
+                if model not in best or rms < best[model].rms:
+                    best[model] = Fit(model, p, float(lag), gain, rms, float(np.sqrt(np.mean(e[after] ** 2))))
+    return best
+
+
+def main() -> None:
+    ap = mrclam_parser(__doc__, "")
+    ap.add_argument("--signal", choices=("turn", "forward"), default="turn")
+    args = ap.parse_args()
+    folder = data_folder("mrclam_turn_response", args.data)
+    if folder is None:
+        raise SystemExit(1)
+    unit = "mrad" if args.signal == "turn" else "mm"
+    k = 1000.0 if args.signal == "turn" else 1.0
+    print(f"| robot | RMS per frame ({unit}): delay / first order / rate limit | after a change | delay: lag s, gain | "
+          "first order: lag s, tau s, gain | rate limit: lag s, a, gain |")
+    print("|---|---|---|---|---|---|")
+    for r in robots(args.robots):
+        commands = np.loadtxt(folder / f"Robot{r}_Odometry.dat", comments="#")
+        truth = np.loadtxt(folder / f"Robot{r}_Groundtruth.dat", comments="#")
+        f = fit_models(commands, truth, args.signal)
+        d, fo, rl = f["delay"], f["first_order"], f["rate_limit"]
+        print(f"| {r} | {k * d.rms:.2f} / {k * fo.rms:.2f} / {k * rl.rms:.2f} | {k * d.rms_after_change:.2f} / "
+              f"{k * fo.rms_after_change:.2f} / {k * rl.rms_after_change:.2f} | {d.lag_s:.2f}, {d.gain:.3f} | "
+              f"{fo.lag_s:.2f}, {fo.parameter:g}, {fo.gain:.3f} | {rl.lag_s:.2f}, {rl.parameter:g}, {rl.gain:.3f} |",
+              flush=True)
+
+
+if __name__ == "__main__":
+    main()
