@@ -309,9 +309,10 @@ def _set_aside(outliers: dict[str, Any] | None) -> str:
     """How many sightings the search set aside as gross errors before any model was fitted (report.json["outliers"])."""
     if not outliers:
         return ""
+    n, of = outliers["set_aside"], outliers["sightings"]
     return (f"Sightings set aside as gross errors before the diagnosis (Mahalanobis^2 &gt; "
-            f"{outliers['gate_mahalanobis2']:g} under the search's base model): {outliers['set_aside']} of "
-            f"{outliers['sightings']} ({outliers['share']:.1%}); no fit or score here sees them.")
+            f"{outliers['gate_mahalanobis2']:g} under the search's base model): "
+            + (f"none of {of}." if n == 0 else f"{n} of {of} ({outliers['share']:.1%}); no fit or score here sees them."))
 
 
 def _trail(checks: list[dict[str, Any]]) -> str:

@@ -24,3 +24,14 @@ def test_the_calibrated_figure_is_written_with_one_row_or_many(tmp_path):
         path = tmp_path / f"calibrated_{n}.png"
         calibrated_bars(path, _check(zs), _check({k: -z for k, z in zs.items()}))
         assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_the_page_says_how_many_sightings_were_set_aside_before_the_diagnosis():
+    """report.json["outliers"] on the page: "none of N" when the search set none aside, else the count and share."""
+    from aibo.diagnose_report import _set_aside
+
+    none = {"set_aside": 0, "sightings": 4776, "share": 0.0, "gate_mahalanobis2": 50.0}
+    assert _set_aside(none).endswith("under the search's base model): none of 4776.")
+    some = dict(none, set_aside=101, sightings=4991, share=101 / 4991)
+    assert _set_aside(some).endswith("): 101 of 4991 (2.0%); no fit or score here sees them.")
+    assert "Mahalanobis^2 &gt; 50 " in _set_aside(some) and _set_aside(None) == ""
