@@ -1,7 +1,7 @@
 """How a real robot follows its turn-rate commands, against Vicon: a delay, a delay and a first-order response, or a
 delay and a rate limit (an acceleration limit)?
 
-    python scripts/mrclam_turn_response.py [DATA] [--robots 1,2,3,4,5] [--signal turn|forward]
+    python scripts/mrclam_turn_response.py [DATA] [--robots 1,2,3,4,5] [--signal turn|forward] [--png FILE]
 
 Per MRCLAM Dataset 7 robot, from the raw files (the command stream at its own ~100 Hz, Vicon at ~100 Hz): the heading
 change over each 0.1 s frame (``--signal forward``: the displacement along the heading, mm) that Vicon measures, and
@@ -17,6 +17,9 @@ fitted by least squares, the robot's scale); reported: that RMS over every frame
 after a change of the command (larger than 0.1 rad/s; forward 0.025 m/s), where the models differ. Frames spanning a
 gap of Vicon's longer than 50 ms and changes beyond 0.3 rad (forward 60 mm) per frame (tracking glitches) are left
 out, the same frames for every model. Vicon's own noise is in every row alike.
+
+``--png`` (the turn): per robot, the mean response to an isolated step of the turn command (a change of at least 0.2
+rad/s, held 0.5 s before and 1.2 s after) that Vicon measures, beside each fitted model's.
 
 DATA defaults to ../shared/data/mrclam7 (never copied into the repository). docs/results.md, "A first-order response
 of the commands (`response_time`)".
@@ -149,10 +152,78 @@ def fit_models(commands: np.ndarray, truth: np.ndarray, signal: str) -> dict[str
     return best
 
 
+STEP_WINDOW_S = (-0.3, 1.2)  # the step responses' times around each change (s)
+STEP_MIN_RAD_S = 0.2  # a change of the turn command drawn as a step
+STEP_HELD_S = (0.5, 1.2)  # the command held this long before and after it
+RATE_S = 0.05  # Vicon's rate: its change over this long, centred (s)
+
+
+def step_responses(commands: np.ndarray, truth: np.ndarray, fits: dict[str, Fit],
+                   ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray], int]:
+    """(Times after a change of the turn command (s); Vicon's turn rate, and each fitted model's, as the share of the
+    step made, averaged over the isolated steps: changes of at least STEP_MIN_RAD_S held STEP_HELD_S before and after; how
+    many). Vicon's share is (rate - gain x the command before) / (gain x the step), with the first order's gain; a
+    model's (its velocity - the command before) / the step. The turn only: Vicon's forward speed over 50 ms is its
+    noise's and the marker's turn as much as the robot's."""
+    t, u = commands[:, 0], commands[:, 2]
+    jumps = np.flatnonzero(np.abs(np.diff(u)) >= STEP_MIN_RAD_S) + 1
+    stamps = t[jumps]
+    isolated = [j for k, j in enumerate(jumps)
+                if (k == 0 or stamps[k] - stamps[k - 1] >= STEP_HELD_S[0])
+                and (k == len(jumps) - 1 or stamps[k + 1] - stamps[k] >= STEP_HELD_S[1])
+                and truth[0, 0] + 2 < t[j] < truth[-1, 0] - 2 and commands[0, 0] + 2 < t[j]]
+    rel = np.arange(STEP_WINDOW_S[0], STEP_WINDOW_S[1] + 1e-9, 0.01)
+    heading = np.unwrap(truth[:, 3])
+    observed, predicted = [], {name: [] for name in fits}
+    for j in isolated:
+        before, step = u[j - 1], u[j] - u[j - 1]
+        at = t[j] + rel
+        rate = (np.interp(at + RATE_S / 2, truth[:, 0], heading)
+                - np.interp(at - RATE_S / 2, truth[:, 0], heading)) / RATE_S
+        gain = fits["first_order"].gain
+        observed.append((rate - gain * before) / (gain * step))
+        grid = np.arange(t[j] - 2.0, t[j] + STEP_WINDOW_S[1] + 1e-9, GRID_S)
+        for name, f in fits.items():
+            v = respond(held(t, u, grid - f.lag_s), name, f.parameter)
+            predicted[name].append((np.interp(at, grid, v) - before) / step)
+    return rel, np.mean(observed, axis=0), {k: np.mean(v, axis=0) for k, v in predicted.items()}, len(isolated)
+
+
+def figure(rows: dict[int, tuple], path: Path) -> None:
+    """Per robot, the mean step response Vicon measures and each fitted model's (``step_responses``)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from aibo.figures import save_png
+
+    fig, axes = plt.subplots(1, len(rows), figsize=(3.2 * len(rows), 3.4), sharey=True, squeeze=False)
+    styles = {"delay": ("tab:gray", "--"), "first_order": ("tab:blue", "-"), "rate_limit": ("tab:orange", ":")}
+    for ax, (r, (rel, observed, predicted, n)) in zip(axes[0], rows.items()):
+        ax.plot(rel, observed, color="k", lw=2, label="Vicon")
+        for name, y in predicted.items():
+            color, ls = styles[name]
+            ax.plot(rel, y, color=color, ls=ls, label=name.replace("_", " "))
+        ax.axvline(0, color="0.8", lw=0.8)
+        ax.set_title(f"robot {r} ({n} steps)", fontsize=9)
+        ax.set_xlabel("s after the command changed")
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("share of the turn step made")
+    axes[0][0].legend(fontsize=7)
+    fig.suptitle("MRCLAM Dataset 7: how the robots follow a step of the turn command (mean over isolated steps; "
+                 "each model at its fitted lag and parameter)", fontsize=9)
+    fig.tight_layout()
+    save_png(fig, path)  # atomically, its folder made
+
+
 def main() -> None:
     ap = mrclam_parser(__doc__, "")
     ap.add_argument("--signal", choices=("turn", "forward"), default="turn")
+    ap.add_argument("--png", default=None, help="write the figure of the turn's mean step responses here")
     args = ap.parse_args()
+    if args.png and args.signal != "turn":
+        raise SystemExit("mrclam_turn_response: --png draws the turn's step responses (--signal turn)")
     folder = data_folder("mrclam_turn_response", args.data)
     if folder is None:
         raise SystemExit(1)
@@ -161,15 +232,20 @@ def main() -> None:
     print(f"| robot | RMS per frame ({unit}): delay / first order / rate limit | after a change | delay: lag s, gain | "
           "first order: lag s, tau s, gain | rate limit: lag s, a, gain |")
     print("|---|---|---|---|---|---|")
+    steps = {}
     for r in robots(args.robots):
         commands = np.loadtxt(folder / f"Robot{r}_Odometry.dat", comments="#")
         truth = np.loadtxt(folder / f"Robot{r}_Groundtruth.dat", comments="#")
         f = fit_models(commands, truth, args.signal)
+        if args.png:
+            steps[r] = step_responses(commands, truth, f)
         d, fo, rl = f["delay"], f["first_order"], f["rate_limit"]
         print(f"| {r} | {k * d.rms:.2f} / {k * fo.rms:.2f} / {k * rl.rms:.2f} | {k * d.rms_after_change:.2f} / "
               f"{k * fo.rms_after_change:.2f} / {k * rl.rms_after_change:.2f} | {d.lag_s:.2f}, {d.gain:.3f} | "
               f"{fo.lag_s:.2f}, {fo.parameter:g}, {fo.gain:.3f} | {rl.lag_s:.2f}, {rl.parameter:g}, {rl.gain:.3f} |",
               flush=True)
+    if args.png:
+        figure(steps, Path(args.png))
 
 
 if __name__ == "__main__":

@@ -61,3 +61,18 @@ def test_robot_3_follows_its_turn_commands_through_a_first_order_response_not_a_
     assert fits["first_order"].rms < fits["rate_limit"].rms < fits["delay"].rms
     assert fits["first_order"].rms_after_change < 0.95 * fits["delay"].rms_after_change
     assert fits["first_order"].gain > fits["delay"].gain + 0.05
+
+
+def test_the_mean_step_response_of_a_first_order_log_is_the_first_order_s():
+    """The figure's curves on a known answer: a log made with a first-order response (tau 0.15 s after 0.15 s, gain
+    0.95) averages over its isolated steps to the fitted first order's curve (within 0.06 at every time; Vicon's 0.5
+    mrad noise over 50 ms), while the delay alone's jumps away from it (by more than 0.3 just after the lag); before
+    the change both are at 0 and long after at 1."""
+    script = load_script("mrclam_turn_response")
+    commands, truth = _synthetic("first_order", 0.15, 0.15, 0.95)
+    fits = script.fit_models(commands, truth, "turn")
+    rel, observed, predicted, n = script.step_responses(commands, truth, fits)
+    assert n > 20 and len(rel) == len(observed)
+    assert np.max(np.abs(observed - predicted["first_order"])) < 0.06
+    assert np.max(np.abs(observed - predicted["delay"])) > 0.3
+    assert abs(observed[rel < 0].mean()) < 0.03 and abs(observed[rel > 1.0].mean() - 1.0) < 0.05
