@@ -16,6 +16,7 @@ from learners.em.learner import EMLearner
 from learners.em.options import EMOptions
 from learners.inference.batch import make_batch
 from learners.model.effects import EFFECT_MODELS
+from tests._logs import sim_log
 
 
 def _frames(n: int = 400, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -114,3 +115,17 @@ def test_on_mrclam_robot5_the_trend_is_seen_and_vicon_s_displacements_agree():
     at_vicon, _ = factor_score(lo.disp[ok], lo.information(lo.disp)[ok], true[ok], batch.frame_time[ok] / 60.0, None)
     smoothed = score_statistics(model, [log])[SPEED_TREND]
     assert at_vicon > 20.0 and smoothed > 2.5, (at_vicon, smoothed)
+
+
+def test_every_statistic_of_the_sightings_alone_has_a_reading_in_both_directions_that_names_the_path():
+    """``data_statistics``' every key gets a sentence of its own (not the fallback "is higher than"), its direction
+    from z's sign, and the note that a statistic of the sightings alone follows where the robot went."""
+    from learners.discrepancy.statistics import data_statistics
+
+    keys = set(data_statistics([sim_log()]))
+    for key in keys:
+        up, down = plain_reading(key, 5.0), plain_reading(key, -5.0)
+        assert up != down and "than its simulation's" in up and "is higher than" not in up
+        assert "the replays of the measured commands go elsewhere" in up and "where the robot went" in down
+    assert plain_reading("bearing spread (rad)", -4.1).startswith("the log's bearings spread narrower than")
+    assert plain_reading("sightings per frame", 4.9).startswith("the log's robot reports more sightings per frame")

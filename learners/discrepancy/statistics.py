@@ -80,6 +80,24 @@ def data_statistics(logs: list[Trajectory]) -> dict[str, float]:
     }
 
 
+#: What each statistic of the sightings alone (``data_statistics``) says about the log, for ``plain_reading``: (the
+#: sentence's subject and verb, its two directions).
+_DATA_READING = {
+    "sightings per frame": ("the log's robot reports", "more sightings per frame", "fewer sightings per frame"),
+    "size, 10% quantile": ("the log's sizes run", "larger at their 10% quantile", "smaller at their 10% quantile"),
+    "size, median": ("the log's sizes run", "larger at their median", "smaller at their median"),
+    "size, 90% quantile": ("the log's sizes run", "larger at their 90% quantile", "smaller at their 90% quantile"),
+    "bearing spread (rad)": ("the log's bearings spread", "wider", "narrower"),
+}
+
+#: Why a statistic of the sightings alone can differ without a sensor effect: the check replays the measured commands
+#: open loop, and a robot that steered on its own pose went elsewhere than its replays do (docs/results.md, "The
+#: calibrated check on effect-free logs": on effect-free simulated logs such statistics were the ones left once each
+#: replica was fitted as the measured log was).
+_WHERE_IT_WENT = ("what the sensor reports (a camera's angle or size scaled, a detection that reaches other distances or "
+                  "angles) or where the robot went: a statistic of the sightings alone, and the replays of the measured "
+                  "commands go elsewhere than a robot that steered on its own pose")
+
 #: What a residual signature's variable says about the log, for ``plain_reading``.
 _VARIABLE_READING = {
     "landmark": "differ from landmark to landmark (per-landmark errors: a landmark's mapped position or size, or how "
@@ -134,4 +152,7 @@ def plain_reading(statistic: str, z: float) -> str:
                 + " than it predicts its own simulation's" + (" (an effect it lacks, or a fit short of its best: a "
                                                              "local optimum of EM; docs/results.md, 'The calibrated "
                                                              "check on effect-free logs')" if more else ""))
+    if statistic in _DATA_READING:
+        subject, up, down = _DATA_READING[statistic]
+        return f"{subject} {up if more else down} than its simulation's ({_WHERE_IT_WENT})"
     return f"the log's {statistic} is {'higher' if more else 'lower'} than its simulation's"
