@@ -298,6 +298,7 @@ def motion_warning(report: dict) -> list[str]:
             f"predicted open loop get worse ({at} nats per sighting, +- s.e.); for driving a simulator over seconds, "
             "the base model (aibo learn's) may be the better motion model"]
 
+
 def set_aside(found: dict) -> dict:
     """report.json["outliers"]: the sightings the search's base model gated out as gross errors (``set_aside`` of
     ``sightings``, their ``share``; Mahalanobis^2 above ``gate_mahalanobis2``), which no model of the search, the
