@@ -82,3 +82,18 @@ def test_an_unexplained_nis_disagreement_says_where():
     nis, other = unexplained(report)
     assert nis["where"].startswith("6.5% of the sightings fall below") and "1.8% / 4.0% / 14.0%" in nis["where"]
     assert "the bearing's beyond 1.96" in nis["where"] and "where" not in other
+
+
+def test_its_two_sides_add_up_to_the_check_s_share_outside_the_band(fitted):
+    """The shape reads the check's own statistic: below + above the band is ``score``'s ``nis_outside`` (the same
+    ungated filter, the same sightings), to rounding; also on a log with 5% spurious sightings under a model without
+    them, where gross errors beyond the gate move an ungated filter (57% outside the band; a gated filter, which the
+    shape ran until 2026-11-30, read 6%: ``aibo diagnose`` gives both the logs without the base's outliers)."""
+    from learners.discrepancy.score import score
+
+    tr, model = fitted
+    spurious = blind(collect({"noise": "aibo", "effects": {"false_sightings": {"rate": 0.05}}}, 9000, seed=11))
+    for log in (tr, spurious):
+        shape = innovation_shape(model, [log])
+        assert shape["nis_below_band"] + shape["nis_above_band"] == pytest.approx(score(model, [log]).nis_outside,
+                                                                                  abs=1e-12)
