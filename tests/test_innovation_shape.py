@@ -82,6 +82,9 @@ def test_an_unexplained_nis_disagreement_says_where():
     nis, other = unexplained(report)
     assert nis["where"].startswith("6.5% of the sightings fall below") and "1.8% / 4.0% / 14.0%" in nis["where"]
     assert "the bearing's beyond 1.96" in nis["where"] and "where" not in other
+    # the effects whose signature a NIS disagreement is: the noise's scale mixture first, the turn noises beside it
+    assert nis["effect"] == "heavy_tailed_noise"
+    assert [w["effect"] for w in nis["other_effects"]] == ["turn_dependent_noise", "turn_heading_noise"]
 
 
 def test_its_two_sides_add_up_to_the_check_s_share_outside_the_band(fitted):
