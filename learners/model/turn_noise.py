@@ -88,7 +88,9 @@ class TurnDependentNoise(EffectModel):
     #: takes a round of the three the search runs from the beacon heights; on the halves it was not fitted to it is as
     #: good as the defaults or better (forward within 3% of learn's on 9 of 10, the motion gap better on 9); with it
     #: among the candidates the confusion matrix (210 blind logs) names it on none of the 180 hiding another effect,
-    #: and on 11 of the 15 hiding ``turn_heading_noise`` (docs/results.md, "Motion noise that grows with the turn")
+    #: and on 11 of the 15 hiding ``turn_heading_noise`` (docs/results.md, "Motion noise that grows with the turn");
+    #: on seeds 2003-2005 with every effect a candidate first on 3 of the 99 hiding another effect, all of seed 2005
+    #: (2026-11-30, "Residual signatures on effect-free logs")
     DEFAULT_CANDIDATE: ClassVar[bool] = False
     #: the simulated strength the tests and studies use: the noise's standard deviation x 1.8 at 1 rad/s
     EXAMPLE: ClassVar[dict[str, Any]] = {"gain_s": 1.5}
