@@ -1,4 +1,4 @@
-"""How a real robot follows its turn-rate commands, against Vicon: a delay, a delay and a first-order response, or a
+"""How a real robot follows its velocity commands, against Vicon: a delay, a delay and a first-order response, or a
 delay and a rate limit (an acceleration limit)?
 
     python scripts/mrclam_turn_response.py [DATA] [--robots 1,2,3,4,5] [--signal turn|forward] [--png FILE]
