@@ -157,7 +157,8 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=20, help="effect-free logs per noise preset")
     ap.add_argument("--presets", default="aibo", help="noise presets of the effect-free logs (aibo,paper-sim)")
     ap.add_argument("--wall-seeds", type=int, default=0, help="effect-free logs per preset that meet the walls")
-    ap.add_argument("--power-seeds", type=int, default=5)
+    ap.add_argument("--power-seeds", type=int, default=5,
+                    help="the confusion matrix's seeds end here: seeds 2000 + [--first-power-seed, --power-seeds)")
     ap.add_argument("--minutes", type=float, default=10.0)
     ap.add_argument("--effects", default=",".join(STRENGTHS))
     ap.add_argument("--first-power-seed", type=int, default=0,
