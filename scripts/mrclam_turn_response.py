@@ -37,6 +37,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from study import data_folder, mrclam_parser, robots  # noqa: E402
 
+from learners.model.catalogue import low_passed  # noqa: E402  # response_time's own first-order lag
+
 GRID_S = 0.005  # the commands' time grid (s)
 FRAME_S = 0.1  # the frames the changes are measured over (s)
 LAGS_S = np.round(np.arange(0.0, 0.36, 0.01), 2)
@@ -61,25 +63,12 @@ def rate_limited(u: np.ndarray, a: float, h: float) -> np.ndarray:
     return y
 
 
-@numba.njit(cache=True)
-def first_order(u: np.ndarray, tau: float, h: float) -> np.ndarray:
-    """``u`` (sampled every ``h`` s) through a first-order lag of time constant ``tau`` (s); the exact response of a
-    command held over each step."""
-    y = np.empty_like(u)
-    c = u[0]
-    alpha = 1.0 - np.exp(-h / tau)
-    for i in range(len(u)):
-        c += alpha * (u[i] - c)
-        y[i] = c
-    return y
-
-
 def respond(u: np.ndarray, model: str, p: float, h: float = GRID_S) -> np.ndarray:
     """The velocity a robot with response ``model`` (parameter ``p``) drives at under the (already delayed) command
     ``u`` sampled every ``h`` s."""
     if model == "delay":
         return u
-    return first_order(u, p, h) if model == "first_order" else rate_limited(u, p, h)
+    return low_passed(u, p, h) if model == "first_order" else rate_limited(u, p, h)
 
 
 def held(t: np.ndarray, values: np.ndarray, at: np.ndarray) -> np.ndarray:
@@ -175,12 +164,12 @@ def step_responses(commands: np.ndarray, truth: np.ndarray, fits: dict[str, Fit]
     rel = np.arange(STEP_WINDOW_S[0], STEP_WINDOW_S[1] + 1e-9, 0.01)
     heading = np.unwrap(truth[:, 3])
     observed, predicted = [], {name: [] for name in fits}
+    gain = fits["first_order"].gain
     for j in isolated:
         before, step = u[j - 1], u[j] - u[j - 1]
         at = t[j] + rel
         rate = (np.interp(at + RATE_S / 2, truth[:, 0], heading)
                 - np.interp(at - RATE_S / 2, truth[:, 0], heading)) / RATE_S
-        gain = fits["first_order"].gain
         observed.append((rate - gain * before) / (gain * step))
         grid = np.arange(t[j] - 2.0, t[j] + STEP_WINDOW_S[1] + 1e-9, GRID_S)
         for name, f in fits.items():

@@ -210,6 +210,17 @@ class ActuationLag(EffectModel):
 RESPONSE_GRID = (0.0, 0.02, 0.05, 0.1, 0.15, 0.2, 0.3, 0.5, 0.75, 1.0, 1.5, 2.0)
 
 
+def low_passed(c: np.ndarray, tau_s: float, dt: float) -> np.ndarray:
+    """``c`` (commands sampled every ``dt`` s along axis 0) through a first-order lag of time constant ``tau_s``:
+    y[t] = y[t - 1] + a (c[t] - y[t - 1]), a = 1 - exp(-dt / tau_s), the state starting at c[0] (``ResponseTime``;
+    ``scripts/mrclam_turn_response.py`` against Vicon)."""
+    from scipy.signal import lfilter  # here, not at import (SciPy's load costs every command)
+
+    c = np.asarray(c, dtype=float)
+    a = 1.0 - math.exp(-dt / tau_s)
+    return lfilter([a], [1.0, a - 1.0], c, axis=0, zi=((1.0 - a) * c[:1]))[0]
+
+
 @register_effect
 @dataclass(frozen=True)
 class ResponseTime(EffectModel):
@@ -242,13 +253,10 @@ class ResponseTime(EffectModel):
         c = np.asarray(commands)
         if self.tau_s <= 0.0 or c.ndim == 1:  # off, or indices (never fitted: NEEDS controls)
             return commands
-        from scipy.signal import lfilter  # here, not at import (SciPy's load costs every command)
-
-        a = 1.0 - math.exp(-batch.dt / self.tau_s)
         out = np.array(c, dtype=float, copy=True)
         for i, j in zip(batch.frame_start[:-1], batch.frame_start[1:]):
-            if j > i:  # y[-1] = c[i]: the state starts at the log's first command
-                out[i:j] = lfilter([a], [1.0, a - 1.0], c[i:j], axis=0, zi=((1.0 - a) * c[i])[None, :])[0]
+            if j > i:  # each log's own: the state starts at its first command
+                out[i:j] = low_passed(c[i:j], self.tau_s, batch.dt)
         return out
 
     def maximize(self, model: "Model", batch: Batch, post: Posterior, mu_star: np.ndarray) -> "Model":
