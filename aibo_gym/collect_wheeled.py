@@ -61,23 +61,78 @@ def collect_wheeled(config: dict[str, Any] | None, steps: int, seed: int,
     return _run(env, driver.reset, driver.act, steps, seed, None, meta)
 
 
+#: The commands a tracking replay can steer: forward speed (mm/s) and turn rate (rad/s).
+TRACKED_CONTROLS = ("v_mm_s", "omega_rad_s")
+#: The tracking replay's time constant (s): a position or heading error off the reference path is steered out over
+#: about this long. Slow beside the motion's own timing (lag, response time: tenths of a second) and the check's
+#: motion horizons (1-5 s), fast beside the drift of an open-loop replay (metres over minutes). Measured on MRCLAM
+#: robot 3 (docs/results.md, "The twin's replays follow the robot's path"): replays of its commands 34-58% of the time
+#: outside the landmarks' box (the robot: 96%), tracking at 10 s median 69-77 mm off Vicon's path.
+TRACKING_TAU_S = 10.0
+#: Below this forward speed (mm/s) the lateral error's gain is held at its value here (it divides by the speed).
+TRACKING_MIN_SPEED_MM_S = 50.0
+
+
+def tracking_command(command: np.ndarray, pose: np.ndarray, target: np.ndarray,
+                     tau_s: float = TRACKING_TAU_S) -> np.ndarray:
+    """The measured command (v mm/s, omega rad/s) corrected towards ``target`` [x mm, y mm, theta rad] from ``pose``
+    (Kanayama et al. 1990's tracking law with gains 1 / tau): with the errors in the robot's frame (e_x ahead, e_y
+    left, e_theta), v = v_r cos(e_theta) + e_x / tau and omega = omega_r + sin(e_theta) / tau + e_y / (tau^2 max(|v_r|,
+    TRACKING_MIN_SPEED_MM_S))."""
+    v, omega = float(command[0]), float(command[1])
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    dx, dy = target[0] - pose[0], target[1] - pose[1]
+    ex, ey = c * dx + s * dy, -s * dx + c * dy
+    eth = float(np.angle(np.exp(1j * (target[2] - pose[2]))))
+    speed = max(abs(v), TRACKING_MIN_SPEED_MM_S)
+    return np.array([v * np.cos(eth) + ex / tau_s, omega + np.sin(eth) / tau_s + ey / (tau_s * tau_s * speed)])
+
+
 def replay_wheeled(config: dict[str, Any] | None, controls: np.ndarray, seed: int,
-                   images: np.ndarray | None = None, source: str = "") -> Trajectory:
+                   images: np.ndarray | None = None, source: str = "",
+                   reference: np.ndarray | None = None) -> Trajectory:
     """Step ``WheeledRobot-v0`` through the given commands (a measured log's ``controls``, (T, k)) and
     return the log. ``images`` (T,) bool: the frames that take an image (e.g. the measured log's frames
-    with a sighting); None: the config's schedule. The action space is widened to hold the commands."""
+    with a sighting); None: the config's schedule. The action space is widened to hold the commands.
+
+    ``reference`` (T + 1, 3) poses [x mm, y mm, theta rad] (e.g. a model's smoothed path of the measured log): each
+    command is corrected towards the reference's pose at the end of its frame (``tracking_command``), as the
+    measured robot steered on its own pose; the log records the commands executed. Only for the commands
+    ``TRACKED_CONTROLS``; None: the commands open loop, as measured."""
     controls = np.asarray(controls, dtype=float)
     if controls.ndim != 2 or len(controls) == 0 or not np.isfinite(controls).all():
         raise ValueError("replay: controls must be a non-empty (T, k) array of finite numbers")
     cfg = dict(config or {}, max_steps=len(controls))
     lo = np.minimum(controls.min(axis=0), cfg.get("control_low", controls.min(axis=0)))
     hi = np.maximum(controls.max(axis=0), cfg.get("control_high", controls.max(axis=0)))
-    cfg["control_low"], cfg["control_high"] = lo.tolist(), np.where(hi > lo, hi, lo + 1.0).tolist()
+    hi = np.where(hi > lo, hi, lo + 1.0)
+    if reference is not None:
+        lo, hi = lo - 0.5 * (hi - lo), hi + 0.5 * (hi - lo)  # room for the corrections
+    cfg["control_low"], cfg["control_high"] = lo.tolist(), hi.tolist()
     env = WheeledRobotEnv(cfg)
-    rows = iter(controls)
+    if reference is not None:
+        reference = np.asarray(reference, dtype=float)
+        names = tuple(env.config["control_names"])
+        if names != TRACKED_CONTROLS or reference.shape != (len(controls) + 1, 3):
+            raise ValueError(f"replay: a reference path needs the commands {TRACKED_CONTROLS} and (T + 1, 3) poses; "
+                             f"got {names} and {reference.shape}")
     options = None if images is None else {"images": np.asarray(images, bool)}
     meta = {"policy": "replay", "policy_params": {}, "localizer": "none", "replay_of": source}
-    return _run(env, lambda info: None, lambda obs, info: next(rows), len(controls), seed, options, meta)
+    if reference is None:
+        rows = iter(controls)
+        return _run(env, lambda info: None, lambda obs, info: next(rows), len(controls), seed, options, meta)
+    step = {"t": 0}
+
+    def reset(info: dict[str, Any]) -> None:
+        step["t"] = 0
+
+    def act(obs: Any, info: dict[str, Any]) -> np.ndarray:
+        t = step["t"]
+        step["t"] += 1
+        return np.clip(tracking_command(controls[t], info["pose"], reference[t + 1]), lo, hi)
+
+    meta.update(policy="tracking replay", policy_params={"tau_s": TRACKING_TAU_S}, localizer="truth")
+    return _run(env, reset, act, len(controls), seed, options, meta)
 
 
 def _run(env: WheeledRobotEnv, reset: Callable, act: Callable, steps: int, seed: int,
