@@ -97,7 +97,8 @@ def replay_wheeled(config: dict[str, Any] | None, controls: np.ndarray, seed: in
 
     ``reference`` (T + 1, 3) poses [x mm, y mm, theta rad] (e.g. a model's smoothed path of the measured log): each
     command is corrected towards the reference's pose at the end of its frame (``tracking_command``), as the
-    measured robot steered on its own pose; the log records the commands executed. Only for the commands
+    measured robot steered on its own pose, where the measured command changes (held between, so the replay's
+    commands change where the log's do); the log records the commands executed. Only for the commands
     ``TRACKED_CONTROLS``; None: the commands open loop, as measured."""
     controls = np.asarray(controls, dtype=float)
     if controls.ndim != 2 or len(controls) == 0 or not np.isfinite(controls).all():
@@ -121,15 +122,20 @@ def replay_wheeled(config: dict[str, Any] | None, controls: np.ndarray, seed: in
     if reference is None:
         rows = iter(controls)
         return _run(env, lambda info: None, lambda obs, info: next(rows), len(controls), seed, options, meta)
-    step = {"t": 0}
+    state: dict[str, Any] = {"t": 0, "held": None}
 
     def reset(info: dict[str, Any]) -> None:
-        step["t"] = 0
+        state.update(t=0, held=None)
 
     def act(obs: Any, info: dict[str, Any]) -> np.ndarray:
-        t = step["t"]
-        step["t"] += 1
-        return np.clip(tracking_command(controls[t], info["pose"], reference[t + 1]), lo, hi)
+        # corrected only where the measured command changes, held between: the replay's commands change where the
+        # log's do, and "time since a command change" means the same in both (a correction on every frame would
+        # make every frame a change)
+        t = state["t"]
+        state["t"] += 1
+        if state["held"] is None or np.any(controls[t] != controls[t - 1]):
+            state["held"] = np.clip(tracking_command(controls[t], info["pose"], reference[t + 1]), lo, hi)
+        return state["held"]
 
     meta.update(policy="tracking replay", policy_params={"tau_s": TRACKING_TAU_S}, localizer="truth")
     return _run(env, reset, act, len(controls), seed, options, meta)

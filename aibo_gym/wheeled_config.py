@@ -31,6 +31,14 @@ fov               1.18                                    camera field of view (
                                                           on the heading
 range_mm          [300, 8500]                             distances at which a landmark is seen, mm
 detect_prob       0.9                                     probability a visible landmark is reported
+detect_by_distance None                                   or [[d_mm, p], ...], d increasing: the
+                                                          probability by distance (linear between the
+                                                          points, held beyond them), instead of
+                                                          detect_prob (a real camera's falls with d)
+detect_by_angle   None                                    or [[|a| rad, factor], ...], |a| increasing:
+                                                          the probability times this factor at the
+                                                          landmark's angle a off the heading (linear
+                                                          between, held beyond), at most 1
 image_every       1                                       an image every n-th frame (frames n-1, 2n-1 ...)
 image_prob        1.0                                     probability that a scheduled frame takes an image
 walls             "open"                                  "open" (none, the episode goes on anywhere),
@@ -100,6 +108,8 @@ def default_config() -> dict[str, Any]:
         "fov": 1.18,
         "range_mm": [300.0, 8500.0],
         "detect_prob": 0.9,
+        "detect_by_distance": None,
+        "detect_by_angle": None,
         "image_every": 1,
         "image_prob": 1.0,
         "walls": "open",
@@ -139,6 +149,21 @@ def _motion_cov(key: str, v: Any) -> list[list[float]]:
     return _slip_cov(key, v)
 
 
+def _table(what: str, top: float) -> Callable[[str, Any], list[list[float]] | None]:
+    """A check of a table of [x >= 0, value in [0, top]] pairs, x increasing."""
+    want = f"None or a list of [{what}, value in [0, {top:g}]] pairs, the first >= 0 and increasing"
+
+    def check(key: str, v: Any) -> list[list[float]] | None:
+        if v is None:
+            return None
+        rows = _rows(key, v, None, 2, want)
+        x, y = np.array(rows).T
+        if np.any(x < 0) or np.any(np.diff(x) <= 0) or np.any((y < 0) | (y > top)):
+            raise _bad(key, v, want)
+        return rows
+    return check
+
+
 def _curve(key: str, v: Any) -> dict[str, Any]:
     if v is None:
         raise _bad(key, v, '{"basis": "power" | "inverse", "coef": [c0, c1, ...]}')
@@ -162,6 +187,8 @@ CHECKS: dict[str, Callable[[str, Any], Any]] = {
     "fov": _fov,
     "range_mm": _range_mm,
     "detect_prob": _prob,
+    "detect_by_distance": _table("distance mm", 1.0),
+    "detect_by_angle": _table("|angle| rad", 1e6),
     "image_every": _int_min(1),
     "image_prob": _prob,
     "walls": _choice(WALL_MODES),

@@ -80,14 +80,16 @@ def simulator_env(model: Model) -> str:
     return "AiboBeacons-v0" if model.action.discrete else "WheeledRobot-v0"
 
 
-def simulator_config(model: Model, log: Trajectory | None = None, index: int = 0) -> dict[str, Any]:
+def simulator_config(model: Model, log: Trajectory | None = None, index: int = 0,
+                     path: np.ndarray | None = None) -> dict[str, Any]:
     """The env config of a simulator built from ``model`` (module docstring; for continuous commands,
     ``WheeledRobot-v0``'s: :mod:`experiments.calibrated_wheeled`); ``log`` (the measured one, the
-    ``index``-th of the fit) gives landmarks, field and camera. ValueError (one line) when the
-    simulator cannot represent the model."""
+    ``index``-th of the fit) gives landmarks, field and camera; ``path`` (continuous commands): where the camera's
+    detection is measured when the log has no true poses. ValueError (one line) when the simulator cannot represent
+    the model."""
     act, sen = model.action, model.sensor
     if not act.discrete:
-        return wheeled_config(model, log, index)
+        return wheeled_config(model, log, index, path)
     if not act.discrete or act.weights.shape[0] != N_ACTIONS:
         raise ValueError(f"the simulator walks {N_ACTIONS} discrete commands; this model's action model is "
                          f"'{act.feature_map}' with {act.weights.shape[0]} rows")
@@ -116,16 +118,18 @@ def _bounding_field(landmarks: np.ndarray) -> np.ndarray:
     return 2.0 * (np.abs(landmarks).max(axis=0) + FIELD_MARGIN_MM)
 
 
-def replay_log(model: Model, log: Trajectory, seed: int, index: int = 0,
-               reference: np.ndarray | None = None) -> Trajectory:
+def replay_log(model: Model, log: Trajectory, seed: int, index: int = 0, path: np.ndarray | None = None,
+               steer: bool = False) -> Trajectory:
     """``log``'s commands (and head pan, or for continuous commands its image frames) replayed in the
     simulator of ``model``: a log of the same length, as the model says the robot would have made it.
-    ``reference`` (continuous commands only): the path the replay's commands are steered along
-    (``aibo_gym.collect_wheeled.replay_wheeled``); None: open loop."""
+    ``path`` (continuous commands only; ``smoothed_paths``): where the camera's detection is measured when the log
+    has no true poses, and with ``steer`` the path the replay's commands are steered along
+    (``aibo_gym.collect_wheeled.replay_wheeled``; commands ``TRACKED_CONTROLS`` only, the others open loop)."""
     from aibo_gym.collect import replay
-    from aibo_gym.collect_wheeled import replay_wheeled
+    from aibo_gym.collect_wheeled import TRACKED_CONTROLS, replay_wheeled
 
-    cfg = simulator_config(model, log, index)
+    cfg = simulator_config(model, log, index, path=path)
+    reference = path if steer and tuple(log.control_names) == TRACKED_CONTROLS else None
     src = str(log.meta.get("source", log.meta.get("generator", "")))
     if not model.action.discrete:
         if log.controls is None:
@@ -185,32 +189,31 @@ class Check:
                             "failed_replicas": self.failed})
 
 
-def replica_statistics(model: Model, logs: list[Trajectory], seed: int,
-                       references: list[np.ndarray | None] | None = None) -> dict[str, float]:
-    """One replica: every log replayed in ``model``'s simulator (along ``references``, one path or None per log:
-    ``reference_paths``), then the measured logs' treatment (outliers set aside, refit on the training half from
-    ``model``, statistics on the whole)."""
-    refs = references or [None] * len(logs)
-    sims = [replay_log(model, tr, seed + 7919 * i, index=i, reference=refs[i]) for i, tr in enumerate(logs)]
+def replica_statistics(model: Model, logs: list[Trajectory], seed: int, paths: list[np.ndarray | None] | None = None,
+                       steer: bool = False) -> dict[str, float]:
+    """One replica: every log replayed in ``model``'s simulator (``paths``: one smoothed path or None per log, and
+    ``steer``, as ``replay_log`` takes them), then the measured logs' treatment (outliers set aside, refit on the
+    training half from ``model``, statistics on the whole)."""
+    paths = paths or [None] * len(logs)
+    sims = [replay_log(model, tr, seed + 7919 * i, index=i, path=paths[i], steer=steer) for i, tr in enumerate(logs)]
     sims, _ = drop_outliers(model, sims)
     return _compared(check_statistics(training_refit(model, sims), sims))
 
 
-def reference_paths(model: Model, logs: list[Trajectory]) -> list[np.ndarray | None]:
-    """The paths the replicas of ``logs`` follow: ``model``'s smoothed path of each log whose commands a replay can
-    steer (``aibo_gym.collect_wheeled.TRACKED_CONTROLS``), None (open loop) for the others. Why: a replay of the
+def smoothed_paths(model: Model, logs: list[Trajectory]) -> list[np.ndarray] | None:
+    """``model``'s smoothed path of each of ``logs`` ((T + 1, 3) poses [x mm, y mm, theta rad]), for a model of
+    continuous commands (None for a discrete one, whose simulator takes the camera from its config). What a replica's
+    camera is measured at when a log has no true poses (a real robot's without Vicon: otherwise its simulator would
+    detect with the env's default probability), and what a tracking replica steers along. Why steer: a replay of the
     measured commands open loop drifts metres away over minutes (the measured robot steered on its pose; the replay
     cannot), and the sightings' statistics then compare a robot in the arena with one outside it (MRCLAM: every
-    robot's "sightings per frame" disagreed at z +2.5 to +5.0, docs/results.md, "The twin's replays follow the robot's
+    robot's "sightings per frame" disagreed at z +2.5 to +4.9, docs/results.md, "The twin's replays follow the robot's
     path")."""
-    from aibo_gym.collect_wheeled import TRACKED_CONTROLS
     from learners.scoring import smoothed_poses
 
-    steer = [tr.controls is not None and tuple(tr.control_names) == TRACKED_CONTROLS for tr in logs]
-    if not any(steer):
-        return [None] * len(logs)
-    paths, _ = smoothed_poses(model, logs)
-    return [p if s else None for p, s in zip(paths, steer)]
+    if model.action.discrete:
+        return None
+    return smoothed_poses(model, logs)[0]
 
 
 def training_refit(model: Model, logs: list[Trajectory]) -> Model:
@@ -241,15 +244,16 @@ def predictive_check(model: Model, logs: list[Trajectory], replicas: int = REPLI
     model, its own statistics, 2 disagreements; refitted as the replicas are, 4, those the report gave for the
     search's training-half model.
 
-    ``tracking``: the replicas steered along ``model``'s smoothed paths (``reference_paths``) instead of open loop.
+    ``tracking``: the replicas steered along ``model``'s smoothed paths (``smoothed_paths``) instead of open loop.
     Not the default: on MRCLAM robot 3 it brought "sightings per frame" into the replicas' spread (z +4.9 -> +1.8) and
     made the size quantiles disagree more (-4.6 -> -7.6 at 90%: the twin's camera detects as often at 6 m as at 2 m, the
     robots' about half as often), 11 -> 10 statistics in all (docs/results.md, "The twin's replays follow the robot's
     path")."""
     simulator_config(model, logs[0])  # refuse early, in one line, what the simulator cannot represent
     measured = _compared(check_statistics(training_refit(model, logs), logs))
-    references = reference_paths(model, logs) if tracking else None
-    args = [(model, logs, 1_000_003 * (seed + 1) + r, references) for r in range(replicas)]
+    needed = tracking or any(tr.pose is None for tr in logs)
+    paths = smoothed_paths(model, logs) if needed else None
+    args = [(model, logs, 1_000_003 * (seed + 1) + r, paths, tracking) for r in range(replicas)]
     if jobs > 1:
         with process_pool(jobs) as pool:
             results = list(pool.map(_replica_job, args))

@@ -9,8 +9,12 @@ the landmarks, the field (or the landmarks' bounding box), the frames that took 
 with a sighting: a replay images exactly those) and the camera. When the log was made by
 ``WheeledRobot-v0`` its camera settings are copied (``meta["config"]``); otherwise (a real robot) they are
 measured: the field of view from the widest bearing, the range limits from the shortest and longest
-range (widened by 3 sigma_range), and, when the log has true poses (e.g. Vicon), the detection
-probability: sightings / landmarks within the camera's view in the image frames.
+range (widened by 3 sigma_range), and, when a path is known (the log's true poses, e.g. Vicon, else the model's
+smoothed path: ``experiments.calibrated.smoothed_paths``), the detection probability, sightings / landmarks within
+the camera's view in the image frames, overall (``detect_prob``) and by distance (``detect_by_distance``: a real
+camera's falls with it, MRCLAM's from about 0.55 at 1-2 m to 0.2 beyond 5 m) and by the angle off the heading
+(``detect_by_angle``: on two of the MRCLAM robots it falls at the image's edge), docs/results.md, "The twin's replays
+follow the robot's path".
 """
 
 from __future__ import annotations
@@ -28,6 +32,12 @@ FEATURE_MAPS = ("diff_drive", "unicycle", "linear")
 CAMERA_KEYS = ("fov", "range_mm", "detect_prob", "image_every", "image_prob")
 FIELD_MARGIN_MM = 1000.0  # a log without a field: the landmarks' bounding box grown by this
 FOV_MARGIN_RAD = 0.01  # the measured field of view: the widest bearing plus this, each side
+#: ``detect_by_distance``: the landmarks in view split at the quantiles of their distance into at most this many
+#: bins, each holding at least ``DETECT_MIN_PAIRS`` (landmark, image) pairs
+DETECT_BINS = 8
+ANGLE_BINS = 5
+DETECT_MIN_PAIRS = 100
+IPF_ITERATIONS = 50  # the two tables' fit: each pass a product closer to the binned counts' margins
 
 
 def check_model(model: Model) -> None:
@@ -40,9 +50,11 @@ def check_model(model: Model) -> None:
         raise ValueError(f"the wheeled simulator's camera reports ranges in mm; this model's sensor is '{sen.kind}'")
 
 
-def wheeled_config(model: Model, log: Trajectory | None = None, index: int = 0) -> dict[str, Any]:
+def wheeled_config(model: Model, log: Trajectory | None = None, index: int = 0,
+                   path: np.ndarray | None = None) -> dict[str, Any]:
     """The ``WheeledRobot-v0`` config of ``model``'s simulator (module docstring); ``log`` (the measured
-    one, the ``index``-th of the fit) gives landmarks, field, camera and command bounds."""
+    one, the ``index``-th of the fit) gives landmarks, field, camera and command bounds; its camera's detection is
+    measured at its true poses, else at ``path`` ((T + 1, 3) poses)."""
     check_model(model)
     act, sen = model.action, model.sensor
     names = list(act.control_names) or (list(log.control_names) if log is not None else [])
@@ -58,7 +70,7 @@ def wheeled_config(model: Model, log: Trajectory | None = None, index: int = 0) 
         k = len(names)
         cfg["control_low"], cfg["control_high"] = [-300.0, -1.5][:k] + [-1.0] * (k - 2), [300.0, 1.5][:k] + [1.0] * (k - 2)
     if log is not None:
-        cfg.update(_from_log(log, float(sen.sigma_size)))
+        cfg.update(_from_log(log, float(sen.sigma_size), path))
     start = model.init[min(index, len(model.init) - 1)].mean
     cfg["start_pose"] = [float(start[0]), float(start[1]), float(start[2])]
     if cfg["walls"] != "open" and "field" in cfg:
@@ -67,7 +79,7 @@ def wheeled_config(model: Model, log: Trajectory | None = None, index: int = 0) 
     return cfg
 
 
-def _from_log(log: Trajectory, sigma_range: float) -> dict[str, Any]:
+def _from_log(log: Trajectory, sigma_range: float, path: np.ndarray | None = None) -> dict[str, Any]:
     """Landmarks, field, command bounds, camera and episode length of the measured ``log``."""
     made_here = log.meta.get("config") if isinstance(log.meta.get("config"), dict) else {}
     c = log.controls
@@ -82,22 +94,27 @@ def _from_log(log: Trajectory, sigma_range: float) -> dict[str, Any]:
     if all(k in made_here for k in CAMERA_KEYS):
         out.update({k: made_here[k] for k in CAMERA_KEYS})
     else:
-        out.update(measured_camera(log, sigma_range))
+        out.update(measured_camera(log, sigma_range, path))
     return out
 
 
-def measured_camera(log: Trajectory, sigma_range: float) -> dict[str, Any]:
-    """Field of view, range limits and detection probability measured on a log (module docstring);
-    the images are the frames with a sighting (given to the replay as a mask), so ``image_prob`` is 1."""
+def measured_camera(log: Trajectory, sigma_range: float, path: np.ndarray | None = None) -> dict[str, Any]:
+    """Field of view, range limits and detection probability measured on a log (module docstring), the detection at
+    the log's true poses, else at ``path`` (neither: not measured); the images are the frames with a sighting (given
+    to the replay as a mask), so ``image_prob`` is 1."""
     cam: dict[str, Any] = {"image_every": 1, "image_prob": 1.0}
     if log.n_sightings == 0:
         return cam
     r, b = log.sighting_value[:, 0], log.sighting_value[:, 1]
     cam["fov"] = min(2.0 * (float(np.abs(b).max()) + FOV_MARGIN_RAD), 2.0 * math.pi)
     cam["range_mm"] = [max(0.0, float(r.min()) - 3.0 * sigma_range), float(r.max()) + 3.0 * sigma_range]
-    p = detection_rate(log, cam["fov"], cam["range_mm"])
-    if p is not None:
-        cam["detect_prob"] = p
+    path = log.pose if log.pose is not None else path
+    if path is None:
+        return cam
+    view, seen = _in_view(log, path, cam["fov"], cam["range_mm"])
+    if len(view):
+        cam["detect_prob"] = float(min(1.0, len(seen) / len(view)))
+        cam.update(detection_tables(view, seen))
     return cam
 
 
@@ -105,14 +122,59 @@ def detection_rate(log: Trajectory, fov: float, range_mm: list[float]) -> float 
     """Sightings / (landmark, image frame) pairs within view at the true pose; None without poses."""
     if log.pose is None:
         return None
+    view, seen = _in_view(log, log.pose, fov, range_mm)
+    return float(min(1.0, len(seen) / len(view))) if len(view) else None
+
+
+def _in_view(log: Trajectory, path: np.ndarray, fov: float, range_mm: list[float]) -> tuple[np.ndarray, np.ndarray]:
+    """((n, 2) distance mm and |angle off the heading| rad at ``path`` of the (landmark, image frame) pairs within
+    view, (S, 2) the same of every sighting's landmark)."""
     frames = np.flatnonzero(image_frames(log))
-    pose = log.pose[frames + 1]
+    pose = path[frames + 1]
     dx = log.landmarks[None, :, 0] - pose[:, None, 0]
     dy = log.landmarks[None, :, 1] - pose[:, None, 1]
     d = np.hypot(dx, dy)
-    bearing = np.angle(np.exp(1j * (np.arctan2(dy, dx) - pose[:, None, 2])))
-    visible = int(np.sum((d >= range_mm[0]) & (d <= range_mm[1]) & (np.abs(bearing) <= fov / 2)))
-    return float(min(1.0, log.n_sightings / visible)) if visible else None
+    angle = np.abs(np.angle(np.exp(1j * (np.arctan2(dy, dx) - pose[:, None, 2]))))
+    visible = (d >= range_mm[0]) & (d <= range_mm[1]) & (angle <= fov / 2)
+    i, j = np.searchsorted(frames, log.sighting_frame), log.sighting_landmark
+    return np.stack([d[visible], angle[visible]], axis=1), np.stack([d[i, j], angle[i, j]], axis=1)
+
+
+def detection_tables(view: np.ndarray, seen: np.ndarray) -> dict[str, list[list[float]]]:
+    """``detect_by_distance`` and ``detect_by_angle`` of the pairs in ``view`` and the sightings ``seen`` (each (n, 2):
+    distance mm, |angle| rad): the detection probability as a product p(d) g(|a|) over quantile bins of each (at most
+    ``DETECT_BINS`` and ``ANGLE_BINS``, each of ``DETECT_MIN_PAIRS`` pairs or more), fitted by iterative
+    proportional fitting (the independence model's maximum likelihood for the binned counts; Deming & Stephan 1940),
+    g scaled to mean 1 over the pairs in view. A table left out where its variable has too few pairs for two bins."""
+    bins = [min(most, len(view) // DETECT_MIN_PAIRS) for most in (DETECT_BINS, ANGLE_BINS)]
+    edges = [_edges(view[:, k], b) for k, b in enumerate(bins)]
+    n_view = np.histogram2d(view[:, 0], view[:, 1], edges)[0]
+    n_seen = np.histogram2d(seen[:, 0], seen[:, 1], edges)[0]
+    p, g = np.ones(n_view.shape[0]), np.ones(n_view.shape[1])
+    for _ in range(IPF_ITERATIONS):
+        p = n_seen.sum(axis=1) / np.maximum(n_view @ g, 1e-12)
+        g = n_seen.sum(axis=0) / np.maximum(p @ n_view, 1e-12)
+    mean_g = (n_view.sum(axis=0) @ g) / n_view.sum()
+    p, g = p * mean_g, g / mean_g
+    out = {}
+    for key, values, k in (("detect_by_distance", np.minimum(p, 1.0), 0), ("detect_by_angle", g, 1)):
+        centre = _bin_means(view[:, k], edges[k])
+        if len(values) >= 2 and np.all(np.diff(centre) > 0):
+            out[key] = [[float(c), float(v)] for c, v in zip(centre, values)]
+    return out
+
+
+def _edges(x: np.ndarray, bins: int) -> np.ndarray:
+    """Quantile edges of ``x`` in ``bins`` bins (one bin below 2), open at both ends (a sighting beyond the pairs in
+    view counts in the end bins)."""
+    edges = np.quantile(x, np.linspace(0.0, 1.0, max(bins, 1) + 1)) if bins >= 2 else np.array([0.0, 1.0])
+    edges[0], edges[-1] = -np.inf, np.inf
+    return edges
+
+
+def _bin_means(x: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    k = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, len(edges) - 2)
+    return np.bincount(k, weights=x, minlength=len(edges) - 1) / np.maximum(np.bincount(k, minlength=len(edges) - 1), 1)
 
 
 def image_frames(log: Trajectory) -> np.ndarray:

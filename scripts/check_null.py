@@ -70,12 +70,15 @@ def effect_free(seed: int, preset: str, minutes: float) -> Trajectory:
     return blind(collect({"noise": preset, "effects": {}}, int(minutes * 60 * 30), seed=seed))
 
 
-def one(seed: int, preset: str, minutes: float, models: Path, which: str, replicas: int, jobs: int) -> dict:
-    """One effect-free blind log: the check of its ``which`` model, (statistic, z) of every disagreement."""
+def one(seed: int, preset: str, minutes: float, models: Path, which: str, replicas: int, jobs: int,
+        tracking: bool = False) -> dict:
+    """One effect-free blind log: the check of its ``which`` model (its replicas steered along the model's smoothed
+    path with ``tracking``), (statistic, z) of every disagreement."""
     tr = effect_free(seed, preset, minutes)
     model, logs = fitted(tr, which, models / f"{preset}-{seed}.json")
-    check = predictive_check(model, logs, replicas=replicas, seed=0, jobs=jobs)
+    check = predictive_check(model, logs, replicas=replicas, seed=0, jobs=jobs, tracking=tracking)
     return {"seed": seed, "preset": preset, "minutes": minutes, "model": which, "replicas": replicas,
+            "tracking": tracking,
             "statistics": len(check.names),
             "threshold": check.threshold, "failed_replicas": len(check.failed),
             "disagreements": [[n, z] for n, z in check.disagreements()]}
@@ -183,6 +186,9 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--out", default=None, help="default runs/check_null/MODEL")
     ap.add_argument("--table", action="store_true", help="print the table of the rows so far and stop")
+    ap.add_argument("--tracking", action="store_true",
+                    help="the replicas steered along the model's smoothed path (predictive_check(tracking=True); "
+                         "continuous commands only)")
     ap.add_argument("--exchangeable", type=int, default=0, metavar="R",
                     help="measure the threshold alone: R replicas per log, each checked against --replicas others")
     args = ap.parse_args()
@@ -206,7 +212,8 @@ def main() -> None:
                                  args.jobs)
                 said = "false alarms " + ", ".join(f"{100 * r['false_alarm'][str(c)]:.1f}% with {c}" for c in COUNTS)
             else:
-                r = one(args.first_seed + s, preset, args.minutes, models, args.model, args.replicas, args.jobs)
+                r = one(args.first_seed + s, preset, args.minutes, models, args.model, args.replicas, args.jobs,
+                        args.tracking)
                 said = "; ".join(f"{n} z = {z:+.1f}" for n, z in r["disagreements"]) or "no disagreement"
             done.append(r)
             write_jsonl(done_path, done)

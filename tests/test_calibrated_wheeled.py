@@ -4,6 +4,7 @@ calibrated simulator of a continuous-command model (``aibo collect --model --rep
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +14,7 @@ from aibo.cli import main
 from aibo_core import trajectory
 from aibo_core.features import features
 from aibo_gym.collect_wheeled import TRACKING_TAU_S, tracking_command
-from experiments.calibrated import predictive_check, reference_paths, replay_log, simulator_config, simulator_env
+from experiments.calibrated import predictive_check, replay_log, simulator_config, simulator_env, smoothed_paths
 from experiments.calibrated_wheeled import image_frames
 from learners.model.catalogue import ActuationLag
 from learners.model.io import load_model
@@ -134,23 +135,26 @@ def test_the_tracking_law_steers_each_error_out_over_its_time_constant():
 
 
 def test_a_tracking_replay_follows_the_smoothed_path_where_an_open_loop_one_drifts(sim):
-    """The calibrated check's replicas (``reference_paths``): the model's smoothed path of the measured log is the
+    """The calibrated check's replicas (``smoothed_paths``): the model's smoothed path of the measured log is the
     reference; a replay steered along it stays near the robot's path, the open-loop replay of the same commands and
     noise drifts (seed 7's 10 minutes: median 51 mm against 907 mm off the true path); the log records the commands
-    executed, the measured ones with corrections of a few percent; seeded; a reference that does not fit refused."""
+    executed, the measured ones with corrections of a few percent, changing where the measured ones change (on 10% of
+    the frames here); seeded; a reference that does not fit refused."""
     log, models = sim
     tr, m = trajectory.load(log), load_model(models["unicycle"])
-    (ref,) = reference_paths(m, [tr])
+    (ref,) = smoothed_paths(m, [tr])
     off = lambda pose: float(np.median(np.hypot(*(pose[:, :2] - tr.pose[:, :2]).T)))  # noqa: E731
     assert off(ref) < 50.0
-    tracked, open_loop = replay_log(m, tr, seed=3, reference=ref), replay_log(m, tr, seed=3)
+    tracked, open_loop = replay_log(m, tr, seed=3, path=ref, steer=True), replay_log(m, tr, seed=3, path=ref)
     assert off(tracked.pose) < 150.0 and off(open_loop.pose) > 4 * off(tracked.pose)
+    changes = lambda c: np.any(np.diff(c, axis=0) != 0, axis=1)  # noqa: E731
+    np.testing.assert_array_equal(changes(tracked.controls), changes(tr.controls))  # corrected where the log changes
     correction = np.sqrt(np.mean((tracked.controls - tr.controls) ** 2, axis=0))
     assert np.all(correction > 0) and np.all(correction < 0.15 * np.sqrt(np.mean(tr.controls ** 2, axis=0)))
     assert tracked.meta["policy"] == "tracking replay" and open_loop.meta["policy"] == "replay"
-    np.testing.assert_array_equal(replay_log(m, tr, seed=3, reference=ref).pose, tracked.pose)
+    np.testing.assert_array_equal(replay_log(m, tr, seed=3, path=ref, steer=True).pose, tracked.pose)
     with pytest.raises(ValueError, match="a reference path needs"):
-        replay_log(m, tr, seed=3, reference=ref[:-1])
+        replay_log(m, tr, seed=3, path=ref[:-1], steer=True)
 
 
 def test_the_check_with_tracked_replicas_runs_them_along_the_path(sim):
@@ -162,6 +166,48 @@ def test_the_check_with_tracked_replicas_runs_them_along_the_path(sim):
     assert not check.failed and check.replicas.shape[0] == 3
     i = check.names.index("sightings per frame")
     assert abs(check.replicas[:, i].mean() / check.measured[i] - 1.0) < 0.05
+
+
+def test_the_cameras_detection_by_distance_is_measured_at_the_true_or_a_given_path():
+    """A log whose camera detects 0.8 at 1.5 m and 0.2 at 6 m (linear between): ``measured_camera`` reads the table
+    back at its bins' distances (within 0.06), the same at a path 30 mm off the truth, and nothing without a path.
+    Among 60 landmarks, so that every frame has a sighting: the images are the frames with one, and with the default
+    8 a frame seeing none is taken for no image, which biases every bin up (0.95 for 0.75 at 1.2 m)."""
+    from aibo_gym.collect_wheeled import collect_wheeled
+    from experiments.calibrated_wheeled import measured_camera
+
+    truth = [[1500.0, 0.8], [6000.0, 0.2]]
+    landmarks = np.random.default_rng(0).uniform(-4000.0, 4000.0, (60, 2)).tolist()
+    config = {"detect_by_distance": truth, "start_pose": "random", "beacons": landmarks, "sigma_bearing": 0.002}
+    tr = collect_wheeled(config, 6000, seed=3)
+    cam = measured_camera(tr, 50.0)
+    d, p = np.array(cam["detect_by_distance"]).T
+    assert len(d) == 8 and np.all(np.diff(d) > 0)
+    np.testing.assert_allclose(p, np.interp(d, *np.array(truth).T), atol=0.06)
+    shifted = tr.pose + [30.0, 0.0, 0.0]
+    np.testing.assert_allclose(np.array(measured_camera(tr, 50.0, shifted)["detect_by_distance"])[:, 1], p, atol=0.03)
+    blind = replace(tr, pose=None)
+    assert "detect_by_distance" not in measured_camera(blind, 50.0) and "detect_prob" not in measured_camera(blind, 50.0)
+    # the angle's factor flat but in the last bin, which holds the measured field of view's excess over the camera's
+    np.testing.assert_allclose(np.array(cam["detect_by_angle"])[:-1, 1], 1.0, atol=0.05)
+
+
+def test_the_cameras_detection_by_angle_is_measured_as_a_factor_beside_the_distances():
+    """A camera that detects 0.5 (1.2 - |a|) at the angle a off the heading, whatever the distance: the distance's
+    table flat (within 0.03 of its mean), its mean times the angle's factor the truth at the angle bins' centres
+    (within 0.02; the last bin, at the field of view's edge, left out: the measured field of view is wider than the
+    camera's by the bearing noise and a margin, where nothing is seen)."""
+    from aibo_gym.collect_wheeled import collect_wheeled
+    from experiments.calibrated_wheeled import measured_camera
+
+    landmarks = np.random.default_rng(0).uniform(-4000.0, 4000.0, (60, 2)).tolist()
+    config = {"detect_prob": 0.5, "detect_by_angle": [[0.0, 1.2], [0.6, 0.6]], "start_pose": "random",
+              "beacons": landmarks, "sigma_bearing": 0.002}
+    cam = measured_camera(collect_wheeled(config, 6000, seed=3), 50.0)
+    p = np.array(cam["detect_by_distance"])[:, 1]
+    a, g = np.array(cam["detect_by_angle"]).T
+    np.testing.assert_allclose(p, p.mean(), atol=0.03)
+    np.testing.assert_allclose((p.mean() * g)[:-1], (0.5 * (1.2 - a))[:-1], atol=0.02)
 
 
 def test_aibo_collect_replays_a_continuous_log_with_its_model(sim, tmp_path, capsys):

@@ -604,7 +604,7 @@ def test_diagnose_reports_candidates_the_log_cannot_support(blind_log, tmp_path,
 def test_diagnose_says_when_every_replica_failed(blind_log, tmp_path, monkeypatch, capsys):
     from experiments import calibrated
 
-    def fails(model, logs, seed, references=None):
+    def fails(model, logs, seed, paths=None, steer=False):
         raise ValueError("the replica's fit diverged")
 
     monkeypatch.setattr(calibrated, "replica_statistics", fails)

@@ -109,6 +109,27 @@ def test_detection_probability_and_noise():
     assert ranges.mean() == pytest.approx(2000.0, abs=3.0) and ranges.std() == pytest.approx(40.0, rel=0.05)
 
 
+def test_detection_by_distance_interpolates_its_table_and_replaces_the_one_probability():
+    """``detect_by_distance`` [[1000, 0.9], [5000, 0.1]]: a landmark at 2 km reported on 0.7 of the frames, at 6 km on
+    0.1 (held beyond the last point), whatever ``detect_prob`` says."""
+    table = [[1000.0, 0.9], [5000.0, 0.1]]
+    env = WheeledRobotEnv({**QUIET, "beacons": [[2000.0, 0.0], [6000.0, 1.0]], "detect_prob": 0.5,
+                           "detect_by_distance": table})
+    steps = run(env, [[0.0, 0.0]] * 4000, seed=2)[1:]
+    seen = np.array([[b in i["sightings"]["beacon"][:i["sightings"]["count"]] for b in (0, 1)] for _, i in steps])
+    np.testing.assert_allclose(seen.mean(axis=0), [0.7, 0.1], atol=0.025)
+
+
+def test_detection_by_angle_multiplies_the_probability_at_the_angle_off_the_heading():
+    """``detect_by_angle`` [[0, 1.5], [0.5, 0.5]] times ``detect_prob`` 0.6: a landmark straight ahead reported on 0.9
+    of the frames, one 0.4 rad to the right on 0.6 x 0.7 = 0.42."""
+    env = WheeledRobotEnv({**QUIET, "beacons": [[2000.0, 0.0], [2000.0 * np.cos(0.4), -2000.0 * np.sin(0.4)]],
+                           "detect_prob": 0.6, "detect_by_angle": [[0.0, 1.5], [0.5, 0.5]]})
+    steps = run(env, [[0.0, 0.0]] * 4000, seed=3)[1:]
+    seen = np.array([[b in i["sightings"]["beacon"][:i["sightings"]["count"]] for b in (0, 1)] for _, i in steps])
+    np.testing.assert_allclose(seen.mean(axis=0), [0.9, 0.42], atol=0.025)
+
+
 def test_image_schedule_and_replayed_image_mask():
     env = WheeledRobotEnv({**QUIET, "image_every": 3})
     images = [i["image"] for _, i in run(env, [[0.0, 0.0]] * 9)[1:]]
@@ -142,7 +163,10 @@ def test_actuation_lag_delays_continuous_commands():
                                          ({"control_low": [0.0]}, "control_low"), ({"fov": 0}, "fov"),
                                          ({"feature_map": "table"}, "feature_map"),
                                          ({"motion_cov": [[1, 0, 0], [0, -1, 0], [0, 0, 1]]}, "motion_cov"),
-                                         ({"effects": {"wall_contact": {}}}, "walls")])
+                                         ({"effects": {"wall_contact": {}}}, "walls"),
+                                         ({"detect_by_distance": [[2000, 0.5], [1000, 0.4]]}, "detect_by_distance"),
+                                         ({"detect_by_distance": [[1000, 1.5]]}, "detect_by_distance"),
+                                         ({"detect_by_angle": [[-0.1, 1.0]]}, "detect_by_angle")])
 def test_bad_config_is_one_line_naming_the_key(config, key):
     with pytest.raises(ValueError) as err:
         WheeledRobotEnv(config)

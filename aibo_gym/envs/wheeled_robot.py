@@ -88,7 +88,9 @@ class WheeledRobotEnv(gym.Env):
     ## Sensing
 
     In an image frame, every landmark within ``range_mm`` and ``fov / 2`` of the heading is reported
-    with probability ``detect_prob``, in landmark order: range = f(d) + N(0, sigma_range_mm^2), f the
+    with probability ``detect_prob`` (or ``detect_by_distance``'s at its distance; times ``detect_by_angle``'s factor
+    at its angle off the heading, at most 1), in landmark order:
+    range = f(d) + N(0, sigma_range_mm^2), f the
     ``sensor_curve`` (default f(d) = d), bearing = wrap(true bearing + N(0, sigma_bearing^2)).
     A frame takes an image on schedule (every ``image_every``-th frame, each with probability
     ``image_prob``), or as ``reset(options={"images": mask})`` says: ``mask[t]`` (bool, one per step,
@@ -266,6 +268,13 @@ class WheeledRobotEnv(gym.Env):
         cfg = self.config
         return (t + 1) % cfg["image_every"] == 0 and u < cfg["image_prob"]
 
+    def _detect_prob(self, d: float, angle: float) -> float:
+        """The probability that a landmark in view at distance ``d`` (mm) and ``angle`` (rad) off the heading is
+        reported."""
+        by_d, by_a = self.config["detect_by_distance"], self.config["detect_by_angle"]
+        p = self.config["detect_prob"] if by_d is None else _interp(d, by_d)
+        return p if by_a is None else min(1.0, p * _interp(abs(angle), by_a))
+
     def _sense(self, z: np.ndarray, u: np.ndarray, frame: Frame | None, contact: bool) -> list[Sighting]:
         """The sightings of the frame's end pose: every visible landmark detected, then the sensing effects."""
         cfg = self.config
@@ -277,7 +286,7 @@ class WheeledRobotEnv(gym.Env):
         for i, (bx, by) in enumerate(self.landmarks.tolist()):
             d = math.hypot(bx - x, by - y)
             bearing = wrap_angle(math.atan2(by - y, bx - x) - th)
-            if rmin <= d <= rmax and abs(bearing) <= half_fov and u[i] < cfg["detect_prob"]:
+            if rmin <= d <= rmax and abs(bearing) <= half_fov and u[i] < self._detect_prob(d, bearing):
                 true_range = self.range_curve(d)
                 sightings.append(Sighting(i, true_range + sr * float(z[2 * i]), wrap_angle(bearing + sb * float(z[2 * i + 1])),
                                           d, bearing, bearing, true_range))
@@ -314,3 +323,8 @@ class WheeledRobotEnv(gym.Env):
             "sightings": {"count": len(sightings), "beacon": beacon, "range": rng_mm, "bearing": bearing,
                           "spurious": spurious},
         }
+
+
+def _interp(x: float, table: list[list[float]]) -> float:
+    """The table's [[x, y], ...] value at ``x``: linear between its points, held beyond them."""
+    return float(np.interp(x, [row[0] for row in table], [row[1] for row in table]))
