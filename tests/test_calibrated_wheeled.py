@@ -217,6 +217,13 @@ def test_aibo_collect_replays_a_continuous_log_with_its_model(sim, tmp_path, cap
     rep, tr = trajectory.load(out), trajectory.load(log)
     np.testing.assert_array_equal(rep.controls, tr.controls)
     assert rep.meta["replay_of"] == str(log) and rep.truth["feature_map"] == "diff_drive"
+    # a log without true poses nor camera settings (a real robot's): its camera measured at the model's smoothed path
+    real = tmp_path / "real.npz"
+    trajectory.save(replace(trajectory.blind(tr), meta={}), real)
+    assert main(["collect", "--model", str(models["features"]), "--replay", str(real), "--out", str(out), "--seed", "2"]) == 0
+    camera = trajectory.load(out).meta["config"]
+    assert camera["detect_prob"] == pytest.approx(0.9, abs=0.05)  # the simulated camera's (its default; seed 7: 0.88)
+    assert len(camera["detect_by_distance"]) == 8
     # a model and a log (or --env) that do not go together: one line, exit 2, nothing written
     aibo_log = tmp_path / "aibo.npz"
     assert main(["collect", "--steps", "100", "--out", str(aibo_log)]) == 0
