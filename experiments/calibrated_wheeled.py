@@ -158,21 +158,22 @@ def detection_tables(view: np.ndarray, seen: np.ndarray) -> dict[str, list[list[
     p, g = p * mean_g, g / mean_g
     out = {}
     for key, values, k in (("detect_by_distance", np.minimum(p, 1.0), 0), ("detect_by_angle", g, 1)):
-        centre = _bin_means(view[:, k], edges[k])
-        if len(values) >= 2 and np.all(np.diff(centre) > 0):
-            out[key] = [[float(c), float(v)] for c, v in zip(centre, values)]
+        held = n_view.sum(axis=1 - k) > 0  # a bin between tied quantiles holds no pair: no point of the table
+        centre = _bin_means(view[:, k], edges[k])[held]
+        if held.sum() >= 2 and np.all(np.diff(centre) > 0):
+            out[key] = [[float(c), float(v)] for c, v in zip(centre, values[held])]
     return out
 
 
 def _edges(x: np.ndarray, bins: int) -> np.ndarray:
-    """Quantile edges of ``x`` in ``bins`` bins (one bin below 2), open at both ends (a sighting beyond the pairs in
-    view counts in the end bins)."""
-    edges = np.quantile(x, np.linspace(0.0, 1.0, max(bins, 1) + 1)) if bins >= 2 else np.array([0.0, 1.0])
-    edges[0], edges[-1] = -np.inf, np.inf
-    return edges
+    """Quantile edges of ``x`` in at most ``bins`` bins (tied quantiles merged; one bin below 2), open at both ends (a
+    sighting beyond the pairs in view counts in the end bins)."""
+    inner = np.unique(np.quantile(x, np.linspace(0.0, 1.0, bins + 1)[1:-1])) if bins >= 2 else np.zeros(0)
+    return np.concatenate([[-np.inf], inner, [np.inf]])
 
 
 def _bin_means(x: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """The mean of ``x`` in each bin of ``edges`` (0 in an empty one)."""
     k = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, len(edges) - 2)
     return np.bincount(k, weights=x, minlength=len(edges) - 1) / np.maximum(np.bincount(k, minlength=len(edges) - 1), 1)
 

@@ -210,6 +210,22 @@ def test_the_cameras_detection_by_angle_is_measured_as_a_factor_beside_the_dista
     np.testing.assert_allclose((p.mean() * g)[:-1], (0.5 * (1.2 - a))[:-1], atol=0.02)
 
 
+def test_detection_tables_merge_tied_quantiles_and_need_two_bins_of_pairs():
+    """Distances on three values (a grid of landmarks, say): one point per value, none for the empty bins between
+    tied quantiles; a single angle: no angle table; fewer than 200 pairs in view: no table at all."""
+    from experiments.calibrated_wheeled import detection_tables
+
+    rng = np.random.default_rng(0)
+    view = np.stack([rng.choice([1000.0, 2000.0, 3000.0], 2000), np.full(2000, 0.2)], axis=1)
+    seen = view[rng.random(2000) < np.interp(view[:, 0], [1000.0, 3000.0], [0.8, 0.2])]
+    tables = detection_tables(view, seen)
+    d, p = np.array(tables["detect_by_distance"]).T
+    np.testing.assert_array_equal(d, [1000.0, 2000.0, 3000.0])
+    np.testing.assert_allclose(p, [0.8, 0.5, 0.2], atol=0.05)
+    assert "detect_by_angle" not in tables
+    assert detection_tables(view[:150], seen[:50]) == {}
+
+
 def test_aibo_collect_replays_a_continuous_log_with_its_model(sim, tmp_path, capsys):
     log, models = sim
     out = tmp_path / "replay.npz"
