@@ -5,50 +5,50 @@ dict into it and validates it: an unknown key or a bad value raises a one-line V
 key. Units: mm, rad, s. The defaults are a small differential-drive robot among 8 landmarks, with the
 camera of the UTIAS MRCLAM robots (field of view +-0.59 rad, ranges up to 8.5 m, dt 0.1 s).
 
-================  ======================================  ==========================================
-key               default                                 meaning
-================  ======================================  ==========================================
-field             [6000, 6000]                            area length (x), width (y), mm, origin at the
-                                                          centre: the walls (if any), random starts
-beacons           8 landmarks (``DEFAULT_LANDMARKS``)     landmark positions (B x 2), mm
-dt                0.1                                     seconds per frame
-max_steps         6000                                    frames before ``truncated`` (10 min)
-control_names     ["v_mm_s", "omega_rad_s"]               names with units of the k command components
-control_low       [-300, -1.5]                            action space lower bound per component
-control_high      [300, 1.5]                              action space upper bound per component
-feature_map       "diff_drive"                            "diff_drive", "unicycle" (both k = 2) or
-                                                          "linear" (any k): see :mod:`aibo_core.features`
-weights           None                                    F x 3 true velocity per unit feature (mm/s,
-                                                          mm/s, rad/s); None: ``DEFAULT_WEIGHTS`` (diff
-                                                          drive, unicycle; linear with k = 2)
-motion_cov        diag(9, 1, 1e-4)                        3 x 3 per-frame robot-frame motion noise
-                                                          covariance (mm^2, rad^2), SPD
-sensor_curve      {"basis": "power", "coef": [0, 1]}      measured range (mm) = sum c_k d^k (power) or
-                                                          sum c_k d^-k (inverse), d mm; default range = d
-sigma_range_mm    50                                      range noise std, mm
-sigma_bearing     0.02                                    bearing noise std, rad
-fov               1.18                                    camera field of view (total), rad, centred
-                                                          on the heading
-range_mm          [300, 8500]                             distances at which a landmark is seen, mm
-detect_prob       0.9                                     probability a visible landmark is reported
-detect_by_distance None                                   or [[d_mm, p], ...], d increasing: the
-                                                          probability by distance (linear between the
-                                                          points, held beyond them), instead of
-                                                          detect_prob (a real camera's falls with d)
-detect_by_angle   None                                    or [[|a| rad, factor], ...], |a| increasing:
-                                                          the probability times this factor at the
-                                                          landmark's angle a off the heading (linear
-                                                          between, held beyond), at most 1
-image_every       1                                       an image every n-th frame (frames n-1, 2n-1 ...)
-image_prob        1.0                                     probability that a scheduled frame takes an image
-walls             "open"                                  "open" (none, the episode goes on anywhere),
-                                                          "none" (leaving the field ends it), "clamp",
-                                                          "pymunk" (:mod:`aibo_gym.walls`)
-robot_radius      150                                     body radius for walls="pymunk", mm
-pymunk_substeps   4                                       physics substeps per frame
-effects           {}                                      {name: {param: value}} (:mod:`aibo_gym.catalogue`)
-start_pose        [0, 0, 0]                               (x mm, y mm, theta rad) or "random"
-================  ======================================  ==========================================
+==================  ======================================  ==========================================
+key                 default                                 meaning
+==================  ======================================  ==========================================
+field               [6000, 6000]                            area length (x), width (y), mm, origin at the
+                                                            centre: the walls (if any), random starts
+beacons             8 landmarks (``DEFAULT_LANDMARKS``)     landmark positions (B x 2), mm
+dt                  0.1                                     seconds per frame
+max_steps           6000                                    frames before ``truncated`` (10 min)
+control_names       ["v_mm_s", "omega_rad_s"]               names with units of the k command components
+control_low         [-300, -1.5]                            action space lower bound per component
+control_high        [300, 1.5]                              action space upper bound per component
+feature_map         "diff_drive"                            "diff_drive", "unicycle" (both k = 2) or
+                                                            "linear" (any k): see :mod:`aibo_core.features`
+weights             None                                    F x 3 true velocity per unit feature (mm/s,
+                                                            mm/s, rad/s); None: ``DEFAULT_WEIGHTS`` (diff
+                                                            drive, unicycle; linear with k = 2)
+motion_cov          diag(9, 1, 1e-4)                        3 x 3 per-frame robot-frame motion noise
+                                                            covariance (mm^2, rad^2), SPD
+sensor_curve        {"basis": "power", "coef": [0, 1]}      measured range (mm) = sum c_k d^k (power) or
+                                                            sum c_k d^-k (inverse), d mm; default range = d
+sigma_range_mm      50                                      range noise std, mm
+sigma_bearing       0.02                                    bearing noise std, rad
+fov                 1.18                                    camera field of view (total), rad, centred
+                                                            on the heading
+range_mm            [300, 8500]                             distances at which a landmark is seen, mm
+detect_prob         0.9                                     probability a visible landmark is reported
+detect_by_distance  None                                    or [[d_mm, p], ...], d increasing: the
+                                                            probability by distance (linear between the
+                                                            points, held beyond them), instead of
+                                                            detect_prob (a real camera's falls with d)
+detect_by_angle     None                                    or [[|a| rad, factor], ...], |a| increasing:
+                                                            the probability times this factor at the
+                                                            landmark's angle a off the heading (linear
+                                                            between, held beyond), at most 1
+image_every         1                                       an image every n-th frame (frames n-1, 2n-1 ...)
+image_prob          1.0                                     probability that a scheduled frame takes an image
+walls               "open"                                  "open" (none, the episode goes on anywhere),
+                                                            "none" (leaving the field ends it), "clamp",
+                                                            "pymunk" (:mod:`aibo_gym.walls`)
+robot_radius        150                                     body radius for walls="pymunk", mm
+pymunk_substeps     4                                       physics substeps per frame
+effects             {}                                      {name: {param: value}} (:mod:`aibo_gym.catalogue`)
+start_pose          [0, 0, 0]                               (x mm, y mm, theta rad) or "random"
+==================  ======================================  ==========================================
 """
 
 from __future__ import annotations
