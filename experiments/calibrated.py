@@ -129,7 +129,7 @@ def replay_log(model: Model, log: Trajectory, seed: int, index: int = 0, path: n
     from aibo_gym.collect_wheeled import TRACKED_CONTROLS, replay_wheeled
 
     cfg = simulator_config(model, log, index, path=path)
-    reference = path if steer and tuple(log.control_names) == TRACKED_CONTROLS else None
+    reference = path if steer and tuple(log.control_names or ()) == TRACKED_CONTROLS else None
     src = str(log.meta.get("source", log.meta.get("generator", "")))
     if not model.action.discrete:
         if log.controls is None:

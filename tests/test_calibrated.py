@@ -50,6 +50,8 @@ def test_a_replay_steps_the_measured_commands_and_pans_and_is_seeded(fitted):
     np.testing.assert_array_equal(a.head_pan, tr.head_pan)
     np.testing.assert_array_equal(a.meta["truth"]["velocities"], result.params.action.velocities)
     assert np.array_equal(a.sighting_value, b.sighting_value) and not np.array_equal(a.pose, c.pose)
+    # discrete commands are not steered: asked to, the replay is the open-loop one
+    np.testing.assert_array_equal(replay_log(result.params, tr, 5, steer=True).pose, a.pose)
 
 
 def test_models_the_simulator_cannot_represent_are_refused_in_one_line(fitted):
