@@ -67,7 +67,8 @@ TRACKED_CONTROLS = ("v_mm_s", "omega_rad_s")
 #: about this long. Slow beside the motion's own timing (lag, response time: tenths of a second) and the check's
 #: motion horizons (1-5 s), fast beside the drift of an open-loop replay (metres over minutes). Measured on MRCLAM
 #: robot 3 (docs/results.md, "The twin's replays follow the robot's path"): replays of its commands 34-58% of the time
-#: outside the landmarks' box (the robot: 96%), tracking at 10 s median 69-77 mm off Vicon's path.
+#: outside the landmarks' box (the robot: 96%), tracking at 10 s (corrected where the command changes) a median 72-88 mm
+#: off Vicon's path.
 TRACKING_TAU_S = 10.0
 #: Below this forward speed (mm/s) the lateral error's gain is held at its value here (it divides by the speed).
 TRACKING_MIN_SPEED_MM_S = 50.0
