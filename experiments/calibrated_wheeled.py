@@ -118,14 +118,6 @@ def measured_camera(log: Trajectory, sigma_range: float, path: np.ndarray | None
     return cam
 
 
-def detection_rate(log: Trajectory, fov: float, range_mm: list[float]) -> float | None:
-    """Sightings / (landmark, image frame) pairs within view at the true pose; None without poses."""
-    if log.pose is None:
-        return None
-    view, seen = _in_view(log, log.pose, fov, range_mm)
-    return float(min(1.0, len(seen) / len(view))) if len(view) else None
-
-
 def _in_view(log: Trajectory, path: np.ndarray, fov: float, range_mm: list[float]) -> tuple[np.ndarray, np.ndarray]:
     """((n, 2) distance mm and |angle off the heading| rad at ``path`` of the (landmark, image frame) pairs within
     view, (S, 2) the same of every sighting's landmark)."""
