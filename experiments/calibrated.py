@@ -45,7 +45,7 @@ from aibo_core.actions import N_ACTIONS
 from aibo_core.atomic import finite_json
 from aibo_core.trajectory import Trajectory
 from aibo_core.workers import process_pool
-from experiments.calibrated_wheeled import image_frames, wheeled_config
+from experiments.calibrated_wheeled import image_frames, needs_path, wheeled_config
 from learners.discrepancy.search import drop_outliers
 from learners.discrepancy.split import training_log
 from learners.discrepancy.statistics import check_statistics
@@ -200,6 +200,17 @@ def replica_statistics(model: Model, logs: list[Trajectory], seed: int, paths: l
     return _compared(check_statistics(training_refit(model, sims), sims))
 
 
+def camera_paths(model: Model, logs: list[Trajectory]) -> list[np.ndarray | None]:
+    """Per log, the path its camera is measured at in ``model``'s simulator: ``model``'s smoothed path where the camera
+    is measured and the log has no true poses (``calibrated_wheeled.needs_path``), else None (true poses, a camera
+    from the log's own config, or a discrete model's simulator, whose camera is its config's). Smoothed only when
+    one is needed."""
+    if model.action.discrete or not any(needs_path(tr) for tr in logs):
+        return [None] * len(logs)
+    paths = smoothed_paths(model, logs)
+    return [p if needs_path(tr) else None for tr, p in zip(logs, paths)]
+
+
 def smoothed_paths(model: Model, logs: list[Trajectory]) -> list[np.ndarray] | None:
     """``model``'s smoothed path of each of ``logs`` ((T + 1, 3) poses [x mm, y mm, theta rad]), for a model of
     continuous commands (None for a discrete one, whose simulator takes the camera from its config). What a replica's
@@ -251,8 +262,7 @@ def predictive_check(model: Model, logs: list[Trajectory], replicas: int = REPLI
     robot's path")."""
     simulator_config(model, logs[0])  # refuse early, in one line, what the simulator cannot represent
     measured = _compared(check_statistics(training_refit(model, logs), logs))
-    needed = tracking or any(tr.pose is None for tr in logs)
-    paths = smoothed_paths(model, logs) if needed else None
+    paths = smoothed_paths(model, logs) if tracking else camera_paths(model, logs)
     args = [(model, logs, 1_000_003 * (seed + 1) + r, paths, tracking) for r in range(replicas)]
     if jobs > 1:
         with process_pool(jobs) as pool:

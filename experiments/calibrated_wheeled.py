@@ -79,9 +79,21 @@ def wheeled_config(model: Model, log: Trajectory | None = None, index: int = 0,
     return cfg
 
 
+def camera_measured(log: Trajectory) -> bool:
+    """Whether ``log``'s camera is measured (it was not made by ``WheeledRobot-v0``, whose settings it would carry in
+    ``meta["config"]``)."""
+    made_here = log.meta.get("config") if isinstance(log.meta.get("config"), dict) else {}
+    return not all(k in made_here for k in CAMERA_KEYS)
+
+
+def needs_path(log: Trajectory) -> bool:
+    """Whether ``log``'s camera is measured at a model's smoothed path: it is measured (``camera_measured``) and the
+    log has no true poses to measure it at."""
+    return log.pose is None and camera_measured(log)
+
+
 def _from_log(log: Trajectory, sigma_range: float, path: np.ndarray | None = None) -> dict[str, Any]:
     """Landmarks, field, command bounds, camera and episode length of the measured ``log``."""
-    made_here = log.meta.get("config") if isinstance(log.meta.get("config"), dict) else {}
     c = log.controls
     lo, hi = c.min(axis=0), c.max(axis=0)
     out: dict[str, Any] = {
@@ -91,10 +103,10 @@ def _from_log(log: Trajectory, sigma_range: float, path: np.ndarray | None = Non
         "max_steps": int(log.n_frames),
         "control_low": np.minimum(lo, -1.0).tolist(), "control_high": np.maximum(hi, 1.0).tolist(),
     }
-    if all(k in made_here for k in CAMERA_KEYS):
-        out.update({k: made_here[k] for k in CAMERA_KEYS})
-    else:
+    if camera_measured(log):
         out.update(measured_camera(log, sigma_range, path))
+    else:
+        out.update({k: log.meta["config"][k] for k in CAMERA_KEYS})
     return out
 
 

@@ -168,6 +168,28 @@ def test_the_check_with_tracked_replicas_runs_them_along_the_path(sim):
     assert abs(check.replicas[:, i].mean() / check.measured[i] - 1.0) < 0.05
 
 
+def test_a_path_is_smoothed_only_for_a_blind_log_whose_camera_is_measured(sim, monkeypatch):
+    """``camera_paths``: a log made by the simulator carries its camera (``meta["config"]``) and one with true poses is
+    measured at them, so neither is smoothed (the E-step not run at all); a blind log of another source gets the
+    model's smoothed path, (T + 1, 3) and near its true poses."""
+    import experiments.calibrated as calibrated
+
+    log, models = sim
+    tr, m = trajectory.load(log), load_model(models["unicycle"])
+    made_here, foreign = replace(tr, pose=None), replace(tr, meta={k: v for k, v in tr.meta.items() if k != "config"})
+    real = replace(foreign, pose=None)
+
+    def refused(*_):
+        raise AssertionError("smoothed where no path is needed")
+
+    with monkeypatch.context() as mp:
+        mp.setattr(calibrated, "smoothed_paths", refused)
+        assert calibrated.camera_paths(m, [made_here]) == [None] and calibrated.camera_paths(m, [foreign]) == [None]
+    (path,) = calibrated.camera_paths(m, [real])
+    assert path.shape == (tr.n_frames + 1, 3)
+    assert np.median(np.hypot(*(path[:, :2] - tr.pose[:, :2]).T)) < 300.0
+
+
 def test_the_cameras_detection_by_distance_is_measured_at_the_true_or_a_given_path():
     """A log whose camera detects 0.8 at 1.5 m and 0.2 at 6 m (linear between): ``measured_camera`` reads the table
     back at its bins' distances (within 0.06), the same at a path 30 mm off the truth, and nothing without a path.

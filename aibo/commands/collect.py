@@ -100,10 +100,9 @@ def calibrated_config(model_path: str | None, replay_path: str | None, env: str 
         raise CLIError(f"{replay_path}: field '{'actions' if log.discrete else 'controls'}': the log has {have} "
                        f"commands; the model {model_path} takes {want} ones")
     try:
-        path = None
-        if log is not None and log.pose is None and not model.action.discrete:  # its camera measured on this path
-            from experiments.calibrated import smoothed_paths
-            path = smoothed_paths(model, [log])[0]
+        from experiments.calibrated import camera_paths
+
+        path = camera_paths(model, [log])[0] if log is not None else None  # where its camera is measured
         return simulator_config(model, log, path=path), log, own
     except ValueError as err:
         raise CLIError(f"{model_path}: {err}") from None
