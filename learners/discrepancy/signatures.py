@@ -21,14 +21,20 @@ Motion: the smoothed robot-frame displacement minus the model's, in motion-noise
 mean removed (``motion_residuals``), against the elapsed time, the time since the command changed, the smoothed
 heading and distance to the walls. Neighbouring frames' residuals are correlated; ``equal_means`` accounts for it.
 
-The world heading, a circular variable (``CIRCULAR``), is binned in equal sectors from -pi, not at its quantiles: a
-robot that steers holds a heading for seconds (a waypoint driver, a person driving), its headings pile up in narrow
-peaks, quantile edges fall inside them, and there the smoothed residuals of the frames either side of an edge differed
-by more than the robot's motion did. Effect-free ``WheeledRobot-v0`` logs of its waypoint driver, seeds 6001 and 6006:
-"turn vs world heading" at p = 1.2e-5 and 2.1e-6 in quantile bins (the simulator's own turn noise by its true
-heading: p = 0.16 and, on 6000, 0.06), 0.48 and 0.45 in sectors; the calibrated check disagreed on it on 5 of 10 such
-logs, whose open-loop replays drift off those headings, and in sectors on none (docs/results.md, "The calibrated
-check on effect-free logs").
+The motion residuals' world heading is the smoothed heading ``HEADING_LEAD_S`` (1 s) before the frame, carried to it
+by the model's turns (``carried_heading``), and binned in equal sectors of the circle from -pi (``CIRCULAR``), not at its
+quantiles. The smoothed heading at the frame integrates the recent motion noise, and the smoothed residuals share it
+(the smoother spreads a correction over neighbouring frames: lag-1 autocorrelation 0.57 on an effect-free wheeled log,
+where the simulator's noise has 0.02), so a variable that holds the last second's noise is no exogenous one; where a
+robot steers (a waypoint driver, a person) it holds each heading for seconds, its headings pile up in narrow peaks,
+quantile edges fall inside them, and the frames either side of an edge are split by that shared noise. Effect-free
+``WheeledRobot-v0`` logs of its waypoint driver, seeds 6000 / 6001 / 6006: "turn vs world heading" at p = 1.7e-3 /
+1.2e-5 / 2.1e-6 with the smoothed heading in quantile bins (the simulator's own turn noise by its true heading: 0.06
+/ 0.16 on 6000 / 6001; the smoothed residuals by the true heading in quantile bins: 4.3e-5 on 6001), 5.3e-3 / 0.59 /
+0.091 with the heading carried from 1 s before, 0.094 / 0.44 / 0.42 carried and in sectors; a 6 mm/s floor drift on
+seeds 6001 / 6002 stays at p = 3e-9 / 2e-11 ("lateral motion", carried, quantile bins). The calibrated check disagreed
+on "turn vs world heading" on 5 of 10 such logs, whose open-loop replays drift off those headings (docs/results.md,
+"The calibrated check on effect-free logs").
 
 A bearing offset of one landmark's own (``landmark_bearing_offset``) hides from "bearing vs landmark": while the robot
 keeps sighting the same landmark, the filter turns its heading to that landmark's offset, so only the first sighting
@@ -88,6 +94,9 @@ if TYPE_CHECKING:
 N_BINS = 8
 #: Circular variables (rad), binned in ``N_BINS`` equal sectors from -pi, not at their quantiles (module docstring).
 CIRCULAR = ("world heading (rad)",)
+#: The motion residuals' world heading: the smoothed heading this long (s) before the frame, carried to the frame by
+#: the model's own turns (module docstring), so that it holds none of the noise the frame's smoothed residual shares.
+HEADING_LEAD_S = 1.0
 #: The variable of the magnitudes' signature of a motion noise that grows with the turn (``turn_dependent_noise``): the
 #: turn rate the model commands in the frame, |disp[i, 2]| / dt (rad/s), known before the frame.
 TURN_RATE = "commanded turn rate (rad/s)"
@@ -197,7 +206,7 @@ def motion_residuals(model: Model, batch: Batch, post: Posterior, field: np.ndar
         "forward motion": r[:, 0], "lateral motion": r[:, 1], "turn": r[:, 2],
         "elapsed time (min)": batch.frame_time / 60.0,
         "time since command change (s)": (np.arange(batch.n_frames) - batch.command_start) * batch.dt,
-        "world heading (rad)": wrap(s0[:, 2]),
+        "world heading (rad)": carried_heading(s0[:, 2], lo.disp[:, 2], batch),
     }
     change = command_change(lo.disp, batch) / batch.dt
     out[CHANGE_OF["forward motion"]], out[CHANGE_OF["turn"]] = change[:, 0], change[:, 2]
@@ -205,6 +214,18 @@ def motion_residuals(model: Model, batch: Batch, post: Posterior, field: np.ndar
         half = np.asarray(field, float) / 2
         out["distance to walls (mm)"] = np.min(np.stack([half[0] - np.abs(s1[:, 0]), half[1] - np.abs(s1[:, 1])]), axis=0)
     return out
+
+
+def carried_heading(theta: np.ndarray, turn: np.ndarray, batch: Batch) -> np.ndarray:
+    """(N,) each frame's world heading (rad, wrapped) as ``HEADING_LEAD_S`` earlier, carried forward by the commanded
+    turns since: ``theta`` (N,) the smoothed (unwrapped) heading at each frame's start, ``turn`` (N,) the model's turn
+    per frame (rad); at a log's first frames, from its first. The smoothed heading itself integrates the recent motion
+    noise, which the frame's smoothed residual shares (module docstring)."""
+    i = np.arange(batch.n_frames)
+    first = np.repeat(batch.frame_start[:-1], np.diff(batch.frame_start))
+    j = np.maximum(i - int(round(HEADING_LEAD_S / batch.dt)), first)
+    turned = np.r_[0.0, np.cumsum(turn)]
+    return wrap(theta[j] + turned[i] - turned[j])
 
 
 def command_change(disp: np.ndarray, batch: Batch) -> np.ndarray:
