@@ -23,18 +23,11 @@ heading and distance to the walls. Neighbouring frames' residuals are correlated
 
 The motion residuals' world heading is the smoothed heading ``HEADING_LEAD_S`` (1 s) before the frame, carried to it
 by the model's turns (``carried_heading``), and binned in equal sectors of the circle from -pi (``CIRCULAR``), not at its
-quantiles. The smoothed heading at the frame integrates the recent motion noise, and the smoothed residuals share it
-(the smoother spreads a correction over neighbouring frames: lag-1 autocorrelation 0.57 on an effect-free wheeled log,
-where the simulator's noise has 0.02), so a variable that holds the last second's noise is no exogenous one; where a
-robot steers (a waypoint driver, a person) it holds each heading for seconds, its headings pile up in narrow peaks,
-quantile edges fall inside them, and the frames either side of an edge are split by that shared noise. Effect-free
-``WheeledRobot-v0`` logs of its waypoint driver, seeds 6000 / 6001 / 6006: "turn vs world heading" at p = 1.7e-3 /
-1.2e-5 / 2.1e-6 with the smoothed heading in quantile bins (the simulator's own turn noise by its true heading: 0.06
-/ 0.16 on 6000 / 6001; the smoothed residuals by the true heading in quantile bins: 4.3e-5 on 6001), 5.3e-3 / 0.59 /
-0.091 with the heading carried from 1 s before, 0.094 / 0.44 / 0.42 carried and in sectors; a 6 mm/s floor drift on
-seeds 6001 / 6002 stays at p = 3e-9 / 2e-11 ("lateral motion", carried, quantile bins). The calibrated check disagreed
-on "turn vs world heading" on 5 of 10 such logs, whose open-loop replays drift off those headings (docs/results.md,
-"The calibrated check on effect-free logs").
+quantiles. The smoothed heading at the frame holds the recent motion noise, which the smoothed residuals share (the
+smoother spreads each correction over neighbouring frames); where a robot steers it holds each heading for seconds,
+quantile edges fall inside those peaks and split their frames by that shared noise: on effect-free wheeled logs of the
+waypoint driver "turn vs world heading" came out at p down to 2e-6 and the calibrated check disagreed on 5 of 10
+(the evidence: docs/results.md, "The calibrated check on effect-free logs").
 
 A bearing offset of one landmark's own (``landmark_bearing_offset``) hides from "bearing vs landmark": while the robot
 keeps sighting the same landmark, the filter turns its heading to that landmark's offset, so only the first sighting
