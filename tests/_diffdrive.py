@@ -33,10 +33,11 @@ def velocity(commands: np.ndarray) -> np.ndarray:
     return np.stack([v, w, v * np.abs(w), np.abs(w), np.ones_like(v)], axis=1) @ TRUE_W
 
 
-def range_biases(T: int, n_landmarks: int, dt: float, sigma_rel: float, tau_s: float, seed: int) -> np.ndarray:
+def range_biases(T: int, n_landmarks: int, dt: float, sigma_rel: float, tau_s: float, seed: int,
+                 stream: int = 7) -> np.ndarray:
     """(T, n_landmarks) relative range biases: per landmark a first-order Gauss-Markov process of stationary standard
-    deviation ``sigma_rel`` and correlation time ``tau_s`` (s), drawn from its own stream (seed ``seed``)."""
-    rng = np.random.default_rng([seed, 7])
+    deviation ``sigma_rel`` and correlation time ``tau_s`` (s), drawn from its own stream (seed ``seed``, ``stream``)."""
+    rng = np.random.default_rng([seed, stream])
     phi = np.exp(-dt / tau_s)
     b = np.empty((T, n_landmarks))
     b[0] = rng.normal(0.0, sigma_rel, n_landmarks)
@@ -47,15 +48,18 @@ def range_biases(T: int, n_landmarks: int, dt: float, sigma_rel: float, tau_s: f
 
 def diff_drive_log(seconds: float = 600.0, dt: float = 0.05, seed: int = 0,
                    drift_mm_s: tuple[float, float] = (0.0, 0.0),
-                   range_bias: tuple[float, float] | None = None) -> Trajectory:
+                   range_bias: tuple[float, float] | None = None,
+                   turn_gain: tuple[float, float] | None = None) -> Trajectory:
     """A log of ``seconds`` with commands held 1-3 s, wandering among 8 landmarks in a 6 m square;
     ``drift_mm_s``: a hidden world-frame drift (mm/s), recorded nowhere in the log; ``range_bias``: (sigma_rel, tau_s)
     of a slowly varying relative bias per landmark on the range (``range_biases``; range = d (1 + b) + noise; the
-    rest of the log is the same as without it), as ``landmark_bias`` models it."""
+    rest of the log is the same as without it), as ``landmark_bias`` models it; ``turn_gain``: (sigma, tau_s) of an
+    error of the turn's gain, the same process on its own stream (each frame turns by its true turn times (1 + g))."""
     rng = np.random.default_rng(seed)
     T = int(round(seconds / dt))
     landmarks = rng.uniform(-3000.0, 3000.0, size=(8, 2))
     bias = np.zeros((T, 8)) if range_bias is None else range_biases(T, 8, dt, *range_bias, seed)
+    gain = np.zeros((T, 1)) if turn_gain is None else range_biases(T, 1, dt, *turn_gain, seed, stream=11)
     pose = np.zeros((T + 1, 3))
     controls = np.zeros((T, 2))
     frames, marks, values = [], [], []
@@ -68,7 +72,7 @@ def diff_drive_log(seconds: float = 600.0, dt: float = 0.05, seed: int = 0,
             hold = int(rng.integers(20, 60))
         hold -= 1
         controls[t] = cmd
-        vel = velocity(cmd[None])[0] * dt + rng.normal(0.0, [2.0, 2.0, 0.005])
+        vel = velocity(cmd[None])[0] * dt * np.array([1.0, 1.0, 1.0 + gain[t, 0]]) + rng.normal(0.0, [2.0, 2.0, 0.005])
         c, s = np.cos(th), np.sin(th)
         pose[t + 1] = (x + c * vel[0] - s * vel[1] + drift_mm_s[0] * dt, y + s * vel[0] + c * vel[1] + drift_mm_s[1] * dt,
                        th + vel[2])
