@@ -105,7 +105,7 @@ def test_the_heading_is_carried_from_a_second_before_by_the_model_s_turns_within
     each log are carried from its own first frame, never from the other log's."""
     from types import SimpleNamespace
 
-    batch = SimpleNamespace(n_frames=60, frame_start=np.array([0, 30, 60]), dt=0.1)
+    batch = SimpleNamespace(n_frames=60, frame_start=np.array([0, 30, 60]), dt=0.1, log_first_frame=np.repeat([0, 30], 30))
     k = int(round(HEADING_LEAD_S / batch.dt))
     theta = np.r_[np.zeros(30), np.full(30, 3.0)] + np.random.default_rng(0).normal(0.0, 0.05, 60)
     turn = np.full(60, 0.01)

@@ -74,9 +74,14 @@ class Batch:
         return self.frame_to_pose[self.sight_frame] + 1
 
     @cached_property
+    def log_first_frame(self) -> np.ndarray:
+        """(N,) batch index of the first frame of each frame's log."""
+        return np.repeat(self.frame_start[:-1], np.diff(self.frame_start))
+
+    @cached_property
     def frame_time(self) -> np.ndarray:
         """(N,) time (s) at the start of each frame since the start of its log."""
-        return (np.arange(self.n_frames) - np.repeat(self.frame_start[:-1], np.diff(self.frame_start))) * self.dt
+        return (np.arange(self.n_frames) - self.log_first_frame) * self.dt
 
     @cached_property
     def command_start(self) -> np.ndarray:

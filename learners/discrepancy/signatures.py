@@ -215,8 +215,7 @@ def carried_heading(theta: np.ndarray, turn: np.ndarray, batch: Batch) -> np.nda
     per frame (rad); at a log's first frames, from its first. The smoothed heading itself integrates the recent motion
     noise, which the frame's smoothed residual shares (module docstring)."""
     i = np.arange(batch.n_frames)
-    first = np.repeat(batch.frame_start[:-1], np.diff(batch.frame_start))
-    j = np.maximum(i - int(round(HEADING_LEAD_S / batch.dt)), first)
+    j = np.maximum(i - int(round(HEADING_LEAD_S / batch.dt)), batch.log_first_frame)
     turned = np.r_[0.0, np.cumsum(turn)]
     return wrap(theta[j] + turned[i] - turned[j])
 
