@@ -1,26 +1,31 @@
-"""Likelihood scans of two motion noises the model lacks, per MRCLAM Dataset 7 robot: the forward likelihood of the
-sightings under ``aibo learn``'s whole-log model (defaults), the model held (a scan, not a fit).
+"""Likelihood scans of noises the model lacks, per MRCLAM Dataset 7 robot: the forward likelihood of the sightings
+under ``aibo learn``'s whole-log model (defaults) with one form added, the model held (a scan, not a fit).
 
-Does the heading's noise in turns persist? The model with one more state beside the pose: an error of the turn's gain
-that persists as an AR(1) process, b' = exp(-dt / tau) b + N(0, sigma^2 (1 - exp(-2 dt / tau))), each frame turning
-dtheta (1 + b) for the model's dtheta. A short tau is a white noise that grows with the turn (``turn_heading_noise``'s
-form), a long one a slowly wandering gain; the model's own heading noise (a variance factor ``c`` on it) may make
-room for it. Does a robot told to stand still move less than the model says? Its motion noise times ``k`` on the
-frames whose commanded displacement is zero (the lag included), with the NIS's median (chi-square(2)'s: 1.386).
+- **Does the heading's noise in turns persist?** One more state beside the pose, an error of the turn's gain that
+  persists as an AR(1) process, b' = exp(-dt / tau) b + N(0, sigma^2 (1 - exp(-2 dt / tau))), each frame turning
+  dtheta (1 + b) for the model's dtheta. A short tau is a white noise that grows with the turn
+  (``turn_heading_noise``'s form), a long one a slowly wandering gain; the model's own heading noise (a variance
+  factor ``c`` on it) may make room for it.
+- **Does a robot told to stand still move less than the model says?** Its motion noise's variance times ``k`` on the
+  frames whose commanded displacement is zero (the lag included), with the NIS's median (chi-square(2)'s: 1.386).
+- **Do the bearings carry a bias per landmark that persists?** One state per landmark added to its bearings, the same
+  AR(1) process (sd ``sigma_b`` rad, correlation time ``tau_b``; a long one is a fixed offset per landmark,
+  ``landmark_bearing_offset``'s form), the model's bearing noise variance times ``s`` to make room for it.
 
 A sighting more than 30 squared Mahalanobis units off the prediction of the model as fitted (another robot, a
 misread barcode) is left out of every row alike.
 
-    python scripts/mrclam_motion_scans.py [DATA] [--robots 1,2,3,4,5]
+    python scripts/mrclam_noise_scans.py [DATA] [--robots 1,2,3,4,5]
 
-Prints per robot the gain in log-likelihood over the model as fitted: for the turn's gain the best (sigma, c) per
-correlation time (every row on stderr), for standing still each k. DATA defaults to ../shared/data/mrclam7 (never
-copied into the repository). The reference NumPy filter, a few seconds per row.
+Prints per robot the gain in log-likelihood over the model as fitted: the best of each grid per correlation time
+(every row on stderr), and for standing still each k. DATA defaults to ../shared/data/mrclam7 (never copied into the
+repository). The reference NumPy filter, a few seconds per row.
 """
 
 from __future__ import annotations
 
 import sys
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -34,93 +39,153 @@ from learners.arrays.batch import make_batch  # noqa: E402
 from learners.arrays.lowered import Lowered, sighting_model  # noqa: E402
 from learners.em.learner import EMLearner  # noqa: E402
 from learners.em.options import EMOptions  # noqa: E402
-from learners.inference.reference import AIBO_ANGLE_MASK, forward_pass  # noqa: E402
+from learners.inference.reference import AIBO_ANGLE_MASK, ForwardResult, forward_pass  # noqa: E402
 
-GATE = 30.0  # squared Mahalanobis units: a sighting beyond it under the model without the state is left out of every row
-SIGMAS = (0.05, 0.1, 0.2, 0.4, 0.8)  # the gain error's stationary sd (1 = 100% of the turn)
+GATE = 30.0  # squared Mahalanobis units: a sighting beyond it under the model as fitted is left out of every row
+SIGMAS = (0.05, 0.1, 0.2, 0.4, 0.8)  # the turn gain error's stationary sd (1 = 100% of the turn)
 TAUS_S = (0.1, 0.5, 2.0, 8.0)  # its correlation time (s)
 HEADING_FACTORS = (1.0, 0.5, 0.25)  # c: the factor on the model's own heading noise variance
 STILL_FACTORS = (0.3, 0.1, 0.03)  # k: the factor on the motion noise's variance while told to stand still
+BEARING_SIGMAS = (0.003, 0.006, 0.012)  # the bearing bias's stationary sd (rad)
+BEARING_TAUS_S = (1.0, 5.0, 20.0, 100.0, 1000.0)  # its correlation time (s)
+BEARING_FACTORS = (1.0, 0.5)  # s: the factor on the model's bearing noise variance
 
 
-def forward_pass_of(lo: Lowered, batch, used: np.ndarray, dt: float, sigma: float = 0.0, tau: float = 1.0,
-                    c: float = 1.0, k: float = 1.0, gate: float | None = None):
-    """The forward filter of the one log of ``batch`` on its sightings ``used``, with the gain state (sigma 0:
-    without it) and the noise factors c (heading) and k (standing still)."""
-    n = 4 if sigma > 0 else 3
+@dataclass(frozen=True)
+class Form:
+    """What one row adds to the model (the defaults: nothing)."""
+
+    sigma: float = 0.0  # the turn gain state's sd (0: no state)
+    tau: float = 1.0  # its correlation time (s)
+    c: float = 1.0  # the factor on the heading noise's variance
+    k: float = 1.0  # the factor on the motion noise's variance while told to stand still
+    sigma_b: float = 0.0  # the bearing bias states' sd (rad; 0: no states)
+    tau_b: float = 1.0  # their correlation time (s)
+    s: float = 1.0  # the factor on the bearing noise's variance
+
+    def label(self) -> str:
+        """The fields that differ from the defaults, e.g. "sigma 0.4, tau 0.1, c 0.25"."""
+        return ", ".join(f"{k} {v:g}" for k, v in asdict(self).items() if v != getattr(Form, k))
+
+
+def ar1(sigma: float, tau: float, dt: float) -> tuple[float, float]:
+    """(phi, q) of a first-order Gauss-Markov process of stationary sd ``sigma`` and correlation time ``tau`` (s)."""
     phi = float(np.exp(-dt / tau))
+    return phi, sigma**2 * (1.0 - phi**2)
+
+
+def forward_pass_of(lo: Lowered, batch, landmark: np.ndarray, used: np.ndarray, dt: float, form: Form = Form(),
+                    gate: float | None = None) -> ForwardResult:
+    """The forward filter of the one log of ``batch`` on its sightings ``used`` with ``form`` added; ``landmark``
+    (S,): each sighting's landmark (its bearing state's index)."""
+    gain = 1 if form.sigma > 0 else 0
+    n_b = int(landmark.max()) + 1 if form.sigma_b > 0 else 0
+    n = 3 + gain + n_b
+    phi_g, q_g = ar1(form.sigma, form.tau, dt)
+    phi_b, q_b = ar1(form.sigma_b, form.tau_b, dt)
+    trans = np.array([phi_g] * gain + [phi_b] * n_b)
+    noise = np.diag([q_g] * gain + [q_b] * n_b)
     sig_a = lo.shaped_cov(slice(0, batch.n_frames)).copy()
-    sig_a[:, 2, :] *= np.sqrt(c)
-    sig_a[:, :, 2] *= np.sqrt(c)
-    sig_a[np.all(lo.disp == 0.0, axis=1)] *= k
+    sig_a[:, 2, :] *= np.sqrt(form.c)
+    sig_a[:, :, 2] *= np.sqrt(form.c)
+    sig_a[np.all(lo.disp == 0.0, axis=1)] *= form.k
 
     def motion(i, mean):
-        b = mean[3] if n == 4 else 0.0
-        d = lo.disp[i] * np.array([1.0, 1.0, 1.0 + b])
+        d = lo.disp[i] * np.array([1.0, 1.0, 1.0 + (mean[3] if gain else 0.0)])
         g3, F3, R3 = geometry.motion(mean[:3], d)
-        Q3 = lo.cov_scale[i] * (R3 @ sig_a[i] @ R3.T)
-        if n == 3:
-            return g3 + lo.offset[i], F3, Q3
-        F, Q = np.zeros((4, 4)), np.zeros((4, 4))
-        F[:3, :3], F[3, 3], F[2, 3] = F3, phi, lo.disp[i, 2]
-        Q[:3, :3], Q[3, 3] = Q3, sigma**2 * (1.0 - phi**2)
-        return np.concatenate([g3 + lo.offset[i], [phi * b]]), F, Q
+        F, Q = np.zeros((n, n)), np.zeros((n, n))
+        F[:3, :3], Q[:3, :3] = F3, lo.cov_scale[i] * (R3 @ sig_a[i] @ R3.T)
+        F[3:, 3:], Q[3:, 3:] = np.diag(trans), noise
+        if gain:
+            F[2, 3] = lo.disp[i, 2]
+        return np.concatenate([g3 + lo.offset[i], trans * mean[3:]]), F, Q
 
     def observe(j, mean):
         if not used[j]:
             return None
         h, H3, rd = sighting_model(lo, mean[None, :3], batch.sight_xy[j : j + 1], np.array([j]))
-        H = np.zeros((2, n))
+        h, H, R = h[0].copy(), np.zeros((2, n)), np.diag(rd[0] * np.array([1.0, form.s]))
         H[:, :3] = H3[0]
-        return h[0], H, np.diag(rd[0]), batch.sight_value[j], AIBO_ANGLE_MASK
+        if n_b:
+            b = 3 + gain + landmark[j]
+            h[1] += mean[b]
+            H[1, b] = 1.0
+        return h, H, R, batch.sight_value[j], AIBO_ANGLE_MASK
 
     m0, P0 = np.zeros(n), np.zeros((n, n))
     m0[:3], P0[:3, :3] = lo.init_mean[0], lo.init_cov[0]
-    if n == 4:
-        P0[3, 3] = sigma**2
+    P0[3:, 3:] = np.diag([form.sigma**2] * gain + [form.sigma_b**2] * n_b)
     return forward_pass(m0, P0, batch.sight_start[: batch.n_frames + 1], motion, observe, gate)
 
 
-def robot_rows(tr, sigmas=SIGMAS, taus_s=TAUS_S, heading_factors=HEADING_FACTORS, still_factors=STILL_FACTORS
-               ) -> tuple[list[tuple[float, float, float, float]], list[tuple[float, float, float]], float, float]:
-    """The scans of one log under learn's model of it: (the turn gain's rows: (sigma, tau s, c, gain in nats over the
-    model as fitted), standing still's: (k, gain, the NIS's median), the share of frames told to stand still, the
-    model's NIS median)."""
+@dataclass
+class Scans:
+    """The scans of one log: each grid's rows as (form, gain in nats over the model as fitted, the NIS's median),
+    the share of frames told to stand still and the model's own NIS median."""
+
+    turn: list[tuple[Form, float, float]]
+    still: list[tuple[Form, float, float]]
+    bearing: list[tuple[Form, float, float]]
+    still_share: float
+    median: float
+
+
+def scans(tr, sigmas=SIGMAS, taus_s=TAUS_S, heading_factors=HEADING_FACTORS, still_factors=STILL_FACTORS,
+          bearing_sigmas=BEARING_SIGMAS, bearing_taus_s=BEARING_TAUS_S, bearing_factors=BEARING_FACTORS) -> Scans:
+    """The three scans of one log under learn's model of it (module docstring)."""
     model = EMLearner(EMOptions(uncertainty=False), check_field=False).fit([tr]).params
     batch = make_batch([tr])
     lo = model.lower(batch)
     if lo.extra is not None:
-        raise SystemExit("mrclam_motion_scans.py: learn's model holds extra states; these scans support the pose alone")
-    first = forward_pass_of(lo, batch, batch.used, tr.dt, gate=GATE)
+        raise SystemExit("mrclam_noise_scans.py: learn's model holds extra states; these scans support the pose alone")
+    landmark = np.asarray(tr.sighting_landmark, dtype=np.int64)
+    first = forward_pass_of(lo, batch, landmark, batch.used, tr.dt, gate=GATE)
     used = batch.used & first.applied  # one set of sightings for every row (a gate per row would score others)
-    base = forward_pass_of(lo, batch, used, tr.dt)
-    turn = [(s, t, c, forward_pass_of(lo, batch, used, tr.dt, s, t, c).loglik - base.loglik)
-            for s in sigmas for t in taus_s for c in heading_factors]
-    still = []
-    for k in still_factors:
-        fw = forward_pass_of(lo, batch, used, tr.dt, k=k)
-        still.append((k, fw.loglik - base.loglik, float(np.median(fw.mahal2[used]))))
-    return turn, still, float(np.mean(np.all(lo.disp == 0.0, axis=1))), float(np.median(base.mahal2[used]))
+    base = forward_pass_of(lo, batch, landmark, used, tr.dt)
+
+    def rows(forms: list[Form]) -> list[tuple[Form, float, float]]:
+        out = []
+        for form in forms:
+            fw = forward_pass_of(lo, batch, landmark, used, tr.dt, form)
+            out.append((form, fw.loglik - base.loglik, float(np.median(fw.mahal2[used]))))
+            print(f"  {form.label()}: {out[-1][1]:+.1f} nats, NIS median {out[-1][2]:.3f}", file=sys.stderr, flush=True)
+        return out
+
+    return Scans(rows([Form(sigma=s, tau=t, c=c) for s in sigmas for t in taus_s for c in heading_factors]),
+                 rows([Form(k=k) for k in still_factors]),
+                 rows([Form(sigma_b=s, tau_b=t, s=f) for s in bearing_sigmas for t in bearing_taus_s
+                       for f in bearing_factors]),
+                 float(np.mean(np.all(lo.disp == 0.0, axis=1))), float(np.median(base.mahal2[used])))
+
+
+def best_by(rows: list[tuple[Form, float, float]], key: str, value: float) -> tuple[Form, float, float]:
+    """The row of ``rows`` with the largest gain among those whose form has ``key`` == ``value``."""
+    return max((r for r in rows if getattr(r[0], key) == value), key=lambda r: r[1])
 
 
 def main(argv: list[str] | None = None) -> int:
     args = mrclam_parser(__doc__, "").parse_args(argv)
-    data = data_folder("mrclam_motion_scans.py", args.data)
+    data = data_folder("mrclam_noise_scans.py", args.data)
     if data is None:
         return 1
-    turn_table = ["| robot | " + " | ".join(f"best at tau {t:g} s: nats (sigma, c)" for t in TAUS_S) + " |",
-                  "|---|" + "---|" * len(TAUS_S)]
-    still_table = ["| robot | frames told to stand still | NIS median | " + " | ".join(
+    turn = ["| robot | " + " | ".join(f"turn gain, tau {t:g} s: nats (sigma, c)" for t in TAUS_S) + " |",
+            "|---|" + "---|" * len(TAUS_S)]
+    still = ["| robot | frames told to stand still | NIS median | " + " | ".join(
         f"k {k:g}: nats, NIS median" for k in STILL_FACTORS) + " |", "|---|---|---|" + "---|" * len(STILL_FACTORS)]
+    bearing = ["| robot | " + " | ".join(f"bearing bias, tau {t:g} s: nats (sigma mrad, s)" for t in BEARING_TAUS_S)
+               + " | NIS median: model / best |", "|---|" + "---|" * (len(BEARING_TAUS_S) + 1)]
     for r in robots(args.robots):
-        turn, still, share, median = robot_rows(import_robot(data, r))
-        for s, t, c, gain in turn:
-            print(f"  robot {r}: sigma {s:g}, tau {t:g} s, c {c:g}: {gain:+.1f} nats", file=sys.stderr, flush=True)
-        best = [max((row for row in turn if row[1] == t), key=lambda row: row[3]) for t in TAUS_S]
-        turn_table.append(f"| {r} | " + " | ".join(f"{b[3]:+.0f} ({b[0]:g}, {b[2]:g})" for b in best) + " |")
-        still_table.append(f"| {r} | {share:.1%} | {median:.3f} | "
-                           + " | ".join(f"{g:+.0f}, {m:.3f}" for _, g, m in still) + " |")
-    print("\n".join(turn_table + [""] + still_table))
+        print(f"robot {r}", file=sys.stderr, flush=True)
+        sc = scans(import_robot(data, r))
+        best = [best_by(sc.turn, "tau", t) for t in TAUS_S]
+        turn.append(f"| {r} | " + " | ".join(f"{g:+.0f} ({f.sigma:g}, {f.c:g})" for f, g, _ in best) + " |")
+        still.append(f"| {r} | {sc.still_share:.1%} | {sc.median:.3f} | "
+                     + " | ".join(f"{g:+.0f}, {m:.3f}" for _, g, m in sc.still) + " |")
+        best = [best_by(sc.bearing, "tau_b", t) for t in BEARING_TAUS_S]
+        top = max(sc.bearing, key=lambda row: row[1])
+        bearing.append(f"| {r} | " + " | ".join(f"{g:+.0f} ({1e3 * f.sigma_b:g}, {f.s:g})" for f, g, _ in best)
+                       + f" | {sc.median:.3f} / {top[2]:.3f} |")
+    print("\n".join(turn + [""] + still + [""] + bearing))
     return 0
 
 

@@ -49,17 +49,20 @@ def range_biases(T: int, n_landmarks: int, dt: float, sigma_rel: float, tau_s: f
 def diff_drive_log(seconds: float = 600.0, dt: float = 0.05, seed: int = 0,
                    drift_mm_s: tuple[float, float] = (0.0, 0.0),
                    range_bias: tuple[float, float] | None = None,
-                   turn_gain: tuple[float, float] | None = None) -> Trajectory:
+                   turn_gain: tuple[float, float] | None = None,
+                   bearing_bias: tuple[float, float] | None = None) -> Trajectory:
     """A log of ``seconds`` with commands held 1-3 s, wandering among 8 landmarks in a 6 m square;
     ``drift_mm_s``: a hidden world-frame drift (mm/s), recorded nowhere in the log; ``range_bias``: (sigma_rel, tau_s)
     of a slowly varying relative bias per landmark on the range (``range_biases``; range = d (1 + b) + noise; the
     rest of the log is the same as without it), as ``landmark_bias`` models it; ``turn_gain``: (sigma, tau_s) of an
-    error of the turn's gain, the same process on its own stream (each frame turns by its true turn times (1 + g))."""
+    error of the turn's gain, the same process on its own stream (each frame turns by its true turn times (1 + g));
+    ``bearing_bias``: (sigma rad, tau_s) of a bias per landmark added to its bearings, the same process on its own."""
     rng = np.random.default_rng(seed)
     T = int(round(seconds / dt))
     landmarks = rng.uniform(-3000.0, 3000.0, size=(8, 2))
     bias = np.zeros((T, 8)) if range_bias is None else range_biases(T, 8, dt, *range_bias, seed)
     gain = np.zeros((T, 1)) if turn_gain is None else range_biases(T, 1, dt, *turn_gain, seed, stream=11)
+    offset = np.zeros((T, 8)) if bearing_bias is None else range_biases(T, 8, dt, *bearing_bias, seed, stream=13)
     pose = np.zeros((T + 1, 3))
     controls = np.zeros((T, 2))
     frames, marks, values = [], [], []
@@ -82,7 +85,7 @@ def diff_drive_log(seconds: float = 600.0, dt: float = 0.05, seed: int = 0,
         for b in np.flatnonzero((d > 300) & (d < 4000) & (np.abs(bearing) < 0.9) & (rng.random(8) < 0.4)):
             frames.append(t)
             marks.append(b)
-            values.append((d[b] * (1.0 + bias[t, b]) + rng.normal(0, 40.0), wrap(bearing[b] + rng.normal(0, 0.02))))
+            values.append((d[b] * (1.0 + bias[t, b]) + rng.normal(0, 40.0), wrap(bearing[b] + offset[t, b] + rng.normal(0, 0.02))))
     return Trajectory(dt=dt, landmarks=landmarks, sighting_frame=np.array(frames), sighting_landmark=np.array(marks),
                       sighting_value=np.array(values).reshape(-1, 2), sensor_kind="range_mm", controls=controls,
                       control_names=("v_mm_s", "omega_rad_s"), pose=pose,

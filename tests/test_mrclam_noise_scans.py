@@ -1,9 +1,12 @@
-"""``scripts/mrclam_motion_scans.py``: likelihood scans of a persistent error of the turn's gain and of a smaller
-noise while standing still (docs/results.md, "Where in the turns the heading's noise is"), on logs of the independent
-differential-drive generator whose turn errors are known."""
+"""``scripts/mrclam_noise_scans.py``: likelihood scans of a persistent error of the turn's gain, of a smaller noise
+while standing still and of bearing biases per landmark (docs/results.md, "Where in the turns the heading's noise
+is"), on logs of the independent differential-drive generator whose errors are known."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
+import numpy as np
 import pytest
 
 from learners.arrays.batch import make_batch
@@ -13,26 +16,48 @@ from learners.inference.reference import smooth
 from tests._diffdrive import diff_drive_log
 from tests._scripts import load_script
 
+NO_TURN = dict(sigmas=(), still_factors=())
+NO_BEARING = dict(bearing_sigmas=(), still_factors=())
 
-def test_without_the_state_the_scan_is_the_models_own_filter():
-    """Known answer: sigma 0, c 1, k 1 is the reference E-step's forward likelihood, to 1e-9."""
-    script = load_script("mrclam_motion_scans")
+
+def test_without_a_form_the_scan_is_the_models_own_filter():
+    """Known answer: the form that adds nothing is the reference E-step's forward likelihood, to 1e-9; each form's
+    parameters reach the filter."""
+    script = load_script("mrclam_noise_scans")
     tr = diff_drive_log(seconds=60.0, seed=3)
     batch = make_batch([tr])
     lo = EMLearner(EMOptions(uncertainty=False, max_iter=5), check_field=False).fit([tr]).params.lower(batch)
-    ours = script.forward_pass_of(lo, batch, batch.used, tr.dt).loglik
+    landmark = np.asarray(tr.sighting_landmark)
+    ours = script.forward_pass_of(lo, batch, landmark, batch.used, tr.dt).loglik
     assert ours == pytest.approx(smooth(lo, batch).loglik, abs=1e-9)
-    moved = script.forward_pass_of(lo, batch, batch.used, tr.dt, sigma=0.3, tau=2.0, c=0.5, k=0.1).loglik
-    assert abs(moved - ours) > 0.1  # the state and the factors reach the filter
+    for form in (script.Form(sigma=0.3, tau=2.0), script.Form(c=0.5), script.Form(sigma_b=0.01, tau_b=10.0),
+                 script.Form(s=0.5)):
+        assert abs(script.forward_pass_of(lo, batch, landmark, batch.used, tr.dt, form).loglik - ours) > 0.1, form
+    still = replace(lo, disp=np.where(np.arange(len(lo.disp))[:, None] < 200, 0.0, lo.disp))  # 10 s standing still
+    at_rest = script.forward_pass_of(still, batch, landmark, batch.used, tr.dt).loglik
+    assert abs(script.forward_pass_of(still, batch, landmark, batch.used, tr.dt, script.Form(k=0.1)).loglik
+               - at_rest) > 0.1
 
 
 @pytest.mark.parametrize("tau_s, persists", [(20.0, True), (0.01, False)])
 def test_the_scan_tells_a_persistent_turn_error_from_a_white_one(tau_s, persists):
     """A log whose turns err by a gain that wanders with a correlation time of 20 s is fitted better by the scan's
-    8-s state than by its 0.1-s one; a log whose gain error is white (0.01 s), the other way round."""
-    script = load_script("mrclam_motion_scans")
+    8-s state than by its 0.1-s one (by 330-400 nats on seeds 5 and 6); a log whose gain error is white (0.01 s), the
+    other way round (by 33-46)."""
+    script = load_script("mrclam_noise_scans")
     tr = diff_drive_log(seconds=300.0, seed=5, turn_gain=(0.3, tau_s))
-    turn, _, _, _ = script.robot_rows(tr, sigmas=(0.1, 0.3), taus_s=(0.1, 8.0), heading_factors=(1.0, 0.25),
-                                      still_factors=())
-    best = {t: max(g for _, tau, _, g in turn if tau == t) for t in (0.1, 8.0)}
+    turn = script.scans(tr, taus_s=(0.1, 8.0), sigmas=(0.1, 0.3), heading_factors=(1.0, 0.25), **NO_BEARING).turn
+    best = {t: script.best_by(turn, "tau", t)[1] for t in (0.1, 8.0)}
     assert (best[8.0] > best[0.1] + 5.0) if persists else (best[0.1] > best[8.0] + 5.0), best
+
+
+@pytest.mark.parametrize("bias, gains", [((0.02, 30.0), True), (None, False)])
+def test_the_scan_finds_bearing_biases_per_landmark_where_the_log_has_them(bias, gains):
+    """A log whose bearings carry a bias per landmark (sd 20 mrad, 30 s) gains far more from the scan's bearing states
+    than an effect-free one, whose best row gains a few nats at most."""
+    script = load_script("mrclam_noise_scans")
+    tr = diff_drive_log(seconds=300.0, seed=5, bearing_bias=bias)
+    bearing = script.scans(tr, bearing_sigmas=(0.005, 0.02), bearing_taus_s=(30.0,), bearing_factors=(1.0, 0.5),
+                           **NO_TURN).bearing
+    top = max(g for _, g, _ in bearing)
+    assert top > 100.0 if gains else top < 10.0, top
