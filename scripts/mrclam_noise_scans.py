@@ -11,6 +11,9 @@ under ``aibo learn``'s whole-log model (defaults) with one form added, the model
 - **Do the bearings carry a bias per landmark that persists?** One state per landmark added to its bearings, the same
   AR(1) process (sd ``sigma_b`` rad, correlation time ``tau_b``; a long one is a fixed offset per landmark,
   ``landmark_bearing_offset``'s form), the model's bearing noise variance times ``s`` to make room for it.
+- **And the sizes (ranges)?** The same per landmark on the size, multiplying it by (1 + b) (``landmark_bias``' form: sd
+  ``sigma_r``, correlation time ``tau_r``; a long one is a fixed scale per landmark, ``beacon_height_scale``'s), the
+  size noise variance times ``r``.
 
 A sighting more than 30 squared Mahalanobis units off the prediction of the model as fitted (another robot, a
 misread barcode) is left out of every row alike.
@@ -49,6 +52,9 @@ STILL_FACTORS = (0.3, 0.1, 0.03)  # k: the factor on the motion noise's variance
 BEARING_SIGMAS = (0.003, 0.006, 0.012)  # the bearing bias's stationary sd (rad)
 BEARING_TAUS_S = (1.0, 5.0, 20.0, 100.0, 1000.0)  # its correlation time (s)
 BEARING_FACTORS = (1.0, 0.5)  # s: the factor on the model's bearing noise variance
+SIZE_SIGMAS = (0.005, 0.01, 0.02, 0.05)  # the size bias's stationary sd (relative)
+SIZE_TAUS_S = BEARING_TAUS_S  # its correlation time (s)
+SIZE_FACTORS = (1.0, 0.5)  # r: the factor on the model's size noise variance
 
 
 @dataclass(frozen=True)
@@ -62,6 +68,9 @@ class Form:
     sigma_b: float = 0.0  # the bearing bias states' sd (rad; 0: no states)
     tau_b: float = 1.0  # their correlation time (s)
     s: float = 1.0  # the factor on the bearing noise's variance
+    sigma_r: float = 0.0  # the size bias states' sd (relative; 0: no states)
+    tau_r: float = 1.0  # their correlation time (s)
+    r: float = 1.0  # the factor on the size noise's variance
 
     def label(self) -> str:
         """The fields that differ from the defaults, e.g. "sigma 0.4, tau 0.1, c 0.25"."""
@@ -77,14 +86,16 @@ def ar1(sigma: float, tau: float, dt: float) -> tuple[float, float]:
 def forward_pass_of(lo: Lowered, batch, landmark: np.ndarray, used: np.ndarray, dt: float, form: Form = Form(),
                     gate: float | None = None) -> ForwardResult:
     """The forward filter of the one log of ``batch`` on its sightings ``used`` with ``form`` added; ``landmark``
-    (S,): each sighting's landmark (its bearing state's index)."""
+    (S,): each sighting's landmark (the index of its bearing's and its size's state)."""
     gain = 1 if form.sigma > 0 else 0
     n_b = int(landmark.max()) + 1 if form.sigma_b > 0 else 0
-    n = 3 + gain + n_b
+    n_r = int(landmark.max()) + 1 if form.sigma_r > 0 else 0
+    n = 3 + gain + n_b + n_r
     phi_g, q_g = ar1(form.sigma, form.tau, dt)
     phi_b, q_b = ar1(form.sigma_b, form.tau_b, dt)
-    trans = np.array([phi_g] * gain + [phi_b] * n_b)
-    noise = np.diag([q_g] * gain + [q_b] * n_b)
+    phi_r, q_r = ar1(form.sigma_r, form.tau_r, dt)
+    trans = np.array([phi_g] * gain + [phi_b] * n_b + [phi_r] * n_r)
+    noise = np.diag([q_g] * gain + [q_b] * n_b + [q_r] * n_r)
     sig_a = lo.shaped_cov(slice(0, batch.n_frames)).copy()
     sig_a[:, 2, :] *= np.sqrt(form.c)
     sig_a[:, :, 2] *= np.sqrt(form.c)
@@ -104,17 +115,23 @@ def forward_pass_of(lo: Lowered, batch, landmark: np.ndarray, used: np.ndarray, 
         if not used[j]:
             return None
         h, H3, rd = sighting_model(lo, mean[None, :3], batch.sight_xy[j : j + 1], np.array([j]))
-        h, H, R = h[0].copy(), np.zeros((2, n)), np.diag(rd[0] * np.array([1.0, form.s]))
+        h, H, R = h[0].copy(), np.zeros((2, n)), np.diag(rd[0] * np.array([form.r, form.s]))
         H[:, :3] = H3[0]
         if n_b:
             b = 3 + gain + landmark[j]
             h[1] += mean[b]
             H[1, b] = 1.0
+        if n_r:
+            b = 3 + gain + n_b + landmark[j]
+            curve = h[0] - lo.size_offset[j]  # size_scale f(d)
+            h[0] = curve * (1.0 + mean[b]) + lo.size_offset[j]
+            H[0, :3] *= 1.0 + mean[b]
+            H[0, b] = curve
         return h, H, R, batch.sight_value[j], AIBO_ANGLE_MASK
 
     m0, P0 = np.zeros(n), np.zeros((n, n))
     m0[:3], P0[:3, :3] = lo.init_mean[0], lo.init_cov[0]
-    P0[3:, 3:] = np.diag([form.sigma**2] * gain + [form.sigma_b**2] * n_b)
+    P0[3:, 3:] = np.diag([form.sigma**2] * gain + [form.sigma_b**2] * n_b + [form.sigma_r**2] * n_r)
     return forward_pass(m0, P0, batch.sight_start[: batch.n_frames + 1], motion, observe, gate)
 
 
@@ -126,13 +143,15 @@ class Scans:
     turn: list[tuple[Form, float, float]]
     still: list[tuple[Form, float, float]]
     bearing: list[tuple[Form, float, float]]
+    size: list[tuple[Form, float, float]]
     still_share: float
     median: float
 
 
 def scans(tr, sigmas=SIGMAS, taus_s=TAUS_S, heading_factors=HEADING_FACTORS, still_factors=STILL_FACTORS,
-          bearing_sigmas=BEARING_SIGMAS, bearing_taus_s=BEARING_TAUS_S, bearing_factors=BEARING_FACTORS) -> Scans:
-    """The three scans of one log under learn's model of it (module docstring)."""
+          bearing_sigmas=BEARING_SIGMAS, bearing_taus_s=BEARING_TAUS_S, bearing_factors=BEARING_FACTORS,
+          size_sigmas=SIZE_SIGMAS, size_taus_s=SIZE_TAUS_S, size_factors=SIZE_FACTORS) -> Scans:
+    """The four scans of one log under learn's model of it (module docstring)."""
     model = EMLearner(EMOptions(uncertainty=False), check_field=False).fit([tr]).params
     batch = make_batch([tr])
     lo = model.lower(batch)
@@ -155,6 +174,7 @@ def scans(tr, sigmas=SIGMAS, taus_s=TAUS_S, heading_factors=HEADING_FACTORS, sti
                  rows([Form(k=k) for k in still_factors]),
                  rows([Form(sigma_b=s, tau_b=t, s=f) for s in bearing_sigmas for t in bearing_taus_s
                        for f in bearing_factors]),
+                 rows([Form(sigma_r=s, tau_r=t, r=f) for s in size_sigmas for t in size_taus_s for f in size_factors]),
                  float(np.mean(np.all(lo.disp == 0.0, axis=1))), float(np.median(base.mahal2[used])))
 
 
@@ -174,6 +194,8 @@ def main(argv: list[str] | None = None) -> int:
         f"k {k:g}: nats, NIS median" for k in STILL_FACTORS) + " |", "|---|---|---|" + "---|" * len(STILL_FACTORS)]
     bearing = ["| robot | " + " | ".join(f"bearing bias, tau {t:g} s: nats (sigma mrad, s)" for t in BEARING_TAUS_S)
                + " | NIS median: model / best |", "|---|" + "---|" * (len(BEARING_TAUS_S) + 1)]
+    size = ["| robot | " + " | ".join(f"size bias, tau {t:g} s: nats (sigma %, r)" for t in SIZE_TAUS_S) + " |",
+            "|---|" + "---|" * len(SIZE_TAUS_S)]
     for r in robots(args.robots):
         print(f"robot {r}", file=sys.stderr, flush=True)
         sc = scans(import_robot(data, r))
@@ -185,7 +207,9 @@ def main(argv: list[str] | None = None) -> int:
         top = max(sc.bearing, key=lambda row: row[1])
         bearing.append(f"| {r} | " + " | ".join(f"{g:+.0f} ({1e3 * f.sigma_b:g}, {f.s:g})" for f, g, _ in best)
                        + f" | {sc.median:.3f} / {top[2]:.3f} |")
-    print("\n".join(turn + [""] + still + [""] + bearing))
+        best = [best_by(sc.size, "tau_r", t) for t in SIZE_TAUS_S]
+        size.append(f"| {r} | " + " | ".join(f"{g:+.0f} ({1e2 * f.sigma_r:g}, {f.r:g})" for f, g, _ in best) + " |")
+    print("\n".join(turn + [""] + still + [""] + bearing + [""] + size))
     return 0
 
 

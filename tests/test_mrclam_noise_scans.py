@@ -1,5 +1,5 @@
 """``scripts/mrclam_noise_scans.py``: likelihood scans of a persistent error of the turn's gain, of a smaller noise
-while standing still and of bearing biases per landmark (docs/results.md, "Where in the turns the heading's noise
+while standing still and of bearing and size biases per landmark (docs/results.md, "Where in the turns the heading's noise
 is"), on logs of the independent differential-drive generator whose errors are known."""
 
 from __future__ import annotations
@@ -16,8 +16,8 @@ from learners.inference.reference import smooth
 from tests._diffdrive import diff_drive_log
 from tests._scripts import load_script
 
-NO_TURN = dict(sigmas=(), still_factors=())
-NO_BEARING = dict(bearing_sigmas=(), still_factors=())
+NO_TURN = dict(sigmas=(), still_factors=(), size_sigmas=())
+NO_BEARING = dict(bearing_sigmas=(), still_factors=(), size_sigmas=())
 
 
 def test_without_a_form_the_scan_is_the_models_own_filter():
@@ -31,7 +31,7 @@ def test_without_a_form_the_scan_is_the_models_own_filter():
     ours = script.forward_pass_of(lo, batch, landmark, batch.used, tr.dt).loglik
     assert ours == pytest.approx(smooth(lo, batch).loglik, abs=1e-9)
     for form in (script.Form(sigma=0.3, tau=2.0), script.Form(c=0.5), script.Form(sigma_b=0.01, tau_b=10.0),
-                 script.Form(s=0.5)):
+                 script.Form(s=0.5), script.Form(sigma_r=0.05, tau_r=10.0), script.Form(r=0.5)):
         assert abs(script.forward_pass_of(lo, batch, landmark, batch.used, tr.dt, form).loglik - ours) > 0.1, form
     still = replace(lo, disp=np.where(np.arange(len(lo.disp))[:, None] < 200, 0.0, lo.disp))  # 10 s standing still
     at_rest = script.forward_pass_of(still, batch, landmark, batch.used, tr.dt).loglik
@@ -60,4 +60,16 @@ def test_the_scan_finds_bearing_biases_per_landmark_where_the_log_has_them(bias,
     bearing = script.scans(tr, bearing_sigmas=(0.005, 0.02), bearing_taus_s=(30.0,), bearing_factors=(1.0, 0.5),
                            **NO_TURN).bearing
     top = max(g for _, g, _ in bearing)
+    assert top > 100.0 if gains else top < 10.0, top
+
+
+@pytest.mark.parametrize("bias, gains", [((0.05, 30.0), True), (None, False)])
+def test_the_scan_finds_range_biases_per_landmark_where_the_log_has_them(bias, gains):
+    """A log whose ranges carry a relative bias per landmark (sd 5%, 30 s) gains far more from the scan's size states
+    than an effect-free one, whose best row gains a few nats at most."""
+    script = load_script("mrclam_noise_scans")
+    tr = diff_drive_log(seconds=300.0, seed=5, range_bias=bias)
+    size = script.scans(tr, size_sigmas=(0.02, 0.05), size_taus_s=(30.0,), size_factors=(1.0,), sigmas=(),
+                        still_factors=(), bearing_sigmas=()).size
+    top = max(g for _, g, _ in size)
     assert top > 100.0 if gains else top < 10.0, top
