@@ -21,14 +21,14 @@ misread barcode) is left out of every row alike.
     python scripts/mrclam_noise_scans.py [DATA] [--robots 1,2,3,4,5]
 
 Prints per robot the gain in log-likelihood over the model as fitted: the best of each grid per correlation time
-(every row on stderr), and for standing still each k. DATA defaults to ../shared/data/mrclam7 (never copied into the
-repository). The reference NumPy filter, a few seconds per row.
+(every row on stderr), for standing still each k, and the best turn and bearing forms together. DATA defaults to
+../shared/data/mrclam7 (never copied into the repository). The reference NumPy filter, a few seconds per row.
 """
 
 from __future__ import annotations
 
 import sys
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -144,6 +144,7 @@ class Scans:
     still: list[tuple[Form, float, float]]
     bearing: list[tuple[Form, float, float]]
     size: list[tuple[Form, float, float]]
+    both: list[tuple[Form, float, float]]  # the best turn row's form with the best bearing row's (empty without one)
     still_share: float
     median: float
 
@@ -170,12 +171,16 @@ def scans(tr, sigmas=SIGMAS, taus_s=TAUS_S, heading_factors=HEADING_FACTORS, sti
             print(f"  {form.label()}: {out[-1][1]:+.1f} nats, NIS median {out[-1][2]:.3f}", file=sys.stderr, flush=True)
         return out
 
-    return Scans(rows([Form(sigma=s, tau=t, c=c) for s in sigmas for t in taus_s for c in heading_factors]),
-                 rows([Form(k=k) for k in still_factors]),
-                 rows([Form(sigma_b=s, tau_b=t, s=f) for s in bearing_sigmas for t in bearing_taus_s
-                       for f in bearing_factors]),
+    turn = rows([Form(sigma=s, tau=t, c=c) for s in sigmas for t in taus_s for c in heading_factors])
+    bearing = rows([Form(sigma_b=s, tau_b=t, s=f) for s in bearing_sigmas for t in bearing_taus_s
+                    for f in bearing_factors])
+    both = []
+    if turn and bearing:
+        t, b = max(turn, key=lambda row: row[1])[0], max(bearing, key=lambda row: row[1])[0]
+        both = rows([replace(t, sigma_b=b.sigma_b, tau_b=b.tau_b, s=b.s)])
+    return Scans(turn, rows([Form(k=k) for k in still_factors]), bearing,
                  rows([Form(sigma_r=s, tau_r=t, r=f) for s in size_sigmas for t in size_taus_s for f in size_factors]),
-                 float(np.mean(np.all(lo.disp == 0.0, axis=1))), float(np.median(base.mahal2[used])))
+                 both, float(np.mean(np.all(lo.disp == 0.0, axis=1))), float(np.median(base.mahal2[used])))
 
 
 def best_by(rows: list[tuple[Form, float, float]], key: str, value: float) -> tuple[Form, float, float]:
@@ -196,6 +201,7 @@ def main(argv: list[str] | None = None) -> int:
                + " | NIS median: model / best |", "|---|" + "---|" * (len(BEARING_TAUS_S) + 1)]
     size = ["| robot | " + " | ".join(f"size bias, tau {t:g} s: nats (sigma %, r)" for t in SIZE_TAUS_S) + " |",
             "|---|" + "---|" * len(SIZE_TAUS_S)]
+    both = ["| robot | the turn's best | the bearings' best | both together |", "|---|---|---|---|"]
     for r in robots(args.robots):
         print(f"robot {r}", file=sys.stderr, flush=True)
         sc = scans(import_robot(data, r))
@@ -209,7 +215,10 @@ def main(argv: list[str] | None = None) -> int:
                        + f" | {sc.median:.3f} / {top[2]:.3f} |")
         best = [best_by(sc.size, "tau_r", t) for t in SIZE_TAUS_S]
         size.append(f"| {r} | " + " | ".join(f"{g:+.0f} ({1e2 * f.sigma_r:g}, {f.r:g})" for f, g, _ in best) + " |")
-    print("\n".join(turn + [""] + still + [""] + bearing + [""] + size))
+        if sc.both:
+            both.append(f"| {r} | {max(g for _, g, _ in sc.turn):+.0f} | {max(g for _, g, _ in sc.bearing):+.0f} | "
+                        f"{sc.both[0][1]:+.0f} |")
+    print("\n".join(turn + [""] + still + [""] + bearing + [""] + size + [""] + both))
     return 0
 
 

@@ -73,3 +73,14 @@ def test_the_scan_finds_range_biases_per_landmark_where_the_log_has_them(bias, g
                         still_factors=(), bearing_sigmas=()).size
     top = max(g for _, g, _ in size)
     assert top > 100.0 if gains else top < 10.0, top
+
+
+def test_both_forms_together_are_the_best_turn_and_bearing_rows_joined():
+    """The last table's row: the best turn row's form with the best bearing row's, scored once more."""
+    script = load_script("mrclam_noise_scans")
+    sc = script.scans(diff_drive_log(seconds=60.0, seed=3), sigmas=(0.1, 0.3), taus_s=(0.1,), heading_factors=(1.0,),
+                      still_factors=(), bearing_sigmas=(0.01,), bearing_taus_s=(10.0,), bearing_factors=(1.0,),
+                      size_sigmas=())
+    t = max(sc.turn, key=lambda row: row[1])[0]
+    assert sc.both[0][0] == script.Form(sigma=t.sigma, tau=0.1, sigma_b=0.01, tau_b=10.0)
+    assert sc.both[0][1] != sc.turn[0][1] and sc.both[0][1] != sc.bearing[0][1]
