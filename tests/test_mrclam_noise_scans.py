@@ -9,12 +9,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from aibo_core.mrclam import import_robot
 from learners.arrays.batch import make_batch
 from learners.em.learner import EMLearner
 from learners.em.options import EMOptions
 from learners.inference.reference import smooth
 from tests._diffdrive import diff_drive_log
 from tests._scripts import load_script
+from tests.test_mrclam import DATA, needs_data
 
 NO_TURN = dict(sigmas=(), still_factors=(), size_sigmas=())
 NO_BEARING = dict(bearing_sigmas=(), still_factors=(), size_sigmas=())
@@ -84,3 +86,18 @@ def test_both_forms_together_are_the_best_turn_and_bearing_rows_joined():
     t = max(sc.turn, key=lambda row: row[1])[0]
     assert sc.both[0][0] == script.Form(sigma=t.sigma, tau=0.1, sigma_b=0.01, tau_b=10.0)
     assert sc.both[0][1] != sc.turn[0][1] and sc.both[0][1] != sc.bearing[0][1]
+
+
+@pytest.mark.realdata
+@needs_data
+def test_robot_1s_sightings_want_the_turn_noise_white_and_the_bearing_biases_persistent():
+    """MRCLAM robot 1 (2026-11-30, docs/results.md): at sigma 0.4 of the turn and the heading noise x 0.25, a white turn
+    gain error (0.1 s) is worth more than one that persists 8 s; at 6 mrad and the bearing noise x 0.5, bearing biases
+    that persist 20 s are worth more than ones that last 1 s (each by more than 100 nats)."""
+    script = load_script("mrclam_noise_scans")
+    sc = script.scans(import_robot(DATA, 1), sigmas=(0.4,), taus_s=(0.1, 8.0), heading_factors=(0.25,),
+                      still_factors=(), bearing_sigmas=(0.006,), bearing_taus_s=(1.0, 20.0), bearing_factors=(0.5,),
+                      size_sigmas=())
+    turn = {f.tau: g for f, g, _ in sc.turn}
+    bearing = {f.tau_b: g for f, g, _ in sc.bearing}
+    assert turn[0.1] > turn[8.0] + 100.0 and bearing[20.0] > bearing[1.0] + 100.0, (turn, bearing)
