@@ -18,10 +18,11 @@ under ``aibo learn``'s whole-log model (defaults) with one form added, the model
 A sighting more than 30 squared Mahalanobis units off the prediction of the model as fitted (another robot, a
 misread barcode) is left out of every row alike.
 
-    python scripts/mrclam_noise_scans.py [DATA] [--robots 1,2,3,4,5]
+    python scripts/mrclam_noise_scans.py [DATA] [--robots 1,2,3,4,5] [--png docs/img/mrclam_noise_scans.png]
 
 Prints per robot the gain in log-likelihood over the model as fitted: the best of each grid per correlation time
-(every row on stderr), for standing still each k, and the best turn and bearing forms together. DATA defaults to
+(every row on stderr), for standing still each k, and the best turn and bearing forms together; ``--png``: the best
+gain against the correlation time, per robot, for the turn, the bearings and the sizes. DATA defaults to
 ../shared/data/mrclam7 (never copied into the repository). The reference NumPy filter, a few seconds per row.
 """
 
@@ -73,8 +74,10 @@ class Form:
     r: float = 1.0  # the factor on the size noise's variance
 
     def label(self) -> str:
-        """The fields that differ from the defaults, e.g. "sigma 0.4, tau 0.1, c 0.25"."""
-        return ", ".join(f"{k} {v:g}" for k, v in asdict(self).items() if v != getattr(Form, k))
+        """The fields that differ from the defaults, each state's correlation time with it, e.g. "sigma 0.4, tau 0.1,
+        c 0.25"."""
+        states = {"tau": self.sigma, "tau_b": self.sigma_b, "tau_r": self.sigma_r}
+        return ", ".join(f"{k} {v:g}" for k, v in asdict(self).items() if v != getattr(Form, k) or states.get(k, 0) > 0)
 
 
 def ar1(sigma: float, tau: float, dt: float) -> tuple[float, float]:
@@ -188,8 +191,39 @@ def best_by(rows: list[tuple[Form, float, float]], key: str, value: float) -> tu
     return max((r for r in rows if getattr(r[0], key) == value), key=lambda r: r[1])
 
 
+def figure(by_robot: dict[int, Scans], path: Path) -> None:
+    """Per robot, the best gain of each correlation time (log scale) for the turn's gain, the bearings' and the sizes'
+    bias states, side by side."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from aibo.figures import save_png
+
+    panels = (("turn", "tau", TAUS_S, "a turn gain error: white (left) or persistent"),
+              ("bearing", "tau_b", BEARING_TAUS_S, "a bias per landmark on the bearings"),
+              ("size", "tau_r", SIZE_TAUS_S, "a relative bias per landmark on the sizes"))
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8), sharey=True)
+    for ax, (scan, key, taus, title) in zip(axes, panels):
+        for r, sc in by_robot.items():
+            ax.plot(taus, [best_by(getattr(sc, scan), key, t)[1] for t in taus], "o-", label=f"robot {r}")
+        ax.set_xscale("log")
+        ax.set_xlabel("correlation time (s)")
+        ax.set_title(title, fontsize=10)
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("gain in log-likelihood (nats), best row")
+    axes[0].legend(fontsize=8)
+    fig.suptitle("MRCLAM Dataset 7: what each form adds to aibo learn's model (held), by how long its error persists",
+                 fontsize=10)
+    fig.tight_layout()
+    save_png(fig, path)  # atomically, its folder made
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = mrclam_parser(__doc__, "").parse_args(argv)
+    ap = mrclam_parser(__doc__, "")
+    ap.add_argument("--png", default=None, help="write the figure here")
+    args = ap.parse_args(argv)
     data = data_folder("mrclam_noise_scans.py", args.data)
     if data is None:
         return 1
@@ -202,9 +236,10 @@ def main(argv: list[str] | None = None) -> int:
     size = ["| robot | " + " | ".join(f"size bias, tau {t:g} s: nats (sigma %, r)" for t in SIZE_TAUS_S) + " |",
             "|---|" + "---|" * len(SIZE_TAUS_S)]
     both = ["| robot | the turn's best | the bearings' best | both together |", "|---|---|---|---|"]
+    by_robot = {}
     for r in robots(args.robots):
         print(f"robot {r}", file=sys.stderr, flush=True)
-        sc = scans(import_robot(data, r))
+        sc = by_robot[r] = scans(import_robot(data, r))
         best = [best_by(sc.turn, "tau", t) for t in TAUS_S]
         turn.append(f"| {r} | " + " | ".join(f"{g:+.0f} ({f.sigma:g}, {f.c:g})" for f, g, _ in best) + " |")
         still.append(f"| {r} | {sc.still_share:.1%} | {sc.median:.3f} | "
@@ -219,6 +254,8 @@ def main(argv: list[str] | None = None) -> int:
             both.append(f"| {r} | {max(g for _, g, _ in sc.turn):+.0f} | {max(g for _, g, _ in sc.bearing):+.0f} | "
                         f"{sc.both[0][1]:+.0f} |")
     print("\n".join(turn + [""] + still + [""] + bearing + [""] + size + [""] + both))
+    if args.png:
+        figure(by_robot, Path(args.png))
     return 0
 
 

@@ -86,6 +86,16 @@ def test_both_forms_together_are_the_best_turn_and_bearing_rows_joined():
     t = max(sc.turn, key=lambda row: row[1])[0]
     assert sc.both[0][0] == script.Form(sigma=t.sigma, tau=0.1, sigma_b=0.01, tau_b=10.0)
     assert sc.both[0][1] != sc.turn[0][1] and sc.both[0][1] != sc.bearing[0][1]
+    assert sc.both[0][0].label() == f"sigma {t.sigma:g}, tau 0.1, sigma_b 0.01, tau_b 10"
+
+
+def test_the_figure_is_written(tmp_path):
+    """``--png``'s figure: one PNG with the three scans' panels (looked at: docs/img/mrclam_noise_scans.png)."""
+    script = load_script("mrclam_noise_scans")
+    sc = script.scans(diff_drive_log(seconds=60.0, seed=3), sigmas=(0.3,), heading_factors=(1.0,), still_factors=(),
+                      bearing_sigmas=(0.01,), bearing_factors=(1.0,), size_sigmas=(0.02,), size_factors=(1.0,))
+    script.figure({1: sc}, tmp_path / "scans.png")
+    assert (tmp_path / "scans.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 @pytest.mark.realdata
