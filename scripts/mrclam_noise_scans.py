@@ -80,6 +80,11 @@ class Form:
         return ", ".join(f"{k} {v:g}" for k, v in asdict(self).items() if v != getattr(Form, k) or states.get(k, 0) > 0)
 
 
+def told_to_stand_still(lo: Lowered) -> np.ndarray:
+    """(N,) bool: the frames whose commanded displacement is zero (the lag included)."""
+    return np.all(lo.disp == 0.0, axis=1)
+
+
 def ar1(sigma: float, tau: float, dt: float) -> tuple[float, float]:
     """(phi, q) of a first-order Gauss-Markov process of stationary sd ``sigma`` and correlation time ``tau`` (s)."""
     phi = float(np.exp(-dt / tau))
@@ -91,8 +96,9 @@ def forward_pass_of(lo: Lowered, batch, landmark: np.ndarray, used: np.ndarray, 
     """The forward filter of the one log of ``batch`` on its sightings ``used`` with ``form`` added; ``landmark``
     (S,): each sighting's landmark (the index of its bearing's and its size's state)."""
     gain = 1 if form.sigma > 0 else 0
-    n_b = int(landmark.max()) + 1 if form.sigma_b > 0 else 0
-    n_r = int(landmark.max()) + 1 if form.sigma_r > 0 else 0
+    n_landmarks = int(landmark.max()) + 1
+    n_b = n_landmarks if form.sigma_b > 0 else 0
+    n_r = n_landmarks if form.sigma_r > 0 else 0
     n = 3 + gain + n_b + n_r
     phi_g, q_g = ar1(form.sigma, form.tau, dt)
     phi_b, q_b = ar1(form.sigma_b, form.tau_b, dt)
@@ -102,7 +108,7 @@ def forward_pass_of(lo: Lowered, batch, landmark: np.ndarray, used: np.ndarray, 
     sig_a = lo.shaped_cov(slice(0, batch.n_frames)).copy()
     sig_a[:, 2, :] *= np.sqrt(form.c)
     sig_a[:, :, 2] *= np.sqrt(form.c)
-    sig_a[np.all(lo.disp == 0.0, axis=1)] *= form.k
+    sig_a[told_to_stand_still(lo)] *= form.k
 
     def motion(i, mean):
         d = lo.disp[i] * np.array([1.0, 1.0, 1.0 + (mean[3] if gain else 0.0)])
@@ -179,16 +185,16 @@ def scans(tr, sigmas=SIGMAS, taus_s=TAUS_S, heading_factors=HEADING_FACTORS, sti
                     for f in bearing_factors])
     both = []
     if turn and bearing:
-        t, b = max(turn, key=lambda row: row[1])[0], max(bearing, key=lambda row: row[1])[0]
+        t, b = best(turn)[0], best(bearing)[0]
         both = rows([replace(t, sigma_b=b.sigma_b, tau_b=b.tau_b, s=b.s)])
     return Scans(turn, rows([Form(k=k) for k in still_factors]), bearing,
                  rows([Form(sigma_r=s, tau_r=t, r=f) for s in size_sigmas for t in size_taus_s for f in size_factors]),
-                 both, float(np.mean(np.all(lo.disp == 0.0, axis=1))), float(np.median(base.mahal2[used])))
+                 both, float(np.mean(told_to_stand_still(lo))), float(np.median(base.mahal2[used])))
 
 
-def best_by(rows: list[tuple[Form, float, float]], key: str, value: float) -> tuple[Form, float, float]:
-    """The row of ``rows`` with the largest gain among those whose form has ``key`` == ``value``."""
-    return max((r for r in rows if getattr(r[0], key) == value), key=lambda r: r[1])
+def best(rows: list[tuple[Form, float, float]], key: str | None = None, value: float = 0.0) -> tuple[Form, float, float]:
+    """The row of ``rows`` with the largest gain (among those whose form has ``key`` == ``value``, if ``key``)."""
+    return max((r for r in rows if key is None or getattr(r[0], key) == value), key=lambda r: r[1])
 
 
 def figure(by_robot: dict[int, Scans], path: Path) -> None:
@@ -207,7 +213,7 @@ def figure(by_robot: dict[int, Scans], path: Path) -> None:
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.8), sharey=True)
     for ax, (scan, key, taus, title) in zip(axes, panels):
         for r, sc in by_robot.items():
-            ax.plot(taus, [best_by(getattr(sc, scan), key, t)[1] for t in taus], "o-", label=f"robot {r}")
+            ax.plot(taus, [best(getattr(sc, scan), key, t)[1] for t in taus], "o-", label=f"robot {r}")
         ax.set_xscale("log")
         ax.set_xlabel("correlation time (s)")
         ax.set_title(title, fontsize=10)
@@ -240,19 +246,17 @@ def main(argv: list[str] | None = None) -> int:
     for r in robots(args.robots):
         print(f"robot {r}", file=sys.stderr, flush=True)
         sc = by_robot[r] = scans(import_robot(data, r))
-        best = [best_by(sc.turn, "tau", t) for t in TAUS_S]
-        turn.append(f"| {r} | " + " | ".join(f"{g:+.0f} ({f.sigma:g}, {f.c:g})" for f, g, _ in best) + " |")
+        turn.append(f"| {r} | " + " | ".join(f"{g:+.0f} ({f.sigma:g}, {f.c:g})"
+                                             for f, g, _ in (best(sc.turn, "tau", t) for t in TAUS_S)) + " |")
         still.append(f"| {r} | {sc.still_share:.1%} | {sc.median:.3f} | "
                      + " | ".join(f"{g:+.0f}, {m:.3f}" for _, g, m in sc.still) + " |")
-        best = [best_by(sc.bearing, "tau_b", t) for t in BEARING_TAUS_S]
-        top = max(sc.bearing, key=lambda row: row[1])
-        bearing.append(f"| {r} | " + " | ".join(f"{g:+.0f} ({1e3 * f.sigma_b:g}, {f.s:g})" for f, g, _ in best)
-                       + f" | {sc.median:.3f} / {top[2]:.3f} |")
-        best = [best_by(sc.size, "tau_r", t) for t in SIZE_TAUS_S]
-        size.append(f"| {r} | " + " | ".join(f"{g:+.0f} ({1e2 * f.sigma_r:g}, {f.r:g})" for f, g, _ in best) + " |")
+        bearing.append(f"| {r} | " + " | ".join(f"{g:+.0f} ({1e3 * f.sigma_b:g}, {f.s:g})"
+                                                for f, g, _ in (best(sc.bearing, "tau_b", t) for t in BEARING_TAUS_S))
+                       + f" | {sc.median:.3f} / {best(sc.bearing)[2]:.3f} |")
+        size.append(f"| {r} | " + " | ".join(f"{g:+.0f} ({1e2 * f.sigma_r:g}, {f.r:g})"
+                                             for f, g, _ in (best(sc.size, "tau_r", t) for t in SIZE_TAUS_S)) + " |")
         if sc.both:
-            both.append(f"| {r} | {max(g for _, g, _ in sc.turn):+.0f} | {max(g for _, g, _ in sc.bearing):+.0f} | "
-                        f"{sc.both[0][1]:+.0f} |")
+            both.append(f"| {r} | {best(sc.turn)[1]:+.0f} | {best(sc.bearing)[1]:+.0f} | {sc.both[0][1]:+.0f} |")
     print("\n".join(turn + [""] + still + [""] + bearing + [""] + size + [""] + both))
     if args.png:
         figure(by_robot, Path(args.png))

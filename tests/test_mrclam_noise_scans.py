@@ -49,7 +49,7 @@ def test_the_scan_tells_a_persistent_turn_error_from_a_white_one(tau_s, persists
     script = load_script("mrclam_noise_scans")
     tr = diff_drive_log(seconds=300.0, seed=5, turn_gain=(0.3, tau_s))
     turn = script.scans(tr, taus_s=(0.1, 8.0), sigmas=(0.1, 0.3), heading_factors=(1.0, 0.25), **NO_BEARING).turn
-    best = {t: script.best_by(turn, "tau", t)[1] for t in (0.1, 8.0)}
+    best = {t: script.best(turn, "tau", t)[1] for t in (0.1, 8.0)}
     assert (best[8.0] > best[0.1] + 5.0) if persists else (best[0.1] > best[8.0] + 5.0), best
 
 
