@@ -22,6 +22,7 @@ if TYPE_CHECKING:
     from learners.arrays.posterior import Posterior
 
 LOG_2PI = float(np.log(2.0 * np.pi))
+BELIEF_DIM = 5  # a sighting's belief: the pose (x mm, y mm, theta rad), its size bias b and its bearing bias c (rad)
 
 
 @dataclass(frozen=True)
@@ -47,9 +48,10 @@ class Innovations:
 
 def joint_belief(lo: "Lowered", post: "Posterior", idx: np.ndarray, pose: np.ndarray,
                  smoothed: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Mean (n, 4) and covariance (n, 4, 4) of (x, y, theta, b) at poses ``pose`` for sightings ``idx``: the filtered
-    (``smoothed`` False: alpha) or smoothed (gamma) pose and, with extra states (``lo.extra``), the size bias b of
-    sighting j's slot (0 with variance 0 where it has none, or without extra states)."""
+    """Mean (n, 5) and covariance (n, 5, 5) of (x, y, theta, b, c) at poses ``pose`` for sightings ``idx``: the
+    filtered (``smoothed`` False: alpha) or smoothed (gamma) pose and, with extra states (``lo.extra``), the size bias b
+    of sighting j's slot and the bearing bias c (rad) of its bearing slot (each 0 with variance 0 where it has none, or
+    without extra states)."""
     if lo.extra is None or post.extra is None:
         return _pose_only(post.mu_gamma[pose] if smoothed else post.mu_alpha[pose],
                           post.cov_gamma[pose] if smoothed else post.cov_alpha[pose])
@@ -59,7 +61,7 @@ def joint_belief(lo: "Lowered", post: "Posterior", idx: np.ndarray, pose: np.nda
 
 
 def frame_prediction(lo: "Lowered", batch: "Batch", post: "Posterior", idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Mean (n, 4) and covariance (n, 4, 4) of (x, y, theta, b) as the forward filter predicted them for the frame of
+    """Mean (n, 5) and covariance (n, 5, 5) of (x, y, theta, b, c) as the forward filter predicted them for the frame of
     each sighting ``idx``, before any of the frame's sightings: the filtered belief at the frame's start moved by its
     motion (with extra states, the augmented filter's own prediction). A sighting after others in its frame (rare)
     gets the frame's prediction, not the one updated by those (``learners.inference.predictive`` applies them)."""
@@ -81,47 +83,51 @@ def pose_prediction(lo: "Lowered", batch: "Batch", post: "Posterior", frame: np.
 
 
 def _pose_only(mean: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The 4-state belief of pose beliefs (n, 3), (n, 3, 3): no bias (0, variance 0)."""
-    m = np.zeros((len(mean), 4))
-    P = np.zeros((len(mean), 4, 4))
+    """The 5-state belief of pose beliefs (n, 3), (n, 3, 3): no biases (0, variance 0)."""
+    m = np.zeros((len(mean), BELIEF_DIM))
+    P = np.zeros((len(mean), BELIEF_DIM, BELIEF_DIM))
     m[:, :3], P[:, :3, :3] = mean, cov
     return m, P
 
 
 def _with_slot(lo: "Lowered", idx: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The 4-state beliefs (pose, the bias of sighting j's slot) out of beliefs on the whole augmented state (n, 3 + K),
-    (n, 3 + K, 3 + K); a sighting without a slot gets b = 0 with variance 0."""
+    """The 5-state beliefs (pose, the size bias of sighting j's slot, the bearing bias of its bearing slot) out of beliefs
+    on the whole augmented state (n, 3 + K), (n, 3 + K, 3 + K); a sighting without a state of a kind gets 0 with
+    variance 0 there."""
     n = len(idx)
-    slot = lo.extra.slot[idx]
-    has = slot >= 0
-    cols = np.concatenate([np.r_[0, 1, 2][None, :].repeat(n, 0), np.where(has, 3 + slot, 0)[:, None]], axis=1)
+    slots = np.stack([lo.extra.slot[idx], lo.extra.bearing_slot[idx]], axis=1)  # (n, 2)
+    has = slots >= 0
+    cols = np.concatenate([np.r_[0, 1, 2][None, :].repeat(n, 0), np.where(has, 3 + slots, 0)], axis=1)
     m = mean[np.arange(n)[:, None], cols]
     P = cov[np.arange(n)[:, None, None], cols[:, :, None], cols[:, None, :]]
-    m[~has, 3] = 0.0
-    P[~has, 3, :] = 0.0
-    P[~has, :, 3] = 0.0
+    for e in range(2):
+        m[~has[:, e], 3 + e] = 0.0
+        P[~has[:, e], 3 + e, :] = 0.0
+        P[~has[:, e], :, 3 + e] = 0.0
     return m, P
 
 
 def belief_innovations(lo: "Lowered", batch: "Batch", idx: np.ndarray, m: np.ndarray, P: np.ndarray) -> Innovations:
-    """The innovations of sightings ``idx`` from the 4-state beliefs (pose, size bias) N(m, P) of ``joint_belief``:
-    size = scale f(d) (1 + b) + offset, bearing = atan2(dy, dx) - theta + bearing offset; R from ``lo``."""
+    """The innovations of sightings ``idx`` from the 5-state beliefs (pose, size bias b, bearing bias c) N(m, P) of
+    ``joint_belief``: size = scale f(d) (1 + b) + offset, bearing = atan2(dy, dx) - theta + bearing offset + c; R from
+    ``lo``."""
     xy = batch.sight_xy[idx]
     dx, dy = xy[:, 0] - m[:, 0], xy[:, 1] - m[:, 1]
     q = dx * dx + dy * dy
     d = np.sqrt(q)
     f, fp = lo.curve(d)
     sc, b = lo.size_scale[idx], m[:, 3]
-    H = np.zeros((len(idx), 2, 4))
+    H = np.zeros((len(idx), 2, BELIEF_DIM))
     H[:, 0, 0] = -sc * fp * (1.0 + b) * dx / d
     H[:, 0, 1] = -sc * fp * (1.0 + b) * dy / d
     H[:, 0, 3] = sc * f
     H[:, 1, 0] = dy / q
     H[:, 1, 1] = -dx / q
     H[:, 1, 2] = -1.0
+    H[:, 1, 4] = 1.0
     S = H @ P @ np.swapaxes(H, 1, 2)
     r = np.stack([lo.sigma_size ** 2 * lo.size_var_factor[idx], lo.sigma_bearing ** 2 * lo.bearing_var_factor[idx]],
                  axis=1)
     v0 = batch.sight_value[idx, 0] - (sc * f * (1.0 + b) + lo.size_offset[idx])
-    v1 = geometry.wrap(batch.sight_value[idx, 1] - (np.arctan2(dy, dx) - m[:, 2] + lo.bearing_offset[idx]))
+    v1 = geometry.wrap(batch.sight_value[idx, 1] - (np.arctan2(dy, dx) - m[:, 2] + lo.bearing_offset[idx] + m[:, 4]))
     return Innovations(np.stack([v0, v1], axis=1), S, r)

@@ -17,7 +17,10 @@ Sighting j (of the end pose s'):    size    = size_scale[j] f(d) + size_offset[j
 
 Extra states (``ExtraStates``, None for the base model): K scalar states b beside the pose, x = (s, b),
 each a linear-Gaussian AR(1) chain, b_k' = phi[i, k] b_k + N(0, q[i, k]) in frame i; a sighting with
-slot[j] = k measures size = size_scale[j] f(d) (1 + b_k) + size_offset[j] + e1 (e.g. per-landmark biases).
+slot[j] = k measures size = size_scale[j] f(d) (1 + b_k) + size_offset[j] + e1 (per-landmark size biases), and one
+with bearing_slot[j] = k' measures bearing = ... + bearing_offset[j] + b_k' + e2 (per-landmark bearing biases, rad).
+A sighting reads at most one state of each kind; effects that add states append their columns
+(``ExtraStates.append``).
 Inference then runs on the augmented state (``learners.inference.augmented`` and its compiled twin).
 """
 
@@ -42,10 +45,38 @@ class ExtraStates:
     phi: np.ndarray  # (N, K) per-frame transition factor
     q: np.ndarray  # (N, K) per-frame process noise variance
     init_var: np.ndarray  # (L, K) variance of each state at each log's first pose (mean 0)
+    bearing_slot: np.ndarray | None = None  # (S,) int64: the state added to sighting j's bearing (rad); -1: none
+
+    def __post_init__(self) -> None:
+        if self.bearing_slot is None:
+            self.bearing_slot = np.full(len(self.slot), -1, dtype=np.int64)
 
     @property
     def k(self) -> int:
         return int(self.phi.shape[1])
+
+    @staticmethod
+    def append(extra: "ExtraStates | None", phi: np.ndarray, q: np.ndarray, init_var: np.ndarray,
+               slot: np.ndarray | None = None, bearing_slot: np.ndarray | None = None) -> "ExtraStates":
+        """``extra`` (None: no states yet) with K' more states (``phi``, ``q`` (N, K'), ``init_var`` (L, K')) after
+        its own; ``slot`` / ``bearing_slot`` (S,) index the new states (-1: none) and must not give a sighting a second
+        state of a kind it already reads."""
+        n_s = len(slot if slot is not None else bearing_slot)
+        none = np.full(n_s, -1, dtype=np.int64)
+        if extra is None:
+            return ExtraStates(none if slot is None else slot, phi, q, init_var,
+                               none if bearing_slot is None else bearing_slot)
+        k0 = extra.k
+        joined = []
+        for old, new, kind in ((extra.slot, slot, "size"), (extra.bearing_slot, bearing_slot, "bearing")):
+            if new is None:
+                joined.append(old)
+                continue
+            if np.any((old >= 0) & (new >= 0)):
+                raise ValueError(f"extra states: a sighting would read two {kind} states")
+            joined.append(np.where(new >= 0, new + k0, old))
+        return ExtraStates(joined[0], np.concatenate([extra.phi, phi], axis=1), np.concatenate([extra.q, q], axis=1),
+                           np.concatenate([extra.init_var, init_var], axis=1), joined[1])
 
 
 @dataclass

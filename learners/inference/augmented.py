@@ -8,7 +8,8 @@ b_k' = phi[i, k] b_k + N(0, q[i, k]); a sighting j with slot k = extra.slot[j] >
 
     size = size_scale[j] f(d) (1 + b_k) + size_offset[j] + e1,   bearing as in the base model,
 
-so its Jacobian row 0 is (1 + b_k) times the base one on the pose, and size_scale[j] f(d) on b_k.
+so its Jacobian row 0 is (1 + b_k) times the base one on the pose, and size_scale[j] f(d) on b_k; a sighting with
+a bearing state k' = extra.bearing_slot[j] >= 0 measures bearing + b_k' (its Jacobian row 1 has 1 on b_k').
 Inference is a forward EKF on x (the base model's conventions: heading unwrapped, bearing innovations
 wrapped, a frame's sightings applied in order, Joseph form, gating) and a Rauch-Tung-Striebel
 backward pass, which gives the lag-one cross-covariances the M-steps need:
@@ -26,6 +27,7 @@ import numpy as np
 from aibo_core import geometry
 from learners.arrays.batch import Batch
 from learners.arrays.displacement import augmented_displacement_beliefs
+from learners.arrays.innovations import joint_belief
 from learners.arrays.lowered import Lowered, sighting_model
 from learners.arrays.posterior import ExtraMoments, Posterior
 
@@ -94,6 +96,10 @@ def augmented_model(lo: Lowered, batch: Batch, k: int):
             h[0] = curve * m + lo.size_offset[gidx[j]]
             H[0, :3] *= m
             H[0, 3 + slot] = curve
+        bslot = int(ex.bearing_slot[gidx[j]])
+        if bslot >= 0:  # a bearing bias state: added to the predicted bearing
+            h[1] += mean[3 + bslot]
+            H[1, 3 + bslot] = 1.0
         return h, H, np.diag(rd[0]), z[j], AIBO_ANGLE_MASK
 
     return obs_start, motion, observe
@@ -169,7 +175,8 @@ def sensor_update_augmented(lo: Lowered, batch: Batch, post: Posterior, degree: 
     8 cubature points (m, C) +- sqrt(4) L e_j of that 4-d Gaussian (L = chol C), so that the fit sees the strong
     posterior correlation of b with the distance (a size measured larger is a nearer landmark or a larger bias;
     taken as independent, sigma_size came out ~7 % high and the likelihood fell). Sightings without a state
-    get b = 0 (a 1e-24 variance keeps L defined). Least squares of (size - size_offset) on
+    get b = 0 (a 1e-24 variance keeps L defined). With bearing states (``ExtraStates.bearing_slot``) the belief is
+    5-d, (pose, b, c), by its 10 points, and c is added to the predicted bearing. Least squares of (size - size_offset) on
     size_scale (1 + b) phi(x) at the points, weights 1 / size_var_factor; sigma_size^2, sigma_bearing^2 the
     weighted mean squared residuals. One NumPy implementation for both paths (the E-step is the compiled one).
     Returns (coef, sigma_size, sigma_bearing, (dmin, dmax) mm at the smoothed means)."""
@@ -177,31 +184,28 @@ def sensor_update_augmented(lo: Lowered, batch: Batch, post: Posterior, degree: 
 
     from .sensor_stats import basis_variable
 
-    ex, slot = post.extra, lo.extra.slot
     idx = np.flatnonzero(batch.used)
-    p, k = batch.sight_pose[idx], slot[idx]
-    cols = np.stack([np.zeros_like(k), np.ones_like(k), np.full_like(k, 2), 3 + np.maximum(k, 0)], axis=1)
-    mean = np.take_along_axis(ex.smoothed_mean[p], cols, axis=1)
-    C = ex.smoothed_cov[p[:, None, None], cols[:, :, None], cols[:, None, :]]
-    none = k < 0
-    mean[none, 3] = 0.0
-    C[none, 3, :] = 0.0
-    C[none, :, 3] = 0.0
-    C[none, 3, 3] = 1e-24
+    p = batch.sight_pose[idx]
+    mean, C = joint_belief(lo, post, idx, p, smoothed=True)  # (pose, size bias, bearing bias)
+    dim = 5 if np.any(lo.extra.bearing_slot[idx] >= 0) else 4  # without bearing states: the 4-d rule as before
+    mean, C = mean[:, :dim], C[:, :dim, :dim]
+    for e in range(3, dim):
+        none = C[:, e, e] == 0.0
+        C[none, e, e] = 1e-24
     try:
         L = np.linalg.cholesky(sym(C))
     except np.linalg.LinAlgError as e:
         raise FloatingPointError(f"sensor M-step: smoothed covariance not positive definite: {e}") from e
-    s2L = 2.0 * np.swapaxes(L, 1, 2)  # row j = sqrt(4) L e_j
-    pts = np.concatenate([mean[:, None, :] + s2L, mean[:, None, :] - s2L], axis=1).reshape(-1, 4)  # (8n, 4)
-    sight = np.repeat(idx, 8)
+    sL = np.sqrt(dim) * np.swapaxes(L, 1, 2)  # row j = sqrt(dim) L e_j
+    pts = np.concatenate([mean[:, None, :] + sL, mean[:, None, :] - sL], axis=1).reshape(-1, dim)  # (2 dim n, dim)
+    sight = np.repeat(idx, 2 * dim)
     dx, dy = batch.sight_xy[sight, 0] - pts[:, 0], batch.sight_xy[sight, 1] - pts[:, 1]
     dist = np.hypot(dx, dy)
-    bearing = geometry.wrap(np.arctan2(dy, dx) - pts[:, 2] + lo.bearing_offset[sight])
+    bearing = geometry.wrap(np.arctan2(dy, dx) - pts[:, 2] + lo.bearing_offset[sight] + (pts[:, 4] if dim == 5 else 0.0))
     x = basis_variable(lo.basis, dist)
     scale = lo.size_scale[sight] * (1.0 + pts[:, 3])
     size, off, vf = batch.sight_value[sight, 0], lo.size_offset[sight], lo.size_var_factor[sight]
-    w = np.full(len(sight), 1.0 / 8.0)
+    w = np.full(len(sight), 1.0 / (2 * dim))
     coef = fit_polynomial(x, size - off, w / vf, degree, scale=scale)
     res_s = scale * np.polynomial.polynomial.polyval(x, coef) + off - size
     res_b = geometry.wrap(bearing - batch.sight_value[sight, 1])

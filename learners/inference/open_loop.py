@@ -19,8 +19,9 @@ mean heading, as in the EKF.
 
 The filtered (forward) belief, not the smoothed one, is the start: a smoothed pose at f0 is informed by the
 sightings after f0 (those after f too), and read back through the same motion model it would return part of
-the prediction's answer. With extra states (``Lowered.extra``: per-landmark biases) the state is the pose and
-the one bias that multiplies sighting j's size, whose chain runs independently of the pose (exact marginal).
+the prediction's answer. With extra states (``Lowered.extra``: per-landmark biases) the state is the pose, the
+bias that multiplies sighting j's size and the one added to its bearing, whose chains run independently of the pose
+(exact marginal).
 
 Pure functions of (lowered model, batch, posterior); units mm, rad, frames.
 """
@@ -56,8 +57,8 @@ def _heading_moments(mu: np.ndarray, var: np.ndarray):
 
 
 def _motion_moments(m: np.ndarray, P: np.ndarray, disp: np.ndarray):
-    """Mean (n, 4) and covariance (n, 4, 4) of s + R(theta) disp for s ~ N(m, P) (the module docstring's exact
-    moments; the bias state, index 3, moves with the pose only through its covariance)."""
+    """Mean (n, 5) and covariance (n, 5, 5) of s + R(theta) disp for s ~ N(m, P) (the module docstring's exact
+    moments; the bias states, indices 3 and 4, move with the pose only through their covariance)."""
     ux, uy, ut = disp[:, 0], disp[:, 1], disp[:, 2]
     ec, es, vc, vs, cs = _heading_moments(m[:, 2], P[:, 2, 2])
     a = np.zeros_like(m)  # d E[displacement] / d theta, at the shrunk moments: Cov(s, d) = P[:, 2] a^T
@@ -81,11 +82,13 @@ def _propagate(lo: Lowered, idx: np.ndarray, f0: np.ndarray, k_frames: int, m: n
     """Run the beliefs (m, P) of ``joint_belief`` through frames f0 .. f0 + k_frames - 1, open loop."""
     if moments not in ("exact", "linear"):
         raise ValueError(f"moments {moments!r}: 'exact' or 'linear'")
-    slot = lo.extra.slot[idx] if lo.extra is not None else np.full(len(idx), -1)
-    has = slot >= 0
-    s = np.maximum(slot, 0)
-    F4 = np.repeat(np.eye(4)[None], len(idx), axis=0)  # the pose's Jacobian; the bias scaled by phi below
-    Q4 = np.zeros((len(idx), 4, 4))
+    n, dim = len(idx), m.shape[1]
+    slots = (np.stack([lo.extra.slot[idx], lo.extra.bearing_slot[idx]], axis=1) if lo.extra is not None
+             else np.full((n, 2), -1))
+    has = slots >= 0
+    s = np.maximum(slots, 0)
+    F4 = np.repeat(np.eye(dim)[None], n, axis=0)  # the pose's Jacobian; the biases scaled by phi below
+    Q4 = np.zeros((n, dim, dim))
     for step in range(k_frames):
         fr = f0 + step
         g, F, R3 = geometry.motion(m[:, :3], lo.disp[fr])
@@ -98,11 +101,12 @@ def _propagate(lo: Lowered, idx: np.ndarray, f0: np.ndarray, k_frames: int, m: n
             P = F4 @ P @ np.swapaxes(F4, 1, 2)
         m[:, :3] += lo.offset[fr]
         if lo.extra is not None:
-            phi = np.where(has, lo.extra.phi[fr, s], 0.0)
-            Q4[:, 3, 3] = np.where(has, lo.extra.q[fr, s], 0.0)
-            m[:, 3] *= phi
-            P[:, 3, :] *= phi[:, None]
-            P[:, :, 3] *= phi[:, None]
+            for e in range(2):  # the size bias (3), the bearing bias (4)
+                phi = np.where(has[:, e], lo.extra.phi[fr, s[:, e]], 0.0)
+                Q4[:, 3 + e, 3 + e] = np.where(has[:, e], lo.extra.q[fr, s[:, e]], 0.0)
+                m[:, 3 + e] *= phi
+                P[:, 3 + e, :] *= phi[:, None]
+                P[:, :, 3 + e] *= phi[:, None]
         P = P + Q4
         P = 0.5 * (P + np.swapaxes(P, 1, 2))
     return m, P

@@ -178,22 +178,7 @@ class LandmarkBias(EffectModel):
         M-step maximizes the expected log density of the states, whose information about tau_s is a fraction of the
         likelihood's, and the fit stops on a ridge with tau_s still falling (5-minute logs at tau_s 8 s: 11.8 s
         at EM's stop, 9.3 s after 370 more iterations; docs/results.md, calibration)."""
-        from scipy.optimize import minimize  # here, not at import (SciPy's load costs every command)
-
-        lo_s, lo_t = math.log(SIGMA_FLOOR), math.log(TAU_BOUNDS_S[0])
-        hi_s, hi_t = math.log(self.PARAMS["sigma_rel"].high), math.log(TAU_BOUNDS_S[1])
-
-        def at(x: np.ndarray) -> "LandmarkBias":
-            return LandmarkBias(math.exp(min(max(x[0], lo_s), hi_s)), math.exp(min(max(x[1], lo_t), hi_t)))
-
-        def negative(x: np.ndarray) -> float:
-            return -loglik(model.with_effect(at(x)))
-
-        x0 = np.array([math.log(max(self.sigma_rel, SIGMA_FLOOR)), math.log(self.tau_s)])
-        simplex = [x0, x0 + POLISH_SIMPLEX * np.array([1.0, 0.0]), x0 + POLISH_SIMPLEX * np.array([0.0, 2.0])]
-        best = minimize(negative, x0, method="Nelder-Mead",
-                        options={"initial_simplex": simplex, "xatol": 1e-3, "fatol": 0.01, "maxfev": POLISH_MAX_EVALS})
-        return at(best.x) if best.fun < negative(x0) else self
+        return polish_ar1(self, model, loglik, sigma_name="sigma_rel")
 
     def implausible(self) -> str:
         """A 'bias' above ``MAX_PLAUSIBLE_SIGMA`` is not one: the base model's sizes are off by more than a
@@ -221,51 +206,96 @@ class LandmarkBias(EffectModel):
         implausible (a sigma_rel above ``MAX_PLAUSIBLE_SIGMA`` there is white noise too)."""
         return self.tau_s >= MIN_PLAUSIBLE_TAU_S
 
-    def transitions(self, dt: float) -> tuple[float, float]:
-        """(phi, q) of one frame of ``dt`` s: b' = phi b + N(0, q)."""
-        phi = math.exp(-dt / self.tau_s)
-        return phi, self.sigma_rel ** 2 * (1.0 - phi * phi)
-
     def lower(self, lo: Lowered, batch: Batch) -> None:
         if self.sigma_rel <= 0.0:
             return
-        if lo.extra is not None:
-            raise ValueError("landmark_bias: another effect already adds states")
-        sched = slot_schedule(batch)
-        if sched.k == 0:
-            return
-        phi, q = self.transitions(batch.dt)
-        var = self.sigma_rel ** 2
-        lo.extra = ExtraStates(sched.slot, np.where(sched.reset, 0.0, phi), np.where(sched.reset, var, q),
-                               np.full((batch.n_logs, sched.k), var))
+        lower_ar1(lo, batch, self.sigma_rel, self.tau_s, kind="size")
 
     def maximize(self, model: "Model", batch: Batch, post: Posterior, mu_star: np.ndarray) -> "Model":
         """sigma_rel, tau_s maximizing the expected log density of the states (module docstring)."""
-        if post.extra is None:
-            return model
-        sched = slot_schedule(batch)
-        ex = post.extra
-        p = batch.frame_to_pose
-        m0, m1 = ex.mean[p], ex.mean[p + 1]
-        e00, e11, e01 = m0 * m0 + ex.var[p], m1 * m1 + ex.var[p + 1], m0 * m1 + ex.cross
-        c, r = sched.count, sched.reset
-        n_tr, n_init = int(c.sum()), int(r.sum())
-        if n_init == 0:
-            return model
-        s00, s01, s11, s_init = float(e00[c].sum()), float(e01[c].sum()), float(e11[c].sum()), float(e11[r].sum())
-        n = n_tr + n_init
+        fitted = maximize_ar1(batch, post, kind="size") if self.sigma_rel > 0.0 else None  # none: no states
+        return model if fitted is None else model.with_effect(LandmarkBias(*fitted))
 
-        def sigma2(phi: float) -> float:
-            return (s_init + (s11 - 2.0 * phi * s01 + phi * phi * s00) / (1.0 - phi * phi)) / n
 
-        def negative_profile(log_tau: float) -> float:
-            phi = math.exp(-batch.dt / math.exp(log_tau))
-            return 0.5 * (n * math.log(sigma2(phi)) + n_tr * math.log(1.0 - phi * phi))
+# --------------------------------------------------------------------------- per-landmark AR(1) states, either kind
+# The helpers below serve both per-landmark bias processes (this module's sizes, ``landmark_bearing_bias``'s
+# bearings): the same allocation of states (``slot_schedule``), the same AR(1) chain and M-step. Their states sit in
+# ``Lowered.extra`` in a fixed order, size states first (``LandmarkBearingBias.LOWER_ORDER`` lowers it after this
+# one), so an effect finds its columns from its kind alone.
 
-        from scipy.optimize import minimize_scalar  # here, not at import (SciPy's load costs every command)
 
-        best = minimize_scalar(negative_profile, bounds=tuple(math.log(t) for t in TAU_BOUNDS_S), method="bounded",
-                               options={"xatol": 1e-4})
-        tau = float(math.exp(best.x))
-        sigma = max(math.sqrt(sigma2(math.exp(-batch.dt / tau))), SIGMA_FLOOR)
-        return model.with_effect(LandmarkBias(sigma, tau))
+def lower_ar1(lo: Lowered, batch: Batch, sigma: float, tau_s: float, kind: str) -> None:
+    """Append one AR(1) state per allocated landmark (stationary sd ``sigma``, correlation time ``tau_s`` s) to
+    ``lo.extra``, read by the sightings' sizes (``kind`` "size": a relative bias) or bearings ("bearing": rad)."""
+    if sigma <= 0.0:
+        return
+    sched = slot_schedule(batch)
+    if sched.k == 0:
+        return
+    phi = math.exp(-batch.dt / tau_s)
+    var = sigma ** 2
+    slots = {"slot": sched.slot} if kind == "size" else {"bearing_slot": sched.slot}
+    lo.extra = ExtraStates.append(lo.extra, np.where(sched.reset, 0.0, phi), np.where(sched.reset, var, var * (1.0 - phi * phi)),
+                                  np.full((batch.n_logs, sched.k), var), **slots)
+
+
+def _columns(batch: Batch, post: Posterior, kind: str) -> slice:
+    """The columns of ``post.extra``'s states that carry ``kind``'s biases (size states first, then bearing ones)."""
+    k = slot_schedule(batch).k
+    return slice(0, k) if kind == "size" else slice(post.extra.cross.shape[1] - k, None)
+
+
+def maximize_ar1(batch: Batch, post: Posterior, kind: str) -> tuple[float, float] | None:
+    """(sigma, tau_s) maximizing the expected log density of ``kind``'s states (closed form for sigma given phi,
+    then a 1-d maximization over tau_s of that profile; module docstring); None without states."""
+    if post.extra is None:
+        return None
+    sched = slot_schedule(batch)
+    ex, cols = post.extra, _columns(batch, post, kind)
+    p = batch.frame_to_pose
+    mean, var = ex.mean[:, cols], ex.var[:, cols]
+    m0, m1 = mean[p], mean[p + 1]
+    e00, e11, e01 = m0 * m0 + var[p], m1 * m1 + var[p + 1], m0 * m1 + ex.cross[:, cols]
+    c, r = sched.count, sched.reset
+    n_tr, n_init = int(c.sum()), int(r.sum())
+    if n_init == 0:
+        return None
+    s00, s01, s11, s_init = float(e00[c].sum()), float(e01[c].sum()), float(e11[c].sum()), float(e11[r].sum())
+    n = n_tr + n_init
+
+    def sigma2(phi: float) -> float:
+        return (s_init + (s11 - 2.0 * phi * s01 + phi * phi * s00) / (1.0 - phi * phi)) / n
+
+    def negative_profile(log_tau: float) -> float:
+        phi = math.exp(-batch.dt / math.exp(log_tau))
+        return 0.5 * (n * math.log(sigma2(phi)) + n_tr * math.log(1.0 - phi * phi))
+
+    from scipy.optimize import minimize_scalar  # here, not at import (SciPy's load costs every command)
+
+    best = minimize_scalar(negative_profile, bounds=tuple(math.log(t) for t in TAU_BOUNDS_S), method="bounded",
+                           options={"xatol": 1e-4})
+    tau = float(math.exp(best.x))
+    return max(math.sqrt(sigma2(math.exp(-batch.dt / tau))), SIGMA_FLOOR), tau
+
+
+def polish_ar1(effect: EffectModel, model: "Model", loglik: Callable[["Model"], float], sigma_name: str) -> EffectModel:
+    """``effect`` (an AR(1) bias: ``sigma_name`` and ``tau_s``) at the (sigma, tau_s) maximizing the likelihood itself,
+    the rest of ``model`` held: Nelder-Mead over their logarithms from the current values, to 0.01 nat
+    (``LandmarkBias.polish``)."""
+    from scipy.optimize import minimize  # here, not at import (SciPy's load costs every command)
+
+    lo_s, lo_t = math.log(SIGMA_FLOOR), math.log(TAU_BOUNDS_S[0])
+    hi_s, hi_t = math.log(effect.PARAMS[sigma_name].high), math.log(TAU_BOUNDS_S[1])
+    sigma = getattr(effect, sigma_name)
+
+    def at(x: np.ndarray) -> EffectModel:
+        return type(effect)(math.exp(min(max(x[0], lo_s), hi_s)), math.exp(min(max(x[1], lo_t), hi_t)))
+
+    def negative(x: np.ndarray) -> float:
+        return -loglik(model.with_effect(at(x)))
+
+    x0 = np.array([math.log(max(sigma, SIGMA_FLOOR)), math.log(effect.tau_s)])
+    simplex = [x0, x0 + POLISH_SIMPLEX * np.array([1.0, 0.0]), x0 + POLISH_SIMPLEX * np.array([0.0, 2.0])]
+    best = minimize(negative, x0, method="Nelder-Mead",
+                    options={"initial_simplex": simplex, "xatol": 1e-3, "fatol": 0.01, "maxfev": POLISH_MAX_EVALS})
+    return at(best.x) if best.fun < negative(x0) else effect

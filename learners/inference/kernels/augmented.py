@@ -127,10 +127,10 @@ def _finite(mu, P):
 
 
 @njit(cache=True, error_model="numpy")
-def _update(mu, P, qq, sight_xy, sight_value, basis, coef, sc, so, bo, sl, var_h, vb, ph0, ph1, out):
+def _update(mu, P, qq, sight_xy, sight_value, basis, coef, sc, so, bo, sl, bl, var_h, vb, ph0, ph1, out):
     """The innovation of sighting qq at the belief (mu, P), not applied: ``out`` = [v0, v1 (wrapped),
     S00, S01, S11, then H's non-constant entries e0, e1, t0, t1 and the size's derivative in b], and
-    ph0, ph1 = P H^T."""
+    ph0, ph1 = P H^T. ``sl``: its size state (-1: none); ``bl``: its bearing state (H[1, 3 + bl] = 1; -1: none)."""
     dx = sight_xy[qq, 0] - mu[0]
     dy = sight_xy[qq, 1] - mu[1]
     d2 = dx * dx + dy * dy
@@ -143,27 +143,34 @@ def _update(mu, P, qq, sight_xy, sight_value, basis, coef, sc, so, bo, sl, var_h
     t0 = dy / d2
     t1 = -dx / d2
     v0 = sight_value[qq, 0] - (cv * mfac + so)
-    v1 = _wrap(sight_value[qq, 1] - (math.atan2(dy, dx) - mu[2] + bo))
+    v1 = _wrap(sight_value[qq, 1] - (math.atan2(dy, dx) - mu[2] + bo + (mu[3 + bl] if bl >= 0 else 0.0)))
     n = P.shape[0]
     for r in range(n):
         a = P[r, 0] * e0 + P[r, 1] * e1
         if sl >= 0:
             a += P[r, 3 + sl] * cv
         ph0[r] = a
-        ph1[r] = P[r, 0] * t0 + P[r, 1] * t1 - P[r, 2]
+        a = P[r, 0] * t0 + P[r, 1] * t1 - P[r, 2]
+        if bl >= 0:
+            a += P[r, 3 + bl]
+        ph1[r] = a
     h0ph1 = e0 * ph1[0] + e1 * ph1[1]
     s00 = e0 * ph0[0] + e1 * ph0[1] + var_h
     if sl >= 0:
         s00 += cv * ph0[3 + sl]
         h0ph1 += cv * ph1[3 + sl]
     s11 = t0 * ph1[0] + t1 * ph1[1] - ph1[2] + vb
-    s01 = 0.5 * (h0ph1 + (t0 * ph0[0] + t1 * ph0[1] - ph0[2]))
+    h1ph0 = t0 * ph0[0] + t1 * ph0[1] - ph0[2]
+    if bl >= 0:
+        s11 += ph1[3 + bl]
+        h1ph0 += ph0[3 + bl]
+    s01 = 0.5 * (h0ph1 + h1ph0)
     out[0], out[1], out[2], out[3], out[4] = v0, v1, s00, s01, s11
     out[5], out[6], out[7], out[8], out[9] = e0, e1, t0, t1, cv
 
 
 @njit(cache=True, error_model="numpy")
-def _apply(mu, P, sl, var_h, vb, ph0, ph1, X, xh0, xh1, k0, k1, o):
+def _apply(mu, P, sl, bl, var_h, vb, ph0, ph1, X, xh0, xh1, k0, k1, o):
     """The EKF update with the innovation prepared by ``_update`` (``o``), Joseph form:
     K = P H^T S^-1, mu += K v, P = (I - K H) P (I - K H)^T + K R K^T (symmetrized)."""
     v0, v1, s00, s01, s11, e0, e1, t0, t1, cv = o[0], o[1], o[2], o[3], o[4], o[5], o[6], o[7], o[8], o[9]
@@ -182,7 +189,10 @@ def _apply(mu, P, sl, var_h, vb, ph0, ph1, X, xh0, xh1, k0, k1, o):
         if sl >= 0:
             a += X[r, 3 + sl] * cv
         xh0[r] = a
-        xh1[r] = X[r, 0] * t0 + X[r, 1] * t1 - X[r, 2]
+        a = X[r, 0] * t0 + X[r, 1] * t1 - X[r, 2]
+        if bl >= 0:
+            a += X[r, 3 + bl]
+        xh1[r] = a
     for r in range(n):  # X (I - K H)^T + K R K^T
         g0 = var_h * k0[r] - xh0[r]
         g1 = vb * k1[r] - xh1[r]
@@ -195,6 +205,7 @@ class ExtraInputs(NamedTuple):
     """The K extra scalar states (``Lowered.extra``): N frames, S sightings, L logs."""
 
     slot: np.ndarray  # (S,) int64: the extra state a sighting's size is multiplied by (1 + b), -1 for none
+    bearing_slot: np.ndarray  # (S,) int64: the extra state added to a sighting's bearing (rad), -1 for none
     phi: np.ndarray  # (N, K): each frame's transition factor b' = phi b + noise
     q: np.ndarray  # (N, K): its noise variance
     init_var: np.ndarray  # (L, K): each log's initial variance (mean 0)
@@ -268,9 +279,9 @@ def _augmented_forward_log(k, f0, ps, nfr, fr, si, ex, sig, out, loglik):
                 continue
             var_h = si.var_s * si.size_var_factor[qq]
             vb = si.var_b * si.bearing_var_factor[qq]
-            sl = ex.slot[qq]
+            sl, bl = ex.slot[qq], ex.bearing_slot[qq]
             _update(mu, P, qq, si.xy, si.value, si.basis, si.coef, si.size_scale[qq], si.size_offset[qq],
-                    si.bearing_offset[qq], sl, var_h, vb, ph0, ph1, o)  # fmt: skip
+                    si.bearing_offset[qq], sl, bl, var_h, vb, ph0, ph1, o)  # fmt: skip
             v0, v1, S00, S01, S11 = o[0], o[1], o[2], o[3], o[4]
             det_s = S00 * S11 - S01 * S01
             m2v = (v0 * (S11 * v0 - S01 * v1) + v1 * (S00 * v1 - S01 * v0)) / det_s
@@ -282,7 +293,7 @@ def _augmented_forward_log(k, f0, ps, nfr, fr, si, ex, sig, out, loglik):
             loglik += -0.5 * (m2v + math.log(det_s) + 2.0 * _LOG_2PI)
             if store:
                 innov[qq, 0], innov[qq, 1], innov[qq, 2], innov[qq, 3], innov[qq, 4] = v0, v1, S00, S01, S11
-            _apply(mu, P, sl, var_h, vb, ph0, ph1, X, xh0, xh1, k0, k1, o)
+            _apply(mu, P, sl, bl, var_h, vb, ph0, ph1, X, xh0, xh1, k0, k1, o)
         mf[ps + j + 1, :] = mu
         Pf[ps + j + 1, :, :] = P
         if not _finite(mu, P):
@@ -380,9 +391,12 @@ def _run(lo: Lowered, batch: Batch, gate: float | None, innov: np.ndarray, forwa
     n_poses = n + L
     dim = 3 + K
     slot = np.ascontiguousarray(ex.slot, dtype=np.int64)
-    if slot.shape != (n_s,) or np.any(slot >= K):
-        raise ValueError(f"extra states: slot must have one entry per sighting, each < {K}")
-    extra = ExtraInputs(slot=slot, phi=_f64(ex.phi, (n, K)), q=_f64(ex.q, (n, K)), init_var=_f64(ex.init_var, (L, K)))
+    bearing_slot = np.ascontiguousarray(ex.bearing_slot, dtype=np.int64)
+    for name, s in (("slot", slot), ("bearing_slot", bearing_slot)):
+        if s.shape != (n_s,) or np.any(s >= K):
+            raise ValueError(f"extra states: {name} must have one entry per sighting, each < {K}")
+    extra = ExtraInputs(slot=slot, bearing_slot=bearing_slot, phi=_f64(ex.phi, (n, K)), q=_f64(ex.q, (n, K)),
+                        init_var=_f64(ex.init_var, (L, K)))
     if forward_only:  # the beliefs are not returned: reused work arrays
         mf, Pf = _scratch("aug_mf", (n_poses, dim)), _scratch("aug_Pf", (n_poses, dim, dim))
         g_pred, P_pred = _scratch("aug_g", (n, dim)), _scratch("aug_Pp", (n, dim, dim))
