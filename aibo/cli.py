@@ -149,8 +149,9 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument("logs", nargs="+", type=path, help="aibo-trajectory/2 logs (.npz; /1 files are converted on read) of one robot")
     dg.add_argument("--out", type=path, required=True, help="folder for report.html, report.json, model.json and figures")
     dg.add_argument("--candidates", help="comma-separated effects to try (default: the whole catalogue but "
-                    "landmark_bearing_offset, response_time, heavy_tailed_noise, turn_dependent_noise and "
-                    "turn_heading_noise, which are tried only when named here); 'all' stands for the whole "
+                    "landmark_bearing_offset, landmark_bearing_bias, response_time, heavy_tailed_noise, "
+                    "turn_dependent_noise and turn_heading_noise, which are tried only when named here); 'all' stands "
+                    "for the whole "
                     "catalogue, 'defaults' for the default candidates (defaults,heavy_tailed_noise)")
     dg.add_argument("--jobs", type=workers, default=2, help="worker processes for the candidates (default 2)")
     dg.add_argument("--rounds", type=integer(1), default=DIAGNOSE_ROUNDS,

@@ -69,6 +69,7 @@ from aibo_core.atomic import atomic_write, read_jsonl  # noqa: E402
 #: parameter; ``angle_bias`` is not identifiable (never named: its right answer is none).
 STRENGTH: dict[str, dict[str, Any]] = {
     "landmark_bias": {"sigma_rel": 0.05, "tau_s": 8.0},
+    "landmark_bearing_bias": {"sigma_rad": 0.02, "tau_s": 20.0},
     "false_sightings": {"rate": 0.08},
     "off_center_shrink": {"k": 0.1},
     "actuation_lag": {"lag_s": 0.1},

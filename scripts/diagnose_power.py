@@ -53,6 +53,7 @@ STRENGTHS = {
     "beacon_height_scale": [{"scale": [1 + s, 1 - s, 1 + s / 2, 1 - s / 2]} for s in (0.01, 0.02, 0.04)],
     "landmark_bearing_offset": [{"offset_rad": [s, -s, s / 2, -s / 2]} for s in (0.005, 0.01, 0.02)],  # rad
     "landmark_bias": [{"sigma_rel": s, "tau_s": 8.0} for s in (0.02, 0.05, 0.1)],
+    "landmark_bearing_bias": [{"sigma_rad": s, "tau_s": 20.0} for s in (0.01, 0.02, 0.04)],  # aibo's noise: 0.027 rad
     "false_sightings": [{"rate": r} for r in (0.02, 0.05, 0.1)],
     "heavy_tailed_noise": [{"rate": 0.1, "scale": c} for c in (1.5, 2.0, 3.0)],  # MRCLAM's tails: about 0.1 at 2
     "turn_dependent_noise": [{"gain_s": g} for g in (0.75, 1.5, 3.0)],  # s/rad: the AIBO turns at up to 1.6 rad/s

@@ -194,12 +194,13 @@ def test_diagnose_tries_it_only_when_asked_for():
     """Not a default candidate (``DEFAULT_CANDIDATE``: its offsets on the real robots trade with the heading); named
     in --candidates it is tried; every other effect of the catalogue is a default candidate but ``response_time``,
     ``heavy_tailed_noise``, ``turn_dependent_noise`` and ``turn_heading_noise`` (mixed evidence on the real robots:
-    ``learners.model.catalogue.ResponseTime``, ``learners.model.heavy_tails``, ``learners.model.turn_noise``)."""
+    ``learners.model.catalogue.ResponseTime``, ``learners.model.heavy_tails``, ``learners.model.turn_noise``) and
+    ``landmark_bearing_bias`` (not yet through the default candidates' studies)."""
     from aibo.commands.diagnose import candidates
     from learners.model.effects import EFFECT_MODELS
 
     assert "landmark_bearing_offset" not in candidates(None)
     assert set(candidates(None)) == set(EFFECT_MODELS) - {"landmark_bearing_offset", "response_time",
                                                           "heavy_tailed_noise", "turn_dependent_noise",
-                                                          "turn_heading_noise"}
+                                                          "turn_heading_noise", "landmark_bearing_bias"}
     assert candidates("landmark_bearing_offset,actuation_lag") == ["landmark_bearing_offset", "actuation_lag"]

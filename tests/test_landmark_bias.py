@@ -19,6 +19,7 @@ from learners.inference.augmented import displacement_statistics, rts_pass, smoo
 from learners.inference.kernels import innovations_compiled, smooth_compiled
 from learners.inference.kernels.augmented_stats import displacement_statistics_compiled
 from learners.inference.reference import forward_pass, two_filter_smooth
+from learners.model.landmark_bearing_bias import LandmarkBearingBias
 from learners.model.landmark_bias import LandmarkBias, slot_schedule
 from tests._synth import CASES, case
 
@@ -289,3 +290,60 @@ def test_learn_init_of_a_model_with_landmark_bias(tmp_path):
     doc = json.loads(out.read_text())
     assert [e["name"] for e in doc["effects"]] == ["landmark_bias"]
     assert doc["info"]["starts"][2]["pruned"] > 0  # the case that failed
+
+
+def _with_bearing_bias(lo, batch, sizes: bool):
+    """``lo`` with per-landmark bearing bias states (sd 0.02 rad, 5 s), after size bias states when ``sizes``."""
+    lo = _with_bias(lo, batch) if sizes else replace(lo)
+    LandmarkBearingBias(0.02, 5.0).lower(lo, batch)
+    assert np.any(lo.extra.bearing_slot >= 0) and (np.any(lo.extra.slot >= 0) == sizes)
+    return lo
+
+
+@pytest.mark.parametrize("sizes", [False, True])
+@pytest.mark.parametrize("name", CASES)
+def test_compiled_equals_reference_with_bearing_bias_states(name, sizes):
+    """Bearing states alone, and after size states (both read by every sighting): the compiled kernel equals the
+    reference to 1e-9."""
+    lo, batch, _ = case(name)
+    lo = _with_bearing_bias(lo, batch, sizes)
+    ref = smooth_augmented(lo, batch, gate=50.0)
+    got = smooth_compiled(lo, batch, gate=50.0)
+    assert got.loglik == pytest.approx(ref.loglik, rel=1e-12, abs=1e-9)
+    ok = ~np.isnan(ref.mahal2)
+    np.testing.assert_allclose(got.mahal2[ok], ref.mahal2[ok], rtol=1e-9, atol=1e-9)
+    for field in ("filtered_mean", "filtered_cov", "smoothed_mean", "smoothed_cov", "cross"):
+        a, b = getattr(ref.extra, field), getattr(got.extra, field)
+        np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-9 * (1 + np.abs(a).max()), err_msg=field)
+
+
+def test_bearing_states_columns_follow_the_size_states():
+    """With both effects the size states come first and each effect's M-step reads its own columns: a path put in
+    the bearing columns is recovered by the bearing effect and not seen by the size effect."""
+    lo, batch, _ = case("several")
+    both = _with_bearing_bias(lo, batch, sizes=True)
+    k = slot_schedule(batch).k
+    assert both.extra.k == 2 * k
+    size_rows, bearing_rows = both.extra.slot >= 0, both.extra.bearing_slot >= 0
+    np.testing.assert_array_equal(both.extra.bearing_slot[bearing_rows], both.extra.slot[size_rows] + k)
+    with pytest.raises(ValueError, match="two bearing states"):
+        LandmarkBearingBias(0.02, 5.0).lower(both, batch)
+
+
+def test_a_bearing_bias_state_carries_an_offset_the_model_lacks():
+    """Known answer: a constant bearing error of 0.05 rad on one landmark's sightings costs the model without states
+    likelihood; with bearing states (sd 0.05, tau 1000 s) that landmark's smoothed state is near +0.05 and the
+    likelihood is higher."""
+    lo, batch, _ = case("several")
+    lm = int(batch.sight_landmark[np.flatnonzero(batch.used)[0]])
+    shifted = replace(batch, sight_value=batch.sight_value.copy())
+    rows = batch.used & (batch.sight_landmark == lm)
+    shifted.sight_value[rows, 1] += 0.05
+    plain = smooth_compiled(lo, shifted).loglik
+    aug = replace(lo)
+    LandmarkBearingBias(0.05, 1000.0).lower(aug, shifted)
+    post = smooth_compiled(aug, shifted)
+    assert post.loglik > plain + 5.0
+    state = aug.extra.bearing_slot[np.flatnonzero(rows)[-1]]
+    last_pose = shifted.sight_pose[np.flatnonzero(rows)[-1]]
+    assert post.extra.smoothed_mean[last_pose, 3 + state] == pytest.approx(0.05, abs=0.015)

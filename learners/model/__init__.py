@@ -7,4 +7,11 @@ per log (``initial.py``) + effects (``effects.py``). ``io.py`` reads and writes 
 
 # The effect catalogue registers its learner twins in ``effects.EFFECT_MODELS`` on import; importing them here (the
 # package's own init, run before any of its modules) fills the registry whoever imports what.
-from learners.model import catalogue, catalogue_more, heavy_tails, landmark_bias, turn_noise  # noqa: E402,F401
+from learners.model import (  # noqa: E402,F401
+    catalogue,
+    catalogue_more,
+    heavy_tails,
+    landmark_bearing_bias,
+    landmark_bias,
+    turn_noise,
+)
