@@ -32,7 +32,14 @@ UNSEEN = {
 
 #: effect -> what was measured where the check does not yet see it at the EXAMPLE strength (5-minute logs, ``REPLICAS``
 #: replicas; a strict xfail: the day a statistic sees it, the test says so)
-NOT_YET: dict[str, str] = {}
+NOT_YET: dict[str, str] = {
+    "landmark_bearing_bias": (
+        "bearing biases of 0.02 rad at 20 s on the aibo preset (bearing noise 0.027 rad) are absorbed into the heading: "
+        "no statistic disagrees on 5 or 10 minutes (seed 4; the nearest, 'bearing vs landmark, at a change of "
+        "landmark', z 1.9 / 2.4 against 4.11), nor at 0.05 rad (3.9 on 5 minutes, 2.9 on 10), though EM recovers "
+        "them (test_landmark_bias.py, +58 nats on 10 minutes); on the MRCLAM robots the check's 'bearing-innovation "
+        "autocorrelation' sees them (robot 4 z +6.6 before; robot 1 +6.2 with them not named), 2026-11-30"),
+}
 
 
 #: effect -> the default of the base fit that stands in for it: the model "without it" is fitted without that default

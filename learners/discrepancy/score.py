@@ -15,7 +15,7 @@ from learners.em.estep import e_step, weighed_on
 from learners.em.options import DEFAULT_GATE
 from learners.em.predictive import model_logdens, own_noise, sightings_logdens
 from learners.em.starts import start_beliefs
-from learners.em.whiteness import consecutive_pairs, lag1, normalized_size_innovations
+from learners.em.whiteness import consecutive_pairs, lag1, normalized_innovations
 from learners.inference.open_loop import open_loop_innovations
 from learners.inference.predictive import predictive_logdens
 from learners.model.model import Model
@@ -50,6 +50,7 @@ class Score:
     nis_outside: float  # share outside the chi-square(2) 95% band (0.05 expected)
     nis_median: float  # median NIS (chi-square(2): 2 log 2 = 1.386 expected)
     whiteness: float  # WHITENESS_METRIC (0 expected)
+    bearing_whiteness: float  # the same of the normalized bearing innovations (0 expected; per-landmark bearing biases)
     nis: np.ndarray  # (S,) per sighting, NaN where gated
 
     def as_dict(self) -> dict[str, float]:
@@ -72,9 +73,11 @@ def score(model: Model, logs: list[Trajectory], gate: float | None = None) -> Sc
     ok = np.isfinite(nis) & (nis <= DEFAULT_GATE)
     lo, hi = NIS_BAND
     z = nis[ok]
-    white = lag1(consecutive_pairs(batch, normalized_size_innovations(model, batch)))
+    normalized = normalized_innovations(model, batch)
+    white, white_b = (lag1(consecutive_pairs(batch, normalized[:, c])) for c in (0, 1))
     return Score(heldout, n, -heldout / max(n, 1), float(np.mean(z)), float(np.mean((z < lo) | (z > hi))),
-                 float(np.median(z)) if len(z) else float("nan"), white if np.isfinite(white) else 0.0, nis)
+                 float(np.median(z)) if len(z) else float("nan"), white if np.isfinite(white) else 0.0,
+                 white_b if np.isfinite(white_b) else 0.0, nis)
 
 
 #: z of the motion gap's paired change (after - before, block standard error; ``motion_trade``) beyond which a model

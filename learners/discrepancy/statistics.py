@@ -7,7 +7,9 @@ Four kinds:
 - fit consistency (:func:`learners.discrepancy.score.score`): the held-out gap (nats per sighting),
   the mean normalized innovation squared (NIS), its share outside the chi-square 95% band, its median (the
   innovations' core: a noise with heavier tails than one Gaussian's has a sharper core, which the mean and the share
-  outside the band can miss: ``heavy_tailed_noise``), whiteness;
+  outside the band can miss: ``heavy_tailed_noise``), the whiteness of the size innovations and of the bearing
+  innovations (lag-1 autocorrelation over one landmark's consecutive sightings: ``landmark_bias``,
+  ``landmark_bearing_bias``);
 - residual signatures (:func:`learners.discrepancy.signatures.signatures`): the strength
   (-log10 p)^(1/3) of each (residual, variable) dependence. Their p-values assume independent
   residuals and are optimistic; the simulated spread of the strength is the honest reference. The
@@ -57,6 +59,7 @@ def check_statistics(model: Model, logs: list[Trajectory]) -> dict[str, float]:
         "share of NIS outside the 95% band": s.nis_outside,
         "median NIS": s.nis_median,
         "size-innovation autocorrelation (lag 1, per landmark)": s.whiteness,
+        "bearing-innovation autocorrelation (lag 1, per landmark)": s.bearing_whiteness,
     }
     for sig in signatures(model, logs):
         out[signature_key(sig.residual, sig.variable) + " (strength)"] = strength(sig.p_value)
@@ -136,6 +139,10 @@ def plain_reading(statistic: str, z: float) -> str:
                 + ("more" if more else "less") + " than in its simulation"
                 + (" (errors that persist and have no state in the model are taken up as motion noise: its robot "
                    "wanders more than the real one)" if more else ""))
+    if statistic.startswith("bearing-innovation autocorrelation"):
+        return ("the log's bearing errors persist from one sighting of a landmark to the next "
+                + ("more" if more else "less") + " than in its simulation"
+                + (" (a bearing error per landmark that lasts seconds: landmark_bearing_bias)" if more else ""))
     if statistic.startswith("share of NIS outside"):
         return ("more" if more else "fewer") + (" of the log's sightings fall outside the model's 95% band than of its "
                                                 "simulation's (below it: predicted more closely than the model's noise "

@@ -15,12 +15,18 @@ PAIR_S = 2.0  # s: the longest gap between two sightings of one landmark that st
 CLIP = 5.0  # normalized innovations beyond this in magnitude (gross outliers) are left out
 
 
-def normalized_size_innovations(model: Model, batch: Batch) -> np.ndarray:
-    """(S,) v_size / sqrt(S00) of the forward filter (NaN where a sighting was not applied)."""
+def normalized_innovations(model: Model, batch: Batch) -> np.ndarray:
+    """(S, 2) v_size / sqrt(S00) and v_bearing / sqrt(S11) of the forward filter (NaN where a sighting was not
+    applied)."""
     from learners.inference.kernels import innovations_compiled
 
     _, innov = innovations_compiled(model.lower(batch), batch)
-    return innov[:, 0] / np.sqrt(innov[:, 2])
+    return np.stack([innov[:, 0] / np.sqrt(innov[:, 2]), innov[:, 1] / np.sqrt(innov[:, 4])], axis=1)
+
+
+def normalized_size_innovations(model: Model, batch: Batch) -> np.ndarray:
+    """(S,) v_size / sqrt(S00) of the forward filter (NaN where a sighting was not applied)."""
+    return normalized_innovations(model, batch)[:, 0]
 
 
 def consecutive_pairs(batch: Batch, z: np.ndarray, pair_s: float = PAIR_S, clip: float = CLIP) -> np.ndarray:

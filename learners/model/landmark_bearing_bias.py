@@ -51,7 +51,10 @@ class LandmarkBearingBias(EffectModel):
     tau_s: float  # correlation time (s)
 
     name: ClassVar[str] = "landmark_bearing_bias"
-    SIGNATURE: ClassVar[str] = "bearing (sigma) vs landmark"
+    #: the calibrated check's statistic that reads it (a bias that persists over a landmark's consecutive sightings), and
+    #: the one where its pass-to-pass means show
+    SIGNATURE: ClassVar[str] = "bearing-innovation autocorrelation"
+    ALSO_SIGNATURES: ClassVar[tuple[str, ...]] = ("bearing (sigma) vs landmark",)
     PARAMS: ClassVar[dict[str, Param]] = {
         "sigma_rad": Param("rad", "log", low=0.0, high=0.5, shape=()),
         "tau_s": Param("s", "log", low=1e-3, high=1e6, shape=()),
