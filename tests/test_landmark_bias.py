@@ -347,6 +347,11 @@ def test_a_bearing_bias_state_carries_an_offset_the_model_lacks():
     state = aug.extra.bearing_slot[np.flatnonzero(rows)[-1]]
     last_pose = shifted.sight_pose[np.flatnonzero(rows)[-1]]
     assert post.extra.smoothed_mean[last_pose, 3 + state] == pytest.approx(0.05, abs=0.015)
+    from learners.model.effects import smoothed_innovations  # the 5-state beliefs read the state too
+
+    idx, inn = smoothed_innovations(aug, shifted, post)
+    on = rows[idx]
+    assert abs(np.mean(inn.v[on, 1])) < 0.01 < abs(np.mean(shifted.sight_value[idx[on], 1] - batch.sight_value[idx[on], 1]))
 
 
 def test_simulator_twin_draws_a_gauss_markov_bearing_bias_per_landmark():

@@ -16,6 +16,7 @@ from learners.discrepancy.split import training_log
 from learners.inference.kernels.estep import innovations_compiled, smooth_compiled
 from learners.inference.open_loop import _motion_moments, open_loop_logdens
 from learners.inference.predictive import predictive_logdens
+from learners.model.landmark_bearing_bias import LandmarkBearingBias
 from learners.model.landmark_bias import LandmarkBias
 from tests._synth import CASES, case
 from tests.test_mrclam import DATA, needs_data
@@ -38,13 +39,17 @@ def test_one_frame_open_loop_linearized_is_the_filters_one_step_prediction(name)
                                predictive_logdens(lo, batch, post, idx), rtol=1e-9, atol=1e-9)
 
 
+@pytest.mark.parametrize("kinds", [("size",), ("bearing",), ("size", "bearing")])
 @pytest.mark.parametrize("name", ["multi", "several", "effects"])
-def test_one_frame_open_loop_with_bias_states_is_the_augmented_filters_prediction(name):
-    """With per-landmark bias states the (pose, the sighting's bias) marginal is exact: the same density as the
-    augmented forward filter's innovation of that sighting."""
+def test_one_frame_open_loop_with_bias_states_is_the_augmented_filters_prediction(name, kinds):
+    """With per-landmark bias states (of the sizes, the bearings or both) the (pose, the sighting's biases) marginal
+    is exact: the same density as the augmented forward filter's innovation of that sighting."""
     lo, batch, _ = case(name)
     lo = replace(lo)
-    LandmarkBias(0.05, 3.0).lower(lo, batch)
+    if "size" in kinds:
+        LandmarkBias(0.05, 3.0).lower(lo, batch)
+    if "bearing" in kinds:
+        LandmarkBearingBias(0.03, 3.0).lower(lo, batch)
     post = smooth_compiled(lo, batch)
     idx = _first_of_frame(batch)
     _, innov = innovations_compiled(lo, batch)
