@@ -161,6 +161,21 @@ def test_simulator_twin_draws_a_gauss_markov_bias_per_landmark():
     np.testing.assert_array_equal(neutral.sighting_value, collect({**cfg, "effects": {}}, steps=900, seed=2).sighting_value)
 
 
+def _fits_without_and_with(tr, cls):
+    """(the base model fitted to ``tr``, the model refitted from it with effect ``cls`` at its warm start, the batch):
+    EM as ``aibo diagnose``'s search runs it (one start, no alias search)."""
+    from learners.arrays.batch import make_batch
+    from learners.em.estep import forward_loglik
+    from learners.em.learner import EMLearner
+
+    opts = EMOptions(uncertainty=False)
+    base = EMLearner(opts).fit([tr]).params
+    batch = make_batch([tr])
+    start = base.with_effect(cls.start(batch))
+    start = start.with_effect(start.effect(cls.name).warm_start(start, batch, forward_loglik(batch)))
+    return base, EMLearner(replace(opts, alias_search=False, starts=1)).fit([tr], init=start).params, batch
+
+
 @pytest.mark.slow
 def test_em_recovers_the_bias_and_the_velocities():
     """10 minutes, sigma_rel 0.05, tau_s 8 s: sigma_rel within 20 %, tau_s within a factor 1.5 (measured: 0.049,
@@ -169,9 +184,6 @@ def test_em_recovers_the_bias_and_the_velocities():
     bias, 2.35 / 1.46 %: the bias takes information away; the information bound itself rises from 1.70 / 1.52 %
     to 2.36 / 2.24 %, measured with the standard errors.)"""
     from aibo_gym.collect import collect
-    from learners.arrays.batch import make_batch
-    from learners.em.estep import forward_loglik
-    from learners.em.learner import EMLearner
 
     tr = collect({"noise": "aibo", "effects": {"landmark_bias": {"sigma_rel": 0.05, "tau_s": 8.0}}}, steps=18000, seed=3)
     truth = np.array(tr.meta["truth"]["velocities"])
@@ -180,12 +192,7 @@ def test_em_recovers_the_bias_and_the_velocities():
     def err(model):
         return np.sqrt(np.mean((model.action.velocities - truth) ** 2, axis=0))[:2] / span[:2]
 
-    opts = EMOptions(uncertainty=False)
-    base = EMLearner(opts).fit([tr]).params
-    batch = make_batch([tr])
-    start = base.with_effect(LandmarkBias.start(batch))
-    start = start.with_effect(start.effect("landmark_bias").warm_start(start, batch, forward_loglik(batch)))
-    fit = EMLearner(replace(opts, alias_search=False, starts=1)).fit([tr], init=start).params
+    base, fit, batch = _fits_without_and_with(tr, LandmarkBias)
     e = fit.effect("landmark_bias")
     assert e.sigma_rel == pytest.approx(0.05, rel=0.2)
     assert 8.0 / 1.5 <= e.tau_s <= 8.0 * 1.5
@@ -381,18 +388,11 @@ def test_em_recovers_the_bearing_bias():
     tau_s within a factor 1.5, and a likelihood far above the model without it (measured, seed 3: EM 0.0174 / 47 s,
     polished 0.0198 / 25.3 s; +58 nats)."""
     from aibo_gym.collect import collect
-    from learners.arrays.batch import make_batch
     from learners.em.estep import forward_loglik
-    from learners.em.learner import EMLearner
 
     tr = collect({"noise": "aibo", "effects": {"landmark_bearing_bias": {"sigma_rad": 0.02, "tau_s": 20.0}}},
                  steps=18000, seed=3)
-    opts = EMOptions(uncertainty=False)
-    base = EMLearner(opts).fit([tr]).params
-    batch = make_batch([tr])
-    start = base.with_effect(LandmarkBearingBias.start(batch))
-    start = start.with_effect(start.effect("landmark_bearing_bias").warm_start(start, batch, forward_loglik(batch)))
-    fit = EMLearner(replace(opts, alias_search=False, starts=1)).fit([tr], init=start).params
+    base, fit, batch = _fits_without_and_with(tr, LandmarkBearingBias)
     e = fit.effect("landmark_bearing_bias").polish(fit, batch, forward_loglik(batch))
     assert e.sigma_rad == pytest.approx(0.02, rel=0.2)
     assert 20.0 / 1.5 <= e.tau_s <= 20.0 * 1.5
