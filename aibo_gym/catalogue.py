@@ -445,12 +445,11 @@ class LandmarkBias(Effect):
     name = "landmark_bias"
     defaults = {"sigma_rel": 0.0, "tau_s": 10.0}
     bounds = {"sigma_rel": (0.0, 0.5), "tau_s": (1e-3, math.inf)}
+    SIGMA = "sigma_rel"  # the name of the process' stationary standard deviation
 
     def reset(self, rng: np.random.Generator) -> None:
         super().reset(rng)
         self.bias: np.ndarray | None = None
-
-    SIGMA = "sigma_rel"  # the name of the process' stationary standard deviation
 
     def _advance(self, frame: Frame) -> np.ndarray:
         """The biases at the end of this frame (one step of the process per call: once per frame)."""
@@ -462,15 +461,18 @@ class LandmarkBias(Effect):
         return self.bias
 
     def sense(self, sightings: list[Sighting], frame: Frame) -> list[Sighting]:
-        if not self.params["sigma_rel"]:
+        if not self.params[self.SIGMA]:
             return sightings
         bias = self._advance(frame)
         for s in sightings:
             if not s.spurious:
-                b = float(bias[s.beacon])
-                s.height = s.height + b * s.true_height
-                s.true_height = (1.0 + b) * s.true_height
+                self._bias(s, float(bias[s.beacon]))
         return sightings
+
+    def _bias(self, s: Sighting, b: float) -> None:
+        """Sighting ``s`` of a landmark whose bias is ``b`` now: its size scaled by (1 + b)."""
+        s.height = s.height + b * s.true_height
+        s.true_height = (1.0 + b) * s.true_height
 
 
 @register_effect
@@ -490,11 +492,6 @@ class LandmarkBearingBias(LandmarkBias):
     bounds = {"sigma_rad": (0.0, 0.5), "tau_s": (1e-3, math.inf)}
     SIGMA = "sigma_rad"
 
-    def sense(self, sightings: list[Sighting], frame: Frame) -> list[Sighting]:
-        if not self.params["sigma_rad"]:
-            return sightings
-        bias = self._advance(frame)
-        for s in sightings:
-            if not s.spurious:
-                s.angle = wrap_angle(s.angle + float(bias[s.beacon]))
-        return sightings
+    def _bias(self, s: Sighting, b: float) -> None:
+        """Sighting ``s`` of a landmark whose bias is ``b`` (rad) now: seen at its bearing + b."""
+        s.angle = wrap_angle(s.angle + b)

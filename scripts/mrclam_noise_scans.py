@@ -44,6 +44,7 @@ from learners.arrays.lowered import Lowered, sighting_model  # noqa: E402
 from learners.em.learner import EMLearner  # noqa: E402
 from learners.em.options import EMOptions  # noqa: E402
 from learners.inference.reference import AIBO_ANGLE_MASK, ForwardResult, forward_pass  # noqa: E402
+from learners.model.landmark_bias import ar1_step  # noqa: E402
 
 GATE = 30.0  # squared Mahalanobis units: a sighting beyond it under the model as fitted is left out of every row
 SIGMAS = (0.05, 0.1, 0.2, 0.4, 0.8)  # the turn gain error's stationary sd (1 = 100% of the turn)
@@ -85,12 +86,6 @@ def told_to_stand_still(lo: Lowered) -> np.ndarray:
     return np.all(lo.disp == 0.0, axis=1)
 
 
-def ar1(sigma: float, tau: float, dt: float) -> tuple[float, float]:
-    """(phi, q) of a first-order Gauss-Markov process of stationary sd ``sigma`` and correlation time ``tau`` (s)."""
-    phi = float(np.exp(-dt / tau))
-    return phi, sigma**2 * (1.0 - phi**2)
-
-
 def forward_pass_of(lo: Lowered, batch, landmark: np.ndarray, used: np.ndarray, dt: float, form: Form = Form(),
                     gate: float | None = None) -> ForwardResult:
     """The forward filter of the one log of ``batch`` on its sightings ``used`` with ``form`` added; ``landmark``
@@ -100,9 +95,9 @@ def forward_pass_of(lo: Lowered, batch, landmark: np.ndarray, used: np.ndarray, 
     n_b = n_landmarks if form.sigma_b > 0 else 0
     n_r = n_landmarks if form.sigma_r > 0 else 0
     n = 3 + gain + n_b + n_r
-    phi_g, q_g = ar1(form.sigma, form.tau, dt)
-    phi_b, q_b = ar1(form.sigma_b, form.tau_b, dt)
-    phi_r, q_r = ar1(form.sigma_r, form.tau_r, dt)
+    phi_g, q_g = ar1_step(form.sigma, form.tau, dt)
+    phi_b, q_b = ar1_step(form.sigma_b, form.tau_b, dt)
+    phi_r, q_r = ar1_step(form.sigma_r, form.tau_r, dt)
     trans = np.array([phi_g] * gain + [phi_b] * n_b + [phi_r] * n_r)
     noise = np.diag([q_g] * gain + [q_b] * n_b + [q_r] * n_r)
     sig_a = lo.shaped_cov(slice(0, batch.n_frames)).copy()

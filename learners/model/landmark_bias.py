@@ -232,11 +232,18 @@ def lower_ar1(lo: Lowered, batch: Batch, sigma: float, tau_s: float, kind: str) 
     sched = slot_schedule(batch)
     if sched.k == 0:
         return
-    phi = math.exp(-batch.dt / tau_s)
+    phi, q = ar1_step(sigma, tau_s, batch.dt)
     var = sigma ** 2
     slots = {"slot": sched.slot} if kind == "size" else {"bearing_slot": sched.slot}
-    lo.extra = ExtraStates.append(lo.extra, np.where(sched.reset, 0.0, phi), np.where(sched.reset, var, var * (1.0 - phi * phi)),
+    lo.extra = ExtraStates.append(lo.extra, np.where(sched.reset, 0.0, phi), np.where(sched.reset, var, q),
                                   np.full((batch.n_logs, sched.k), var), **slots)
+
+
+def ar1_step(sigma: float, tau_s: float, dt: float) -> tuple[float, float]:
+    """(phi, q) of one step of ``dt`` s of a first-order Gauss-Markov process of stationary sd ``sigma`` and correlation
+    time ``tau_s`` (s): b' = phi b + N(0, q), phi = exp(-dt / tau_s), q = sigma^2 (1 - phi^2)."""
+    phi = math.exp(-dt / tau_s)
+    return phi, sigma ** 2 * (1.0 - phi * phi)
 
 
 def _columns(batch: Batch, post: Posterior, kind: str) -> slice:
