@@ -32,14 +32,11 @@ UNSEEN = {
 
 #: effect -> what was measured where the check does not yet see it at the EXAMPLE strength (5-minute logs, ``REPLICAS``
 #: replicas; a strict xfail: the day a statistic sees it, the test says so)
-NOT_YET: dict[str, str] = {
-    "landmark_bearing_bias": (
-        "bearing biases of 0.02 rad at 20 s on the aibo preset (bearing noise 0.027 rad) are absorbed into the heading: "
-        "no statistic disagrees on 5 or 10 minutes (seed 4; the nearest, 'bearing vs landmark, at a change of "
-        "landmark', z 1.9 / 2.4 against 4.11), nor at 0.05 rad (3.9 on 5 minutes, 2.9 on 10), though EM recovers "
-        "them (test_landmark_bias.py, +58 nats on 10 minutes); on the MRCLAM robots the check's 'bearing-innovation "
-        "autocorrelation' sees them (robot 4 z +6.6 before; robot 1 +6.2 with them not named), 2026-11-30"),
-}
+#: Bearing biases of 0.02 rad at 20 s (landmark_bearing_bias) were one until the check had the bearing states' likelihood
+#: gain (``score_tests.BEARING_BIAS``): the base model absorbs them into the heading and no innovation statistic or
+#: signature disagreed on 5 or 10 minutes; with the gain, z +8.3 / +6.4 (seeds 4 / 5) and none once they are fitted
+#: (seeds 4, 5, 6; 2026-11-30).
+NOT_YET: dict[str, str] = {}
 
 
 #: effect -> the default of the base fit that stands in for it: the model "without it" is fitted without that default

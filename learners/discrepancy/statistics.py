@@ -35,7 +35,7 @@ from aibo_core.trajectory import Trajectory
 from learners.model.model import Model
 
 from .score import score
-from .score_tests import SPEED_TREND, score_statistics
+from .score_tests import BEARING_BIAS, SPEED_TREND, score_statistics
 from .signatures import signatures
 
 MAX_STRENGTH = 300.0  # -log10(p) cap (p below 1e-300 underflows)
@@ -127,6 +127,11 @@ def plain_reading(statistic: str, z: float) -> str:
         return ("the log's robot moves " + ("faster" if more else "slower") + " later in the log, against what the "
                 "model commands, than its simulation's" + ("" if more else " (a speed that fades: a draining battery, "
                                                                        "worn feet)"))
+    if statistic == BEARING_BIAS:
+        return ("the log's bearing errors of one landmark agree with each other over seconds "
+                + ("more" if more else "less") + " than in its simulation"
+                + (" (a bearing error per landmark that the heading takes up while the landmark is in view: "
+                   "landmark_bearing_bias)" if more else ""))
     if " vs " in statistic:
         residual, variable = statistic.split(" vs ", 1)
         variable = variable.replace(" (strength)", "")

@@ -51,10 +51,11 @@ class LandmarkBearingBias(EffectModel):
     tau_s: float  # correlation time (s)
 
     name: ClassVar[str] = "landmark_bearing_bias"
-    #: the calibrated check's statistic that reads it (a bias that persists over a landmark's consecutive sightings), and
+    #: the calibrated check's statistics that read it (a bias that persists over a landmark's consecutive sightings; the
+    #: likelihood gain of bearing states, which sees it where the heading takes it up: ``score_tests.BEARING_BIAS``), and
     #: the one where its pass-to-pass means show
     SIGNATURE: ClassVar[str] = "bearing-innovation autocorrelation"
-    ALSO_SIGNATURES: ClassVar[tuple[str, ...]] = ("bearing (sigma) vs landmark",)
+    ALSO_SIGNATURES: ClassVar[tuple[str, ...]] = ("bearing (sigma) vs landmark", "gain of bearing states per landmark")
     PARAMS: ClassVar[dict[str, Param]] = {
         "sigma_rad": Param("rad", "log", low=0.0, high=0.5, shape=()),
         "tau_s": Param("s", "log", low=1e-3, high=1e6, shape=()),
