@@ -161,7 +161,21 @@ def test_effect_intervals_are_wald_intervals_clipped_to_the_domain():
     assert iv["sigma_rel"]["interval_95"] == pytest.approx([0.05 - Z95 * 0.01, 0.05 + Z95 * 0.01])
     assert iv["tau_s"] == {"value": 8.0, "se": None, "interval_95": None, "method": None}  # undetermined: none
     wide = effect_intervals(model, "landmark_bias", {"effects.landmark_bias.sigma_rel": 0.04})
-    assert wide["sigma_rel"]["interval_95"][0] == 0.0  # clipped at the domain's lower bound
+    # 0.05 +- 1.96 x 0.04 crosses 0: a parameter fitted on the log scale gets the Wald interval of its logarithm
+    assert wide["sigma_rel"]["interval_95"] == pytest.approx([0.05 * np.exp(-Z95 * 0.8), 0.05 * np.exp(Z95 * 0.8)])
+    assert wide["sigma_rel"]["clipped"] and "log scale" in wide["sigma_rel"]["method"]
+    assert not iv["sigma_rel"]["clipped"] and iv["sigma_rel"]["method"] == "wald"
+
+
+def test_an_interval_that_crosses_the_domain_is_clipped_where_the_parameter_is_not_fitted_on_the_log_scale():
+    """A lag (fitted as it is, domain [0, 60] s) of 0.02 +- 0.03 s: [0, 0.0788], the method plain Wald."""
+    from learners.discrepancy.effect_sizes import Z95, effect_intervals
+    from learners.model.catalogue import ActuationLag
+    from learners.model.model import Model
+
+    model = Model(action=None, sensor=None, init=(), effects=(ActuationLag(0.02),))
+    iv = effect_intervals(model, "actuation_lag", {"effects.actuation_lag.lag_s": 0.03})["lag_s"]
+    assert iv["interval_95"] == pytest.approx([0.0, 0.02 + Z95 * 0.03]) and iv["clipped"] and iv["method"] == "wald"
 
 
 def test_a_grid_parameter_gets_the_profile_likelihood_interval():

@@ -2,23 +2,24 @@
 adding it moved the base model (velocities and sensor curve), in the model file's units.
 
 Intervals are Wald intervals, value +- 1.96 SE, with the robust standard errors of the diagnosed model's fit
-(``learners.em.uncertainty``: the larger of the Fisher error, from finite differences of the EKF innovations, and
-the sandwich error; the Fisher ones are kept beside them as "se_fisher" and "interval_95_fisher"). Measured: on
-simulated logs the coverage of the robust intervals is the Fisher ones' or higher (docs/results.md, "Robust standard
-errors"); on MRCLAM robots the Fisher errors are 2-5 times smaller than the differences between a robot's two
-halves. Where the information does not determine a parameter its standard error is None and so is the interval. A
-Wald interval assumes a quadratic log-likelihood: for a parameter near a bound (a rate near 0, a correlation time
-near its cap) it is only a guide, and it is clipped to the parameter's domain (``clipped``: true); ``aibo diagnose``
-then replaces it by the profile-likelihood interval on the whole logs where the effect has one scalar parameter
-(``profile``). A parameter profiled over a grid (``EffectModel.GRID``, a lag) has no standard error; its interval is
-the profile-likelihood one, from the search's profile on the training half: the grid values within chi-square(1,
-0.95) / 2 = 1.92 nats of the best, widened to the neighbouring grid values (``profile_interval``; ``grid_step`` in
-the entry), so it holds the true profile interval to the grid's step, and is wider than the whole log's would be
-(half the sightings). The value is the final fit's, refined between the grid's values where the effect polishes
-(``ActuationLag.polish``: the lag maximizing the whole logs' likelihood within a grid step of the search's, the rest
-held). Where the logs resolve the parameter finer than its grid (a lag of discrete commands acts in whole frames),
-``aibo diagnose`` then replaces that interval by the whole logs' profile in those steps
-(``profile.refine_grid_intervals``; the grid one kept as ``grid_interval_95``)."""
+(``learners.em.uncertainty``: the larger of the Fisher error, from finite differences of the EKF innovations, and the
+sandwich error; the Fisher ones are kept beside them as "se_fisher" and "interval_95_fisher"). Measured: on simulated
+logs the coverage of the robust intervals is the Fisher ones' or higher (docs/results.md, "Robust standard errors");
+on MRCLAM robots the Fisher errors are 2-5 times smaller than the differences between a robot's two halves. Where the
+information does not determine a parameter its standard error is None and so is the interval. A Wald interval assumes
+a quadratic log-likelihood: for a parameter near a bound (a rate near 0, a correlation time near its cap) it is only a
+guide. Where value +- 1.96 SE crosses the parameter's domain (``clipped``: true) a positive parameter fitted on the
+log scale gets the Wald interval of its logarithm (``_wald``; the method says so), any other the interval clipped to
+the domain; ``aibo diagnose`` then replaces either by the profile-likelihood interval on the whole logs where the
+effect has one scalar parameter (``profile``). A parameter profiled over a grid (``EffectModel.GRID``, a lag) has no
+standard error; its interval is the profile-likelihood one, from the search's profile on the training half: the grid
+values within chi-square(1, 0.95) / 2 = 1.92 nats of the best, widened to the neighbouring grid values
+(``profile_interval``; ``grid_step`` in the entry), so it holds the true profile interval to the grid's step, and is
+wider than the whole log's would be (half the sightings). The value is the final fit's, refined between the grid's
+values where the effect polishes (``ActuationLag.polish``: the lag maximizing the whole logs' likelihood within a grid
+step of the search's, the rest held). Where the logs resolve the parameter finer than its grid (a lag of discrete
+commands acts in whole frames), ``aibo diagnose`` then replaces that interval by the whole logs' profile in those
+steps (``profile.refine_grid_intervals``; the grid one kept as ``grid_interval_95``)."""
 
 from __future__ import annotations
 
@@ -52,13 +53,27 @@ def grid_step(grid: list[float]) -> float:
 ROBUST_WALD = "wald, robust (the larger of the Fisher and the sandwich standard error)"
 
 
-def _wald(value: np.ndarray, se: Any, param) -> tuple[list, list, bool]:
-    """(se, the 95% Wald interval [lo, hi] clipped to the parameter's domain, whether it was clipped)."""
+#: the end of a Wald entry's method where its interval is on the log scale (``_wald``)
+LOG_SCALE = "; on the log scale, value x exp(+-1.96 SE / value) (the interval in the value's units crossed the domain)"
+
+
+def _wald(value: np.ndarray, se: Any, param) -> tuple[list, list, bool, bool]:
+    """(se, the 95% Wald interval [lo, hi] clipped to the parameter's domain, whether it crossed the domain, whether it
+    is on the log scale). A positive parameter fitted on the log scale (``Param.transform`` "log": a noise's sd, a
+    correlation time) whose interval value +- 1.96 SE crosses the domain gets the Wald interval of its logarithm
+    instead, value x exp(+-1.96 SE / value) (the delta method's SE of log value is SE / value): the scale its fit and
+    its information are on, where it cannot reach 0. Clipped, [0.001 s, 143 s] said nothing of a correlation time of 50
+    s +- 48 but that it was positive; on the log scale [7.6, 327] (``landmark_bearing_bias`` on 5-minute ``aibo`` logs
+    at 0.02 rad / 20 s, 2026-11-30: every tau_s interval crossed 0; on the log scale 10 of 11 held 20 s). The single
+    scalar parameter of an effect is profiled where its interval crossed the domain (``profile.wants_profile``)."""
     se = np.asarray(se, dtype=float)
     wald_lo, wald_hi = value - Z95 * se, value + Z95 * se
+    crossed = bool(np.any(wald_lo < param.low) or np.any(wald_hi > param.high))
+    log_scale = crossed and param.transform == "log" and bool(np.all(value > 0))
+    if log_scale:
+        wald_lo, wald_hi = value * np.exp(-Z95 * se / value), value * np.exp(Z95 * se / value)
     lo, hi = np.clip(wald_lo, param.low, param.high), np.clip(wald_hi, param.low, param.high)
-    clipped = bool(np.any(wald_lo < param.low) or np.any(wald_hi > param.high))
-    return se.tolist(), [lo.tolist(), hi.tolist()], clipped
+    return se.tolist(), [lo.tolist(), hi.tolist()], crossed, log_scale
 
 
 def _determined(se: Any) -> bool:
@@ -91,13 +106,14 @@ def effect_intervals(model: Model, name: str, standard_errors: dict[str, Any],
         if not _determined(se):
             out[pname] = {"value": v.tolist(), "se": None, "interval_95": None, "method": None}
             continue
-        se_f, interval_f, clipped = _wald(v, se, effect.PARAMS[pname])
-        out[pname] = {"value": v.tolist(), "se": se_f, "interval_95": interval_f, "method": "wald", "clipped": clipped}
+        se_f, interval_f, clipped, log_scale = _wald(v, se, effect.PARAMS[pname])
+        out[pname] = {"value": v.tolist(), "se": se_f, "interval_95": interval_f,
+                      "method": "wald" + (LOG_SCALE if log_scale else ""), "clipped": clipped}
         robust = (robust_errors or {}).get(key)
         if _determined(robust):  # the interval stated is the robust one; the Fisher one kept beside it
-            se_r, interval_r, clipped = _wald(v, robust, effect.PARAMS[pname])
-            out[pname] |= {"se": se_r, "interval_95": interval_r, "method": ROBUST_WALD, "clipped": clipped,
-                           "se_fisher": se_f, "interval_95_fisher": interval_f}
+            se_r, interval_r, clipped, log_scale = _wald(v, robust, effect.PARAMS[pname])
+            out[pname] |= {"se": se_r, "interval_95": interval_r, "method": ROBUST_WALD + (LOG_SCALE if log_scale else ""),
+                           "clipped": clipped, "se_fisher": se_f, "interval_95_fisher": interval_f}
     return out
 
 
