@@ -397,3 +397,16 @@ def test_em_recovers_the_bearing_bias():
     assert e.sigma_rad == pytest.approx(0.02, rel=0.2)
     assert 20.0 / 1.5 <= e.tau_s <= 20.0 * 1.5
     assert e_step(fit.with_effect(e), batch, "compiled").loglik > e_step(base, batch, "compiled").loglik + 30.0
+
+
+def test_a_bearing_bias_that_decorrelates_within_seconds_is_not_named():
+    """The false alarms it stands for (effect-free ``paper-sim`` logs, 0.5 rad bearings: 0.10 rad at 1.89 and 1.83 s)
+    are implausible; the shortest fit at a simulated 20 s (9.5 s) and MRCLAM's (11 s) are not. A fit's limit, not a
+    ridge (the staged refit would end there again)."""
+    from learners.model.landmark_bearing_bias import MIN_PLAUSIBLE_TAU_S
+
+    for tau in (1.83, 1.89, 0.5 * MIN_PLAUSIBLE_TAU_S):
+        fit = LandmarkBearingBias(0.10, tau)
+        assert "no per-landmark bias" in fit.implausible() and not fit.ridge_possible()
+    for tau in (9.5, 11.0, 653.0):
+        assert LandmarkBearingBias(0.005, tau).implausible() == "" and LandmarkBearingBias(0.005, tau).ridge_possible()
