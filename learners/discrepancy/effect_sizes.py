@@ -64,7 +64,7 @@ def _wald(value: np.ndarray, se: Any, param) -> tuple[list, list, bool, bool]:
     instead, value x exp(+-1.96 SE / value) (the delta method's SE of log value is SE / value): the scale its fit and
     its information are on, where it cannot reach 0. Clipped, [0.001 s, 143 s] said nothing of a correlation time of 50
     s +- 48 but that it was positive; on the log scale [7.6, 327] (``landmark_bearing_bias`` on 5-minute ``aibo`` logs
-    at 0.02 rad / 20 s, 2026-11-30: every tau_s interval crossed 0; on the log scale 10 of 11 held 20 s). The single
+    at 0.02 rad / 20 s, 2026-11-30: 25 of 29 tau_s intervals crossed 0; on the log scale 28 of 29 held 20 s). The single
     scalar parameter of an effect is profiled where its interval crossed the domain (``profile.wants_profile``)."""
     se = np.asarray(se, dtype=float)
     wald_lo, wald_hi = value - Z95 * se, value + Z95 * se
