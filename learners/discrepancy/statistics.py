@@ -21,7 +21,8 @@ Four kinds:
   used before, and the check's family false alarms with 8 replicas 4.9-5.2% against 7.3-9.1% (with 4 to 24 replicas
   4.3-5.2%, where the square root's grow to 8.9-12.4%);
 - score statistics (:mod:`learners.discrepancy.score_tests`): how strongly the log pulls the model towards a generic
-  alternative (a speed that changes over the log), where a signature of the smoothed motion is attenuated;
+  alternative (a speed that changes over the log), where a signature of the smoothed motion is attenuated, and the
+  likelihood's gain from bearing states per landmark of a fixed size, where the heading takes up such biases;
 - the data alone: sightings per frame, size quantiles (px or mm), spread of the bearings (rad).
 """
 
