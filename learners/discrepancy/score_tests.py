@@ -32,8 +32,8 @@ right the gain is near 0 or below (effect-free 5-minute ``aibo`` logs, seeds 4-6
 residuals over their noise variance, paired with an exponential kernel of their time apart: the derivative in sigma^2
 at 0) moved by +0.5 to +1.3 against the replicas' sd of 0.3-0.6 there, z 0.9-2.1: at the null's boundary the
 score is weak. ``BEARING_TAU_S``: the whole-log fits of the five MRCLAM robots put the bias's correlation time at 11-152
-s (two at 464 and 653 s, fixed offsets in effect); ``BEARING_STATE_SIGMA``: half the noise, about the size those fits
-found against their bearing noise (3-13 mrad against 10-25).
+s (two at 464 and 653 s, fixed offsets in effect); ``BEARING_STATE_SIGMA``: half the noise, where the MRCLAM scans with
+learn's model held found their best rows (0.3-0.6 of the bearing noise: ``landmark_bearing_bias.WARM_GRID``).
 """
 
 from __future__ import annotations
