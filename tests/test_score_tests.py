@@ -4,6 +4,8 @@ fade, and the bearing states' likelihood gain with and without per-landmark bear
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -18,6 +20,18 @@ from learners.inference.batch import make_batch
 from learners.model.effects import EFFECT_MODELS
 from learners.model.landmark_bearing_bias import LandmarkBearingBias
 from tests._logs import sim_log
+
+MRCLAM = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "mrclam7"
+
+
+def _mrclam_robot(robot: int, seconds: float | None = None):
+    """MRCLAM Dataset 7 robot ``robot``'s log at 0.1 s frames (its first ``seconds`` when given); the test is skipped
+    where the data are absent."""
+    from aibo_core.mrclam import import_robot
+
+    if not MRCLAM.is_dir():
+        pytest.skip(f"MRCLAM Dataset 7 not found at {MRCLAM} (see ../shared/data)")
+    return import_robot(MRCLAM, robot, dt=0.1, seconds=seconds)
 
 
 def _frames(n: int = 400, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -97,16 +111,10 @@ def test_on_mrclam_robot5_the_trend_is_seen_and_vicon_s_displacements_agree():
     over the log against its odometry: the same score computed with Vicon's displacements in place of the smoothed ones
     is +45 (one-step +0.062 per minute); the smoothed score sees +3.35 of it (robots 1-4: +0.1 / -1.9 / +0.5 / -0.7 against
     Vicon's -3.5 / +12.9 / +17.1 / -26.0: attenuated, docs/results.md)."""
-    from pathlib import Path
-
     from aibo_core.geometry import rel_disp
-    from aibo_core.mrclam import import_robot
     from aibo_core.timed_log import pose_valid
 
-    data = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "mrclam7"
-    if not data.is_dir():
-        pytest.skip(f"MRCLAM Dataset 7 not found at {data} (see ../shared/data)")
-    log = import_robot(data, 5, dt=0.1)
+    log = _mrclam_robot(5)
     model = EMLearner(EMOptions(seed=0, uncertainty=False)).fit([log]).params
     batch = make_batch([log])
     lo = model.lower(batch)
@@ -157,14 +165,7 @@ def test_on_mrclam_the_bearing_states_gain_sees_what_fitted_bearing_states_take_
     fixed-size states gain +27.1 / +39.1 nats there (effect-free simulated logs: -3.1 to +1.2); with
     ``landmark_bearing_bias`` fitted by EM (5.2 mrad x 21 s, 5.7 mrad x 31 s; +58 / +67 nats) they lose -51 / -110
     (2026-11-30): what the gain reads is what the fitted states take up."""
-    from pathlib import Path
-
-    from aibo_core.mrclam import import_robot
-
-    data = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "mrclam7"
-    if not data.is_dir():
-        pytest.skip(f"MRCLAM Dataset 7 not found at {data} (see ../shared/data)")
-    log = import_robot(data, robot, dt=0.1, seconds=300.0)
+    log = _mrclam_robot(robot, seconds=300.0)
     opts = EMOptions(seed=0, uncertainty=False)
     base = EMLearner(opts).fit([log]).params
     assert score_statistics(base, [log])[BEARING_BIAS] > 15.0
