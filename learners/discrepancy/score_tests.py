@@ -45,7 +45,7 @@ import numpy as np
 from learners.arrays.batch import Batch, make_batch
 from learners.arrays.displacement import displacement_beliefs
 from learners.arrays.lowered import Lowered
-from learners.em.estep import e_step, forward_loglik
+from learners.em.estep import e_step
 from learners.em.options import DEFAULT_GATE
 from learners.inference.kernels.estep import innovations_compiled
 from learners.model.landmark_bearing_bias import LandmarkBearingBias
@@ -96,7 +96,7 @@ def bearing_states_gain(model: "Model", batch: Batch, lo: Lowered) -> float:
     ``BEARING_STATE_SIGMA`` times its bearing noise at ``BEARING_TAU_S`` (replacing its own, if it has them) minus
     under ``model`` (``lo`` its lowering): positive where the log's bearings err per landmark over seconds."""
     states = LandmarkBearingBias(sigma_rad=BEARING_STATE_SIGMA * float(lo.sigma_bearing), tau_s=BEARING_TAU_S)
-    return forward_loglik(batch)(model.with_effect(states)) - innovations_compiled(lo, batch)[0]
+    return innovations_compiled(model.with_effect(states).lower(batch), batch)[0] - innovations_compiled(lo, batch)[0]
 
 
 def score_statistics(model: "Model", logs: list["Trajectory"]) -> dict[str, float]:
