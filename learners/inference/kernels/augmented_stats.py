@@ -41,17 +41,13 @@ def _spd_inverse(A, L, out):
             for k in range(c, r):
                 s -= L[r, k] * L[k, c]
             L[r, c] = s / L[r, r]
-    for r in range(n):  # out = L^-T L^-1: out[r, c] = sum over k >= r of L[k, r] L[k, c], c <= r, in the order of k
+    for r in range(n):  # out = L^-T L^-1
         for c in range(r + 1):
-            out[r, c] = 0.0
-    for k in range(n):
-        for r in range(k + 1):
-            f = L[k, r]
-            for c in range(r + 1):
-                out[r, c] += f * L[k, c]
-    for r in range(n):
-        for c in range(r):
-            out[c, r] = out[r, c]
+            s = 0.0
+            for k in range(r, n):
+                s += L[k, r] * L[k, c]
+            out[r, c] = s
+            out[c, r] = s
     return True
 
 
@@ -212,11 +208,10 @@ def _displacement_kernel(frame_to_pose, offset, disp, cov, cov_scale, cov_sd, ph
             ra = y[a]
             for b in range(n):
                 ra -= Y[a, b] * u[b]
-                A[a, b] = 1.0 if a == b else 0.0
-            for k in range(n):  # A's row a: sum over k of Y[a, k] S[k, :], in the order of k
-                f = Y[a, k]
-                for b in range(n):
-                    A[a, b] += f * S[k, b]
+                acc = 1.0 if a == b else 0.0
+                for k in range(n):
+                    acc += Y[a, k] * S[k, b]
+                A[a, b] = acc
             X[a, 0] = ra
             if need_cov:
                 for b in range(3):
