@@ -74,8 +74,10 @@ class LandmarkBearingBias(EffectModel):
     STARTS_OFF: ClassVar[bool] = False  # at sigma_rad 0 EM could not move it (as landmark_bias)
     #: after ``landmark_bias`` (order 0): the size states first, then the bearing states (``landmark_bias._columns``)
     LOWER_ORDER: ClassVar[int] = 1
-    #: Tried only when asked for (``--candidates``): built for the real robots' "bearing vs landmark" and not yet
-    #: through the false-alarm and confusion studies of the default candidates (docs/results.md).
+    #: Tried only when asked for (``--candidates``): it explains the real robots' "bearing vs landmark", but on the
+    #: halves they were not fitted to it costs the forward speed (MRCLAM robot 5: +30% / +13% against Vicon added
+    #: alone to learn's model, first / second half; within 3% of learn's on 8 of 10 halves against the defaults' 9)
+    #: (docs/results.md, "Bearing bias states").
     DEFAULT_CANDIDATE: ClassVar[bool] = False
 
     @classmethod
