@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "mrclam7"
+from tests._logs import MRCLAM_DATA as DATA
+
 PKG = "aibo_test_msgs"
 ARRAYS_MSG = "std_msgs/Header header\nint32[] ids\nfloat64[] ranges\nfloat64[] bearings\n"
 ELEMENTS_MSG = ("std_msgs/Header header\nRangeBearing[] detections\n" + "=" * 80 + f"\nMSG: {PKG}/RangeBearing\n"

@@ -1,10 +1,14 @@
-"""Simulated logs shared by the learner and CLI tests (built once per test session)."""
+"""Logs shared by the tests: simulated ones (built once per test session) and where the real MRCLAM data are."""
 
 from __future__ import annotations
 
 from functools import lru_cache
+from pathlib import Path
 
 from aibo_gym.collect import collect
+
+#: MRCLAM Dataset 7 where ../shared/data holds it (the tests that read it skip where it is absent)
+MRCLAM_DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "mrclam7"
 
 
 @lru_cache(maxsize=None)

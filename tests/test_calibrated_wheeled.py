@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,8 +17,8 @@ from experiments.calibrated import predictive_check, replay_log, simulator_confi
 from experiments.calibrated_wheeled import image_frames
 from learners.model.catalogue import ActuationLag
 from learners.model.io import load_model
+from tests._logs import MRCLAM_DATA as DATA
 
-DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "mrclam7"
 #: the simulated robot (rows v, omega, v|omega|, |omega|, 1; columns vx mm/s, vy mm/s, vtheta rad/s): 15% slow,
 #: 20% short on turns, loses speed while turning, drifts in its turn; far from its commands' face value. Its forward
 #: speed is the ``unicycle``'s (gain v + loss on arcs v |omega|: ``aibo_core.features.ZERO_CELLS``), so both action

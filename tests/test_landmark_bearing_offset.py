@@ -7,7 +7,6 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 from functools import lru_cache
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,11 +21,11 @@ from learners.inference.batch import make_batch
 from learners.model.catalogue import AngleBias, LandmarkBearingOffset
 from learners.model.model import paper_start
 from learners.model.parameters import Param, pack_contrast, unpack_contrast
+from tests._logs import MRCLAM_DATA as MRCLAM
 from tests._logs import diagnose, sim_log
 
 #: sd 9.7 mrad over the 4 beacons, summing to 0 (a common part is the heading's: ``angle_bias``)
 TRUE_OFFSET = np.array([0.012, -0.009, 0.007, -0.010])
-MRCLAM = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "mrclam7"
 #: what every candidate is tried among in the diagnose tests (as tests/test_discrepancy.py's ``ALL``)
 CANDIDATES = "actuation_lag,angle_bias,beacon_height_scale,distance_dependent_noise,floor_drift,landmark_bearing_offset," \
              "off_center_shrink,velocity_fade"

@@ -14,8 +14,8 @@ from aibo_core import trajectory
 from aibo_core.mrclam import MRCLAMError, import_robot, pose_valid
 from learners.em.start import initial_from_sightings, initial_state_for, pose_candidates
 from learners.model.initial import DEFAULT_INITIAL
+from tests._logs import MRCLAM_DATA as DATA
 
-DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "mrclam7"
 HEADER = "# a\n# b\n# c\n# d\n"
 
 

@@ -6,7 +6,6 @@ option through the command, and the MRCLAM robot whose forward speed it repairs.
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import pytest
 
@@ -18,8 +17,7 @@ from learners.em.learner import EMLearner
 from learners.em.options import EMOptions
 from learners.metrics import continuous_velocity_errors
 from learners.scoring import face_value_model, velocity_scores
-
-DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "mrclam7"
+from tests._logs import MRCLAM_DATA as DATA
 
 
 def _fits(tr):

@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests._logs import MRCLAM_DATA as DATA
 from tests._scripts import load_script
 
 ROOT = Path(__file__).resolve().parents[1]
-DATA = ROOT / ".." / "shared" / "data" / "mrclam7"
 
 
 def _script():

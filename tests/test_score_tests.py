@@ -4,8 +4,6 @@ fade, and the bearing states' likelihood gain with and without per-landmark bear
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -19,9 +17,8 @@ from learners.em.options import EMOptions
 from learners.inference.batch import make_batch
 from learners.model.effects import EFFECT_MODELS
 from learners.model.landmark_bearing_bias import LandmarkBearingBias
+from tests._logs import MRCLAM_DATA as MRCLAM
 from tests._logs import sim_log
-
-MRCLAM = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "mrclam7"
 
 
 def _mrclam_robot(robot: int, seconds: float | None = None):

@@ -6,7 +6,6 @@ effects and keeps its noise, the whole-log fit of ``aibo diagnose`` pruned 9-28%
 from __future__ import annotations
 
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,8 +16,8 @@ from learners.em.options import DEFAULT_GATE, EMOptions
 from learners.model.initial import InitialState
 from learners.model.landmark_bias import LandmarkBias
 from tests._diffdrive import TRUE_W, diff_drive_log
+from tests._logs import MRCLAM_DATA as DATA
 
-DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "mrclam7"
 SIGMA_REL, TAU_S = 0.08, 8.0  # the log's range bias (MRCLAM: sigma_rel 0.025-0.048, tau_s 6-24 s, beside 11-19 mm of noise)
 
 
