@@ -247,6 +247,26 @@ def _calibrated(cal: dict[str, Any] | None, unexplained: list[dict[str, Any]]) -
             + "".join(_still_unlike(u) for u in unexplained if "probe" not in u))
 
 
+def try_next(report: dict[str, Any]) -> str:
+    """The options that try ``report.json["untried_effects"]``: ``--candidates`` (``untried_candidates``) and, where the
+    named and the untried effects outnumber the search's rounds (each names at most one), ``--rounds``."""
+    rounds = len(report["effects"]) + len(report["untried_effects"])
+    limit = report.get("search_rounds", {}).get("max_rounds")
+    return f"--candidates {report['untried_candidates']}" + (f" --rounds {rounds}" if limit and rounds > limit else "")
+
+
+def _untried(report: dict[str, Any]) -> str:
+    """One paragraph on ``report.json["untried_effects"]``: the effects left out of the candidates that the
+    disagreements left point at, and the options that try them (``try_next``)."""
+    untried = report.get("untried_effects", [])
+    if not untried:
+        return ""
+    names = ", ".join(f"<b>{html.escape(u['effect'])}</b> ({u['statistics']})" for u in untried)
+    return (f"<p><b>Not tried, and pointed at by the disagreements left</b> (statistics each): {names}. "
+            f"<code>{html.escape(try_next(report))}</code> tries them; compare the motion gap and the check before "
+            f"keeping that model.</p>")
+
+
 def _none_of_the_above(unexplained: list[dict[str, Any]]) -> str:
     """One paragraph per significant probe (``report.json["unexplained"]`` entries with a ``"probe"``): a dependence
     that no catalogue effect explains."""
@@ -354,6 +374,7 @@ quantities, motion residuals within each command. Each p-value allows for the re
 adjusted for every pair tried (Holm); the named effects' signatures come first. The verdict rests on the candidates'
 likelihood-ratio tests and held-out gains (table below: "named" marks the effects the diagnosed model holds).</p>
 {_calibrated(report.get("calibrated_simulation"), report.get("unexplained", []))}
+{_untried(report)}
 {_none_of_the_above(report.get("unexplained", []))}
 {''.join(_img(p) for p in figures if p.exists())}
 <h2>Candidates</h2><table><tr><th>round</th><th>effect</th><th>train gain (nats)</th><th>held-out gain (nats)</th>

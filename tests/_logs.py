@@ -51,6 +51,9 @@ def diagnose(tmp_path, tr, candidates: str, jobs: int = 2, replicas: int = 0) ->
     for e in report["effects"]:  # each named effect: its values, with an interval (or None) for every parameter
         assert set(e["intervals"]) == set(e["parameters"]) and set(e["parameters_when_named"]) == set(e["parameters"])
     assert (report["base_change"] is None) == (not report["effects"])
+    tried = {c["name"] for c in report["candidates"]}  # what the disagreements left point at, never a tried effect
+    assert not tried & {u["effect"] for u in report["untried_effects"]}
+    assert (report["untried_candidates"] is None) == (not report["untried_effects"])
     for key in ("motion_gap_before", "motion_gap_after", "motion_excess_before", "motion_excess_after"):
         assert set(report[key]) == {"1", "2", "5"}, (key, report[key])  # horizons in seconds
     assert "Motion gap" in (out / "report.html").read_text()

@@ -239,6 +239,44 @@ def test_a_disagreement_that_is_the_signature_of_two_effects_is_one_row_naming_b
     assert page.count("which was not named") == 2 and "turn_heading_noise" in page and "turn_dependent_noise" in page
 
 
+def test_the_disagreements_left_say_which_untried_effects_to_try_next():
+    """MRCLAM robot 1 after the default candidates (2026-12-01): the gain of bearing states and "bearing vs landmark"
+    point at ``landmark_bearing_bias`` (the second at ``landmark_bearing_offset`` too), "|bearing| vs commanded turn
+    rate" at both turn noises, a size statistic at ``landmark_bias``, which was tried. ``untried_effects`` counts the
+    statistics per effect left out of the candidates (most first, then by name); the terminal and the page print the
+    ``--candidates`` that adds them, and ``--rounds`` where the rounds are too few to name them all."""
+    from aibo.commands.diagnose import candidates, unexplained, untried_effects, untried_text
+    from aibo.diagnose_report import _untried, try_next
+
+    rows = [{"statistic": s, "z": 9.0} for s in (
+        "gain of bearing states per landmark (30 s, nats)", "bearing (sigma) vs landmark (strength)",
+        "|bearing| (sigma) vs commanded turn rate (rad/s) (strength)",
+        "size-innovation autocorrelation (lag 1, per landmark)", "sightings per frame")]
+    report = {"effects": [{"name": "actuation_lag", "parameters": {}}],
+              "candidates": [{"name": "landmark_bias", "note": "", "gain_train": 1.0, "p_value": 0.5, "gain_heldout": -1.0}],
+              "calibrated_simulation": {"after": {"disagreements": rows}}}
+    u = unexplained(report)
+    assert [r["effect"] for r in u] == ["landmark_bearing_bias", "landmark_bearing_bias", "turn_dependent_noise",
+                                        "landmark_bias", None]
+    untried = untried_effects(u, candidates(None))
+    assert untried == [{"effect": "landmark_bearing_bias", "statistics": 2},  # "bearing vs landmark" is a fixed
+                       {"effect": "landmark_bearing_offset", "statistics": 1},  # offset's signature too
+                       {"effect": "turn_dependent_noise", "statistics": 1}, {"effect": "turn_heading_noise", "statistics": 1}]
+    assert untried_effects(u, candidates("all")) == []  # every effect tried: nothing left to suggest
+    assert untried_effects(u, candidates("defaults,landmark_bearing_bias"))[0]["effect"] == "landmark_bearing_offset"
+    report |= {"untried_effects": untried, "untried_candidates": "defaults,landmark_bearing_bias,landmark_bearing_offset,"
+               "turn_dependent_noise,turn_heading_noise", "search_rounds": {"max_rounds": 3}}
+    assert try_next(report) == f"--candidates {report['untried_candidates']} --rounds 5"  # 1 named + 4: 5 rounds
+    report["search_rounds"]["max_rounds"] = 6
+    assert try_next(report) == f"--candidates {report['untried_candidates']}"
+    line = untried_text(untried, try_next(report))
+    assert "landmark_bearing_bias (2 statistics), landmark_bearing_offset (1 statistic)," in line
+    assert f"--candidates {report['untried_candidates']} tries them" in line
+    page = _untried(report)
+    assert "<b>landmark_bearing_bias</b> (2)" in page and f"--candidates {report['untried_candidates']}</code>" in page
+    assert _untried({"effects": [], "untried_effects": [], "untried_candidates": None}) == ""
+
+
 def test_every_learned_effect_drives_its_simulator_twin(fitted):
     """A model with every effect of the catalogue (the registry, at each class's EXAMPLE): its simulator
     has their twins with the same parameters, walls (the model has wall_contact), and the spurious sightings it asks for."""

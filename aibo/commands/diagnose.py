@@ -156,6 +156,11 @@ def run(args) -> int:
         of = "; ".join(f"the signature of {w['effect']}, not named ({w['why_not_named']})" for w in fig.signature_of(u))
         say(f"  still unlike its simulation: {u['statistic']} ({fig.z_text(u['z'])}): {u['reading']}; "
             + (f"where: {u['where']}; " if u.get("where") else "") + (of or f"unexplained ({u['why_not_named']})"))
+    report["untried_effects"] = untried_effects(report["unexplained"], names)
+    report["untried_candidates"] = (",".join([args.candidates or DEFAULTS] + [u["effect"] for u in
+                                             report["untried_effects"]]) if report["untried_effects"] else None)
+    if report["untried_effects"]:
+        say(untried_text(report["untried_effects"], fig.try_next(report)))
     report["unexplained"] += none_of_the_above(found, logs)
     for u in (u for u in report["unexplained"] if u["effect"] == NONE_OF_THE_ABOVE):
         say(f"none of the above: {u['describes']} (train +{u['gain_train']:.1f} nats, held-out {u['gain_heldout']:+.1f} "
@@ -382,6 +387,25 @@ def unexplained(report: dict) -> list[dict]:
                    else "no effect of the catalogue leaves this signature")
             out.append(row | {"effect": None, "why_not_named": why, "other_effects": []})
     return out
+
+
+def untried_effects(rows: list[dict], tried: list[str]) -> list[dict]:
+    """The catalogue's effects left out of the candidates (``tried``) whose residual signature a disagreement left
+    after the named effects is (``rows``: ``report.json["unexplained"]``), each with how many of those statistics
+    point at it, most first: ``report.json["untried_effects"]``, what a user can try next."""
+    counts: dict[str, int] = {}
+    for u in rows:
+        for name in {w["effect"] for w in fig.signature_of(u)} - set(tried):
+            if name in EFFECT_MODELS:
+                counts[name] = counts.get(name, 0) + 1
+    return [{"effect": n, "statistics": k} for n, k in sorted(counts.items(), key=lambda nk: (-nk[1], nk[0]))]
+
+
+def untried_text(untried: list[dict], options: str) -> str:
+    """The terminal's line on ``untried_effects``, with the ``options`` that try them (``diagnose_report.try_next``)."""
+    return ("the disagreements left point at effects that were not among the candidates: "
+            + ", ".join(f"{u['effect']} ({u['statistics']} statistic{'s' * (u['statistics'] > 1)})" for u in untried)
+            + f"; {options} tries them (compare the motion gap and the check before keeping that model)")
 
 
 def why_unnamed(name: str, c: dict | None, report: dict) -> str:
