@@ -245,7 +245,7 @@ def test_the_disagreements_left_say_which_untried_effects_to_try_next():
     rate" at both turn noises, a size statistic at ``landmark_bias``, which was tried. ``untried_effects`` counts the
     statistics per effect left out of the candidates (most first, then by name); the terminal and the page print the
     ``--candidates`` that adds them, and ``--rounds`` where the rounds are too few to name them all."""
-    from aibo.commands.diagnose import candidates, unexplained, untried_effects, untried_text
+    from aibo.commands.diagnose import candidates, unexplained, untried_candidates, untried_effects, untried_text
     from aibo.diagnose_report import _untried, try_next
 
     rows = [{"statistic": s, "z": 9.0} for s in (
@@ -264,6 +264,9 @@ def test_the_disagreements_left_say_which_untried_effects_to_try_next():
                        {"effect": "turn_dependent_noise", "statistics": 1}, {"effect": "turn_heading_noise", "statistics": 1}]
     assert untried_effects(u, candidates("all")) == []  # every effect tried: nothing left to suggest
     assert untried_effects(u, candidates("defaults,landmark_bearing_bias"))[0]["effect"] == "landmark_bearing_offset"
+    assert untried_candidates(None, untried[:1]) == "defaults,landmark_bearing_bias"  # the user's own, then these
+    assert untried_candidates(" defaults, floor_drift ,", untried[1:2]) == "defaults,floor_drift,landmark_bearing_offset"
+    assert untried_candidates("defaults", []) is None
     report |= {"untried_effects": untried, "untried_candidates": "defaults,landmark_bearing_bias,landmark_bearing_offset,"
                "turn_dependent_noise,turn_heading_noise", "search_rounds": {"max_rounds": 3}}
     assert try_next(report) == f"--candidates {report['untried_candidates']} --rounds 5"  # 1 named + 4: 5 rounds

@@ -157,8 +157,7 @@ def run(args) -> int:
         say(f"  still unlike its simulation: {u['statistic']} ({fig.z_text(u['z'])}): {u['reading']}; "
             + (f"where: {u['where']}; " if u.get("where") else "") + (of or f"unexplained ({u['why_not_named']})"))
     report["untried_effects"] = untried_effects(report["unexplained"], names)
-    report["untried_candidates"] = (",".join([args.candidates or DEFAULTS] + [u["effect"] for u in
-                                             report["untried_effects"]]) if report["untried_effects"] else None)
+    report["untried_candidates"] = untried_candidates(args.candidates, report["untried_effects"])
     if report["untried_effects"]:
         say(untried_text(report["untried_effects"], fig.try_next(report)))
     report["unexplained"] += none_of_the_above(found, logs)
@@ -399,6 +398,15 @@ def untried_effects(rows: list[dict], tried: list[str]) -> list[dict]:
             if name in EFFECT_MODELS:
                 counts[name] = counts.get(name, 0) + 1
     return [{"effect": n, "statistics": k} for n, k in sorted(counts.items(), key=lambda nk: (-nk[1], nk[0]))]
+
+
+def untried_candidates(given: str | None, untried: list[dict]) -> str | None:
+    """``report.json["untried_candidates"]``: the ``--candidates`` the user gave (``given``, None: the defaults), names
+    stripped of spaces, with the ``untried`` effects added; None when there are none."""
+    if not untried:
+        return None
+    names = [n.strip() for n in (given or DEFAULTS).split(",") if n.strip()]
+    return ",".join(names + [u["effect"] for u in untried])
 
 
 def untried_text(untried: list[dict], options: str) -> str:
