@@ -50,6 +50,11 @@ OUTPUTS = ("report.json", "model.json", "report.html", *FIGURES)
 ALL, DEFAULTS = "all", "defaults"
 
 
+def candidate_names(arg: str) -> list[str]:
+    """The names of a ``--candidates`` value as given (comma-separated, spaces and empty names dropped)."""
+    return [n.strip() for n in arg.split(",") if n.strip()]
+
+
 def candidates(arg: str | None) -> list[str]:
     """The effects to try: the catalogue's default candidates (``EffectModel.DEFAULT_CANDIDATE``), or the
     comma-separated names given, where "all" stands for every effect of the catalogue and "defaults" for the default
@@ -57,7 +62,7 @@ def candidates(arg: str | None) -> list[str]:
     defaults = sorted(n for n, cls in EFFECT_MODELS.items() if cls.DEFAULT_CANDIDATE)
     if arg is None:
         return defaults
-    names = [n.strip() for n in arg.split(",") if n.strip()]
+    names = candidate_names(arg)
     if not names:
         raise CLIError(f"--candidates {arg!r}: no effect named (give comma-separated names, or leave the option out "
                        "for the default candidates)")
@@ -393,8 +398,9 @@ def untried_effects(rows: list[dict], tried: list[str]) -> list[dict]:
     after the named effects is (``rows``: ``report.json["unexplained"]``), each with how many of those statistics
     point at it, most first: ``report.json["untried_effects"]``, what a user can try next."""
     counts: dict[str, int] = {}
+    tried_set = set(tried)
     for u in rows:
-        for name in {w["effect"] for w in fig.signature_of(u)} - set(tried):
+        for name in {w["effect"] for w in fig.signature_of(u)} - tried_set:
             if name in EFFECT_MODELS:
                 counts[name] = counts.get(name, 0) + 1
     return [{"effect": n, "statistics": k} for n, k in sorted(counts.items(), key=lambda nk: (-nk[1], nk[0]))]
@@ -405,8 +411,7 @@ def untried_candidates(given: str | None, untried: list[dict]) -> str | None:
     stripped of spaces, with the ``untried`` effects added; None when there are none."""
     if not untried:
         return None
-    names = [n.strip() for n in (given or DEFAULTS).split(",") if n.strip()]
-    return ",".join(names + [u["effect"] for u in untried])
+    return ",".join(candidate_names(given or DEFAULTS) + [u["effect"] for u in untried])
 
 
 def untried_text(untried: list[dict], options: str) -> str:
