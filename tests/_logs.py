@@ -63,4 +63,7 @@ def diagnose(tmp_path, tr, candidates: str, jobs: int = 2, replicas: int = 0) ->
     shape = report["innovation_shape"]  # where the final model's innovations depart from its Gaussian
     assert shape["sightings"] > 0 and all(0.0 <= shape[k] <= 1.0 for k in ("nis_below_band", "nis_above_band"))
     assert len(shape["bearing"]["outside_95_by_turn_rate"]) == len(shape["turn_rate_edges_rad_s"]) - 1
+    halves = shape["nis_by_repeat"]  # the NIS by the time since the landmark's last sighting: two halves of the whole
+    assert halves["closer"]["sightings"] + halves["further"]["sightings"] == shape["sightings"]
+    assert shape["repeat_split_s"] > 0
     return report

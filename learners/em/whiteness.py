@@ -32,13 +32,29 @@ def normalized_size_innovations(model: Model, batch: Batch) -> np.ndarray:
 def consecutive_pairs(batch: Batch, z: np.ndarray, pair_s: float = PAIR_S, clip: float = CLIP) -> np.ndarray:
     """(n, 2): ``z`` of consecutive sightings of the same landmark in the same log at most ``pair_s`` s apart
     (the used sightings with |z| < ``clip``)."""
+    ok = np.flatnonzero(np.asarray(batch.used, bool) & np.isfinite(z) & (np.abs(z) < clip))
+    idx, gap = _landmark_runs(batch, ok)
+    close = gap <= pair_s
+    return np.stack([z[idx[:-1][close]], z[idx[1:][close]]], axis=1)
+
+
+def _landmark_runs(batch: Batch, ok: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(the sightings ``ok`` ordered by landmark, then log, then frame; (len - 1,) the time (s) from each to the next
+    where that is the same landmark in the same log, inf where it is not)."""
     frame = batch.sight_frame
     log = np.searchsorted(batch.frame_start, frame, side="right") - 1
-    ok = np.flatnonzero(np.asarray(batch.used, bool) & np.isfinite(z) & (np.abs(z) < clip))
-    idx = ok[np.lexsort((frame[ok], log[ok], batch.sight_landmark[ok]))]  # by landmark, then log, then frame
+    idx = ok[np.lexsort((frame[ok], log[ok], batch.sight_landmark[ok]))]
     same = (np.diff(batch.sight_landmark[idx]) == 0) & (np.diff(log[idx]) == 0)
-    close = same & (np.diff(frame[idx]) * batch.dt <= pair_s)
-    return np.stack([z[idx[:-1][close]], z[idx[1:][close]]], axis=1)
+    return idx, np.where(same, np.diff(frame[idx]) * batch.dt, np.inf)
+
+
+def since_last_sighting(batch: Batch) -> np.ndarray:
+    """(S,) the time (s, whole frames) since the previous sighting of the same landmark in the same log, inf for a
+    landmark's first (every sighting, used or not)."""
+    idx, gap = _landmark_runs(batch, np.arange(batch.n_sightings))
+    out = np.full(batch.n_sightings, np.inf)
+    out[idx[1:]] = gap
+    return out
 
 
 def lag1(pairs: np.ndarray) -> float:
