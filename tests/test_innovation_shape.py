@@ -148,3 +148,18 @@ def test_the_nis_just_after_a_sighting_tells_persistent_errors_from_the_noise_s_
         assert "persist" not in text and "sharper core" not in text
     else:
         assert reading in text and ("persist" in reading) == ("persist" in text)
+
+
+def test_a_log_where_no_landmark_is_seen_twice_has_no_split_and_no_clause():
+    """Every sighting a landmark's first: no time since a last sighting, so no halves (None, which report.json
+    writes as null) and no clause in the reading; a landmark's first sighting goes with the further half."""
+    import numpy as np
+
+    from learners.discrepancy.innovation_shape import _repeat_text, by_time_since_last_sighting
+
+    nis, kept = np.array([0.5, 1.0, 2.0, 4.0]), np.ones(4, bool)
+    assert by_time_since_last_sighting(nis, kept, np.full(4, np.inf)) == {"repeat_split_s": None, "nis_by_repeat": None}
+    assert _repeat_text({"nis_by_repeat": None}) == ""
+    split = by_time_since_last_sighting(nis, kept, np.array([0.1, 0.2, np.inf, np.inf]))
+    assert split["repeat_split_s"] == 0.2  # the median of (0.1, 0.2, inf, inf) is inf: the largest finite time instead
+    assert split["nis_by_repeat"]["closer"]["sightings"] == 2 and split["nis_by_repeat"]["further"]["median"] == 3.0
