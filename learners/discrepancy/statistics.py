@@ -158,8 +158,9 @@ def plain_reading(statistic: str, z: float) -> str:
                                                 "wide)")
     if statistic.startswith("median NIS"):
         return ("most of the log's sightings are predicted " + ("less" if more else "more") + " closely, against the "
-                "model's noise, than its simulation's" + ("" if more else " (a sharper core than one Gaussian's, the "
-                                                          "tails heavier: a scale mixture of the noise)"))
+                "model's noise, than its simulation's" + ("" if more else " (a sharper core than one Gaussian's: the "
+                                                          "noise's shape, or errors that persist from one sighting to "
+                                                          "the next; the row's 'where' says which)"))
     if statistic.startswith("mean NIS") or statistic.startswith("held-out NLL"):
         return ("the model predicts the log's sightings " + ("worse" if more else "better")
                 + " than it predicts its own simulation's" + (" (an effect it lacks, or a fit short of its best: a "
