@@ -157,10 +157,14 @@ def run(args) -> int:
     seconds["calibrated check"] = time.perf_counter() - t1
     report["innovation_shape"] = innovation_shape(final.result.params, logs)  # where a NIS disagreement is
     report["unexplained"] = unexplained(report)
+    said_where = set()  # the NIS rows share one 'where': said in full once, then referred to
     for u in report["unexplained"]:
         of = "; ".join(f"the signature of {w['effect']}, not named ({w['why_not_named']})" for w in fig.signature_of(u))
+        where = u.get("where")
         say(f"  still unlike its simulation: {u['statistic']} ({fig.z_text(u['z'])}): {u['reading']}; "
-            + (f"where: {u['where']}; " if u.get("where") else "") + (of or f"unexplained ({u['why_not_named']})"))
+            + ((f"where: {where}; " if where not in said_where else "where: as above; ") if where else "")
+            + (of or f"unexplained ({u['why_not_named']})"))
+        said_where.add(where)
     report["untried_effects"] = untried_effects(report["unexplained"], names)
     report["untried_candidates"] = untried_candidates(args.candidates, report["untried_effects"])
     if report["untried_effects"]:
