@@ -71,6 +71,36 @@ def gap_bars(path: Path, before: dict[str, float], after: dict[str, float]) -> N
     save_png(fig, path, dpi=100)
 
 
+def nis_quantiles(path: Path, shape: dict[str, Any]) -> None:
+    """The NIS's quantiles of the sightings that follow their landmark's last most closely and of the others
+    (``report["innovation_shape"]``) against the chi-square(2) quantiles the model expects, log-log: on the diagonal
+    where the model's Gaussian holds, below it where the sightings are predicted more closely than its noise says."""
+    from scipy import stats
+
+    probs = np.asarray(shape["quantile_probs"])
+    expected = stats.chi2.ppf(probs, 2)
+    halves = shape["nis_by_repeat"]
+    fig, ax = plt.subplots(figsize=(5.6, 4.6))
+    ax.plot(expected, expected, color="0.6", lw=1, label="the model's chi-square(2)")
+    for name, color, text in (("closer", "tab:red", f"within {shape['repeat_split_s']:.2g} s of the landmark's last"),
+                              ("further", "tab:blue", "the others")):
+        h = halves[name]
+        if h["quantiles"] is not None:
+            ax.plot(expected, h["quantiles"], "o-", color=color, ms=4, label=f"{text} ({h['sightings']} sightings)")
+    lo, hi = stats.chi2.ppf([0.025, 0.975], 2)
+    for edge in (lo, hi):
+        ax.axvline(edge, color="0.85", lw=1, ls="--")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("NIS quantile the model expects (chi-square, 2 dof)")
+    ax.set_ylabel("NIS quantile on the log")
+    ax.set_title("Innovations by the time since the landmark was last seen\n(quantiles 1-99%; dashed: the 95% band)",
+                 fontsize=9)
+    ax.legend(fontsize=8, loc="upper left")
+    fig.tight_layout()
+    save_png(fig, path, dpi=100)
+
+
 def _z_by_statistic(check: dict[str, Any] | None) -> dict[str, float | None]:
     """A calibrated check's z per statistic (``{}`` for no check)."""
     return {r["statistic"]: r["z"] for r in (check or {}).get("statistics", [])}

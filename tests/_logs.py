@@ -5,6 +5,8 @@ from __future__ import annotations
 from functools import lru_cache
 from pathlib import Path
 
+import numpy as np
+
 from aibo_gym.collect import collect
 
 #: MRCLAM Dataset 7 where ../shared/data holds it (the tests that read it skip where it is absent)
@@ -65,5 +67,7 @@ def diagnose(tmp_path, tr, candidates: str, jobs: int = 2, replicas: int = 0) ->
     assert len(shape["bearing"]["outside_95_by_turn_rate"]) == len(shape["turn_rate_edges_rad_s"]) - 1
     halves = shape["nis_by_repeat"]  # the NIS by the time since the landmark's last sighting: two halves of the whole
     assert halves["closer"]["sightings"] + halves["further"]["sightings"] == shape["sightings"]
-    assert shape["repeat_split_s"] > 0
+    assert shape["repeat_split_s"] > 0 and (out / "innovations.png").stat().st_size > 0  # their quantile plot
+    for h in halves.values():
+        assert len(h["quantiles"]) == len(shape["quantile_probs"]) and np.all(np.diff(h["quantiles"]) >= 0)
     return report

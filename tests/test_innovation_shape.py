@@ -158,8 +158,27 @@ def test_a_log_where_no_landmark_is_seen_twice_has_no_split_and_no_clause():
     from learners.discrepancy.innovation_shape import _repeat_text, by_time_since_last_sighting
 
     nis, kept = np.array([0.5, 1.0, 2.0, 4.0]), np.ones(4, bool)
-    assert by_time_since_last_sighting(nis, kept, np.full(4, np.inf)) == {"repeat_split_s": None, "nis_by_repeat": None}
+    none = by_time_since_last_sighting(nis, kept, np.full(4, np.inf))
+    assert none["repeat_split_s"] is None and none["nis_by_repeat"] is None
     assert _repeat_text({"nis_by_repeat": None}) == ""
     split = by_time_since_last_sighting(nis, kept, np.array([0.1, 0.2, np.inf, np.inf]))
     assert split["repeat_split_s"] == 0.2  # the median of (0.1, 0.2, inf, inf) is inf: the largest finite time instead
     assert split["nis_by_repeat"]["closer"]["sightings"] == 2 and split["nis_by_repeat"]["further"]["median"] == 3.0
+
+
+def test_each_half_s_quantiles_are_the_chi_square_s_where_the_model_holds(fitted):
+    """The right model's NIS on an effect-free log: each half's quantiles (1-99%) within 25% of the chi-square(2)'s in
+    the core and 40% in the 1% and 99% tails (a few thousand sightings), its median the half's "median"; the quantile
+    plot is written from them (``aibo.diagnose_report.nis_quantiles``)."""
+    import numpy as np
+    from scipy import stats
+
+    tr, model = fitted
+    shape = innovation_shape(model, [tr])
+    want = stats.chi2.ppf(shape["quantile_probs"], 2)
+    for h in shape["nis_by_repeat"].values():
+        q = np.asarray(h["quantiles"])
+        tol = np.where((np.asarray(shape["quantile_probs"]) < 0.02) | (np.asarray(shape["quantile_probs"]) > 0.98),
+                       0.4, 0.25)
+        assert np.all(np.abs(q / want - 1) < tol), (q, want)
+        assert q[shape["quantile_probs"].index(0.5)] == h["median"]

@@ -41,7 +41,7 @@ from learners.model.io import save_result
 from learners.model.model import Model
 from learners.scoring import NOISE_KEYS, motion_noise_scores
 
-FIGURES = ("signatures.png", "gap.png", "calibrated.png")
+FIGURES = ("signatures.png", "gap.png", "calibrated.png", "innovations.png")
 #: Every file of a diagnosis: the --out folder holds these and nothing else (it is replaced whole).
 OUTPUTS = ("report.json", "model.json", "report.html", *FIGURES)
 
@@ -204,6 +204,8 @@ def write_outputs(out: Path, final, report: dict, lines: list[str], sig_before, 
         cal = report["calibrated_simulation"]
         if "before" in cal and cal["before"]["disagree_z"] is not None:  # None: too few replicas ran to compare
             fig.calibrated_bars(tmp / FIGURES[2], cal["before"], cal["after"])
+        if report["innovation_shape"].get("nis_by_repeat"):  # None: no landmark seen twice, nothing to split
+            fig.nis_quantiles(tmp / FIGURES[3], report["innovation_shape"])
         write_json(tmp / "report.json", report)
         fig.html_page(tmp / "report.html", report, "\n".join(lines), [tmp / f for f in FIGURES])
         written = [f for f in ("report.html", "report.json", "model.json", *FIGURES) if (tmp / f).exists()]

@@ -41,6 +41,8 @@ NIS_MEDIAN_EXPECTED = float(stats.chi2.ppf(0.5, 2))  # 2 log 2
 #: the NIS's core is"; the MRCLAM robots under the defaults' model 0.59-0.85).
 PERSIST_RATIO = 0.8
 COMPONENTS = ("size", "bearing")
+#: the probabilities of the NIS quantiles each half reports (the tails and the core: the band's 2.5% and 97.5% among)
+QUANTILE_PROBS = (0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 0.75, 0.9, 0.95, 0.975, 0.99)
 
 
 def innovation_shape(model: Model, logs: list[Trajectory]) -> dict[str, Any]:
@@ -77,7 +79,8 @@ def innovation_shape(model: Model, logs: list[Trajectory]) -> dict[str, Any]:
 def by_time_since_last_sighting(nis: np.ndarray, kept: np.ndarray, since: np.ndarray) -> dict[str, Any]:
     """The NIS of the sightings ``kept`` split at the median time since their landmark's previous sighting
     (``since``, s): {"repeat_split_s": that median, "nis_by_repeat": {"closer": ..., "further": ...}}, each half's
-    count, median NIS and shares below and above the band (both None where no landmark is seen twice). Expected under
+    count, median NIS, shares below and above the band and NIS quantiles at ``QUANTILE_PROBS`` ("quantile_probs";
+    the report's quantile plot against the chi-square(2)'s), None where no landmark is seen twice. Expected under
     the model: both halves alike (the median 2 log 2 = 1.386). A noise with heavier tails than the model's lowers
     both medians alike; errors that persist from one sighting of a landmark to the next, or a motion noise that the
     model averages (larger in the turns than between them), lower the closer half's (``_repeat_text``; measured on
@@ -86,14 +89,15 @@ def by_time_since_last_sighting(nis: np.ndarray, kept: np.ndarray, since: np.nda
     gap = since[kept]
     seen = gap[np.isfinite(gap)]  # a landmark's first sighting has no time since: it goes with the further half
     if not len(seen):
-        return {"repeat_split_s": None, "nis_by_repeat": None}
+        return {"repeat_split_s": None, "nis_by_repeat": None, "quantile_probs": list(QUANTILE_PROBS)}
     split = float(np.median(gap)) if np.isfinite(np.median(gap)) else float(np.max(seen))
     halves = {}
     for name, part in (("closer", gap <= split), ("further", gap > split)):
         z = nis[kept][part]
         halves[name] = {"sightings": int(part.sum()), "median": float(np.median(z)) if len(z) else float("nan"),
-                        "below_band": _share(z < lo), "above_band": _share(z > hi)}
-    return {"repeat_split_s": split, "nis_by_repeat": halves}
+                        "below_band": _share(z < lo), "above_band": _share(z > hi),
+                        "quantiles": np.quantile(z, QUANTILE_PROBS).tolist() if len(z) else None}
+    return {"repeat_split_s": split, "nis_by_repeat": halves, "quantile_probs": list(QUANTILE_PROBS)}
 
 
 def _share(mask: np.ndarray) -> float:
