@@ -84,7 +84,7 @@ def test_diagnose_folder_appears_whole_or_not_at_all(blind_log, tmp_path, monkey
     assert _diagnose(blind_log, out) == 0
     assert "calibrated.png" not in capsys.readouterr().out  # --replicas 0: not written, not claimed
     first = _snapshot(out)
-    assert set(first) == {"report.json", "model.json", "report.html", "signatures.png", "gap.png"}
+    assert set(first) == {"report.json", "model.json", "report.html", "signatures.png", "gap.png", "innovations.png"}
     # every candidate carries its checks' trail, and its flag is read off it
     for c in json.loads(first["report.json"])["candidates"]:
         assert c["checks"][0]["name"] == "likelihood ratio" and c["checks"][0]["p"] == c["p_value"]
