@@ -86,14 +86,15 @@ def by_time_since_last_sighting(nis: np.ndarray, kept: np.ndarray, since: np.nda
     model averages (larger in the turns than between them), lower the closer half's (``_repeat_text``; measured on
     simulated logs, docs/results.md)."""
     lo, hi = NIS_BAND
-    gap = since[kept]
+    gap, kept_nis = since[kept], nis[kept]
     seen = gap[np.isfinite(gap)]  # a landmark's first sighting has no time since: it goes with the further half
     if not len(seen):
         return {"repeat_split_s": None, "nis_by_repeat": None, "quantile_probs": list(QUANTILE_PROBS)}
-    split = float(np.median(gap)) if np.isfinite(np.median(gap)) else float(np.max(seen))
+    split = float(np.median(gap))
+    split = split if np.isfinite(split) else float(np.max(seen))
     halves = {}
     for name, part in (("closer", gap <= split), ("further", gap > split)):
-        z = nis[kept][part]
+        z = kept_nis[part]
         halves[name] = {"sightings": int(part.sum()), "median": float(np.median(z)) if len(z) else float("nan"),
                         "below_band": _share(z < lo), "above_band": _share(z > hi),
                         "quantiles": np.quantile(z, QUANTILE_PROBS).tolist() if len(z) else None}
