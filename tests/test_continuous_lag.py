@@ -9,7 +9,7 @@ import pytest
 
 from aibo_core.features import FEATURE_MAPS
 from learners.arrays.batch import Batch
-from learners.em.lag import refine
+from learners.em.lag import WIDENED, holding, refine
 from learners.model.catalogue import ActuationLag
 
 
@@ -76,6 +76,21 @@ def test_the_refinement_finds_a_parabolas_vertex_and_its_interval():
     flat = [(x, 1.0 * x) for x in (0.1, 0.15, 0.2, 0.25, 0.3)]  # not concave: the grid neighbours
     top, interval, note = refine(flat, 0.2, 0.1)
     assert top == 0.2 and interval == pytest.approx([0.1, 0.3]) and "not concave" in note
+
+
+def test_a_most_likely_refit_off_the_parabola_is_held_and_said():
+    """Known answer: a kinked profile (MRCLAM robot 5's refits: 164 nats down at 0.2 s, 4.4 at 0.266, the best at
+    0.25), whose parabola's interval leaves out the best point: widened to hold it, with the note that says why; a
+    parabola that holds it is kept as it is, without the note."""
+    def ll(v):
+        return -3280.0 * max(0.25 - v, 0.0) - 275.0 * max(v - 0.25, 0.0)
+
+    pts = [(x, ll(x)) for x in (0.2, 0.25, 0.266, 0.3, 0.35)]
+    _, parabola, note = refine(pts, 0.25, 0.1)
+    assert parabola[0] > 0.25 and note == ""
+    interval, note = holding(parabola, 0.25, note)
+    assert interval == [0.25, parabola[1]] and note == WIDENED
+    assert holding([0.2, 0.3], 0.25, "") == ([0.2, 0.3], "")
 
 
 def test_learn_recovers_a_sub_frame_lag_with_an_interval_that_holds_it():

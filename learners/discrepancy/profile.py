@@ -387,7 +387,7 @@ def parabola_interval(final: Model, logs: list[Trajectory], name: str, pname: st
     lag interval: on MRCLAM logs with the commands shifted by known offsets it held the shift in 30 of 35 cases),
     widened to hold the value. Keys as ``lattice_interval``'s."""
     from learners.discrepancy.fitting import train_loglik
-    from learners.em.lag import refine
+    from learners.em.lag import holding, refine
 
     param = EFFECT_MODELS[name].PARAMS[pname]
     value = float(np.asarray(final.effect(name).values()[pname]))
@@ -397,10 +397,11 @@ def parabola_interval(final: Model, logs: list[Trajectory], name: str, pname: st
     values = [v for v in (value - step, value - step / 2, value + step / 2, value + step) if v >= param.low]
     points = [(value, free)] + list(zip(values, batched(held_ll)(values)))
     finite = [(v, ll) for v, ll in points if math.isfinite(ll)]
-    _, (lo, hi), note = refine(sorted(finite), value, step)
+    _, parabola, note = refine(sorted(finite), value, step)
+    interval, note = holding(parabola, value, note)
     notes = ([note] if note else []) + failed
     better = beaten(points, free, pname, notes)
-    return {"interval_95": [min(lo, value), max(hi, value)], "open": [False, False], "better": better,
+    return {"interval_95": interval, "open": [False, False], "better": better,
             "beaten_by_nats": beaten_by(points, free),
             "method": (f"profile likelihood, whole logs: a parabola through the fits with {pname} held at the value and "
                        f"+-{step / 2:g}, +-{step:g} (the rest refitted)"),

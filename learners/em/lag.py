@@ -42,6 +42,10 @@ HALF_CHI2_1_95 = CHI2_1_95 / 2.0  # nats: the drop that bounds a 95% profile int
 #: diagnose`` profiles over ``ActuationLag.GRID``, 0-0.5 s) and on to 1 s, so a log whose commands are stamped
 #: early still finds its lag.
 GRID_S = tuple(round(0.1 * k, 1) for k in range(11))
+#: the interval note where the most likely refit lies outside the parabola's interval (docs/results.md, "An interval
+#: that ends at its estimate": the kinked profile's own interval held known shifts of the commands less often)
+WIDENED = ("widened to hold the most likely refit, which lies on a whole frame's kink of the profile, off the parabola "
+           "through the refits")
 REFIT_ITER = 150  # EM iterations of each warm-started refit (the discrepancy search's grid refits use as many)
 
 
@@ -101,11 +105,19 @@ def search(batch: Batch, model: Model, loglik: float, opts: EMOptions) -> LagSea
     best_ll, best_lag, best_model, _ = max(tried, key=lambda t: t[0])
     # the most likely refit may sit just off the parabola's interval (the profile has a kink at each whole frame,
     # where the averaged commands change pairs): the interval is widened to hold the lag reported
-    interval = [min(interval[0], best_lag), max(interval[1], best_lag)]
+    interval, note = holding(interval, best_lag, note)
     record.update(lag_s=best_lag, gain_nats=best_ll - max(loglik, null_ll), interval_95=interval,
                   interval_note=note, refits=[[t[1], t[0]] for t in sorted(tried, key=lambda t: t[1])],
                   iterations=sum(t[3] for t in tried))
     return LagSearch(best_model, best_ll, record, time.perf_counter() - t0)
+
+
+def holding(interval: list[float], value: float, note: str) -> tuple[list[float], str]:
+    """``interval`` widened to hold ``value`` (the most likely refit, off the parabola's interval where it lies on a
+    whole frame's kink), and ``note`` with ``WIDENED`` added where it was."""
+    if interval[0] <= value <= interval[1]:
+        return interval, note
+    return [min(interval[0], value), max(interval[1], value)], "; ".join(n for n in (note, WIDENED) if n)
 
 
 def refine(points: list[tuple[float, float]], best: float, step: float) -> tuple[float, list[float], str]:
