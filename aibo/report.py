@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import shutil
 import sys
+import textwrap
 import time
 
 from learners.base import IterationRecord
@@ -32,6 +34,22 @@ class Progress:
     def close(self) -> None:
         if self.stream.isatty():
             self.stream.write("\n")
+
+
+def for_terminal(text: str, stream=None) -> str:
+    """``text`` as printed to ``stream`` (stdout): on a terminal each line longer than its width wrapped at words, the
+    continuation indented 4 spaces past the line's own indent (a reading of 700-900 characters is a paragraph); to a
+    pipe or file as it is, one line per line (scripts and tests read it)."""
+    stream = stream or sys.stdout
+    if not stream.isatty():
+        return text
+    width = max(60, shutil.get_terminal_size().columns - 1)
+    out = []
+    for line in text.split("\n"):
+        indent = " " * (len(line) - len(line.lstrip(" ")))
+        out.append(textwrap.fill(line, width, subsequent_indent=indent + "    ", break_on_hyphens=False,
+                                 break_long_words=False) if len(line) > width else line)
+    return "\n".join(out)
 
 
 ROWS = [

@@ -35,3 +35,28 @@ def test_the_page_says_how_many_sightings_were_set_aside_before_the_diagnosis():
     some = dict(none, set_aside=101, sightings=4991, share=101 / 4991)
     assert _set_aside(some).endswith("): 101 of 4991 (2.0%); no fit or score here sees them.")
     assert "Mahalanobis^2 &gt; 50 " in _set_aside(some) and _set_aside(None) == ""
+
+
+class _Stream:
+    def __init__(self, tty: bool) -> None:
+        self.tty = tty
+
+    def isatty(self) -> bool:
+        return self.tty
+
+
+def test_a_long_terminal_line_is_wrapped_on_a_terminal_and_left_whole_in_a_pipe(monkeypatch):
+    """``aibo diagnose``'s lines (a 'still unlike' reading runs to 700-900 characters) wrap at the terminal's width at
+    words, the continuation indented past the line's own; a pipe or file (scripts, tests) gets them whole."""
+    import os
+
+    from aibo.report import for_terminal
+
+    monkeypatch.setattr("shutil.get_terminal_size", lambda *a, **k: os.terminal_size((81, 24)))
+    line = "  still unlike its simulation: " + " ".join(f"word{i}" for i in range(60))
+    text = line + "\nshort"
+    assert for_terminal(text, _Stream(False)) == text
+    wrapped = for_terminal(text, _Stream(True)).split("\n")
+    assert len(wrapped) > 3 and wrapped[-1] == "short" and all(len(w) <= 80 for w in wrapped)
+    assert wrapped[0].startswith("  still") and all(w.startswith("      word") for w in wrapped[1:-1])
+    assert " ".join(w.strip() for w in wrapped[:-1]) == line.strip()  # nothing lost, nothing added

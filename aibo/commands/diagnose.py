@@ -12,6 +12,7 @@ from aibo import diagnose_report as fig
 from aibo.data_errors import naming_files
 from aibo.errors import CLIError
 from aibo.paths import check_files, check_replaceable, declared_inputs
+from aibo.report import for_terminal
 from aibo_core import trajectory
 from aibo_core.atomic import atomic_folder, finite_json, write_json
 from aibo_core.compat import check_compatible
@@ -93,8 +94,8 @@ def run(args) -> int:
     opts = EMOptions(seed=args.seed, lag_search=False)  # the search tries actuation_lag itself, as a candidate
     lines: list[str] = []
 
-    def say(line: str) -> None:
-        print(line, flush=True)
+    def say(line: str) -> None:  # the page keeps the line whole; a terminal gets it wrapped (``for_terminal``)
+        print(for_terminal(line), flush=True)
         lines.append(line)
 
     say(f"diagnosing {len(logs)} log(s), {sum(tr.n_frames for tr in logs)} frames; candidates: {', '.join(names)}")
