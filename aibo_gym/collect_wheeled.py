@@ -142,6 +142,30 @@ def replay_wheeled(config: dict[str, Any] | None, controls: np.ndarray, seed: in
     return _run(env, reset, act, len(controls), seed, options, meta)
 
 
+def collect_closed_loop(config: dict[str, Any] | None, steps: int, seed: int, tau_s: float) -> Trajectory:
+    """A driver that steers on the robot's pose on every frame: the waypoint driver's log (``collect_wheeled``, the
+    same ``config``, ``steps`` and ``seed``) driven again, each frame's command its command corrected towards its
+    path (``tracking_command`` with time constant ``tau_s`` s, on the true pose), so that every command answers the
+    motion's own errors, as a robot's feedback controller's do (MRCLAM's commands change 67 times a second). The
+    calibrated check replays the commands open loop; on such a log its timing statistic disagrees without any timing
+    error in the robot (docs/results.md, "A driver that steers on its pose")."""
+    _check_steps(steps)
+    ref = collect_wheeled(config, steps, seed)
+    controls = ref.controls
+    lo, hi = controls.min(axis=0), controls.max(axis=0)
+    lo, hi = lo - (hi - lo), hi + (hi - lo)  # room for the corrections
+    env = WheeledRobotEnv(dict(config or {}, max_steps=len(controls), control_low=lo.tolist(), control_high=hi.tolist()))
+    state = {"t": 0}
+
+    def act(obs: Any, info: dict[str, Any]) -> np.ndarray:
+        t = state["t"]
+        state["t"] += 1
+        return np.clip(tracking_command(controls[t], info["pose"], ref.pose[t + 1], tau_s), lo, hi)
+
+    meta = {"policy": "closed loop", "policy_params": {"tau_s": tau_s}, "localizer": "truth"}
+    return _run(env, lambda info: state.update(t=0), act, len(controls), seed, None, meta)
+
+
 def _run(env: WheeledRobotEnv, reset: Callable, act: Callable, steps: int, seed: int,
          options: dict[str, Any] | None, meta: dict[str, Any]) -> Trajectory:
     """Reset ``env`` with ``seed`` (and ``options``), call ``reset(info)``, step ``act(obs, info)`` for up

@@ -2,6 +2,7 @@
 delay and a rate limit (an acceleration limit)?
 
     python scripts/mrclam_turn_response.py [DATA] [--robots 1,2,3,4,5] [--signal turn|forward] [--png FILE]
+                                           [--feedback]
 
 Per MRCLAM Dataset 7 robot, from the raw files (the command stream at its own ~100 Hz, Vicon at ~100 Hz): the heading
 change over each 0.1 s frame (``--signal forward``: the displacement along the heading, mm) that Vicon measures, and
@@ -20,6 +21,11 @@ out, the same frames for every model. Vicon's own noise is in every row alike.
 
 ``--png`` (the turn): per robot, the mean response to an isolated step of the turn command (a change of at least 0.2
 rad/s, held 0.5 s before and 1.2 s after) that Vicon measures, beside each fitted model's.
+
+``--feedback``: per robot, the first-order fit's error in each frame correlated with the command's change (averaged
+over a frame, undelayed) k = -3..+3 frames later: a causal response explains the changes before (k <= 0); a
+correlation with the changes after (k > 0) is the commands answering the motion, a driver that steers on the robot's
+pose (docs/results.md, "A driver that steers on its pose").
 
 DATA defaults to ../shared/data/mrclam7 (never copied into the repository). docs/results.md, "A first-order response
 of the commands (`response_time`)".
@@ -115,11 +121,10 @@ class Fit:
     rms_after_change: float
 
 
-def fit_models(commands: np.ndarray, truth: np.ndarray, signal: str) -> dict[str, Fit]:
-    """Each response model's best (parameter, lag) by the RMS over every frame. ``commands``: rows (t, v m/s, omega
-    rad/s); ``truth``: Vicon's rows (t, x m, y m, heading rad)."""
+def frames(commands: np.ndarray, truth: np.ndarray, signal: str) -> tuple:
+    """(the commands' time grid, the frames' starts (s), Vicon's change over each, the frames it measures well, the
+    frames within AFTER_CHANGE_S after a change of the command)."""
     col = 2 if signal == "turn" else 1
-    scale = 1.0 if signal == "turn" else 1000.0
     t0, t1 = max(commands[0, 0], truth[0, 0]) + 1.0, min(commands[-1, 0], truth[-1, 0]) - 1.0
     grid = np.arange(t0 - 1.0, t1 + 1e-9, GRID_S)
     starts = np.arange(t0, t1 - FRAME_S, FRAME_S)
@@ -127,18 +132,52 @@ def fit_models(commands: np.ndarray, truth: np.ndarray, signal: str) -> dict[str
     changes = commands[1:, 0][np.abs(np.diff(commands[:, col])) > CHANGE[signal]]
     j = np.searchsorted(changes, starts + FRAME_S, side="right") - 1
     after = ok & (j >= 0) & (starts - changes[np.clip(j, 0, None)] < AFTER_CHANGE_S)
+    return grid, starts, observed, ok, after
+
+
+def predicted(commands: np.ndarray, grid: np.ndarray, starts: np.ndarray, signal: str, model: str, p: float,
+              lag: float) -> np.ndarray:
+    """Each frame's change (rad, mm) that response ``model`` (parameter ``p``, delay ``lag`` s) predicts, gain 1."""
+    col, scale = (2, 1.0) if signal == "turn" else (1, 1000.0)
+    u = held(commands[:, 0], commands[:, col], grid - lag)
+    return scale * frame_sums(respond(u, model, p), grid[0], starts)
+
+
+def fit_models(commands: np.ndarray, truth: np.ndarray, signal: str) -> dict[str, Fit]:
+    """Each response model's best (parameter, lag) by the RMS over every frame. ``commands``: rows (t, v m/s, omega
+    rad/s); ``truth``: Vicon's rows (t, x m, y m, heading rad)."""
+    grid, starts, observed, ok, after = frames(commands, truth, signal)
     best: dict[str, Fit] = {}
     for lag in LAGS_S:
-        u = held(commands[:, 0], commands[:, col], grid - lag)
         for model, values in PARAMETERS.items():
             for p in values:
-                pred = scale * frame_sums(respond(u, model, p), grid[0], starts)
+                pred = predicted(commands, grid, starts, signal, model, p, lag)
                 gain = float(pred[ok] @ observed[ok] / (pred[ok] @ pred[ok]))
                 e = observed - gain * pred
                 rms = float(np.sqrt(np.mean(e[ok] ** 2)))
                 if model not in best or rms < best[model].rms:
                     best[model] = Fit(model, p, float(lag), gain, rms, float(np.sqrt(np.mean(e[after] ** 2))))
     return best
+
+
+FEEDBACK_FRAMES = range(-3, 4)  # k: the command's change k frames after the residual's frame (negative: before)
+
+
+def feedback(commands: np.ndarray, truth: np.ndarray, signal: str, fit: Fit) -> list[float]:
+    """Per k of FEEDBACK_FRAMES: the correlation of Vicon's change less ``fit``'s prediction (the frames Vicon measures
+    well) with the change of the command averaged over the frame k frames later, undelayed. A robot's response is
+    causal: its error cannot foretell a command that comes after it (k > 0) unless the commands answer the motion
+    (a driver that steers on the robot's pose)."""
+    grid, starts, observed, ok, _ = frames(commands, truth, signal)
+    e = observed - fit.gain * predicted(commands, grid, starts, signal, fit.model, fit.parameter, fit.lag_s)
+    raw = predicted(commands, grid, starts, signal, "delay", 0.0, 0.0)
+    change = np.diff(raw, prepend=raw[0])
+    out = []
+    for k in FEEDBACK_FRAMES:
+        i = np.arange(max(0, -k), len(e) - max(0, k))
+        keep = ok[i] & ok[i + k]
+        out.append(float(np.corrcoef(e[i][keep], change[i + k][keep])[0, 1]))
+    return out
 
 
 STEP_WINDOW_S = (-0.3, 1.2)  # the step responses' times around each change (s)
@@ -210,6 +249,8 @@ def main() -> None:
     ap = mrclam_parser(__doc__, "")
     ap.add_argument("--signal", choices=("turn", "forward"), default="turn")
     ap.add_argument("--png", default=None, help="write the figure of the turn's mean step responses here")
+    ap.add_argument("--feedback", action="store_true",
+                    help="also tabulate the first-order fit's error against the command's change before and after it")
     args = ap.parse_args()
     if args.png and args.signal != "turn":
         raise SystemExit("mrclam_turn_response: --png draws the turn's step responses (--signal turn)")
@@ -221,11 +262,12 @@ def main() -> None:
     print(f"| robot | RMS per frame ({unit}): delay / first order / rate limit | after a change | delay: lag s, gain | "
           "first order: lag s, tau s, gain | rate limit: lag s, a, gain |")
     print("|---|---|---|---|---|---|")
-    steps = {}
+    steps, fits, data = {}, {}, {}
     for r in robots(args.robots):
         commands = np.loadtxt(folder / f"Robot{r}_Odometry.dat", comments="#")
         truth = np.loadtxt(folder / f"Robot{r}_Groundtruth.dat", comments="#")
-        f = fit_models(commands, truth, args.signal)
+        f = fits[r] = fit_models(commands, truth, args.signal)
+        data[r] = (commands, truth)
         if args.png:
             steps[r] = step_responses(commands, truth, f)
         d, fo, rl = f["delay"], f["first_order"], f["rate_limit"]
@@ -233,6 +275,11 @@ def main() -> None:
               f"{k * fo.rms_after_change:.2f} / {k * rl.rms_after_change:.2f} | {d.lag_s:.2f}, {d.gain:.3f} | "
               f"{fo.lag_s:.2f}, {fo.parameter:g}, {fo.gain:.3f} | {rl.lag_s:.2f}, {rl.parameter:g}, {rl.gain:.3f} |",
               flush=True)
+    if args.feedback:
+        print(f"\n| robot | first order's error vs the command's change k frames later, k = "
+              f"{', '.join(f'{k:+d}' for k in FEEDBACK_FRAMES)} |\n|---|---|")
+        for r, f in fits.items():
+            print(f"| {r} | {' / '.join(f'{c:+.3f}' for c in feedback(*data[r], args.signal, f['first_order']))} |")
     if args.png:
         figure(steps, Path(args.png))
 

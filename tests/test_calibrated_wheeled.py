@@ -290,3 +290,24 @@ def test_an_mrclam_log_replays_in_its_calibrated_simulator(tmp_path):
     assert set(sim.sighting_frame) <= set(np.flatnonzero(image_frames(real)))
     cfg = simulator_config(load_model(model), real)
     assert 0.0 < cfg["detect_prob"] <= 1.0 and cfg["fov"] == pytest.approx(2 * (np.abs(real.sighting_value[:, 1]).max() + 0.01))
+
+
+@pytest.mark.slow
+def test_a_driver_that_steers_on_its_pose_alone_makes_the_timing_statistic_disagree_and_tracked_replicas_agree():
+    """A 5-minute log driven closed loop (every frame's command corrected towards the waypoint driver's path on the true
+    pose, time constant 10 s: ``collect_closed_loop``), no lag and no response time in the robot: ``aibo learn`` finds
+    no lag, yet the check's open-loop replicas leave "turn vs change of the commanded turn rate" (the commands answer
+    the motion; seeds 4-7: z +5.5 to +7.0), and replicas steered by the same loop (``tracking``) do not (seed 4: -0.6;
+    docs/results.md, "A driver that steers on its pose")."""
+    from aibo_gym.collect_wheeled import collect_closed_loop
+    from learners.discrepancy.signatures import CHANGE_OF
+    from learners.em.learner import EMLearner
+    from learners.em.options import EMOptions
+
+    log = collect_closed_loop({"start_pose": "random"}, 3000, 4, TRACKING_TAU_S)
+    model = EMLearner(EMOptions(seed=0, uncertainty=False)).fit([log]).params
+    assert model.effect("actuation_lag") is None
+    timing = f"turn (sigma) vs {CHANGE_OF['turn']} (strength)"
+    open_loop = [n for n, _ in predictive_check(model, [log], replicas=16).disagreements()]
+    tracked = [n for n, _ in predictive_check(model, [log], replicas=16, tracking=True).disagreements()]
+    assert timing in open_loop and timing not in tracked, (open_loop, tracked)

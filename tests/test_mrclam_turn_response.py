@@ -76,3 +76,34 @@ def test_the_mean_step_response_of_a_first_order_log_is_the_first_order_s():
     assert np.max(np.abs(observed - predicted["first_order"])) < 0.06
     assert np.max(np.abs(observed - predicted["delay"])) > 0.3
     assert abs(observed[rel < 0].mean()) < 0.03 and abs(observed[rel > 1.0].mean() - 1.0) < 0.05
+
+
+def _answering(react: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(Command rows, Vicon rows) as ``_synthetic``'s (lag 0.1 s, first order 0.15 s, gain 0.95) with a disturbance of
+    the turn rate (sd 0.05 rad/s, new every 0.1 s) that the commands answer ``react`` x within the next 0.1 s
+    (a driver that steers on the robot's pose; 0: open loop)."""
+    script = load_script("mrclam_turn_response")
+    rng = np.random.default_rng(seed)
+    t = np.cumsum(rng.uniform(0.008, 0.012, 30000))
+    steps = np.cumsum(rng.uniform(0.5, 3.0, 200))
+    base = rng.choice([-0.6, -0.3, 0.0, 0.3, 0.6], len(steps))[np.searchsorted(steps, t).clip(0, len(steps) - 1)]
+    kick = rng.normal(0.0, 0.05, int(t[-1] / 0.1) + 2)
+    omega = base - react * kick[(t / 0.1).astype(int) - 1]  # the last block's disturbance answered
+    fine = np.arange(t[0], t[-1], 0.001)
+    rate = 0.95 * script.respond(script.held(t, omega, fine - 0.1), "first_order", 0.15, 0.001) + kick[(fine / 0.1).astype(int)]
+    at = np.arange(t[0], t[-1], 0.01)
+    truth = np.column_stack([at, np.zeros_like(at), np.zeros_like(at), np.interp(at, fine, np.cumsum(rate) * 0.001)])
+    return np.column_stack([t, np.full_like(t, 0.1), omega]), truth
+
+
+def test_commands_that_answer_the_motion_correlate_with_its_error_before_them_and_open_loop_ones_do_not():
+    """Known answer: the first-order fit's error in a frame correlates with the command's change in the next frame
+    (k = +1: no causal response does that) where the commands answer the motion (-0.2 and below), and not where they
+    are open loop (within 0.05)."""
+    script = load_script("mrclam_turn_response")
+    after = list(script.FEEDBACK_FRAMES).index(1)
+    for react, check in ((1.0, lambda r: r < -0.2), (0.0, lambda r: abs(r) < 0.05)):
+        commands, truth = _answering(react)
+        fit = script.fit_models(commands, truth, "turn")["first_order"]
+        r = script.feedback(commands, truth, "turn", fit)
+        assert check(r[after]), (react, r)

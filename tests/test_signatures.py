@@ -241,6 +241,7 @@ def test_the_plain_reading_of_a_timing_signature_is_about_timing_not_the_turn_ra
 
     reading = plain_reading(f"turn (sigma) vs {CHANGE_OF['turn']} (strength)", 7.7)
     assert "lag or its response time" in reading and "how fast" not in reading, reading
+    assert "steered on the robot's pose" in reading  # or a closed loop (docs/results.md, "A driver that steers...")
 
 
 def test_the_plain_reading_of_a_worse_held_out_fit_names_a_fit_short_of_its_best_too():
