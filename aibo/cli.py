@@ -164,6 +164,10 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument("--replicas", type=replica_count, default=DIAGNOSE_REPLICAS,
                     help="replays of the measured commands in the calibrated simulator, before and after (default "
                          f"{DIAGNOSE_REPLICAS}; 0: none; else at least 3)")
+    dg.add_argument("--tracked-replicas", action="store_true",
+                    help="steer those replays along the model's smoothed path (a loop of 10 s) instead of replaying the "
+                         "commands open loop: for a log whose commands came from a controller that steered on the "
+                         "robot's pose (v_mm_s and omega_rad_s commands only)")
     dg.set_defaults(run=commands.run_diagnose)
 
     b = sub.add_parser("bench", help="measure E-step and fit speed on this machine")

@@ -258,8 +258,9 @@ def _still_unlike(u: dict[str, Any]) -> str:
             f"{html.escape(u.get('reading', ''))}; {of}.{where}</p>")
 
 
-def _calibrated(cal: dict[str, Any] | None, unexplained: list[dict[str, Any]]) -> str:
-    """One paragraph: where the measured log is unlike its calibrated simulation, before and after."""
+def _calibrated(cal: dict[str, Any] | None, unexplained: list[dict[str, Any]], replays: str = "open loop") -> str:
+    """One paragraph: where the measured log is unlike its calibrated simulation, before and after (``replays``:
+    ``report.json["calibrated_replays"]``)."""
     if not cal:
         return ""
     if "before" not in cal:
@@ -269,7 +270,8 @@ def _calibrated(cal: dict[str, Any] | None, unexplained: list[dict[str, Any]]) -
         d = check["disagreements"]
         return (", ".join(f"{html.escape(x['statistic'])} ({z_text(x['z'])})" for x in d[:4])
                 + (f" and {len(d) - 4} more" if len(d) > 4 else "")) if d else "nothing"
-    return (f"<p>Calibrated simulator ({cal['before']['replicas']} replays of the measured commands): the measured "
+    steered = ", steered along the model's smoothed path" if replays == "tracked" else ""
+    return (f"<p>Calibrated simulator ({cal['before']['replicas']} replays of the measured commands{steered}): the measured "
             f"log differs in <b>{len(cal['before']['disagreements'])}</b> statistics from the base model's simulation "
             f"({worst(cal['before'])}), and in <b>{len(cal['after']['disagreements'])}</b> from the simulation of the "
             f"diagnosed model, model.json, with the named effects ({worst(cal['after'])}).</p>"
@@ -402,7 +404,7 @@ the whole log(s), ungated). {_set_aside(report.get("outliers"))}</p>
 quantities, motion residuals within each command. Each p-value allows for the residuals' serial correlation and is
 adjusted for every pair tried (Holm); the named effects' signatures come first. The verdict rests on the candidates'
 likelihood-ratio tests and held-out gains (table below: "named" marks the effects the diagnosed model holds).</p>
-{_calibrated(report.get("calibrated_simulation"), report.get("unexplained", []))}
+{_calibrated(report.get("calibrated_simulation"), report.get("unexplained", []), report.get("calibrated_replays", "open loop"))}
 {_untried(report)}
 {_none_of_the_above(report.get("unexplained", []))}
 {''.join(_img(p) for p in figures if p.exists())}

@@ -311,3 +311,40 @@ def test_a_driver_that_steers_on_its_pose_alone_makes_the_timing_statistic_disag
     open_loop = [n for n, _ in predictive_check(model, [log], replicas=16).disagreements()]
     tracked = [n for n, _ in predictive_check(model, [log], replicas=16, tracking=True).disagreements()]
     assert timing in open_loop and timing not in tracked, (open_loop, tracked)
+
+
+def test_tracked_replicas_are_refused_for_commands_they_cannot_steer(tmp_path, capsys):
+    """``aibo diagnose --tracked-replicas`` on a log of discrete actions: one line naming the option, the log and its
+    commands, a non-zero exit, nothing written."""
+    from aibo_core.trajectory import save
+    from tests._logs import sim_log
+
+    log = tmp_path / "aibo.npz"
+    save(sim_log(300), log)
+    capsys.readouterr()
+    assert main(["diagnose", str(log), "--out", str(tmp_path / "d"), "--tracked-replicas"]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--tracked-replicas" in err[0] and str(log) in err[0] and "discrete actions" in err[0], err
+    assert not (tmp_path / "d").exists()
+
+
+@pytest.mark.slow
+def test_diagnose_with_tracked_replicas_passes_a_closed_loop_log_its_open_loop_check_fails(tmp_path):
+    """End to end through ``aibo diagnose``: the closed-loop log of seed 4 (no effect): nothing named, and the timing
+    statistic left by the open-loop replays, not by the tracked ones; the report says which replays it made."""
+    from aibo_core.trajectory import save
+    from aibo_gym.collect_wheeled import collect_closed_loop
+    from learners.discrepancy.signatures import CHANGE_OF
+
+    log = tmp_path / "closed.npz"
+    save(collect_closed_loop({"start_pose": "random"}, 3000, 4, TRACKING_TAU_S), log)
+    timing = f"turn (sigma) vs {CHANGE_OF['turn']} (strength)"
+    left = {}
+    for how, extra in (("open loop", []), ("tracked", ["--tracked-replicas"])):
+        out = tmp_path / how.replace(" ", "_")
+        assert main(["diagnose", str(log), "--out", str(out), *extra]) == 0
+        report = json.loads((out / "report.json").read_text())
+        assert report["effects"] == [] and report["calibrated_replays"] == how
+        left[how] = [u["statistic"] for u in report["unexplained"]]
+        assert ("steered along the model's smoothed path" in (out / "report.html").read_text()) == (how == "tracked")
+    assert timing in left["open loop"] and timing not in left["tracked"], left

@@ -90,6 +90,12 @@ def run(args) -> int:
             feature_map_for(args.action_model, tr.discrete, tr.control_names)
         except ValueError as err:
             raise CLIError(f"--action-model {args.action_model}: log {path}: {err}") from None
+        if args.tracked_replicas:
+            from aibo_gym.collect_wheeled import TRACKED_CONTROLS
+
+            if tr.discrete or tuple(tr.control_names or ()) != TRACKED_CONTROLS:
+                raise CLIError(f"--tracked-replicas: log {path}: its commands are {_commands(tr)}, and the replays "
+                               f"steer only {', '.join(TRACKED_CONTROLS)} commands")
     t0 = time.perf_counter()
     opts = EMOptions(seed=args.seed, lag_search=False)  # the search tries actuation_lag itself, as a candidate
     lines: list[str] = []
@@ -155,6 +161,7 @@ def run(args) -> int:
             + (f" (the signature of {whose})" if whose else ""))
     t1 = time.perf_counter()
     report["calibrated_simulation"] = calibrated(found["base"], final.result.params, logs, args, say)
+    report["calibrated_replays"] = "tracked" if args.tracked_replicas else "open loop"
     seconds["calibrated check"] = time.perf_counter() - t1
     report["innovation_shape"] = innovation_shape(final.result.params, logs)  # where a NIS disagreement is
     report["unexplained"] = unexplained(report)
@@ -228,6 +235,11 @@ def named_signatures(report: dict) -> dict[str, tuple[str, ...]]:
     return {e["name"]: EFFECT_MODELS[e["name"]].signatures() for e in report["effects"] if e["name"] in EFFECT_MODELS}
 
 
+def _commands(tr) -> str:
+    """A log's commands, as ``--tracked-replicas``' refusal names them."""
+    return "discrete actions" if tr.discrete else ", ".join(tr.control_names or ()) or "none"
+
+
 def calibrated(base, final, logs: list, args, say) -> dict:
     """The measured logs against the calibrated simulators of the ``base`` model and of the ``final`` one (the final
     fit: model.json, the twin a user drives; until 2026-11-28 the search's fit of the training half)
@@ -242,10 +254,11 @@ def calibrated(base, final, logs: list, args, say) -> dict:
         say(f"calibrated simulator: not available: {err}")
         return {"note": f"not available: {err}"}
     say("")
-    say(f"the measured log against its calibrated simulator ({args.replicas} replays of the measured commands):")
+    steered = " steered along the model's smoothed path (--tracked-replicas)" if args.tracked_replicas else ""
+    say(f"the measured log against its calibrated simulator ({args.replicas} replays of the measured commands{steered}):")
     checks = {}
     for when, key, model in (("base model", "before", base), ("with the named effects", "after", final)):
-        check = predictive_check(model, logs, args.replicas, args.seed, args.jobs)
+        check = predictive_check(model, logs, args.replicas, args.seed, args.jobs, tracking=args.tracked_replicas)
         checks[key] = check.as_dict()
         worst = check.disagreements()
         if len(check.replicas) < MIN_REPLICAS:
