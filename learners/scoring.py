@@ -190,6 +190,38 @@ def motion_noise_scores(model: Model, logs: list[Trajectory], window_s: float = 
     return out
 
 
+#: frames: the command's change this long after the frame whose turn error ``command_feedback`` correlates it with
+FEEDBACK_FRAMES_LATER = 1
+
+
+def command_feedback(model: Model, logs: list[Trajectory]) -> dict[str, float] | None:
+    """Whether the logs' commands answer the motion, from ground truth: the correlation of each frame's turn error (the
+    true heading change less the model's, rad) with the commanded turn rate's change ``FEEDBACK_FRAMES_LATER`` frame
+    later, over the frames whose poses are valid. A robot's response is causal, so where the commands are open loop
+    (independent of the motion's errors) it is 0 within ``sd_open_loop`` = 1 / sqrt(pairs); a controller that steers
+    on the pose raises its command after the robot turned short (negative; the MRCLAM robots -0.10 to -0.16 against
+    Vicon; simulated closed loops -0.03 to -0.12: docs/results.md, "A driver that steers on its pose"). None without
+    truth or without a commanded turn rate (``VELOCITY_CONTROLS``)."""
+    errors, changes = [], []
+    for tr in logs:
+        if tr.pose is None or tr.controls is None or tuple(tr.control_names or ()) != VELOCITY_CONTROLS:
+            return None
+        turn = model.lower(make_batch([tr])).disp[:, 2]
+        error = wrap(np.diff(tr.pose[:, 2])) - turn
+        valid = pose_valid(tr)
+        ok = valid[:-1] & valid[1:]
+        k = FEEDBACK_FRAMES_LATER
+        change = np.diff(tr.controls[:, 1], prepend=tr.controls[0, 1])
+        keep = ok[:-k] & ok[k:]
+        errors.append(error[:-k][keep])
+        changes.append(change[k:][keep])
+    e, c = np.concatenate(errors), np.concatenate(changes)
+    if len(e) < 10 or np.std(e) == 0 or np.std(c) == 0:
+        return None
+    return {"frames_later": FEEDBACK_FRAMES_LATER, "correlation": float(np.corrcoef(e, c)[0, 1]),
+            "sd_open_loop": float(1.0 / np.sqrt(len(e))), "pairs": int(len(e))}
+
+
 def truth_at_sightings(tr: Trajectory) -> tuple[np.ndarray, np.ndarray]:
     """((S,) bool, (S, 3) pose): the true pose when each sighting was made and whether it is known. At its frame's
     end, or with a ``sighting_time`` that far between the end pose and the boundary pose before (or after) it (x, y

@@ -37,10 +37,11 @@ from learners.discrepancy.statistics import plain_reading
 from learners.em.learner import feature_map_for
 from learners.em.options import DEFAULT_GATE, EMOptions
 from learners.em.support import TESTS_BIAS
+from learners.model.catalogue import CHANGE_SIGNATURE
 from learners.model.effects import EFFECT_MODELS
 from learners.model.io import save_result
 from learners.model.model import Model
-from learners.scoring import NOISE_KEYS, motion_noise_scores
+from learners.scoring import NOISE_KEYS, command_feedback, motion_noise_scores
 
 FIGURES = ("signatures.png", "gap.png", "calibrated.png", "innovations.png")
 #: Every file of a diagnosis: the --out folder holds these and nothing else (it is replaced whole).
@@ -296,7 +297,27 @@ def against_ground_truth(base: Model, final: Model, logs: list) -> dict:
     if not logs or any(tr.pose is None for tr in logs):
         return {}
     rows = {name: motion_noise_scores(m, logs, 1.0) for name, m in zip(TRUTH_MODELS, (base, final))}
-    return {"window_s": 1.0, **{name: finite_json({k: r[k] for k in NOISE_KEYS}) for name, r in rows.items()}}
+    feedback = command_feedback(final, logs)
+    return ({"window_s": 1.0, **{name: finite_json({k: r[k] for k in NOISE_KEYS}) for name, r in rows.items()}}
+            | ({"command_feedback": feedback} if feedback else {}))
+
+
+#: open-loop sds below 0 at which ``command_feedback``'s correlation says the commands answer the motion (simulated
+#: logs, 5 minutes: the waypoint driver -0.5 and -0.6 sd, a 10 s closed loop -1.9, a 2 s one -6.7; MRCLAM robots 1 and
+#: 5 against Vicon -21 and -12: docs/results.md, "A driver that steers on its pose")
+ANSWERS_SD = 3.0
+
+
+def answers_motion(truth: dict) -> str:
+    """A clause where the log's ground truth says its commands answer the motion (``command_feedback`` below
+    -``ANSWERS_SD`` open-loop sds), else ""."""
+    f = truth.get("command_feedback")
+    if not f or f["correlation"] > -ANSWERS_SD * f["sd_open_loop"]:
+        return ""
+    return (f"its commands answer the motion: a frame's turn error correlates with the "
+            f"commanded turn rate's change {f['frames_later']} frame later at r = {f['correlation']:+.2f} (0 +- "
+            f"{f['sd_open_loop']:.2f} for commands open loop), a controller that steered on the robot's pose, which "
+            "replays of the measured commands cannot make (--tracked-replicas steers them with a 10 s loop)")
 
 
 def ground_truth_text(truth: dict) -> str:
@@ -306,7 +327,8 @@ def ground_truth_text(truth: dict) -> str:
     return (f"against the log's ground truth (not read by the fit), the travel's error over {truth['window_s']:g} s "
             f"windows / the model's sd, forward / lateral / heading (1: the model's spread is its errors'; below 1 its "
             f"robot wanders more than the real one; above 1 it errs more than it says, by its means or too little "
-            f"noise): base {row(truth['base'])}; diagnosed {row(truth['diagnosed'])}")
+            f"noise): base {row(truth['base'])}; diagnosed {row(truth['diagnosed'])}"
+            + (f"; {answers_motion(truth)}" if answers_motion(truth) else ""))
 
 
 def motion_warning(report: dict) -> list[str]:
@@ -399,7 +421,9 @@ def unexplained(report: dict) -> list[dict]:
     out = []
     for d in after["disagreements"]:
         row = {"statistic": d["statistic"], "z": d["z"], "reading": plain_reading(d["statistic"], d["z"])}
-        where = shape_text(d["statistic"], report.get("innovation_shape", {}))
+        answers = answers_motion(report.get("against_ground_truth", {})) if CHANGE_SIGNATURE in d["statistic"] else ""
+        where = shape_text(d["statistic"], report.get("innovation_shape", {})) or (
+            f"against the log's ground truth {answers}" if answers else "")
         row |= {"where": where} if where else {}
         matches = [name for name, cls in sorted(EFFECT_MODELS.items()) if cls.leaves(d["statistic"])]
         whose = [{"effect": name, "why_not_named": why_unnamed(name, tried.get(name), report)}
