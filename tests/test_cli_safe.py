@@ -626,14 +626,16 @@ def test_the_calibrated_check_after_the_named_effects_is_of_the_model_written(bl
 
     checked = []
 
-    def records(model, logs, replicas, seed, jobs, progress=None):
+    def records(model, logs, replicas, seed, jobs, progress=None, tracking=False):
         checked.append(model)
+        steered.append(tracking)
         return calibrated.Check(["s"], np.zeros(1), np.zeros((replicas, 1)))
 
+    steered = []
     monkeypatch.setattr(calibrated, "predictive_check", records)
     out = tmp_path / "D"
     assert _diagnose(blind_log, out, "--replicas", "3") == 0
-    assert len(checked) == 2
+    assert len(checked) == 2 and steered == [False, False]  # open loop unless --tracked-replicas
     written = model_to_json(load_model(out / "model.json"))
     assert model_to_json(checked[1]) == written and model_to_json(checked[0]) != written
 
