@@ -297,7 +297,7 @@ def test_a_driver_that_steers_on_its_pose_alone_makes_the_timing_statistic_disag
     """A 5-minute log driven closed loop (every frame's command corrected towards the waypoint driver's path on the true
     pose, time constant 10 s: ``collect_closed_loop``), no lag and no response time in the robot: ``aibo learn`` finds
     no lag, yet the check's open-loop replicas leave "turn vs change of the commanded turn rate" (the commands answer
-    the motion; seeds 4-7: z +5.5 to +7.0), and replicas steered by the same loop (``tracking``) do not (seed 4: -0.6;
+    the motion; seeds 4-11: z +5.5 to +9.2), and replicas steered by the same loop (``tracking``) do not (seed 4: -0.6;
     docs/results.md, "A driver that steers on its pose")."""
     from aibo_gym.collect_wheeled import collect_closed_loop
     from learners.discrepancy.signatures import CHANGE_OF

@@ -116,7 +116,7 @@ _VARIABLE_READING = {
     "commanded turn rate": "change with how fast the robot is commanded to turn (a motion noise that grows with the "
                            "turn)",
     # a driver that steers on the robot's pose makes it too, with no timing error in the robot: simulated closed-loop
-    # logs disagree at z +5.5 to +7.0, and the MRCLAM robots' commands answer their motion within 0.1-0.2 s
+    # logs disagree at z +4.2 to +9.2 (16 of 16), and the MRCLAM robots' commands answer their motion within 0.1-0.2 s
     # (docs/results.md, "A driver that steers on its pose")
     "change of the commanded": "follow a change of the command otherwise than the model says (timing: the motion's "
                                "lag or its response time; or commands that answer the motion's own errors, a driver "
