@@ -202,7 +202,7 @@ def command_feedback(model: Model, logs: list[Trajectory]) -> dict[str, float] |
     on the pose raises its command after the robot turned short (negative; the MRCLAM robots -0.10 to -0.16 against
     Vicon; simulated closed loops -0.03 to -0.12: docs/results.md, "A driver that steers on its pose"). None without
     truth or without a commanded turn rate (``VELOCITY_CONTROLS``)."""
-    errors, changes = [], []
+    errors, changes, k = [], [], FEEDBACK_FRAMES_LATER
     for tr in logs:
         if tr.pose is None or tr.controls is None or tuple(tr.control_names or ()) != VELOCITY_CONTROLS:
             return None
@@ -210,7 +210,6 @@ def command_feedback(model: Model, logs: list[Trajectory]) -> dict[str, float] |
         error = wrap(np.diff(tr.pose[:, 2])) - turn
         valid = pose_valid(tr)
         ok = valid[:-1] & valid[1:]
-        k = FEEDBACK_FRAMES_LATER
         change = np.diff(tr.controls[:, 1], prepend=tr.controls[0, 1])
         keep = ok[:-k] & ok[k:]
         errors.append(error[:-k][keep])

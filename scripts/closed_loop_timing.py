@@ -29,8 +29,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from study import resume  # noqa: E402
 
 from aibo_core.trajectory import Trajectory  # noqa: E402
+from learners.discrepancy.signatures import CHANGE_OF  # noqa: E402
 
-TIMING = "turn (sigma) vs change of the commanded turn rate (rad/s) (strength)"
+TIMING = f"turn (sigma) vs {CHANGE_OF['turn']} (strength)"  # the check's timing statistic
 STEPS = 3000  # 5 minutes at 10 frames a second
 LATER = 1  # frames: the command's change this long after the error's frame
 

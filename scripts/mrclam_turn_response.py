@@ -135,12 +135,15 @@ def frames(commands: np.ndarray, truth: np.ndarray, signal: str) -> tuple:
     return grid, starts, observed, ok, after
 
 
-def predicted(commands: np.ndarray, grid: np.ndarray, starts: np.ndarray, signal: str, model: str, p: float,
-              lag: float) -> np.ndarray:
-    """Each frame's change (rad, mm) that response ``model`` (parameter ``p``, delay ``lag`` s) predicts, gain 1."""
-    col, scale = (2, 1.0) if signal == "turn" else (1, 1000.0)
-    u = held(commands[:, 0], commands[:, col], grid - lag)
-    return scale * frame_sums(respond(u, model, p), grid[0], starts)
+def delayed(commands: np.ndarray, grid: np.ndarray, signal: str, lag: float) -> np.ndarray:
+    """The ``signal``'s command held between its stamps and ``lag`` s late, on ``grid``."""
+    return held(commands[:, 0], commands[:, 2 if signal == "turn" else 1], grid - lag)
+
+
+def predicted(u: np.ndarray, grid: np.ndarray, starts: np.ndarray, signal: str, model: str, p: float) -> np.ndarray:
+    """Each frame's change (rad, mm) that response ``model`` (parameter ``p``) predicts from the delayed command ``u``
+    (``delayed``), gain 1."""
+    return (1.0 if signal == "turn" else 1000.0) * frame_sums(respond(u, model, p), grid[0], starts)
 
 
 def fit_models(commands: np.ndarray, truth: np.ndarray, signal: str) -> dict[str, Fit]:
@@ -149,9 +152,10 @@ def fit_models(commands: np.ndarray, truth: np.ndarray, signal: str) -> dict[str
     grid, starts, observed, ok, after = frames(commands, truth, signal)
     best: dict[str, Fit] = {}
     for lag in LAGS_S:
+        u = delayed(commands, grid, signal, lag)
         for model, values in PARAMETERS.items():
             for p in values:
-                pred = predicted(commands, grid, starts, signal, model, p, lag)
+                pred = predicted(u, grid, starts, signal, model, p)
                 gain = float(pred[ok] @ observed[ok] / (pred[ok] @ pred[ok]))
                 e = observed - gain * pred
                 rms = float(np.sqrt(np.mean(e[ok] ** 2)))
@@ -169,8 +173,9 @@ def feedback(commands: np.ndarray, truth: np.ndarray, signal: str, fit: Fit) -> 
     causal: its error cannot foretell a command that comes after it (k > 0) unless the commands answer the motion
     (a driver that steers on the robot's pose)."""
     grid, starts, observed, ok, _ = frames(commands, truth, signal)
-    e = observed - fit.gain * predicted(commands, grid, starts, signal, fit.model, fit.parameter, fit.lag_s)
-    raw = predicted(commands, grid, starts, signal, "delay", 0.0, 0.0)
+    e = observed - fit.gain * predicted(delayed(commands, grid, signal, fit.lag_s), grid, starts, signal, fit.model,
+                                        fit.parameter)
+    raw = predicted(delayed(commands, grid, signal, 0.0), grid, starts, signal, "delay", 0.0)
     change = np.diff(raw, prepend=raw[0])
     out = []
     for k in FEEDBACK_FRAMES:

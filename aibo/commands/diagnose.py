@@ -328,7 +328,7 @@ def ground_truth_text(truth: dict) -> str:
             f"windows / the model's sd, forward / lateral / heading (1: the model's spread is its errors'; below 1 its "
             f"robot wanders more than the real one; above 1 it errs more than it says, by its means or too little "
             f"noise): base {row(truth['base'])}; diagnosed {row(truth['diagnosed'])}"
-            + (f"; {answers_motion(truth)}" if answers_motion(truth) else ""))
+            + "".join(f"; {clause}" for clause in [answers_motion(truth)] if clause))
 
 
 def motion_warning(report: dict) -> list[str]:
