@@ -25,6 +25,7 @@ from aibo_core.workers import pool_map
 from learners.base import LearnResult
 from learners.em.learner import EMLearner
 from learners.em.options import EMOptions
+from learners.em.restricted import held_noise, restricted_noise
 from learners.model.model import Model
 
 from .effect_sizes import effect_intervals
@@ -98,11 +99,20 @@ class FinalStart:
 
 def fit_from(start: FinalStart, logs: list[Trajectory], fopts: EMOptions) -> LearnResult:
     """The final fit from one start (a worker's job): EM with the final fit's options ``fopts`` on ``logs``; where
-    ``start.curve_held_first``, first with the curve held until EM converges (no standard errors), then freed."""
+    ``start.curve_held_first``, first with the curve held until EM converges (no standard errors), then freed; with
+    ``fopts.restricted_noise``, converged, the motion noise moved to the restricted likelihood's maximum and the fit
+    made again with it held there (``learners.em.restricted``; its record in the result's ``info["restricted_noise"]``)."""
     model = start.model
     if start.curve_held_first:
         model = EMLearner(replace(fopts, hold_curve=True, uncertainty=False), check_field=False).fit(logs, init=model).params
-    return EMLearner(fopts, check_field=False).fit(logs, init=model)
+    if not fopts.restricted_noise:
+        return EMLearner(fopts, check_field=False).fit(logs, init=model)
+    # the motion noise at the restricted likelihood's maximum, then held (``EMOptions.restricted_noise``)
+    model = EMLearner(replace(fopts, uncertainty=False), check_field=False).fit(logs, init=model).params
+    model, record = restricted_noise(model, logs, fopts)
+    fit = EMLearner(held_noise(fopts), check_field=False).fit(logs, init=model)
+    fit.info.restricted_noise = record
+    return fit
 
 
 def _final_job(args: tuple[FinalStart, list[Trajectory], EMOptions]) -> LearnResult:
@@ -200,6 +210,8 @@ def diagnosed(found: dict[str, Any], opts: EMOptions, again: bool = True, final:
             e["intervals"][pname]["method"] = CONDITIONAL_WALD
     seconds = {FINAL_FIT_STAGE: time.perf_counter() - t0}
     t0 = time.perf_counter()
+    if fopts.restricted_noise:  # the held fits keep the final fit's motion noise, as the final fit did
+        fopts = held_noise(fopts)
     profiled = profile_where_wald_fails(effects, final.params, logs, fopts, pool)  # a rate near its bound
     # the other scalar parameters: fits held at the Wald ends (a final fit stopped on a ridge; a flatter profile)
     checked, held_start = check_wald_intervals(effects, final.params, logs, fopts, skip=profiled, pool=pool)

@@ -55,6 +55,9 @@ class FitInfo:
     #: ``EMOptions.range_curve`` "freed": the fit with the curve held that the free curve started from,
     #: {"iterations", "loglik" (nats), "curve" (its coefficients), "pruned"}; None: no such stage
     held_curve_fit: dict | None = None
+    #: ``EMOptions.restricted_noise`` (a final fit of ``aibo diagnose``): the motion noise moved to the restricted
+    #: likelihood's maximum (``learners.em.restricted.restricted_noise``' record); None: not done
+    restricted_noise: dict | None = None
     timings: FitTimings = field(default_factory=FitTimings)
 
     def to_dict(self, timings: bool = True) -> dict[str, Any]:
@@ -90,6 +93,8 @@ class FitInfo:
             out["spurious_refit"] = self.spurious_refit
         if self.held_curve_fit is not None:
             out["held_curve_fit"] = self.held_curve_fit
+        if self.restricted_noise is not None:
+            out["restricted_noise"] = self.restricted_noise
         return out
 
     # Read access by key, as for the other learners' plain ``info`` dicts (``result.info["best_iteration"]``).
