@@ -168,6 +168,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="steer those replays along the model's smoothed path (a loop of 10 s) instead of replaying the "
                          "commands open loop: for a log whose commands came from a controller that steered on the "
                          "robot's pose (v_mm_s and omega_rad_s commands only)")
+    dg.add_argument("--restricted-noise", action="store_true",
+                    help="the final fit's motion noise at the restricted likelihood's maximum (REML: the velocities "
+                         "integrated out) instead of the maximum likelihood's, which a short log's fitted velocities "
+                         "shrink; the named effects' intervals then widen where the path's stiffness made them narrow")
     dg.set_defaults(run=commands.run_diagnose)
 
     b = sub.add_parser("bench", help="measure E-step and fit speed on this machine")

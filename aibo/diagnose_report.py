@@ -222,6 +222,19 @@ def shift_text(shift: dict[str, Any]) -> str:
             f"the commands (at most {top[0]:.3g}{units[0]}, {top[1]:.3g}{units[1]}, {top[2]:.3g}{units[2]})" + curve)
 
 
+def restricted_text(record: dict[str, Any] | None) -> str:
+    """What ``--restricted-noise`` did to the final fit's motion noise (``report.json["restricted_noise"]``), one
+    sentence; "" when it was not asked for."""
+    if not record:
+        return ""
+    sd = record["position_noise_sd_mm"]
+    ml, r = sd["maximum_likelihood"], sd["restricted"]
+    return (f"Its motion noise is the restricted likelihood's (--restricted-noise): the position noise's sd per frame "
+            f"{r[0]:.3g} / {r[1]:.3g} mm (x / y), {record['scale']:.3g} times the maximum likelihood's variance "
+            f"({ml[0]:.3g} / {ml[1]:.3g} mm)" + (", at the end of the range searched" if record["bound"] else "")
+            + "; held there in the fit and in every fit behind the intervals.")
+
+
 def starts_text(starts: list[dict[str, Any]]) -> str:
     """Which start the final fit on the whole log(s) kept (``report.json["final_fit_starts"]``), one phrase."""
     kept = next((s for s in starts if s["kept"]), None)
@@ -398,7 +411,8 @@ pre{{background:#f6f6f6;padding:1em;overflow:auto}}</style></head><body>
 sighting; lower is better): <b>{report['gap_before']:.4f}</b> before, <b>{report['gap_after']:.4f}</b> after
 {f"the named effects: {change} nats per sighting" if report["effects"] else "(nothing named: the same model)"}.</p>
 <p>The diagnosed model (model.json): {html.escape(starts_text(report.get("final_fit_starts", [])))} (the likelihood of
-the whole log(s), ungated). {_set_aside(report.get("outliers"))}</p>
+the whole log(s), ungated). {html.escape(restricted_text(report.get("restricted_noise")))}
+{_set_aside(report.get("outliers"))}</p>
 {_motion(report)}
 <p>The residual signatures below show where the base model's residuals drift: sighting innovations against predicted
 quantities, motion residuals within each command. Each p-value allows for the residuals' serial correlation and is

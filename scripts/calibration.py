@@ -4,6 +4,7 @@
                                   [--out runs/calibration]
     python scripts/calibration.py --out runs/calibration --table      # print the table of the rows so far
     python scripts/calibration.py --effects actuation_lag --strength actuation_lag.lag_s=0.15 --out runs/calibration-lag15
+    python scripts/calibration.py --effects floor_drift --restricted-noise --out runs/calibration-reml
 
 For each effect of the catalogue at one strength (``STRENGTH``) and each log i = ``--first-log`` .. ``--logs`` - 1:
 a 5-minute blind log simulated with the effect (``aibo_gym.collect.collect``, seed ``SEED + i``, noise preset
@@ -33,6 +34,9 @@ per component) and noise preset, over the logs where the effect was named:
   and how many of the intervals that miss the truth come with such a warning.
 
 ``--presets paper-sim`` runs only the logs of that preset (odd i), e.g. to rerun one preset's shortfall.
+
+``--restricted-noise``: the final fit with ``EMOptions.restricted_noise`` (``aibo diagnose --restricted-noise``: the
+motion noise at the restricted likelihood's maximum, ``learners.em.restricted``); each row says which it was.
 
 ``--strength EFFECT.PARAM=VALUE`` (repeatable; VALUE a number or a JSON list) simulates an effect at another strength
 than ``STRENGTH``'s, e.g. a lag between the grid's values; its rows go to their own ``--out`` (a folder holding rows of
@@ -128,7 +132,7 @@ def wheeled(effect: str) -> bool:
     return "controls" in EFFECT_MODELS[effect].NEEDS
 
 
-def one(effect: str, i: int, minutes: float) -> dict[str, Any]:
+def one(effect: str, i: int, minutes: float, restricted: bool = False) -> dict[str, Any]:
     """Log ``i`` of ``effect``: simulated, searched and, the effect named, its final estimates and intervals."""
     from aibo_core.trajectory import blind
     from aibo_gym.collect import collect
@@ -144,11 +148,12 @@ def one(effect: str, i: int, minutes: float) -> dict[str, Any]:
     else:
         tr = blind(collect({"noise": preset, "effects": {effect: params}}, int(round(minutes * 60 * 30)), seed=seed))
     t0, c0 = time.perf_counter(), time.process_time()
-    opts = EMOptions(seed=0, lag_search=False)  # ``aibo diagnose``'s (its --seed 0)
+    opts = EMOptions(seed=0, lag_search=False, restricted_noise=restricted)  # ``aibo diagnose``'s (its --seed 0)
     found = search([tr], [effect], opts, jobs=1, progress=lambda s: None)
     tried = [c for rnd in found["rounds"] for c in rnd if c.name == effect]
     row = {"effect": effect, "log": i, "seed": seed, "preset": preset, "minutes": minutes, "params": params,
            "truth": truth(effect, params, None if preset == WHEELED else tr.dt), "named": [c.name for c in found["named"]],
+           "restricted_noise": restricted,
            "candidate": tried[0].as_dict() if tried else None, "n_sightings": int(sum(t.n_sightings for t in found["logs"])),
            "outliers": int(tr.n_sightings - sum(t.n_sightings for t in found["logs"]))}
     row["seconds_search"] = time.perf_counter() - t0
@@ -279,6 +284,9 @@ def main() -> None:
     ap.add_argument("--table", action="store_true", help="only print the table of the rows in OUT")
     ap.add_argument("--strength", action="append", default=[], metavar="EFFECT.PARAM=VALUE",
                     help="simulate an effect at another strength (repeatable; its own --out)")
+    ap.add_argument("--restricted-noise", action="store_true",
+                    help="the final fit with the motion noise at the restricted likelihood's maximum (``aibo diagnose "
+                         "--restricted-noise``); its rows need their own --out")
     ap.add_argument("--fisher", action="store_true",
                     help="tabulate the Fisher intervals where the rows have them beside the robust ones (OUT/table-fisher.md)")
     args = ap.parse_args()
@@ -299,6 +307,10 @@ def main() -> None:
         if other is not None:
             ap.error(f"--out {out}: holds rows of {other['effect']} at {other['params']}, not "
                      f"{STRENGTH[other['effect']]}: give this strength its own --out")
+        mixed = next((r for r in rows if r.get("restricted_noise", False) != args.restricted_noise), None)
+        if mixed is not None:
+            ap.error(f"--out {out}: holds rows {'with' if mixed.get('restricted_noise') else 'without'} "
+                     "--restricted-noise: give the other kind its own --out")
         # log by log, each effect in turn: a study stopped early has as many logs of every effect
         done = {(r["effect"], r["log"], r["minutes"]) for r in rows}
         presets = {p.strip() for p in args.presets.split(",")}
@@ -316,8 +328,8 @@ def main() -> None:
             print(f"{r['effect']:25s} log {r['log']:3d} ({r['preset']:9s} seed {r['seed']}): named {r['named']}; {text} "
                   f"[{r['seconds']:.0f} s, {r['cpu_seconds']:.0f} s CPU]", flush=True)
 
-        resume(out, rows_file, keys, lambda k: one(k["effect"], k["log"], k["minutes"]), lambda _: table(all_rows(out)),
-               progress)
+        resume(out, rows_file, keys, lambda k: one(k["effect"], k["log"], k["minutes"], args.restricted_noise),
+               lambda _: table(all_rows(out)), progress)
         rows = all_rows(out)
     md = table(rows, args.fisher)
     atomic_write(out / ("table-fisher.md" if args.fisher else "table.md"), lambda f: f.write(md.encode()))

@@ -98,7 +98,8 @@ def run(args) -> int:
                 raise CLIError(f"--tracked-replicas: log {path}: its commands are {_commands(tr)}, and the replays "
                                f"steer only {', '.join(TRACKED_CONTROLS)} commands")
     t0 = time.perf_counter()
-    opts = EMOptions(seed=args.seed, lag_search=False)  # the search tries actuation_lag itself, as a candidate
+    # the search tries actuation_lag itself, as a candidate; --restricted-noise acts in the final fit only
+    opts = EMOptions(seed=args.seed, lag_search=False, restricted_noise=args.restricted_noise)
     lines: list[str] = []
 
     def say(line: str) -> None:  # the page keeps the line whole; a terminal gets it wrapped (``for_terminal``)
@@ -126,6 +127,9 @@ def run(args) -> int:
                          + off_held([e], batch))
     report.update(motion)
     report["final_fit_starts"] = final.starts
+    report["restricted_noise"] = final.result.info.restricted_noise  # None unless --restricted-noise
+    if report["restricted_noise"]:
+        say(fig.restricted_text(report["restricted_noise"]))
     truth = against_ground_truth(found["base"], final.result.params, logs)
     if truth:
         report["against_ground_truth"] = truth
