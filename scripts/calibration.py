@@ -164,6 +164,7 @@ def one(effect: str, i: int, minutes: float, restricted: bool = False) -> dict[s
         row["final_pruned"] = int(final.result.pruned_observations)
         row["warnings"] = list(final.result.info.get("warnings", []))
         row["seconds_final"] = sum(final.seconds.values())
+        row["restricted_noise_record"] = final.result.info.restricted_noise  # None without --restricted-noise
     row["seconds"], row["cpu_seconds"] = time.perf_counter() - t0, time.process_time() - c0
     return row
 

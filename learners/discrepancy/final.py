@@ -105,7 +105,7 @@ def fit_from(start: FinalStart, logs: list[Trajectory], fopts: EMOptions) -> Lea
     model = start.model
     if start.curve_held_first:
         model = EMLearner(replace(fopts, hold_curve=True, uncertainty=False), check_field=False).fit(logs, init=model).params
-    if not fopts.restricted_noise:
+    if not (fopts.restricted_noise and fopts.learn_motion_noise):  # a noise held by the options stays where it is
         return EMLearner(fopts, check_field=False).fit(logs, init=model)
     # the motion noise at the restricted likelihood's maximum, then held (``EMOptions.restricted_noise``)
     model = EMLearner(replace(fopts, uncertainty=False), check_field=False).fit(logs, init=model).params
@@ -210,7 +210,7 @@ def diagnosed(found: dict[str, Any], opts: EMOptions, again: bool = True, final:
             e["intervals"][pname]["method"] = CONDITIONAL_WALD
     seconds = {FINAL_FIT_STAGE: time.perf_counter() - t0}
     t0 = time.perf_counter()
-    if fopts.restricted_noise:  # the held fits keep the final fit's motion noise, as the final fit did
+    if fopts.restricted_noise and fopts.learn_motion_noise:  # the held fits keep the final fit's motion noise
         fopts = held_noise(fopts)
     profiled = profile_where_wald_fails(effects, final.params, logs, fopts, pool)  # a rate near its bound
     # the other scalar parameters: fits held at the Wald ends (a final fit stopped on a ridge; a flatter profile)

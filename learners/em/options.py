@@ -100,7 +100,8 @@ class EMOptions:
     # the motion noise's position block moved to the restricted likelihood's maximum (``learners.em.restricted``) and
     # held there for the rest of the fit and its intervals. Off by default (the paper and every measured default keep
     # maximum likelihood): on 50 five-minute `aibo` logs of a 12 mm/s floor drift it took the position noise's sd from
-    # 1.27 to 2.8 mm per frame (truth 3) and the drift's intervals from 76% to 84% coverage along it (docs/results.md)
+    # 1.27 to 2.8 mm per frame (truth 3) and the drift's intervals from 82% to 87% coverage along it (`paper-sim`: 88% to
+    # 92%); on MRCLAM robot 5 it changed nothing (docs/results.md, "The motion noise at the likelihood's maximum")
     restricted_noise: bool = False
 
     def comparable(self) -> "EMOptions":

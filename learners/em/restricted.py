@@ -9,7 +9,8 @@ likelihood's maximum had a median of 1.6 mm^2 per frame for the true 9 on 50 suc
 variance that shares its data with fitted means (Patterson & Thompson 1971; Harville 1977), here large because the
 path is seen only through the sightings. A path held that stiff overstates what the log says of every parameter the
 path's wander could mimic: `floor_drift`'s 95% intervals held the drift along it on 76% of those logs, on 92% with
-the noise held at the truth (docs/results.md, "The motion noise at the likelihood's maximum").
+the noise held at the truth; ``aibo diagnose``'s own intervals 82%, and 87% with this (docs/results.md, "The motion
+noise at the likelihood's maximum").
 
 The restricted likelihood integrates the mean parameters out; with them entering the path linearly, Laplace's
 approximation is exact, and it is the profile likelihood adjusted by their information (Cox & Reid 1987):
