@@ -38,7 +38,7 @@ from learners.em.options import EMOptions
 from learners.model.model import Model
 
 SCALE_LOW, SCALE_HIGH = 0.25, 16.0  # the position noise's variance, times the maximum likelihood fit's
-EVALUATIONS = 10  # points of the golden section (the bracket ends within a factor 1.06 of the maximum)
+EVALUATIONS = 10  # points of the golden section (its last bracket spans a factor 1.09 of the scale)
 #: the variances, which the restricted likelihood does not integrate out (``Model.packed_layout`` names)
 VARIANCES = ("action.cov", "sensor.sigma_size", "sensor.sigma_bearing")
 _GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
@@ -58,7 +58,7 @@ def held_noise(opts: EMOptions) -> EMOptions:
 
 def log_information(model: Model, logs: list[Trajectory], fixed: frozenset[str]) -> float:
     """log det of the Fisher information of ``model``'s coordinates other than ``fixed`` on ``logs``, over the
-    directions the logs determine (eigenvalues above 1e-10 of the largest; the same directions at every scale)."""
+    directions the logs determine (eigenvalues above 1e-10 of the largest: an undetermined direction does not count)."""
     from learners.arrays.batch import make_batch
     from learners.em.uncertainty import parameter_uncertainty
 
@@ -112,8 +112,13 @@ def restricted_noise(model: Model, logs: list[Trajectory], opts: EMOptions) -> t
 
     best = golden_max(restricted, math.log(SCALE_LOW), math.log(SCALE_HIGH), EVALUATIONS)
     at_one = restricted(0.0)
-    c = math.exp(best)
-    sd = lambda m: np.sqrt(np.diag(np.asarray(m.action.cov, dtype=float))[:2]).round(3).tolist()  # noqa: E731
-    return fits[best][1], {"scale": c, "bound": bool(best - math.log(SCALE_LOW) < 0.1 or math.log(SCALE_HIGH) - best < 0.1),
-                           "position_noise_sd_mm": {"maximum_likelihood": sd(model), "restricted": sd(fits[best][1])},
+    bound = best - math.log(SCALE_LOW) < 0.1 or math.log(SCALE_HIGH) - best < 0.1
+    return fits[best][1], {"scale": math.exp(best), "bound": bool(bound),
+                           "position_noise_sd_mm": {"maximum_likelihood": position_sd(model),
+                                                    "restricted": position_sd(fits[best][1])},
                            "gain_nats": float(fits[best][0] - at_one)}
+
+
+def position_sd(model: Model) -> list[float]:
+    """The motion noise's position sd per frame (mm, x and y), to the micrometre."""
+    return np.sqrt(np.diag(np.asarray(model.action.cov, dtype=float))[:2]).round(3).tolist()
