@@ -210,7 +210,7 @@ def diagnosed(found: dict[str, Any], opts: EMOptions, again: bool = True, final:
             e["intervals"][pname]["method"] = CONDITIONAL_WALD
     seconds = {FINAL_FIT_STAGE: time.perf_counter() - t0}
     t0 = time.perf_counter()
-    if fopts.restricted_noise and fopts.learn_motion_noise:  # the held fits keep the final fit's motion noise
+    if fopts.restricted_noise:  # the held fits keep the final fit's motion noise, as the final fit did
         fopts = held_noise(fopts)
     profiled = profile_where_wald_fails(effects, final.params, logs, fopts, pool)  # a rate near its bound
     # the other scalar parameters: fits held at the Wald ends (a final fit stopped on a ridge; a flatter profile)
