@@ -89,17 +89,21 @@ def drift_row(key: dict[str, Any]) -> dict[str, Any]:
 
 
 def table(rows: list[dict[str, Any]]) -> str:
+    """Per way of fitting the noise, along / across the drift: the 95% Wald intervals' coverage, spread / SE and the
+    mean SE (``calibration.summary``, the calibration study's own), and the position noise's median variance."""
+    from calibration import Z95, summary
+
     lines = ["| motion noise | logs | coverage along / across the drift | spread / SE | mean SE (mm/s) | "
              "position noise variance, median (mm^2) |", "|---|---|---|---|---|---|"]
     for name, label in (("ml", "learned (maximum likelihood)"), ("truth", "held at the truth (9)")):
-        est = np.array([r[name]["drift"] for r in rows]) - DRIFT
-        se = np.array([r[name]["se"] for r in rows])
-        z = est / se
-        cov = (np.abs(z) < 1.96).mean(axis=0)
-        spread = est.std(axis=0, ddof=1) / se.mean(axis=0) if len(rows) > 1 else [np.nan, np.nan]
+        s = []
+        for j in range(2):
+            values, ses = [r[name]["drift"][j] for r in rows], [r[name]["se"][j] for r in rows]
+            s.append(summary(values, ses, [[v - Z95 * e, v + Z95 * e] for v, e in zip(values, ses)], DRIFT[j]))
         var = np.median([r[name]["noise_var"] for r in rows], axis=0)
-        lines.append(f"| {label} | {len(rows)} | {cov[0]:.0%} / {cov[1]:.0%} | {spread[0]:.2f} / {spread[1]:.2f} | "
-                     f"{se.mean(axis=0)[0]:.2f} / {se.mean(axis=0)[1]:.2f} | {var[0]:.2f} / {var[1]:.2f} |")
+        lines.append(f"| {label} | {len(rows)} | {s[0]['coverage']:.0%} / {s[1]['coverage']:.0%} | "
+                     f"{s[0]['spread_ratio']:.2f} / {s[1]['spread_ratio']:.2f} | {s[0]['se']:.2f} / {s[1]['se']:.2f} | "
+                     f"{var[0]:.2f} / {var[1]:.2f} |")
     return "\n".join(lines) + "\n"
 
 
