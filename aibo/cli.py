@@ -172,6 +172,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="the final fit's motion noise at the restricted likelihood's maximum (REML: the velocities "
                          "integrated out) instead of the maximum likelihood's, which a short log's fitted velocities "
                          "shrink; the named effects' intervals then widen where the path's stiffness made them narrow")
+    dg.add_argument("--maximum-likelihood-variances", action="store_true",
+                    help="leave a named bias process's sd and correlation time at the likelihood's maximum (by default "
+                         "one Newton step moves them to the restricted likelihood's, which maximum likelihood "
+                         "underestimates beside the fitted velocities: docs/em-math.md)")
     dg.set_defaults(run=commands.run_diagnose)
 
     b = sub.add_parser("bench", help="measure E-step and fit speed on this machine")

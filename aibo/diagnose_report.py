@@ -235,6 +235,20 @@ def restricted_text(record: dict[str, Any] | None) -> str:
             + "; held there in the fit and in every fit behind the intervals.")
 
 
+def restricted_variances_text(record: dict[str, Any] | None) -> str:
+    """What the restricted step did to the named effects' variance parameters (``report.json["restricted_variances"]``),
+    one sentence; "" when no named effect has any."""
+    if not record:
+        return ""
+    if not record["taken"]:
+        return (f"Its bias processes' variance parameters are at the likelihood's maximum: the restricted likelihood's "
+                f"step was not taken ({record['why']}).")
+    moved = ", ".join(f"{name}'s {p} {v['maximum_likelihood']:.3g} -> {v['restricted']:.3g}"
+                      for name, params in record["effects"].items() for p, v in params.items())
+    return (f"Its bias processes' variance parameters are the restricted likelihood's, one Newton step from the "
+            f"likelihood's maximum, which the fitted velocities bias low ({moved}; their intervals moved with them).")
+
+
 def starts_text(starts: list[dict[str, Any]]) -> str:
     """Which start the final fit on the whole log(s) kept (``report.json["final_fit_starts"]``), one phrase."""
     kept = next((s for s in starts if s["kept"]), None)
@@ -412,6 +426,7 @@ sighting; lower is better): <b>{report['gap_before']:.4f}</b> before, <b>{report
 {f"the named effects: {change} nats per sighting" if report["effects"] else "(nothing named: the same model)"}.</p>
 <p>The diagnosed model (model.json): {html.escape(starts_text(report.get("final_fit_starts", [])))} (the likelihood of
 the whole log(s), ungated). {html.escape(restricted_text(report.get("restricted_noise")))}
+{html.escape(restricted_variances_text(report.get("restricted_variances")))}
 {_set_aside(report.get("outliers"))}</p>
 {_motion(report)}
 <p>The residual signatures below show where the base model's residuals drift: sighting innovations against predicted

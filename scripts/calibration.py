@@ -38,6 +38,9 @@ per component) and noise preset, over the logs where the effect was named:
 ``--restricted-noise``: the final fit with ``EMOptions.restricted_noise`` (``aibo diagnose --restricted-noise``: the
 motion noise at the restricted likelihood's maximum, ``learners.em.restricted``); each row says which it was.
 
+``--maximum-likelihood-variances``: the effects' variance parameters (``EffectModel.VARIANCE_PARAMS``) left at the
+likelihood's maximum (``EMOptions.restricted_variances`` off; the rows before it existed were so); each row says which.
+
 ``--strength EFFECT.PARAM=VALUE`` (repeatable; VALUE a number or a JSON list) simulates an effect at another strength
 than ``STRENGTH``'s, e.g. a lag between the grid's values; its rows go to their own ``--out`` (a folder holding rows of
 the effect at another strength is refused: the table pools an effect's rows).
@@ -110,7 +113,10 @@ def truth(effect: str, params: dict[str, Any], dt: float | None = None) -> dict[
 
 
 def set_strength(items: list[str]) -> None:
-    """Apply ``--strength EFFECT.PARAM=VALUE`` items to ``STRENGTH`` (module docstring); ValueError naming the item."""
+    """Apply ``--maximum-likelihood-variances``: the effects' variance parameters (``EffectModel.VARIANCE_PARAMS``) left at the
+likelihood's maximum (``EMOptions.restricted_variances`` off; the rows before it existed were so); each row says which.
+
+``--strength EFFECT.PARAM=VALUE`` items to ``STRENGTH`` (module docstring); ValueError naming the item."""
     import json
 
     for item in items:
@@ -132,7 +138,7 @@ def wheeled(effect: str) -> bool:
     return "controls" in EFFECT_MODELS[effect].NEEDS
 
 
-def one(effect: str, i: int, minutes: float, restricted: bool = False) -> dict[str, Any]:
+def one(effect: str, i: int, minutes: float, restricted: bool = False, variances: bool = True) -> dict[str, Any]:
     """Log ``i`` of ``effect``: simulated, searched and, the effect named, its final estimates and intervals."""
     from aibo_core.trajectory import blind
     from aibo_gym.collect import collect
@@ -148,12 +154,13 @@ def one(effect: str, i: int, minutes: float, restricted: bool = False) -> dict[s
     else:
         tr = blind(collect({"noise": preset, "effects": {effect: params}}, int(round(minutes * 60 * 30)), seed=seed))
     t0, c0 = time.perf_counter(), time.process_time()
-    opts = EMOptions(seed=0, lag_search=False, restricted_noise=restricted)  # ``aibo diagnose``'s (its --seed 0)
+    # ``aibo diagnose``'s (its --seed 0)
+    opts = EMOptions(seed=0, lag_search=False, restricted_noise=restricted, restricted_variances=variances)
     found = search([tr], [effect], opts, jobs=1, progress=lambda s: None)
     tried = [c for rnd in found["rounds"] for c in rnd if c.name == effect]
     row = {"effect": effect, "log": i, "seed": seed, "preset": preset, "minutes": minutes, "params": params,
            "truth": truth(effect, params, None if preset == WHEELED else tr.dt), "named": [c.name for c in found["named"]],
-           "restricted_noise": restricted,
+           "restricted_noise": restricted, "restricted_variances": variances,
            "candidate": tried[0].as_dict() if tried else None, "n_sightings": int(sum(t.n_sightings for t in found["logs"])),
            "outliers": int(tr.n_sightings - sum(t.n_sightings for t in found["logs"]))}
     row["seconds_search"] = time.perf_counter() - t0
@@ -165,6 +172,7 @@ def one(effect: str, i: int, minutes: float, restricted: bool = False) -> dict[s
         row["warnings"] = list(final.result.info.get("warnings", []))
         row["seconds_final"] = sum(final.seconds.values())
         row["restricted_noise_record"] = final.result.info.restricted_noise  # None without --restricted-noise
+        row["restricted_variances_record"] = final.result.info.restricted_variances  # None: no variance parameters
     row["seconds"], row["cpu_seconds"] = time.perf_counter() - t0, time.process_time() - c0
     return row
 
@@ -288,6 +296,9 @@ def main() -> None:
     ap.add_argument("--restricted-noise", action="store_true",
                     help="the final fit with the motion noise at the restricted likelihood's maximum (``aibo diagnose "
                          "--restricted-noise``); its rows need their own --out")
+    ap.add_argument("--maximum-likelihood-variances", action="store_true",
+                    help="the effects' variance parameters at the likelihood's maximum, not stepped to the restricted "
+                         "likelihood's (``EMOptions.restricted_variances`` off); its rows need their own --out")
     ap.add_argument("--fisher", action="store_true",
                     help="tabulate the Fisher intervals where the rows have them beside the robust ones (OUT/table-fisher.md)")
     args = ap.parse_args()
@@ -308,10 +319,13 @@ def main() -> None:
         if other is not None:
             ap.error(f"--out {out}: holds rows of {other['effect']} at {other['params']}, not "
                      f"{STRENGTH[other['effect']]}: give this strength its own --out")
-        mixed = next((r for r in rows if r.get("restricted_noise", False) != args.restricted_noise), None)
-        if mixed is not None:
-            ap.error(f"--out {out}: holds rows {'with' if mixed.get('restricted_noise') else 'without'} "
-                     "--restricted-noise: give the other kind its own --out")
+        # rows written before ``restricted_variances`` existed were fitted at the likelihood's maximum
+        kind = {"restricted_noise": args.restricted_noise, "restricted_variances": not args.maximum_likelihood_variances}
+        for key, flag in (("restricted_noise", "--restricted-noise"), ("restricted_variances", "--maximum-likelihood-variances")):
+            mixed = next((r for r in rows if r.get(key, False) != kind[key]), None)
+            if mixed is not None:
+                ap.error(f"--out {out}: holds rows {'with' if mixed.get(key, False) else 'without'} {key}: give the "
+                         f"other kind its own --out ({flag})")
         # log by log, each effect in turn: a study stopped early has as many logs of every effect
         done = {(r["effect"], r["log"], r["minutes"]) for r in rows}
         presets = {p.strip() for p in args.presets.split(",")}
@@ -329,7 +343,7 @@ def main() -> None:
             print(f"{r['effect']:25s} log {r['log']:3d} ({r['preset']:9s} seed {r['seed']}): named {r['named']}; {text} "
                   f"[{r['seconds']:.0f} s, {r['cpu_seconds']:.0f} s CPU]", flush=True)
 
-        resume(out, rows_file, keys, lambda k: one(k["effect"], k["log"], k["minutes"], args.restricted_noise),
+        resume(out, rows_file, keys, lambda k: one(k["effect"], k["log"], k["minutes"], *kind.values()),
                lambda _: table(all_rows(out)), progress)
         rows = all_rows(out)
     md = table(rows, args.fisher)

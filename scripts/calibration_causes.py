@@ -19,10 +19,13 @@ the truth"), each from logs of that study's seeds or fresh ones, every number re
   rad, against the attenuation that regressing the size's shrink on the observed phi^2 instead of the true one
   predicts (weighted by the true size squared, centered: the curve takes a constant factor); and that attenuation on
   the study's `paper-sim` logs 1, 3, 5.
-- ``sigma-short``: landmark_bias's sigma_rel on `aibo` logs of 5 and 15 minutes (seeds of the study's even logs),
-  from the final fit as diagnose makes it and from the same fit with the 40 commands' velocities held at the truth:
-  is the shortfall the velocities' (fitted from the same sightings, they take part of the bias's path, as fixed
-  effects take part of a variance component's in maximum likelihood) and does it fall with the log's length?
+- ``sigma-short``: landmark_bias's sigma_rel on `aibo` logs of 5 and 15 minutes (seeds of the study's even logs;
+  ``--preset paper-sim --seeds 8001,8003,... --minutes 5``: its odd ones), from the final fit at the likelihood's
+  maximum, after the restricted likelihood's step (``learners.em.restricted.restricted_step``, what `aibo diagnose`
+  states by default) and from the maximum likelihood fit with the 40 commands' velocities held at the truth: is the
+  shortfall the velocities' (fitted from the same sightings, they take part of the bias's path, as fixed effects
+  take part of a variance component's in maximum likelihood), does it fall with the log's length, and does the step
+  remove it?
 - ``share``: ``false_sightings``' intervals in a calibration study's rows against each log's own share of spurious
   sightings (the simulator's truth, the log made again from its seed), beside the rate simulated.
 - ``rate``: the final fit's iterations (log-likelihood, rate) on the study's logs 0, 4, 6 (`aibo`) and 7
@@ -67,7 +70,9 @@ def _search(tr, effect: str):
     from learners.discrepancy.search import search
     from learners.em.options import EMOptions
 
-    opts = EMOptions(seed=0, lag_search=False)  # as scripts/calibration.py and aibo diagnose
+    # as scripts/calibration.py and aibo diagnose, the variances at the likelihood's maximum: the causes below are of
+    # the maximum likelihood fit (sigma-short steps it to the restricted likelihood's itself)
+    opts = EMOptions(seed=0, lag_search=False, restricted_variances=False)
     return search([blind(tr)], [effect], opts, jobs=1, progress=lambda s: None), opts
 
 
@@ -231,25 +236,29 @@ def _held_velocities_fit(found, opts, final, true_weights: np.ndarray):
     return res
 
 
-def sigma_short(seeds: list[int]) -> None:
-    from learners.discrepancy.final import plausible_diagnosis
+def sigma_short(seeds: list[int], preset: str = "aibo", lengths: tuple[int, ...] = (5, 15)) -> None:
+    from learners.discrepancy.final import final_options, plausible_diagnosis
+    from learners.em.restricted import restricted_step
 
-    print("| seed | minutes | sigma_rel, tau_s: final fit | velocities held at the truth | motion sd x, y (mm/frame; "
-          "truth 3): final / held |\n|---|---|---|---|---|")
-    for minutes in (5, 15):
+    print("| seed | minutes | sigma_rel, tau_s: final fit (maximum likelihood) | restricted (``restricted_step``, the share "
+          "of the Newton step taken) | velocities held at the truth | motion sd x, y (mm/frame; truth 3): final / held "
+          "|\n|---|---|---|---|---|---|")
+    for minutes in lengths:
         for seed in seeds:
-            tr = collect({"noise": "aibo", "effects": {"landmark_bias": BIAS}}, minutes * 1800, seed=seed)
+            tr = collect({"noise": preset, "effects": {"landmark_bias": BIAS}}, minutes * 1800, seed=seed)
             found, opts = _search(blind(tr), "landmark_bias")
             if not found["named"]:
-                print(f"| {seed} | {minutes} | not named | | |")
+                print(f"| {seed} | {minutes} | not named | | | |")
                 continue
             found, diagnosis = plausible_diagnosis(found, opts, progress=lambda s: None)  # as diagnose: both starts
             final = diagnosis.result.params
+            stepped, record = restricted_step(final, found["logs"], final_options(opts))
             held = _held_velocities_fit(found, opts, final, np.asarray(tr.meta["truth"]["velocities"]) * tr.dt).params
-            e, h = final.effect("landmark_bias"), held.effect("landmark_bias")
+            e, r, h = (m.effect("landmark_bias") for m in (final, stepped, held))
             sd = [np.sqrt(np.diag(m.action.cov))[:2] for m in (final, held)]
-            print(f"| {seed} | {minutes} | {e.sigma_rel:.4f}, {e.tau_s:.1f} s | {h.sigma_rel:.4f}, {h.tau_s:.1f} s | "
-                  f"{sd[0][0]:.2f}, {sd[0][1]:.2f} / {sd[1][0]:.2f}, {sd[1][1]:.2f} |")
+            print(f"| {seed} | {minutes} | {e.sigma_rel:.4f}, {e.tau_s:.1f} s | {r.sigma_rel:.4f}, {r.tau_s:.1f} s "
+                  f"({record['length']:.2f}) | {h.sigma_rel:.4f}, {h.tau_s:.1f} s | {sd[0][0]:.2f}, {sd[0][1]:.2f} / "
+                  f"{sd[1][0]:.2f}, {sd[1][1]:.2f} |")
 
 
 def share(out: str) -> None:
@@ -283,11 +292,15 @@ def main() -> None:
     ap.add_argument("--out", default="runs/calibration", help="share: the calibration study's folder")
     ap.add_argument("--replicates", type=int, default=30, help="tau-alone: draws of the process per log")
     ap.add_argument("--seeds", default="8000,8002,8004,8006,8008,8010,8012,8014,8016,8018",
-                    help="sigma-short: the `aibo` seeds (the calibration study's even logs)")
+                    help="sigma-short: the seeds (the calibration study's even logs are `aibo`, its odd ones `paper-sim`)")
+    ap.add_argument("--preset", default="aibo", choices=["aibo", "paper-sim"], help="sigma-short: the noise preset")
+    ap.add_argument("--minutes", default="5,15", help="sigma-short: the log lengths (minutes, comma-separated)")
     args = ap.parse_args()
     sys.stdout.reconfigure(line_buffering=True)
     {"tau-alone": lambda: tau_alone(args.replicates), "tau-em": tau_em, "shrink": shrink, "rate": rate,
-     "sigma-short": lambda: sigma_short([int(s) for s in args.seeds.split(",")]), "share": lambda: share(args.out)}[args.what]()
+     "sigma-short": lambda: sigma_short([int(s) for s in args.seeds.split(",")], args.preset,
+                                         tuple(int(m) for m in args.minutes.split(","))),
+     "share": lambda: share(args.out)}[args.what]()
 
 
 if __name__ == "__main__":

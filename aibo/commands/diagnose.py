@@ -98,8 +98,10 @@ def run(args) -> int:
                 raise CLIError(f"--tracked-replicas: log {path}: its commands are {_commands(tr)}, and the replays "
                                f"steer only {', '.join(TRACKED_CONTROLS)} commands")
     t0 = time.perf_counter()
-    # the search tries actuation_lag itself, as a candidate; --restricted-noise acts in the final fit only
-    opts = EMOptions(seed=args.seed, lag_search=False, restricted_noise=args.restricted_noise)
+    # the search tries actuation_lag itself, as a candidate; --restricted-noise and the variances' restricted step act
+    # in the final fit only
+    opts = EMOptions(seed=args.seed, lag_search=False, restricted_noise=args.restricted_noise,
+                     restricted_variances=not args.maximum_likelihood_variances)
     lines: list[str] = []
 
     def say(line: str) -> None:  # the page keeps the line whole; a terminal gets it wrapped (``for_terminal``)
@@ -130,6 +132,10 @@ def run(args) -> int:
     report["restricted_noise"] = final.result.info.restricted_noise  # None unless --restricted-noise
     if report["restricted_noise"]:
         say(fig.restricted_text(report["restricted_noise"]))
+    # None unless a named effect has variance parameters (a bias process's sd and correlation time)
+    report["restricted_variances"] = final.result.info.restricted_variances
+    if report["restricted_variances"]:
+        say(fig.restricted_variances_text(report["restricted_variances"]))
     truth = against_ground_truth(found["base"], final.result.params, logs)
     if truth:
         report["against_ground_truth"] = truth

@@ -25,7 +25,7 @@ from aibo_core.workers import pool_map
 from learners.base import LearnResult
 from learners.em.learner import EMLearner
 from learners.em.options import EMOptions
-from learners.em.restricted import held_noise, restricted_noise
+from learners.em.restricted import held_noise, restricted_noise, restricted_step
 from learners.model.model import Model
 
 from .effect_sizes import effect_intervals
@@ -228,7 +228,54 @@ def diagnosed(found: dict[str, Any], opts: EMOptions, again: bool = True, final:
         redone = diagnosed(dict(found, model=model), opts, again=False, pool=pool)
         redone.seconds = {k: seconds.get(k, 0.0) + redone.seconds.get(k, 0.0) for k in seconds | redone.seconds}
         return redone
+    if fopts.restricted_variances:
+        t0 = time.perf_counter()
+        step_variances(final, effects, found, fopts)
+        seconds[FINAL_FIT_STAGE] += time.perf_counter() - t0
     return Diagnosed(final, effects, profiled, seconds, starts)
+
+
+def step_variances(final: LearnResult, effects: list[dict[str, Any]], found: dict[str, Any], fopts: EMOptions) -> None:
+    """The named effects' variance parameters (``EffectModel.VARIANCE_PARAMS``) moved in place from the likelihood's
+    maximum to the restricted likelihood's (``EMOptions.restricted_variances``; ``learners.em.restricted.
+    restricted_step``, one Newton step): in ``final.params`` (the model ``aibo diagnose`` writes), its standard errors
+    (``final.info``) and the ``effects`` entries' parameters and intervals (the same width on the parameter's packed
+    scale, centred on the stepped value); the record in ``final.info.restricted_variances``. Made after the intervals'
+    held fits, which compare likelihoods with the fit's own maximum; not where one of the parameters' intervals is
+    not a Wald one (a profile's is centred on the maximum likelihood value)."""
+    declared = {e["name"]: e for e in effects if final.params.effect(e["name"]).VARIANCE_PARAMS}
+    if not declared:
+        return
+    model = final.params
+    if any(not str(e["intervals"][p]["method"] or "").startswith(("wald", "robust"))
+           for e in declared.values() for p in model.effect(e["name"]).VARIANCE_PARAMS):
+        final.info.restricted_variances = {"taken": False, "why": "an interval of a variance parameter is not a Wald "
+                                           "one (a profile's, or none)"}
+        return
+    stepped, record = restricted_step(model, found["logs"], fopts)
+    final.info.restricted_variances = record
+    if not record or not record["taken"]:
+        return
+    se = rescaled_errors(final.info.standard_errors or {}, model, stepped)
+    robust = rescaled_errors(final.info.robust_standard_errors or {}, model, stepped)
+    final.params, final.info.standard_errors = stepped, se
+    final.info.robust_standard_errors = robust or final.info.robust_standard_errors
+    named = {c.name: c for c in found["named"]}
+    for name, e in declared.items():
+        e["parameters"] = _values(stepped.effect(name))
+        e["intervals"] = effect_intervals(stepped, name, se, named[name].profile, robust or None)
+
+
+def rescaled_errors(errors: dict[str, Any], before: Model, after: Model) -> dict[str, Any]:
+    """``errors`` (model-file key -> standard error) with those of the effects' log-scale parameters scaled by the
+    parameter's change from ``before`` to ``after`` (a log-scale standard error is the same at either value)."""
+    out = dict(errors)
+    for e in after.effects:
+        for p in e.VARIANCE_PARAMS:
+            key = f"effects.{e.name}.{p}"
+            if out.get(key) is not None and e.PARAMS[p].transform == "log":
+                out[key] = float(out[key]) * float(getattr(e, p)) / float(getattr(before.effect(e.name), p))
+    return out
 
 
 def _first_implausible(found: dict[str, Any], fit: LearnResult) -> tuple[Any, str] | None:

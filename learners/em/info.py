@@ -58,6 +58,9 @@ class FitInfo:
     #: ``EMOptions.restricted_noise`` (a final fit of ``aibo diagnose``): the motion noise moved to the restricted
     #: likelihood's maximum (``learners.em.restricted.restricted_noise``' record); None: not done
     restricted_noise: dict | None = None
+    #: ``EMOptions.restricted_variances`` (a final fit of ``aibo diagnose``): the named effects' variance parameters
+    #: moved to the restricted likelihood's maximum (``learners.em.restricted.restricted_step``' record); None: none
+    restricted_variances: dict | None = None
     timings: FitTimings = field(default_factory=FitTimings)
 
     def to_dict(self, timings: bool = True) -> dict[str, Any]:
@@ -95,6 +98,8 @@ class FitInfo:
             out["held_curve_fit"] = self.held_curve_fit
         if self.restricted_noise is not None:
             out["restricted_noise"] = self.restricted_noise
+        if self.restricted_variances is not None:
+            out["restricted_variances"] = self.restricted_variances
         return out
 
     # Read access by key, as for the other learners' plain ``info`` dicts (``result.info["best_iteration"]``).

@@ -103,6 +103,15 @@ class EMOptions:
     # 1.27 to 2.8 mm per frame (truth 3) and the drift's intervals from 82% to 87% coverage along it (`paper-sim`: 88% to
     # 92%); on MRCLAM robot 5 it changed nothing (docs/results.md, "The motion noise at the likelihood's maximum")
     restricted_noise: bool = False
+    # ``aibo diagnose``'s final fit (``learners.discrepancy.final.diagnosed``; EM itself does not read it): the named
+    # effects' variance parameters (``EffectModel.VARIANCE_PARAMS``: a bias process's sd and correlation time) moved
+    # from the likelihood's maximum to the restricted likelihood's by one Newton step (``learners.em.restricted.
+    # restricted_step``), their intervals with them. Measured on 50 five-minute `aibo` logs of ``landmark_bias`` (0.05,
+    # 8 s): sigma_rel's intervals hold the truth on 90% (maximum likelihood: 80%), its bias +0.12 standard errors
+    # (-0.90); on 50 `paper-sim` logs 86% (91%), +0.92 (+0.19), where the states' own upward bias is no longer
+    # cancelled by the velocities' share (docs/results.md, "A bias process's sd by restricted likelihood"). Paper: no
+    # effects, nothing to step.
+    restricted_variances: bool = True
 
     def comparable(self) -> "EMOptions":
         """These options with the stop rule of fits whose likelihoods are compared with each other (a likelihood-ratio

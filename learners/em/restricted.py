@@ -122,3 +122,109 @@ def restricted_noise(model: Model, logs: list[Trajectory], opts: EMOptions) -> t
 def position_sd(model: Model) -> list[float]:
     """The motion noise's position sd per frame (mm, x and y), to the micrometre."""
     return np.sqrt(np.diag(np.asarray(model.action.cov, dtype=float))[:2]).round(3).tolist()
+
+
+# --------------------------------------------------------------------------- the effects' variance parameters
+# The same bias moves a named effect's variance parameters (``EffectModel.VARIANCE_PARAMS``: a bias process's sd and
+# correlation time): on the calibration study's 5-minute `aibo` logs of ``landmark_bias`` (sigma_rel 0.05, tau_s 8 s)
+# the final fit's sigma_rel averages 7% short (-0.92 standard errors; 80% of its 95% intervals hold 0.05), and with
+# the 40 commands' velocities held at the truth it is 1.2% short. Those parameters sit within about a standard error
+# of the restricted maximum, where a Newton step on l_R reaches it: at the maximum likelihood fit the profile's
+# gradient is 0, so the step is -1/2 V grad_v log det I_theta, V their block of the inverse information (the
+# profile's curvature, the rest refitted) and the gradient by central differences with theta held. Measured
+# (docs/results.md, "A bias process's sd by restricted likelihood"): on the `aibo` logs of seeds 8000-8010 (even) the
+# step over (sigma_rel, tau_s) gives 0.0519 / 0.0481 / 0.0496 / 0.0507 / 0.0523 / 0.0497 where the velocities held at
+# the truth give 0.0504 / 0.0477 / 0.0496 / 0.0502 / 0.0510 / 0.0477; over sigma_rel alone it overshoots (tau_s moves
+# with it along their ridge). On `paper-sim`'s 0.5 rad bearings the likelihood falls about twice as fast along the
+# step as the information says and the restricted likelihood, computed exactly along it, peaks at 0.4-0.6 of it: a
+# fit held at the step's end measures that fall and shortens the step (``step_length``). The motion noise is not
+# stepped (its Cholesky coordinates are far from quadratic there: ``restricted_noise`` searches its scale instead).
+
+DIFFERENCE_STEP = 0.05  # packed units (log scale for a positive parameter): the central difference of log det I_theta
+MAX_STEP_SE = 3.0  # a step longer than this many standard errors in any coordinate is not local: not taken
+
+
+def newton_step(gradient: np.ndarray, covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(the step, its length in standard errors per coordinate) of the restricted likelihood's Newton step from the
+    likelihood's maximum: -1/2 ``covariance`` @ ``gradient``, ``gradient`` that of log det I_theta over the variance
+    coordinates and ``covariance`` their block of the inverse information."""
+    step = -0.5 * covariance @ gradient
+    return step, step / np.sqrt(np.diag(covariance))
+
+
+def variance_coordinates(model: Model) -> dict[str, tuple[str, ...]]:
+    """Per effect of ``model`` that declares any (``EffectModel.VARIANCE_PARAMS``): its variance parameters."""
+    return {e.name: tuple(e.VARIANCE_PARAMS) for e in model.effects if e.VARIANCE_PARAMS}
+
+
+def step_length(slope: float, drop: float) -> float:
+    """The length t in (0, 1] of the Newton step to take: the restricted log-likelihood along the step, l_R(t) = -1/2
+    kappa t^2 + ``slope`` t, peaks at t = ``slope`` / kappa; ``slope`` is the adjustment's rise over the whole step
+    (nats; equal to the Fisher information's curvature along it, which puts the peak at t = 1) and kappa = 2 ``drop``,
+    the likelihood's measured fall over the step (a fit with the parameters held at its end, the rest refitted). A
+    fall steeper than the information says shortens the step; a flatter one (or EM's stop noise) never lengthens it."""
+    kappa = 2.0 * drop
+    return 1.0 if kappa <= slope else slope / kappa
+
+
+def restricted_step(model: Model, logs: list[Trajectory], opts: EMOptions) -> tuple[Model, dict[str, Any] | None]:
+    """(``model`` with its effects' variance parameters moved towards the restricted likelihood's maximum, the record)
+    for a maximum likelihood fit ``model`` of ``logs`` with ``opts`` (the coordinates it held: ``Packer(opts).fixed``).
+    The step is the Newton step with the Fisher information's curvature, shortened where a fit held at its end shows
+    the likelihood falling faster (``step_length``: on `paper-sim`'s 0.5 rad bearings it fell 1.9 times faster, and the
+    restricted likelihood along the step peaked at 0.4-0.6 of it). The record, None where no effect declares any
+    variance parameter: {"effects": {name: {param: {"maximum_likelihood", "restricted"}}}, "step_se": {coordinate:
+    the whole Newton step in standard errors}, "length": the share of it taken, "taken": bool, "why": "" or why not
+    taken}. Not taken where the Newton step is longer than ``MAX_STEP_SE`` standard errors in any coordinate or one
+    of them is undetermined."""
+    from learners.arrays.batch import make_batch
+    from learners.discrepancy.fitting import train_loglik
+    from learners.em.accel import Packer
+    from learners.em.learner import EMLearner
+    from learners.em.uncertainty import parameter_uncertainty
+
+    declared = variance_coordinates(model)
+    if not declared:
+        return model, None
+    fixed = Packer(opts).fixed
+    full = parameter_uncertainty(model, make_batch(logs), fixed=fixed)
+    prefixes = tuple(f"effects.{name}.{p}" for name, params in declared.items() for p in params)
+    coords = [k for k, n in enumerate(full.names) if n.startswith(prefixes)]
+    record: dict[str, Any] = {"effects": {name: {p: {"maximum_likelihood": float(getattr(model.effect(name), p))}
+                                                 for p in params} for name, params in declared.items()},
+                              "step_se": {}, "length": 0.0, "taken": False, "why": ""}
+    if len(coords) != len(prefixes):
+        record["why"] = "a variance parameter is undetermined on these logs (no information)"
+        return model, record
+    theta_fixed = fixed | frozenset(VARIANCES) | frozenset(prefixes)
+    x0 = model.pack(fixed)
+    packed_at = np.flatnonzero(full.free)[coords]  # the coordinates' places in the packed vector
+    gradient = np.empty(len(coords))
+    for k, at in enumerate(packed_at):
+        ends = []
+        for sign in (-1.0, 1.0):
+            x = x0.copy()
+            x[at] += sign * DIFFERENCE_STEP
+            ends.append(log_information(model.unpack(x, fixed), logs, theta_fixed))
+        gradient[k] = (ends[1] - ends[0]) / (2.0 * DIFFERENCE_STEP)
+    step, in_se = newton_step(gradient, full.covariance[np.ix_(coords, coords)])
+    record["step_se"] = {full.names[c]: round(float(z), 3) for c, z in zip(coords, in_se)}
+    if np.max(np.abs(in_se)) > MAX_STEP_SE:
+        record["why"] = f"the step is {np.max(np.abs(in_se)):.1f} standard errors long (not local: above {MAX_STEP_SE:g})"
+        return model, record
+    x = x0.copy()
+    x[packed_at] += step
+    # the likelihood's fall over the whole step: the effects held at its end (all their parameters are variance ones),
+    # the rest refitted
+    held = replace(opts, frozen=tuple(opts.frozen) + tuple(declared), uncertainty=False, polish=False,
+                   restricted_noise=False)
+    end = EMLearner(held, check_field=False).fit(logs, init=model.unpack(x, fixed)).params
+    record["length"] = step_length(float(-0.5 * gradient @ step), train_loglik(model, logs) - train_loglik(end, logs))
+    x = x0.copy()
+    x[packed_at] += record["length"] * step
+    stepped = model.unpack(x, fixed)
+    for name, params in declared.items():
+        for p in params:
+            record["effects"][name][p]["restricted"] = float(getattr(stepped.effect(name), p))
+    record["taken"] = True
+    return stepped, record

@@ -87,6 +87,10 @@ class EffectModel(Component):
     #: Nuisances the effect can stand in for (classes with ``around(post, batch)``, ``n_frames()``, ``given()``; e.g.
     #: ``WallSlowdown``): the search tests a significant candidate again given each (``checks.GivenNuisance``).
     CONFOUNDERS: ClassVar[tuple[type, ...]] = ()
+    #: The parameters of a covariance, not of the path's mean (a bias process's sd and correlation time): ``aibo
+    #: diagnose``'s final fit moves them to the restricted likelihood's maximum by one Newton step
+    #: (``learners.em.restricted.restricted_step``), as mixed models estimate variance components beside fitted means.
+    VARIANCE_PARAMS: ClassVar[tuple[str, ...]] = ()
 
     @classmethod
     def signatures(cls) -> tuple[str, ...]:

@@ -71,6 +71,7 @@ class LandmarkBearingBias(EffectModel):
     }
     #: a medium strength on the ``aibo`` preset (bearing noise 0.0267 rad); on MRCLAM 3-6 mrad at 20-100 s
     EXAMPLE: ClassVar[dict[str, Any]] = {"sigma_rad": 0.02, "tau_s": 20.0}
+    VARIANCE_PARAMS: ClassVar[tuple[str, ...]] = ("sigma_rad", "tau_s")  # the states' covariance (REML's step)
     STARTS_OFF: ClassVar[bool] = False  # at sigma_rad 0 EM could not move it (as landmark_bias)
     #: after ``landmark_bias`` (order 0): the size states first, then the bearing states (``landmark_bias._columns``)
     LOWER_ORDER: ClassVar[int] = 1

@@ -156,6 +156,7 @@ class LandmarkBias(EffectModel):
     }
     #: the strength every study of the project uses (the power study's medium, the calibration's, issue 34's tau of 8 s)
     EXAMPLE: ClassVar[dict[str, Any]] = {"sigma_rel": 0.05, "tau_s": 8.0}
+    VARIANCE_PARAMS: ClassVar[tuple[str, ...]] = ("sigma_rel", "tau_s")  # the states' covariance (REML's step)
 
     STARTS_OFF: ClassVar[bool] = False  # at sigma_rel 0 EM could not move it (``start``)
 
