@@ -210,3 +210,24 @@ def test_diagnose_steps_a_bias_process_sd_to_the_restricted_likelihood(tmp_path)
     model = json.loads((tmp_path / "r" / "model.json").read_text())
     assert model["info"]["restricted_variances"] == record
     assert "one Newton step from the" in (tmp_path / "r" / "report.html").read_text()
+
+
+def test_a_failed_held_fit_leaves_the_maximum_likelihood_values_and_says_why(monkeypatch):
+    import learners.em.restricted as restricted
+    from learners.em.learner import EMLearner
+    from learners.model.landmark_bias import LandmarkBias
+    from tests._logs import sim_log
+
+    tr = sim_log(1500)
+    model = EMLearner(EMOptions(max_iter=3, lag_search=False, uncertainty=False)).fit([tr]).params
+    model = model.with_effect(LandmarkBias(0.05, 8.0))
+    monkeypatch.setattr(restricted, "newton_step", lambda g, v: (np.full(2, 0.01), np.full(2, 0.1)))  # a local step
+
+    def fails(self, logs, init=None):
+        raise np.linalg.LinAlgError("not positive definite")
+
+    monkeypatch.setattr(EMLearner, "fit", fails)
+    stepped, record = restricted.restricted_step(model, [tr], EMOptions(lag_search=False))
+    assert stepped is model and not record["taken"] and record["length"] == 0.0
+    assert record["why"] == "the fit held at the step's end failed (not positive definite)"
+    assert set(record["effects"]["landmark_bias"]) == {"sigma_rel", "tau_s"}

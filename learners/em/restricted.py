@@ -218,8 +218,17 @@ def restricted_step(model: Model, logs: list[Trajectory], opts: EMOptions) -> tu
     # the rest refitted
     held = replace(opts, frozen=tuple(opts.frozen) + tuple(declared), uncertainty=False, polish=False,
                    restricted_noise=False)
-    end = EMLearner(held, check_field=False).fit(logs, init=model.unpack(x, fixed)).params
-    record["length"] = step_length(float(-0.5 * gradient @ step), train_loglik(model, logs) - train_loglik(end, logs))
+    try:
+        end = EMLearner(held, check_field=False).fit(logs, init=model.unpack(x, fixed)).params
+        drop = train_loglik(model, logs) - train_loglik(end, logs)
+    except (FloatingPointError, np.linalg.LinAlgError, ValueError) as err:
+        drop, why = math.nan, f"the fit held at the step's end failed ({err})"
+    else:
+        why = "" if math.isfinite(drop) else "the fit held at the step's end has no finite likelihood"
+    if why:
+        record["why"] = why
+        return model, record
+    record["length"] = step_length(float(-0.5 * gradient @ step), drop)
     x = x0.copy()
     x[packed_at] += record["length"] * step
     stepped = model.unpack(x, fixed)
