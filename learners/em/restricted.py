@@ -178,9 +178,7 @@ def restricted_step(model: Model, logs: list[Trajectory], opts: EMOptions) -> tu
     taken}. Not taken where the Newton step is longer than ``MAX_STEP_SE`` standard errors in any coordinate or one
     of them is undetermined."""
     from learners.arrays.batch import make_batch
-    from learners.discrepancy.fitting import train_loglik
     from learners.em.accel import Packer
-    from learners.em.learner import EMLearner
     from learners.em.uncertainty import parameter_uncertainty
 
     declared = variance_coordinates(model)
@@ -196,10 +194,35 @@ def restricted_step(model: Model, logs: list[Trajectory], opts: EMOptions) -> tu
     if len(coords) != len(prefixes):
         record["why"] = "a variance parameter is undetermined on these logs (no information)"
         return model, record
-    theta_fixed = fixed | frozenset(VARIANCES) | frozenset(prefixes)
     x0 = model.pack(fixed)
     packed_at = np.flatnonzero(full.free)[coords]  # the coordinates' places in the packed vector
-    gradient = np.empty(len(coords))
+    gradient = adjustment_gradient(model, logs, fixed, packed_at, fixed | frozenset(VARIANCES) | frozenset(prefixes))
+    step, in_se = newton_step(gradient, full.covariance[np.ix_(coords, coords)])
+    record["step_se"] = {full.names[c]: round(float(z), 3) for c, z in zip(coords, in_se)}
+    if np.max(np.abs(in_se)) > MAX_STEP_SE:
+        record["why"] = f"the step is {np.max(np.abs(in_se)):.1f} standard errors long (not local: above {MAX_STEP_SE:g})"
+        return model, record
+    delta = np.zeros_like(x0)
+    delta[packed_at] = step
+    drop, why = held_drop(model, model.unpack(x0 + delta, fixed), logs, opts, tuple(declared))
+    if why:
+        record["why"] = why
+        return model, record
+    record["length"] = step_length(float(-0.5 * gradient @ step), drop)
+    stepped = model.unpack(x0 + record["length"] * delta, fixed)
+    for name, params in declared.items():
+        for p in params:
+            record["effects"][name][p]["restricted"] = float(getattr(stepped.effect(name), p))
+    record["taken"] = True
+    return stepped, record
+
+
+def adjustment_gradient(model: Model, logs: list[Trajectory], fixed: frozenset[str], packed_at: np.ndarray,
+                        theta_fixed: frozenset[str]) -> np.ndarray:
+    """d log det I_theta / d x at ``model`` for each coordinate ``packed_at`` of ``model.pack(fixed)``, by central
+    differences of ``DIFFERENCE_STEP`` with theta (every coordinate but ``theta_fixed``) held at the fit."""
+    x0 = model.pack(fixed)
+    gradient = np.empty(len(packed_at))
     for k, at in enumerate(packed_at):
         ends = []
         for sign in (-1.0, 1.0):
@@ -207,33 +230,22 @@ def restricted_step(model: Model, logs: list[Trajectory], opts: EMOptions) -> tu
             x[at] += sign * DIFFERENCE_STEP
             ends.append(log_information(model.unpack(x, fixed), logs, theta_fixed))
         gradient[k] = (ends[1] - ends[0]) / (2.0 * DIFFERENCE_STEP)
-    step, in_se = newton_step(gradient, full.covariance[np.ix_(coords, coords)])
-    record["step_se"] = {full.names[c]: round(float(z), 3) for c, z in zip(coords, in_se)}
-    if np.max(np.abs(in_se)) > MAX_STEP_SE:
-        record["why"] = f"the step is {np.max(np.abs(in_se)):.1f} standard errors long (not local: above {MAX_STEP_SE:g})"
-        return model, record
-    x = x0.copy()
-    x[packed_at] += step
-    # the likelihood's fall over the whole step: the effects held at its end (all their parameters are variance ones),
-    # the rest refitted
-    held = replace(opts, frozen=tuple(opts.frozen) + tuple(declared), uncertainty=False, polish=False,
-                   restricted_noise=False)
+    return gradient
+
+
+def held_drop(model: Model, end: Model, logs: list[Trajectory], opts: EMOptions,
+              effects: tuple[str, ...]) -> tuple[float, str]:
+    """(the likelihood's fall from the fit ``model`` to the fit from ``end`` with ``effects`` held there, the rest
+    refitted (nats), "" or why there is none): the effects' parameters must all be variance ones (``frozen`` holds
+    a whole effect). A failed fit or a non-finite likelihood gives no fall."""
+    from learners.discrepancy.fitting import train_loglik
+    from learners.em.learner import EMLearner
+
+    held = replace(opts, frozen=tuple(opts.frozen) + effects, uncertainty=False, polish=False, restricted_noise=False)
     try:
-        end = EMLearner(held, check_field=False).fit(logs, init=model.unpack(x, fixed)).params
-        drop = train_loglik(model, logs) - train_loglik(end, logs)
+        fit = EMLearner(held, check_field=False).fit(logs, init=end).params
+        drop = train_loglik(model, logs) - train_loglik(fit, logs)
     except (FloatingPointError, np.linalg.LinAlgError, ValueError) as err:
-        drop, why = math.nan, f"the fit held at the step's end failed ({err})"
-    else:
-        why = "" if math.isfinite(drop) else "the fit held at the step's end has no finite likelihood"
-    if why:
-        record["why"] = why
-        return model, record
-    record["length"] = step_length(float(-0.5 * gradient @ step), drop)
-    x = x0.copy()
-    x[packed_at] += record["length"] * step
-    stepped = model.unpack(x, fixed)
-    for name, params in declared.items():
-        for p in params:
-            record["effects"][name][p]["restricted"] = float(getattr(stepped.effect(name), p))
-    record["taken"] = True
-    return stepped, record
+        return math.nan, f"the fit held at the step's end failed ({err})"
+    return drop, "" if math.isfinite(drop) else "the fit held at the step's end has no finite likelihood"
+
