@@ -245,8 +245,9 @@ def restricted_variances_text(record: dict[str, Any] | None) -> str:
                 f"step was not taken ({record['why']}).")
     moved = ", ".join(f"{name}'s {p} {v['maximum_likelihood']:.3g} -> {v['restricted']:.3g}"
                       for name, params in record["effects"].items() for p, v in params.items())
-    return (f"Its bias processes' variance parameters are the restricted likelihood's, one Newton step from the "
-            f"likelihood's maximum, which the fitted velocities bias low ({moved}; their intervals moved with them).")
+    return (f"Its bias processes' variance parameters are moved towards the restricted likelihood's maximum by a Newton "
+            f"step from the likelihood's ({record['length']:.2g} of it taken), which the fitted velocities bias low "
+            f"({moved}; their intervals moved with them).")
 
 
 def starts_text(starts: list[dict[str, Any]]) -> str:

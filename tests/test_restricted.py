@@ -209,7 +209,8 @@ def test_diagnose_steps_a_bias_process_sd_to_the_restricted_likelihood(tmp_path)
     assert lo < 0.05 < hi and (lo + hi) / 2 == pytest.approx(moved["restricted"], rel=1e-6)
     model = json.loads((tmp_path / "r" / "model.json").read_text())
     assert model["info"]["restricted_variances"] == record
-    assert "one Newton step from the" in (tmp_path / "r" / "report.html").read_text()
+    assert "by a Newton step from the likelihood" in (tmp_path / "r" / "report.html").read_text()
+    assert f"({record['length']:.2g} of it taken)" in (tmp_path / "r" / "report.html").read_text()
 
 
 def test_a_failed_held_fit_leaves_the_maximum_likelihood_values_and_says_why(monkeypatch):
