@@ -174,7 +174,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "shrink; the named effects' intervals then widen where the path's stiffness made them narrow")
     dg.add_argument("--maximum-likelihood-variances", action="store_true",
                     help="leave a named bias process's sd and correlation time at the likelihood's maximum (by default "
-                         "one Newton step moves them to the restricted likelihood's, which maximum likelihood "
+                         "a Newton step moves them to the restricted likelihood's, which maximum likelihood "
                          "underestimates beside the fitted velocities: docs/em-math.md)")
     dg.set_defaults(run=commands.run_diagnose)
 

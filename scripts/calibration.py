@@ -113,10 +113,7 @@ def truth(effect: str, params: dict[str, Any], dt: float | None = None) -> dict[
 
 
 def set_strength(items: list[str]) -> None:
-    """Apply ``--maximum-likelihood-variances``: the effects' variance parameters (``EffectModel.VARIANCE_PARAMS``) left at the
-likelihood's maximum (``EMOptions.restricted_variances`` off; the rows before it existed were so); each row says which.
-
-``--strength EFFECT.PARAM=VALUE`` items to ``STRENGTH`` (module docstring); ValueError naming the item."""
+    """Apply ``--strength EFFECT.PARAM=VALUE`` items to ``STRENGTH`` (module docstring); ValueError naming the item."""
     import json
 
     for item in items:

@@ -238,16 +238,17 @@ def diagnosed(found: dict[str, Any], opts: EMOptions, again: bool = True, final:
 def step_variances(final: LearnResult, effects: list[dict[str, Any]], found: dict[str, Any], fopts: EMOptions) -> None:
     """The named effects' variance parameters (``EffectModel.VARIANCE_PARAMS``) moved in place from the likelihood's
     maximum to the restricted likelihood's (``EMOptions.restricted_variances``; ``learners.em.restricted.
-    restricted_step``, one Newton step): in ``final.params`` (the model ``aibo diagnose`` writes), its standard errors
-    (``final.info``) and the ``effects`` entries' parameters and intervals (the same width on the parameter's packed
-    scale, centred on the stepped value); the record in ``final.info.restricted_variances``. Made after the intervals'
-    held fits, which compare likelihoods with the fit's own maximum; not where one of the parameters' intervals is
-    not a Wald one (a profile's is centred on the maximum likelihood value)."""
+    restricted_step``: a Newton step, shortened where the likelihood falls faster than its information says): in
+    ``final.params`` (the model ``aibo diagnose`` writes), its standard errors (``final.info``) and the ``effects``
+    entries' parameters and intervals (the same width on the parameter's packed scale, centred on the stepped value);
+    the record in ``final.info.restricted_variances``. Made after the intervals' held fits, which compare likelihoods
+    with the fit's own maximum; not where one of the parameters' intervals is not a Wald one (a profile's is centred
+    on the maximum likelihood value)."""
     declared = {e["name"]: e for e in effects if final.params.effect(e["name"]).VARIANCE_PARAMS}
     if not declared:
         return
     model = final.params
-    if any(not str(e["intervals"][p]["method"] or "").startswith(("wald", "robust"))
+    if any(not str(e["intervals"][p]["method"] or "").startswith("wald")  # every Wald method's name begins so
            for e in declared.values() for p in model.effect(e["name"]).VARIANCE_PARAMS):
         final.info.restricted_variances = {"taken": False, "why": "an interval of a variance parameter is not a Wald "
                                            "one (a profile's, or none)"}

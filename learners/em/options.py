@@ -105,12 +105,12 @@ class EMOptions:
     restricted_noise: bool = False
     # ``aibo diagnose``'s final fit (``learners.discrepancy.final.diagnosed``; EM itself does not read it): the named
     # effects' variance parameters (``EffectModel.VARIANCE_PARAMS``: a bias process's sd and correlation time) moved
-    # from the likelihood's maximum to the restricted likelihood's by one Newton step (``learners.em.restricted.
-    # restricted_step``), their intervals with them. Measured on 50 five-minute `aibo` logs of ``landmark_bias`` (0.05,
-    # 8 s): sigma_rel's intervals hold the truth on 90% (maximum likelihood: 80%), its bias +0.12 standard errors
-    # (-0.90); on 50 `paper-sim` logs 86% (91%), +0.92 (+0.19), where the states' own upward bias is no longer
-    # cancelled by the velocities' share (docs/results.md, "A bias process's sd by restricted likelihood"). Paper: no
-    # effects, nothing to step.
+    # from the likelihood's maximum towards the restricted likelihood's by a Newton step, shortened where the
+    # likelihood falls faster than its information says (``learners.em.restricted.restricted_step``), their intervals
+    # with them. Measured on 50 five-minute `aibo` logs of ``landmark_bias`` (0.05, 8 s): sigma_rel's intervals hold
+    # the truth on 90% (maximum likelihood: 80%), its bias +0.12 standard errors (-0.90); on 50 `paper-sim` logs 86%
+    # (91%), +0.92 (+0.19), where the states' own upward bias is no longer cancelled by the velocities' share
+    # (docs/results.md, "A bias process's sd by restricted likelihood"). Paper: no effects, nothing to step.
     restricted_variances: bool = True
 
     def comparable(self) -> "EMOptions":
