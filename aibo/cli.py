@@ -116,6 +116,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="velocity commands with a range sensor, from the paper's start: judge the first-iteration "
                          "outlier gate under the commands' face value, once for every start (default on; paper: off; "
                          "a fitted --init model is gated at itself)")
+    lr.add_argument("--face-value-start", action=argparse.BooleanOptionalAction, default=None,
+                    help="velocity commands with a range sensor, from the paper's start: fit the held-curve stage a "
+                         "second time from the commands' face value and keep the more likely (default on; paper: off)")
     lr.add_argument("--alias-search", action=argparse.BooleanOptionalAction, default=None,
                     help="after the fit, search heading aliases of commands held once or a few times (default on; "
                          "paper: off)")

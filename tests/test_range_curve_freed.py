@@ -101,9 +101,9 @@ def test_on_mrclam_robot_2_the_freed_curve_reads_long_as_vicon_says_and_the_path
 
 
 def test_a_freed_fit_interrupted_in_its_free_stage_resumes_to_the_same_fit(drive, tmp_path):
-    """Each stage keeps its own checkpoint (``stage_checkpoint(path, "held")`` beside the fit's): a run stopped in the free stage
-    finishes the held one from its checkpoint and resumes the free one from the other, to the same numbers; both are
-    deleted with the fit's."""
+    """Each stage keeps its own checkpoint (``stage_checkpoint(path, "held")`` and ``"held_face_value"``, the held stage
+    from the face value, beside the fit's): a run stopped in the free stage finishes the held ones from their
+    checkpoints and resumes the free one from its own, to the same numbers; all are deleted with the fit's."""
     from learners.em.learner import EMLearner, stage_checkpoint
     from learners.em.options import EMOptions
 
@@ -114,19 +114,20 @@ def test_a_freed_fit_interrupted_in_its_free_stage_resumes_to_the_same_fit(drive
 
     def stop_in_the_free_stage(rec):
         firsts.append(rec.iteration == 1)
-        if sum(firsts) == 2 and rec.iteration == 9:  # the second stage's 9th iteration
+        if sum(firsts) == 3 and rec.iteration == 9:  # the free stage's 9th (after the held stages from both starts)
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
         EMLearner(opts, checkpoint_path=ckpt, checkpoint_every=4).fit([drive], progress=stop_in_the_free_stage)
-    assert ckpt.exists() and (tmp_path / stage_checkpoint(ckpt, "held")).exists()
+    held = [tmp_path / stage_checkpoint(ckpt, stage) for stage in ("held", "held_face_value")]
+    assert ckpt.exists() and all(h.exists() for h in held)
     learner = EMLearner(opts, checkpoint_path=ckpt, checkpoint_every=4)
     resumed = learner.fit([drive])
     assert 4 <= resumed.info["resumed_from"] < 9
     np.testing.assert_allclose(resumed.loglik, full.loglik, rtol=1e-12)
     np.testing.assert_allclose(resumed.params.sensor.coef, full.params.sensor.coef, rtol=1e-12)
     learner.discard_checkpoint()
-    assert not ckpt.exists() and not (tmp_path / stage_checkpoint(ckpt, "held")).exists()
+    assert not ckpt.exists() and not any(h.exists() for h in held)
 
 
 @pytest.mark.parametrize("kind", ["range_mm", "height_px"])

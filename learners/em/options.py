@@ -95,6 +95,12 @@ class EMOptions:
     # the rate (docs/results.md, "Spurious sightings: the refit of a wrong world"). Paper: off (the wrong world is an
     # error).
     spurious_refit: bool = True
+    # continuous (v, omega) commands with a range sensor, from the paper's start (range_curve "freed"): the held-curve
+    # fit made a second time from the commands' face value (``learners.em.learner.face_value_start``) and the more
+    # likely of the two kept, both on the same sightings. From the paper's start alone EM settled in a wrong world on
+    # MRCLAM Dataset 6's robot 1 (first half: the turn rate's error 1.5 times the face value's on the other half;
+    # docs/results.md, "A second start at the face value"). Paper: off (one start).
+    face_value_start: bool = True
     hold_curve: bool = False  # internal: the curve held at its start (range_curve "held"; a final fit's first stage)
     # ``aibo diagnose``'s final fit (``learners.discrepancy.final.fit_from``; EM itself does not read it): once converged,
     # the motion noise's position block moved to the restricted likelihood's maximum (``learners.em.restricted``) and
@@ -126,7 +132,7 @@ class EMOptions:
         base = dict(sensor_method="sample", learn_motion_noise=False, accel="none", min_improvement=0.0,
                     patience=STRICT_PATIENCE,
                     basis="power", degree=3, starts=1, alias_search=False, lag_search=False, range_curve="free",
-                    range_shrink=False, face_value_gate=False, spurious_refit=False)
+                    range_shrink=False, face_value_gate=False, spurious_refit=False, face_value_start=False)
         return cls(**{**base, **overrides})
 
     def validate(self) -> "EMOptions":
