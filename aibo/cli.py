@@ -118,7 +118,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "a fitted --init model is gated at itself)")
     lr.add_argument("--face-value-start", action=argparse.BooleanOptionalAction, default=None,
                     help="velocity commands with a range sensor, from the paper's start: fit the held-curve stage a "
-                         "second time from the commands' face value and keep the more likely (default on; paper: off)")
+                         "second time from the commands' face value and keep it where it is more than 5 nats more likely "
+                         "(default on; paper: off)")
     lr.add_argument("--alias-search", action=argparse.BooleanOptionalAction, default=None,
                     help="after the fit, search heading aliases of commands held once or a few times (default on; "
                          "paper: off)")

@@ -372,9 +372,10 @@ class EMLearner:
         fit's, no standard errors), then from its result the fit with the curve free, one start (the held fit found the
         world; stretched starts differ only in the curve). Both stages are the whole fit: the first gated under the
         commands' face value, the second a warm start under the given options, gated at the held fit, its curve free and
-        one start (``fit_options``). The lag and alias searches run in the held stage (the free one starts with what
-        they kept) and their records are carried over: the actuation lag and its interval are the held curve's, not
-        profiled again under the freed one."""
+        one start (``fit_options``). With ``EMOptions.face_value_start`` the held stage is fitted from the commands' face
+        value too, kept where clearly more likely (``_more_likely_held``). The lag and alias searches run in the held
+        stage (the free one starts with what they kept) and their records are carried over: the actuation lag and its
+        interval are the held curve's, not profiled again under the freed one."""
         given, path = self.options, self.checkpoint_path
         try:
             self.options = replace(given, range_curve="held", uncertainty=False)
