@@ -97,9 +97,9 @@ class EMOptions:
     spurious_refit: bool = True
     # continuous (v, omega) commands with a range sensor, from the paper's start (range_curve "freed"): the held-curve
     # fit made a second time from the commands' face value (``learners.em.learner.face_value_start``) and kept where it
-    # is more than ``FACE_START_MARGIN_NATS`` (5) more likely on the same sightings. From the paper's start alone EM settled in a wrong world on
-    # MRCLAM Dataset 6's robot 1 (first half: the turn rate's error 1.5 times the face value's on the other half;
-    # docs/results.md, "A second start at the face value"). Paper: off (one start).
+    # is more than ``FACE_START_MARGIN_NATS`` (5) more likely on the same sightings. From the paper's start alone EM
+    # settled in a wrong world on MRCLAM Dataset 6's robot 1 (first half: the turn rate's error 1.5 times the face
+    # value's on the other half; docs/results.md, "A second start at the face value"). Paper: off (one start).
     face_value_start: bool = True
     hold_curve: bool = False  # internal: the curve held at its start (range_curve "held"; a final fit's first stage)
     # ``aibo diagnose``'s final fit (``learners.discrepancy.final.fit_from``; EM itself does not read it): once converged,
