@@ -19,6 +19,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from mrclam_crossval import halves  # noqa: E402
 from study import data_folder, mrclam_parser, resume, robots, run_aibo  # noqa: E402
 
 from aibo_core import trajectory  # noqa: E402
@@ -31,11 +32,9 @@ WAYS = {"paper start": ["--no-face-value-start"], "default": []}
 
 
 def segments(data: Path, robot: int) -> dict[str, trajectory.Trajectory]:
-    """The robot's whole log and its halves (0.1 s frames), by name."""
-    whole = import_robot(data, robot)
-    half = whole.n_frames * whole.dt / 2
-    return {"whole": whole, "first": import_robot(data, robot, seconds=half),
-            "second": import_robot(data, robot, start_s=half)}
+    """The robot's whole log and its halves (``mrclam_crossval.halves``), by name."""
+    first, second = halves(data, robot)
+    return {"whole": import_robot(data, robot), "first": first, "second": second}
 
 
 def scores(model, log) -> dict:
@@ -45,17 +44,18 @@ def scores(model, log) -> dict:
 
 
 def row(data: Path, robot: int, segment: str, out: Path) -> dict:
-    """Both fits of one segment, scored (module docstring)."""
+    """Both fits of one segment, scored (module docstring); the face value's with the default fit's noise."""
     logs = segments(data, robot)
     fitted = logs[segment]
     other = {"first": logs["second"], "second": logs["first"]}.get(segment)
     path = out / f"r{robot}_{segment}.npz"
     trajectory.save(fitted, path)
-    rec = {"robot": robot, "segment": segment, "face": scores(face_value_model(_fit(path, out, [])[0]), fitted)}
+    fits = {way: _fit(path, out, options) for way, options in WAYS.items()}
+    face = face_value_model(fits["default"][0])
+    rec = {"robot": robot, "segment": segment, "face": scores(face, fitted)}
     if other is not None:
-        rec["face_other"] = scores(face_value_model(_fit(path, out, [])[0]), other)
-    for way, options in WAYS.items():
-        model, info, wall = _fit(path, out, options)
+        rec["face_other"] = scores(face, other)
+    for way, (model, info, wall) in fits.items():
         rec[way] = {"seconds": wall, "fitted": scores(model, fitted),
                     "starts": (info.get("held_curve_fit") or {}).get("starts")}
         if other is not None:
@@ -63,19 +63,13 @@ def row(data: Path, robot: int, segment: str, out: Path) -> dict:
     return rec
 
 
-_FITS: dict = {}
-
-
 def _fit(path: Path, out: Path, options: list[str]) -> tuple:
-    """(model, its info, wall s) of ``aibo learn PATH OPTIONS`` (each fit made once per run)."""
-    key = (str(path), tuple(options))
-    if key not in _FITS:
-        model_path = out / f"{path.stem}{''.join(options) or '_default'}.json"
-        wall, done = run_aibo(["learn", str(path), "--out", str(model_path), "--no-resume", *options])
-        if done.returncode != 0:
-            raise RuntimeError((done.stderr.strip().splitlines() or ["?"])[-1])
-        _FITS[key] = (load_model(model_path), json.loads(model_path.read_text()).get("info", {}), wall)
-    return _FITS[key]
+    """(model, its info, wall s) of ``aibo learn PATH OPTIONS``."""
+    model_path = out / f"{path.stem}{''.join(options) or '_default'}.json"
+    wall, done = run_aibo(["learn", str(path), "--out", str(model_path), "--no-resume", *options])
+    if done.returncode != 0:
+        raise RuntimeError((done.stderr.strip().splitlines() or ["?"])[-1])
+    return load_model(model_path), json.loads(model_path.read_text()).get("info", {}), wall
 
 
 def table(rows: list[dict]) -> str:

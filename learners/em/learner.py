@@ -407,22 +407,21 @@ class EMLearner:
         sightings (gated as the paper's start is, ``fit_options``) and are scored by one E-step each of their models on
         them, the curve held at the same start's: their likelihoods compare. A fit from the face value that fails
         (diverges, ends in a wrong world) is not kept, with why."""
-        record: dict = {"paper": self._held_score(batch, start, held)}
+        _, gated, _ = fit_options(self.options, batch, start)  # the sightings both fits saw (the face-value gate once)
+
+        def score(result: LearnResult) -> float:  # nats of those sightings under the fit's model (one E-step, ungated)
+            return float(e_step(result.params, gated, self.options.estep).loglik)
+
+        record: dict = {"paper": score(held)}
         try:
             other = self._fit_once(logs, batch, face, progress, gate_as=start)
         except (EMDivergedError, FloatingPointError, np.linalg.LinAlgError) as failed:
             record.update(face_value=None, kept="paper", why=f"the fit from the face value failed: {failed}")
             return held, record
-        record["face_value"] = self._held_score(batch, start, other)
+        record["face_value"] = score(other)
         kept = other if record["face_value"] > record["paper"] + FACE_START_MARGIN_NATS else held
         record["kept"] = "face value" if kept is other else "paper"
         return kept, record
-
-    def _held_score(self, batch: Batch, start: Model, result: LearnResult) -> float:
-        """The log-likelihood (nats) of the sightings ``start``'s fit options keep (``fit_options``), under the fitted
-        model of ``result`` (one E-step, ungated)."""
-        _, gated, _ = fit_options(self.options, batch, start)
-        return float(e_step(result.params, gated, self.options.estep).loglik)
 
     def _fit_once(self, logs: list[Trajectory], batch: Batch, start: Model, progress: ProgressFn | None,
                   gate_as: Model | None = None) -> LearnResult:
