@@ -16,7 +16,10 @@ What the log gets (frames of ``dt`` seconds from the first command, ``t0``):
   (range m -> mm), bearing wrapped to [-pi, pi]; ``landmarks`` (15, 2) in mm;
 - ``pose`` (T+1, 3): Vicon ground truth interpolated at the frame boundaries (x, y linear, theta
   unwrapped); poses inside a ground-truth dropout longer than ``GAP_S`` are flagged in
-  ``meta["pose_gaps"]``, as are poses before the first or after the last ground-truth row (held at it);
+  ``meta["pose_gaps"]``, as are poses before the first or after the last ground-truth row (held at it).
+  The log ends at the earlier of the last command and the last ground-truth row. Without
+  ``RobotN_Groundtruth.dat`` (a run without Vicon, or a copy that left the large files out) the log has
+  no ``pose`` and no ``pose_gaps``, and ends at the last command: a log to learn from, not to score;
 - ``meta``: the source (dataset, robot, files, ``t0``), every count of what was dropped (sightings of
   other robots, unknown barcodes, non-positive ranges, sightings outside the log span, measurement rows
   repeated exactly, repeated or backward odometry/ground-truth rows) and the ground-truth gaps. A barcode
@@ -123,20 +126,23 @@ def import_robot(folder: str | os.PathLike, robot: int, dt: float = DEFAULT_DT, 
     lm_table = _read(folder / names["landmarks"], 3)
     odo = _read(folder / names["odometry"], 3)
     meas = _read(folder / names["measurement"], 4)
-    gt = _read(folder / names["groundtruth"], 4)
+    # the Vicon file is optional: without it the log carries no pose (a run to learn from, not to score)
+    has_truth = (folder / names["groundtruth"]).exists()
+    gt = _read(folder / names["groundtruth"], 4) if has_truth else np.zeros((0, 4))
 
     keep, odo_rep, odo_back = increasing(odo[:, 0])
     odo = odo[keep]
-    keep, gt_rep, gt_back = increasing(gt[:, 0])
+    keep, gt_rep, gt_back = increasing(gt[:, 0]) if has_truth else (slice(None), 0, 0)
     gt = gt[keep]
-    for role, rows, rep, back in (("odometry", odo, odo_rep, odo_back), ("groundtruth", gt, gt_rep, gt_back)):
+    tables = [("odometry", odo, odo_rep, odo_back)] + [("groundtruth", gt, gt_rep, gt_back)] * has_truth
+    for role, rows, rep, back in tables:
         if len(rows) < 2:
             raise MRCLAMError(f"{folder / names[role]}: fewer than 2 usable rows (times must increase: {rep} "
                               f"repeated and {back} backward in time were dropped)")
     meas, meas_dup = _unique_rows(meas)
 
     t0 = float(odo[0, 0]) + float(start_s)
-    t_end = min(float(odo[-1, 0]), float(gt[-1, 0]))
+    t_end = min(float(odo[-1, 0]), float(gt[-1, 0])) if has_truth else float(odo[-1, 0])
     if seconds is not None:
         t_end = min(t_end, t0 + float(seconds))
     T = int(np.floor((t_end - t0) / dt + 1e-9))
@@ -163,11 +169,12 @@ def import_robot(folder: str | os.PathLike, robot: int, dt: float = DEFAULT_DT, 
     values = np.stack([meas[order, 2] * 1000.0, wrap(meas[order, 3])], axis=1)
 
     # ground truth at the frame boundaries, gaps flagged
-    pose, pose_gaps = truth_at(gt[:, 0], gt[:, 1], gt[:, 2], gt[:, 3], edges)
+    pose, pose_gaps = truth_at(gt[:, 0], gt[:, 1], gt[:, 2], gt[:, 3], edges) if has_truth else (None, None)
 
     meta = {
         "generator": "aibo_core.mrclam",
-        "source": {"dataset": folder.resolve().name, "robot": int(robot), "files": sorted(names.values()),
+        "source": {"dataset": folder.resolve().name, "robot": int(robot),
+                   "files": sorted(v for k, v in names.items() if has_truth or k != "groundtruth"),
                    "citation": "Leung, Halpern, Barfoot, Liu: The UTIAS Multi-Robot Cooperative Localization "
                                "and Mapping Dataset, IJRR 30(8), 2011",
                    "t0_unix_s": t0, "start_s": float(start_s), "seconds": T * dt},
@@ -182,8 +189,9 @@ def import_robot(folder: str | os.PathLike, robot: int, dt: float = DEFAULT_DT, 
             "groundtruth_rows_repeated": gt_rep, "groundtruth_rows_backward": gt_back,
             "measurement_rows_duplicated": meas_dup,
         },
-        "pose_gaps": pose_gaps,
     }
+    if has_truth:
+        meta["pose_gaps"] = pose_gaps
     tr = Trajectory(dt=float(dt), landmarks=landmarks, sighting_frame=frame[order],
                     sighting_landmark=landmark[order], sighting_value=values, sensor_kind="range_mm",
                     sighting_time=after_frame_end(meas[order, 0], frame[order], t0, dt),

@@ -67,6 +67,24 @@ def test_import_tiny_dataset(tmp_path):
     np.testing.assert_array_equal(back.sighting_time, tr.sighting_time)
 
 
+def test_a_dataset_without_ground_truth_imports_without_a_pose(tmp_path, capsys):
+    """A run without Vicon (or a copy that left the large files out): the same sightings and commands, no pose, the log
+    to the last command, and the import line says there is nothing to score against."""
+    folder = tiny_dataset(tmp_path)
+    _write(folder, "Robot1_Odometry.dat", [(100.0 + 0.5 * k, 0.1, 0.0) for k in range(25)])  # 12 s: past the truth's end
+    with_truth = import_robot(folder, 1, dt=0.1)
+    (folder / "Robot1_Groundtruth.dat").unlink()
+    tr = import_robot(folder, 1, dt=0.1)
+    assert tr.pose is None and "pose_gaps" not in tr.meta
+    assert (with_truth.n_frames, tr.n_frames) == (109, 120)  # the truth ends at 10.98 s; the commands at 12 s
+    np.testing.assert_array_equal(tr.sighting_frame, [2, 2, 19])
+    np.testing.assert_allclose(tr.controls[:109], with_truth.controls)
+    assert "Robot1_Groundtruth.dat" not in tr.meta["source"]["files"]
+    assert main(["import", "mrclam", str(folder), "--robot", "1", "--out", str(tmp_path / "log.npz")]) == 0
+    assert "no ground truth (no Robot1_Groundtruth.dat)" in capsys.readouterr().out
+    assert trajectory.load(tmp_path / "log.npz").pose is None
+
+
 def test_commands_are_averaged_over_frames(tmp_path):
     """A command change inside a frame: the frame's control is the time average (exact travel)."""
     tiny_dataset(tmp_path)

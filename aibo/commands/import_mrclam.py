@@ -20,10 +20,18 @@ def run(args) -> int:
     trajectory.save(tr, args.out)
     m = tr.meta
     dropped = ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in m["dropped"].items() if isinstance(v, int) and v)
-    gaps = m["pose_gaps"]
     print(f"wrote {args.out}: robot {args.robot}, {tr.n_frames} frames of {tr.dt:g} s ({tr.n_frames * tr.dt / 60:.1f} min), "
-          f"{tr.n_sightings} landmark sightings; dropped: {dropped or 'nothing'}; ground-truth gaps > "
-          f"{gaps['threshold_s']:g} s: {gaps['count']} (longest {gaps['longest_s']:.2f} s, {gaps['poses_flagged']} poses "
-          f"flagged)" + (f"; {gaps['poses_outside_groundtruth']} poses outside the ground truth's span flagged"
-                         if gaps["poses_outside_groundtruth"] else "") + f"; {time.perf_counter() - t0:.1f} s")
+          f"{tr.n_sightings} landmark sightings; dropped: {dropped or 'nothing'}; {_truth(tr, args.robot)}; "
+          f"{time.perf_counter() - t0:.1f} s")
     return 0
+
+
+def _truth(tr, robot: int) -> str:
+    """What the import line says of the ground truth: its gaps, or that there is none."""
+    gaps = tr.meta.get("pose_gaps")
+    if gaps is None:
+        return f"no ground truth (no Robot{robot}_Groundtruth.dat): the log has no pose to score against"
+    return (f"ground-truth gaps > {gaps['threshold_s']:g} s: {gaps['count']} (longest {gaps['longest_s']:.2f} s, "
+            f"{gaps['poses_flagged']} poses flagged)" + (f"; {gaps['poses_outside_groundtruth']} poses outside the "
+                                                         "ground truth's span flagged"
+                                                         if gaps["poses_outside_groundtruth"] else ""))
