@@ -120,6 +120,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="velocity commands with a range sensor, from the paper's start: fit the held-curve stage a "
                          "second time from the commands' face value and keep it where it is more than 5 nats more likely "
                          "(default on; paper: off)")
+    lr.add_argument("--map-repair", action=argparse.BooleanOptionalAction, default=None,
+                    help="where two landmarks' sightings each fit the other's map position (their ids swapped), fit "
+                         "again with their ids exchanged, and say so (default on; paper: off; other disagreements with "
+                         "the map are warned of only)")
     lr.add_argument("--alias-search", action=argparse.BooleanOptionalAction, default=None,
                     help="after the fit, search heading aliases of commands held once or a few times (default on; "
                          "paper: off)")

@@ -35,6 +35,7 @@ from learners.discrepancy.search import OUTLIER_SHARE, search
 from learners.discrepancy.signatures import probe_signature, signatures
 from learners.discrepancy.statistics import plain_reading
 from learners.em.learner import feature_map_for
+from learners.em.map_check import map_warnings, repair_warning
 from learners.em.options import DEFAULT_GATE, EMOptions
 from learners.em.support import TESTS_BIAS
 from learners.model.catalogue import CHANGE_SIGNATURE
@@ -200,6 +201,8 @@ def run(args) -> int:
                            f"whole log(s), {d['why']}" for d in found["dropped_in_final"]]
     report["warnings"] += [w for e in report["effects"] for w in e["warnings"]]
     report["warnings"] += motion_warning(report)
+    report["warnings"] += map_warnings(found.get("map_check", []))
+    report["warnings"] += [repair_warning(found["map_repair"])] if found.get("map_repair") else []
     report["warnings"] += outlier_warning(report)
     report["warnings"] += round_limit(report["search_rounds"], report["candidates"])
     for w in report["warnings"]:
@@ -599,6 +602,10 @@ def _report(found: dict, effects: list[dict], before, after, sig_before) -> dict
         # the base fit's wrong world, refitted with spurious sightings ({"off_field_fraction"}; None: it fit the field)
         "base_refit": found.get("base_refit"),
         "outliers": set_aside(found),
+        # landmarks whose sightings the map does not explain, judged by the base model (learners.em.map_check)
+        "map_check": [d.to_dict() for d in found.get("map_check", [])],
+        # what the search ran on instead where it found some (EMOptions.map_repair: as aibo learn), else None
+        "map_repair": found.get("map_repair"),
         "base_change": base_shift(found["base"], found["model"]) if effects else None,
         # each round's winner, the limit, what it left significant, what the final fit dropped (``passed_over``)
         "search_rounds": {"max_rounds": found["max_rounds"], "winners": found["winners"],

@@ -28,7 +28,7 @@ def em_options(args) -> EMOptions:
     if args.patience is not None:
         opts.patience = args.patience
     for name in ("sensor_method", "learn_motion_noise", "accel", "alias_search", "lag_search", "finish", "range_curve",
-                 "range_shrink", "face_value_gate", "face_value_start"):
+                 "range_shrink", "face_value_gate", "face_value_start", "map_repair"):
         if getattr(args, name) is not None:
             setattr(opts, name, getattr(args, name))
     if args.gate is not None:

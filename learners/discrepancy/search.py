@@ -38,6 +38,7 @@ from learners.arrays.batch import make_batch
 from learners.base import LearnResult
 from learners.em.estep import e_step
 from learners.em.learner import EMLearner
+from learners.em.map_check import judged_by, repair_record, repair_text, repaired, swaps
 from learners.em.options import DEFAULT_GATE, EMOptions
 from learners.model.effects import EFFECT_MODELS
 from learners.model.model import Model
@@ -510,15 +511,28 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
     candidates, the named effects in order (``"winners"``: each round's, pruned ones included; ``"left_at_cap"``: the
     candidates still significant in the last round when the search stopped at ``max_rounds``, which another round
     would have tried again), and the current model after each addition (all fitted on the training half),
-    the logs without outliers that every score uses (``"outliers"``: how many of how many sightings were set aside),
+    the logs without outliers that every score uses (``"outliers"``: how many of how many sightings were set aside;
+    ``"map_check"``: the landmarks whose sightings the base model's map does not explain, ``learners.em.map_check``,
+    and where ``opts.map_repair`` found some, ``"map_repair"``: the logs were repaired by them and every fit here,
+    the base's too, made on the repaired logs, which ``"logs"`` then are),
     the candidates the logs cannot support (``"skipped"``: name -> what the log lacks), the fits' context
     (``"context"``: a refit on the training halves) and where the rounds stand (``"state"``, :class:`SearchState`).
     ``action_model``: of the base fit (``aibo learn --action-model``). ``pool``: a worker pool of ``jobs`` workers to run in
     (``aibo_core.workers.process_pool``; the caller's, left open), else one of its own."""
     t0 = time.perf_counter()
+    repair_map = opts.map_repair
     opts = opts.comparable()  # every fit of the search is compared with another: converged to 0.1 nats (EMOptions)
-    n_sightings = sum(tr.n_sightings for tr in logs)
+    given = logs
     base, refit, logs, n_out = base_and_outliers(logs, opts, action_model, progress)
+    mapped = judged_by(base, make_batch(given), DEFAULT_GATE)  # landmarks the map misplaces: outliers here
+    map_repair = None
+    if swaps(mapped) and repair_map:  # as ``aibo learn`` does (``EMOptions.map_repair``): the search runs on the repair
+        map_repair = repair_record(given, swaps(mapped))
+        progress(f"  the map and the sightings disagree (report.json: map_check): the search runs on the log(s) with "
+                 f"{repair_text(map_repair)}")
+        given = repaired(given, swaps(mapped))
+        base, refit, logs, n_out = base_and_outliers(given, opts, action_model, progress)
+    n_sightings = sum(tr.n_sightings for tr in given)
     train = [training_log(tr) for tr in logs]
     # candidates are warm-started
     opts = replace(opts, gate=None, max_iter=min(opts.max_iter, 200), patience=min(opts.patience, SEARCH_PATIENCE))
@@ -546,7 +560,9 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
         run_rounds(st, ctx, workers, jobs, max_rounds, progress)
         found = finish(st, ctx, workers, max_rounds, progress)
     return {"base": base, "base_refit": None if refit is None else refit.info.spurious_refit, "logs": logs,
-            "outliers": {"set_aside": n_out, "sightings": n_sightings}, "skipped": skipped, "context": ctx,
+            "outliers": {"set_aside": n_out, "sightings": n_sightings}, "map_check": mapped, "map_repair": map_repair,
+            "skipped": skipped,
+            "context": ctx,
             "action_model": action_model, "jobs": jobs, **found}
 
 

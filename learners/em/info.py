@@ -61,6 +61,12 @@ class FitInfo:
     #: ``EMOptions.restricted_variances`` (a final fit of ``aibo diagnose``): the named effects' variance parameters
     #: moved to the restricted likelihood's maximum (``learners.em.restricted.restricted_step``' record); None: none
     restricted_variances: dict | None = None
+    #: the landmarks whose sightings disagree with the map (``learners.em.map_check.MapDisagreement.to_dict`` each; []:
+    #: none); None: not checked
+    map_check: list[dict] | None = None
+    #: ``EMOptions.map_repair``: what the fit returned was made on the logs with the ids of ``map_check``'s swapped
+    #: pairs exchanged ({"exchanged": [[a, b, their sightings], ...]}); None: no repair
+    map_repair: dict | None = None
     timings: FitTimings = field(default_factory=FitTimings)
 
     def to_dict(self, timings: bool = True) -> dict[str, Any]:
@@ -100,6 +106,10 @@ class FitInfo:
             out["restricted_noise"] = self.restricted_noise
         if self.restricted_variances is not None:
             out["restricted_variances"] = self.restricted_variances
+        if self.map_check is not None:
+            out["map_check"] = self.map_check
+        if self.map_repair is not None:
+            out["map_repair"] = self.map_repair
         return out
 
     # Read access by key, as for the other learners' plain ``info`` dicts (``result.info["best_iteration"]``).

@@ -19,7 +19,8 @@ from learners.em.estep import e_step, weighed_on
 from learners.em.finish import fisher_scoring
 from learners.em.fit import EMState, initial_state, options_json, run, setback_from_best
 from learners.em.info import FitInfo, FitTimings
-from learners.em.options import COMPARABLE_IMPROVEMENT, DEFAULT_DEGREE, EARLY_STOP, STRICT_PATIENCE, EMOptions
+from learners.em.map_check import MapDisagreement, judged_by, map_warnings, repair_record, repair_warning, repaired, swaps
+from learners.em.options import COMPARABLE_IMPROVEMENT, DEFAULT_DEGREE, DEFAULT_GATE, EARLY_STOP, STRICT_PATIENCE, EMOptions
 from learners.em.predictive import has_mixture
 from learners.em.start import initial_state_candidates
 from learners.em.starts import chosen_start_pose, disagreement, pruned_warning, screen
@@ -96,7 +97,8 @@ def spurious_start(start: Model, batch: Batch) -> Model:
 def stage_checkpoint(path: str | os.PathLike | None, stage: str) -> str | None:
     """The checkpoint of one stage of a fit beside ``path`` (``PATH.STAGE.npz``): "held" for the held-curve stage of
     ``range_curve`` "freed" ("held_face_value" for its second start, ``EMOptions.face_value_start``), "spurious-1" and
-    "spurious-2" for the refit with spurious sightings
+    "spurious-2" for the refit with spurious sightings, "map_repaired" for the fit on the repaired logs
+    (``EMOptions.map_repair``)
     (``EMOptions.spurious_refit``). Kept apart, so a resumed run finishes the stage it stopped in from its own and
     resumes the next from its."""
     return None if path is None else f"{os.fspath(path)}.{stage}.npz"
@@ -344,6 +346,27 @@ class EMLearner:
         heavy = pruned_warning(result.pruned_observations, sightings)
         if heavy:
             result.info.warnings = [heavy] + list(result.info.warnings or [])
+        pairs = swaps([MapDisagreement(**d) for d in result.info.map_check or []])
+        if self.options.map_repair and pairs:
+            return self._map_repaired(logs, init, progress, action_model, result, pairs)
+        return result
+
+    def _map_repaired(self, logs: list[Trajectory], init: Model | None, progress: ProgressFn | None,
+                      action_model: str | None, first: LearnResult, pairs: list[list[int]]) -> LearnResult:
+        """``EMOptions.map_repair``: the fit made again, as ``fit`` makes it (its own checkpoint stage,
+        "map_repaired"), on the logs with the ids of each swapped pair of the first fit's map check exchanged
+        (``map_check.repaired``; the start-pose beliefs found again from their sightings); its info keeps the first
+        fit's findings (``map_check``; the refit's own check is among its warnings), says what was repaired
+        (``map_repair``) and carries the first fit's warnings on the map, then the refit's own."""
+        fixed = repaired(logs, pairs)
+        learner = EMLearner(replace(self.options, map_repair=False),
+                            stage_checkpoint(self.checkpoint_path, "map_repaired"), self.resume, self.checkpoint_every,
+                            self.check_field)
+        result = learner.fit(fixed, init, progress, action_model)
+        record = repair_record(logs, pairs)
+        said = map_warnings([MapDisagreement(**d) for d in first.info.map_check])
+        result.info.warnings = said + [repair_warning(record)] + list(result.info.warnings or [])
+        result.info.map_check, result.info.map_repair = first.info.map_check, record
         return result
 
     def fit_in_field(self, logs: list[Trajectory], action_model: str | None = None,
@@ -501,8 +524,11 @@ class EMLearner:
             # the first iteration carries the one-time numba compile or cache load: reported apart
             first_iteration=float(state.seconds[0]) if state.seconds else 0.0,
             per_iteration=float(np.median(state.seconds[1:])) if len(state.seconds) > 1 else 0.0)
+        off_field = self._check(used, state.best, logs)
+        # the map judged by the fitted model on every sighting (the first gate's pruning was the start model's view)
+        mapped = judged_by(state.best, batch, self.options.gate or DEFAULT_GATE)
         info = FitInfo(state.best_iteration + 1, resumed_from, self.options.__dict__.copy(),
-                       off_field_fraction=self._check(used, state.best, logs),
+                       off_field_fraction=off_field, map_check=[d.to_dict() for d in mapped],
                        undetermined=undetermined,  # parameters the data did not determine (kept at their start)
                        starts=state.starts or None, timings=times,
                        # E-steps of the whole fit: the winner's, and the other starts' screening
@@ -528,6 +554,7 @@ class EMLearner:
             mirror_warnings(state.best, batch.controls) + (
             [split] if split else []) + ([close] if close else []) + field_warnings(info.off_field_fraction) + \
             weak_command_warnings(state.best, se) + correlated_size_warnings(state.best, used) + \
+            map_warnings(mapped) + \
             setback_warnings(None if scoring is not None and scoring.record["converged"] else setback) + (
             [f"{len(undetermined)} parameter(s) not determined by the data (e.g. {undetermined[0]}): kept at their "
              "start values"] if undetermined else [])
@@ -619,6 +646,9 @@ class EMLearner:
                                                         stage_checkpoint(stage, "held_face_value"))]:
             if path and os.path.exists(path):
                 os.unlink(path)
+        if self.options.map_repair and self.checkpoint_path:  # the repaired logs' fit and its stages
+            EMLearner(replace(self.options, map_repair=False),
+                      stage_checkpoint(self.checkpoint_path, "map_repaired")).discard_checkpoint()
 
     def _load_or_start(self, batch: Batch, start: Model, fp: str, record) -> tuple[EMState, int]:
         """(state to continue, iteration it was resumed from: 0 for a fresh start). A fresh start with

@@ -1,0 +1,200 @@
+"""Landmarks whose sightings disagree with the map: a map position that is wrong, or two landmarks whose ids are
+swapped (in the map's rows or in the table that turns a detector's ids into landmarks).
+
+A fitted model's smoothed poses say where the robot was. A landmark whose sightings that model mostly leaves out
+(beyond its outlier gate, every sighting of the logs judged: more than ``LEFT_OUT_SHARE``) is looked at through the
+bearings of the sightings left out alone, so that neither the range curve nor the size model enters: where their
+median bearing error at the landmark's map position is small (``AGREES_RAD``) they were left out for their sizes or
+their noise, not the map; where it is large, the map disagrees. Where they fit another landmark's map position, its id
+is the likely error, and two landmarks whose sightings each fit the other's position are a swapped pair; otherwise the
+point nearest their rays (``triangulate``) says where the landmark is. ``EMOptions.map_repair`` fits again on the logs
+with each swapped pair's ids exchanged (``repaired``); the other findings are warned of only: a fit in a world the wrong
+map bent can leave out a right landmark's sightings too (MRCLAM Dataset 1, robot 1's first half: two landmarks near the
+swapped one named as moved when the first gate's pruning counted as left out), so only the pair whose sightings vouch
+for each other is repaired.
+
+Measured (``scripts/mrclam_without_truth.py``, ``aibo learn`` with its defaults; docs/results.md, "Landmarks where the
+map does not put them"): MRCLAM Dataset 1 (a run never used to build anything here; its files as kept in GitHub
+curow/multi-robot-localization) sees landmarks 5 and 11 (subjects 11 and 17) where its map puts the other on every
+robot: robot 1's fit left out 462 of 546 and 230 of 230 of their sightings, whose bearings miss their own map
+positions by 2.6 and 1.8 rad (median) and fit each other's within 0.025 and 0.028 rad. On the ten whole logs of
+Datasets 6 and 7 it names no landmark.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, replace
+
+import numpy as np
+
+from aibo_core.geometry import wrap
+from aibo_core.trajectory import Trajectory
+from learners.arrays.batch import Batch
+from learners.model.model import Model
+
+#: Fewest sightings of a landmark for a verdict on it.
+MIN_SIGHTINGS = 20
+#: A landmark is looked at again when the fit left out more than this share of its sightings.
+LEFT_OUT_SHARE = 0.5
+#: The median |bearing error| (rad) of the sightings left out, against a map position, at or below which they are
+#: sightings of a landmark there (its own: they were left out for another reason, not the map's).
+AGREES_RAD = 0.1
+#: ``triangulate``: rays further than this many times the median distance from the point are dropped, twice.
+TRIM = 3.0
+
+
+@dataclass(frozen=True)
+class MapDisagreement:
+    """One landmark whose sightings the map does not explain (indices into the log's ``landmarks``, 0-based)."""
+
+    landmark: int
+    sightings: int
+    left_out: int  # of them, not applied by the fit
+    map_xy: tuple[float, float]  # mm
+    bearing_error_rad: float  # the median |bearing error| of those left out, at the map position
+    at_landmark: int | None  # the other landmark whose map position explains their bearings (AGREES_RAD), if any
+    at_bearing_error_rad: float | None  # ... their median |bearing error| there
+    swapped: bool  # that landmark's sightings left out are in turn at this one's map position
+    seen_xy: tuple[float, float] | None  # mm: where their bearings put it (``triangulate``), None: nowhere determined
+    seen_sd_mm: float | None  # that point's standard error along its worst direction (mm)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def triangulate(origins: np.ndarray, angles: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """(the point (mm) nearest, in the least-squares sense, to the rays from ``origins`` (n, 2) mm in directions
+    ``angles`` (n,) rad, rays far from it dropped twice (``TRIM``); its standard error along its worst direction, mm,
+    from the rays' scatter about it); None where the rays do not cross at usable angles (all nearly parallel) or the
+    point lies behind most of them."""
+    dirs = np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    keep = np.ones(len(origins), bool)
+    for _ in range(3):
+        u = dirs[keep]
+        proj = np.eye(2)[None] - u[:, :, None] * u[:, None, :]  # I - u u^T per ray
+        A, b = proj.sum(axis=0), np.einsum("nij,nj->i", proj, origins[keep])
+        if keep.sum() < 3 or np.linalg.eigvalsh(A)[0] < 1e-3 * keep.sum():  # directions within about 2 degrees
+            return None
+        point = np.linalg.solve(A, b)
+        rel = point - origins
+        dist = np.abs(rel[:, 0] * dirs[:, 1] - rel[:, 1] * dirs[:, 0])  # each ray's perpendicular distance
+        used, keep = keep, dist <= TRIM * max(float(np.median(dist[keep])), 1.0)
+    ahead = np.einsum("ni,ni->n", point - origins[used], dirs[used]) > 0
+    if ahead.mean() <= 0.5:
+        return None
+    scatter = float(np.sum(dist[used] ** 2) / max(int(used.sum()) - 2, 1))
+    return point, float(np.sqrt(scatter * np.linalg.eigvalsh(np.linalg.inv(A))[-1]))
+
+
+def bearing_errors(origins: np.ndarray, angles: np.ndarray, places: np.ndarray) -> np.ndarray:
+    """(B,) the median |bearing error| (rad) of rays from ``origins`` (n, 2) in directions ``angles`` (n,) at each of
+    ``places`` (B, 2) mm."""
+    want = np.arctan2(places[:, None, 1] - origins[None, :, 1], places[:, None, 0] - origins[None, :, 0])
+    return np.median(np.abs(wrap(angles[None] - want)), axis=1)
+
+
+def partner_agrees(batch: Batch, pose: np.ndarray, world: np.ndarray, applied: np.ndarray, lm: int, at: int) -> bool:
+    """Whether landmark ``at``'s sightings left out (at least ``MIN_SIGHTINGS / 2``, any share) fit ``lm``'s map position
+    and miss their own (``AGREES_RAD``): with ``lm``'s at ``at``'s, a swapped pair."""
+    left = (batch.sight_landmark == at) & ~applied
+    if left.sum() < MIN_SIGHTINGS / 2:
+        return False
+    err = bearing_errors(pose[left, :2], world[left], batch.landmarks[[lm, at]])
+    return bool(err[0] <= AGREES_RAD < err[1])
+
+
+def check(batch: Batch, poses: np.ndarray, applied: np.ndarray) -> list[MapDisagreement]:
+    """The landmarks whose sightings disagree with the map (module docstring): ``poses`` (P, 3) the fit's smoothed
+    poses [x mm, y mm, theta rad], ``applied`` (S,) which sightings of ``batch`` the fit applied."""
+    pose = poses[batch.sight_pose]
+    world = pose[:, 2] + batch.sight_value[:, 1]  # the bearing is the body's (a head's pan included)
+    found = []
+    for lm in range(len(batch.landmarks)):
+        mine = batch.sight_landmark == lm
+        left = mine & ~applied  # those that agree with the map were applied: the others say where it is
+        n, out = int(mine.sum()), int(left.sum())
+        if n < MIN_SIGHTINGS or out <= LEFT_OUT_SHARE * n:
+            continue
+        err = bearing_errors(pose[left, :2], world[left], batch.landmarks)
+        if err[lm] <= AGREES_RAD:  # at its map position after all: left out for its sizes, or its noise
+            continue
+        others = np.where(np.arange(len(err)) == lm, np.inf, err)
+        at = int(np.argmin(others)) if others.min() <= AGREES_RAD else None
+        seen = triangulate(pose[left, :2], world[left])
+        swapped = at is not None and partner_agrees(batch, pose, world, applied, lm, at)
+        found.append(MapDisagreement(lm, n, out, tuple(map(float, batch.landmarks[lm])), float(err[lm]), at,
+                                     None if at is None else float(err[at]), swapped,
+                                     None if seen is None else tuple(map(float, seen[0])),
+                                     None if seen is None else seen[1]))
+    return found
+
+
+def swaps(found: list[MapDisagreement]) -> list[list[int]]:
+    """The swapped pairs of ``found``, [[a, b], ...] with a < b, each once."""
+    return [list(p) for p in sorted({tuple(sorted((d.landmark, d.at_landmark))) for d in found if d.swapped})]
+
+
+def map_warnings(found: list[MapDisagreement]) -> list[str]:
+    """One warning per landmark of ``found`` (a swapped pair: one for both)."""
+    out, said = [], set()
+    by_landmark = {d.landmark: d for d in found}
+    for d in found:
+        if d.landmark in said:
+            continue
+        head = (f"the map and the sightings disagree: the fit left out {d.left_out:,d} of {d.sightings:,d} sightings of "
+                f"landmark {d.landmark} (map ({d.map_xy[0]:,.0f}, {d.map_xy[1]:,.0f}) mm), whose bearings miss its map "
+                f"position by {d.bearing_error_rad:.2f} rad (median)")
+        if d.swapped:
+            other = by_landmark.get(d.at_landmark)
+            said.add(d.at_landmark)
+            theirs = "" if other is None else f" ({other.left_out:,d} of {other.sightings:,d} left out)"
+            out.append(f"{head} and fit landmark {d.at_landmark}'s ({d.at_bearing_error_rad:.3f} rad), while landmark "
+                       f"{d.at_landmark}'s{theirs} left out fit landmark {d.landmark}'s: their ids look swapped (the "
+                       "map's rows or the table of detector ids); correct the map and fit again")
+        elif d.at_landmark is not None:
+            out.append(f"{head} and fit landmark {d.at_landmark}'s ({d.at_bearing_error_rad:.3f} rad): its id may be "
+                       "wrong; correct the map and fit again")
+        else:
+            seen = ("" if d.seen_xy is None else f"; they put it at ({d.seen_xy[0]:,.0f}, {d.seen_xy[1]:,.0f}) mm "
+                    f"(+-{2 * d.seen_sd_mm:,.0f} mm)")
+            out.append(f"{head}{seen}: its map position may be wrong (or it was moved); correct the map and fit again")
+        said.add(d.landmark)
+    return out
+
+
+
+def judged_by(model: Model, batch: Batch, gate: float) -> list[MapDisagreement]:
+    """``check`` of ``batch``'s sightings under ``model``: its smoothed poses, the sightings not used (pruned) or beyond
+    ``gate`` (Mahalanobis^2) not applied."""
+    from learners.em.estep import e_step
+
+    post = e_step(model, batch, "compiled", gate)
+    return check(batch, post.mu_gamma, batch.used & ~(post.mahal2 > gate))
+
+
+def repaired(logs: list[Trajectory], pairs: list[list[int]]) -> list[Trajectory]:
+    """``logs`` with the ids of each pair of ``pairs`` (``swaps``) exchanged in every sighting."""
+    out = []
+    for tr in logs:
+        ids = tr.sighting_landmark.copy()
+        for a, b in pairs:
+            ids[tr.sighting_landmark == a], ids[tr.sighting_landmark == b] = b, a
+        out.append(replace(tr, sighting_landmark=ids))
+    return out
+
+
+def repair_record(logs: list[Trajectory], pairs: list[list[int]]) -> dict:
+    """``FitInfo.map_repair``: {"exchanged": [[a, b, their sightings], ...]}."""
+    seen = np.concatenate([tr.sighting_landmark for tr in logs])
+    return {"exchanged": [[a, b, int(np.isin(seen, [a, b]).sum())] for a, b in pairs]}
+
+
+def repair_text(record: dict) -> str:
+    """What was repaired (``FitInfo.map_repair``), e.g. "landmarks 5 and 11's ids exchanged in their 776 sightings"."""
+    return ", ".join(f"landmarks {a} and {b}'s ids exchanged in their {n:,d} sightings" for a, b, n in record["exchanged"])
+
+
+def repair_warning(record: dict) -> str:
+    """The line that says what the fit was made on (``FitInfo.map_repair``)."""
+    return (f"the model was fitted again on the log(s) with {repair_text(record)} (--no-map-repair fits the map as "
+            "given): correct the map and these lines go")
