@@ -524,7 +524,8 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
     opts = opts.comparable()  # every fit of the search is compared with another: converged to 0.1 nats (EMOptions)
     given = logs
     base, refit, logs, n_out = base_and_outliers(logs, opts, action_model, progress)
-    mapped = judged_by(base, make_batch(given), DEFAULT_GATE)  # landmarks the map misplaces: outliers here
+    # landmarks the map misplaces (their sightings are outliers here): judged by the base on every sighting
+    mapped = judged_by(base, make_batch(given), DEFAULT_GATE) if given else []
     map_repair = None
     if swaps(mapped) and repair_map:  # as ``aibo learn`` does (``EMOptions.map_repair``): the search runs on the repair
         map_repair = repair_record(given, swaps(mapped))

@@ -6,8 +6,9 @@ A fitted model's smoothed poses say where the robot was. A landmark whose sighti
 bearings of the sightings left out alone, so that neither the range curve nor the size model enters: where their
 median bearing error at the landmark's map position is small (``AGREES_RAD``) they were left out for their sizes or
 their noise, not the map; where it is large, the map disagrees. Where they fit another landmark's map position, its id
-is the likely error, and two landmarks whose sightings each fit the other's position are a swapped pair; otherwise the
-point nearest their rays (``triangulate``) says where the landmark is. ``EMOptions.map_repair`` fits again on the logs
+is the likely error (of several positions in one direction, the one nearest the point their rays cross at), and two
+landmarks whose sightings each fit the other's position are a swapped pair; otherwise that point (``triangulate``)
+says where the landmark is. ``EMOptions.map_repair`` fits again on the logs
 with each swapped pair's ids exchanged (``repaired``); the other findings are warned of only: a fit in a world the wrong
 map bent can leave out a right landmark's sightings too (MRCLAM Dataset 1, robot 1's first half: two landmarks near the
 swapped one named as moved when the first gate's pruning counted as left out), so only the pair whose sightings vouch
@@ -93,14 +94,20 @@ def bearing_errors(origins: np.ndarray, angles: np.ndarray, places: np.ndarray) 
     return np.median(np.abs(wrap(angles[None] - want)), axis=1)
 
 
-def partner_agrees(batch: Batch, pose: np.ndarray, world: np.ndarray, applied: np.ndarray, lm: int, at: int) -> bool:
-    """Whether landmark ``at``'s sightings left out (at least ``MIN_SIGHTINGS / 2``, any share) fit ``lm``'s map position
-    and miss their own (``AGREES_RAD``): with ``lm``'s at ``at``'s, a swapped pair."""
-    left = (batch.sight_landmark == at) & ~applied
-    if left.sum() < MIN_SIGHTINGS / 2:
-        return False
-    err = bearing_errors(pose[left, :2], world[left], batch.landmarks[[lm, at]])
-    return bool(err[0] <= AGREES_RAD < err[1])
+def where_seen(pose: np.ndarray, world: np.ndarray, rays: np.ndarray, landmarks: np.ndarray,
+               own: int) -> tuple[np.ndarray, int | None, tuple[np.ndarray, float] | None]:
+    """For the sightings ``rays`` ((S,) bool) of landmark ``own``: (the median |bearing error| at every landmark's map
+    position, (B,) rad; the other landmark whose position they fit (``AGREES_RAD``), the nearest to the point their
+    rays cross at where there is one, since bearings alone cannot tell apart two positions in one direction; that
+    point, ``triangulate``)."""
+    err = bearing_errors(pose[rays, :2], world[rays], landmarks)
+    seen = triangulate(pose[rays, :2], world[rays])
+    fit = [k for k in range(len(landmarks)) if k != own and err[k] <= AGREES_RAD]
+    if not fit:
+        return err, None, seen
+    if seen is None:
+        return err, min(fit, key=lambda k: err[k]), None
+    return err, min(fit, key=lambda k: float(np.hypot(*(landmarks[k] - seen[0])))), seen
 
 
 def check(batch: Batch, poses: np.ndarray, applied: np.ndarray) -> list[MapDisagreement]:
@@ -115,23 +122,35 @@ def check(batch: Batch, poses: np.ndarray, applied: np.ndarray) -> list[MapDisag
         n, out = int(mine.sum()), int(left.sum())
         if n < MIN_SIGHTINGS or out <= LEFT_OUT_SHARE * n:
             continue
-        err = bearing_errors(pose[left, :2], world[left], batch.landmarks)
+        err, at, seen = where_seen(pose, world, left, batch.landmarks, lm)
         if err[lm] <= AGREES_RAD:  # at its map position after all: left out for its sizes, or its noise
             continue
-        others = np.where(np.arange(len(err)) == lm, np.inf, err)
-        at = int(np.argmin(others)) if others.min() <= AGREES_RAD else None
-        seen = triangulate(pose[left, :2], world[left])
-        swapped = at is not None and partner_agrees(batch, pose, world, applied, lm, at)
+        swapped = False
+        if at is not None:  # a swap: the other's sightings left out (at least half of MIN_SIGHTINGS) are at this one
+            theirs = (batch.sight_landmark == at) & ~applied
+            if theirs.sum() >= MIN_SIGHTINGS / 2:
+                their_err, their_at, _ = where_seen(pose, world, theirs, batch.landmarks, at)
+                swapped = bool(their_at == lm and their_err[at] > AGREES_RAD)
         found.append(MapDisagreement(lm, n, out, tuple(map(float, batch.landmarks[lm])), float(err[lm]), at,
                                      None if at is None else float(err[at]), swapped,
                                      None if seen is None else tuple(map(float, seen[0])),
                                      None if seen is None else seen[1]))
-    return found
+    # where the other landmark is named too and its sightings fit no landmark's position (a world the wrong map bent:
+    # MRCLAM Dataset 1's robot 4, 3,269 sightings), its being named at all is the other half of the swap's evidence
+    named = {d.landmark: d for d in found}
+    return [replace(d, swapped=True) if (not d.swapped and d.at_landmark in named
+                                         and named[d.at_landmark].at_landmark is None) else d for d in found]
 
 
 def swaps(found: list[MapDisagreement]) -> list[list[int]]:
-    """The swapped pairs of ``found``, [[a, b], ...] with a < b, each once."""
-    return [list(p) for p in sorted({tuple(sorted((d.landmark, d.at_landmark))) for d in found if d.swapped})]
+    """The swapped pairs of ``found``, [[a, b], ...] with a < b, each once; a landmark in two pairs (the check cannot
+    tell which) in none."""
+    pairs = {tuple(sorted((d.landmark, d.at_landmark))) for d in found if d.swapped}
+    count: dict[int, int] = {}
+    for p in pairs:
+        for lm in p:
+            count[lm] = count.get(lm, 0) + 1
+    return [list(p) for p in sorted(pairs) if count[p[0]] == count[p[1]] == 1]
 
 
 def map_warnings(found: list[MapDisagreement]) -> list[str]:
@@ -148,9 +167,11 @@ def map_warnings(found: list[MapDisagreement]) -> list[str]:
             other = by_landmark.get(d.at_landmark)
             said.add(d.at_landmark)
             theirs = "" if other is None else f" ({other.left_out:,d} of {other.sightings:,d} left out)"
+            where = ("no landmark's position" if other is not None and other.at_landmark is None
+                     else f"landmark {d.landmark}'s")
             out.append(f"{head} and fit landmark {d.at_landmark}'s ({d.at_bearing_error_rad:.3f} rad), while landmark "
-                       f"{d.at_landmark}'s{theirs} left out fit landmark {d.landmark}'s: their ids look swapped (the "
-                       "map's rows or the table of detector ids); correct the map and fit again")
+                       f"{d.at_landmark}'s{theirs} left out fit {where}: their ids look swapped (the map's rows or the "
+                       "table of detector ids); correct the map and fit again")
         elif d.at_landmark is not None:
             out.append(f"{head} and fit landmark {d.at_landmark}'s ({d.at_bearing_error_rad:.3f} rad): its id may be "
                        "wrong; correct the map and fit again")
