@@ -7,19 +7,20 @@ bearings of the sightings left out alone, so that neither the range curve nor th
 median bearing error at the landmark's map position is small (``AGREES_RAD``) they were left out for their sizes or
 their noise, not the map; where it is large, the map disagrees. Where they fit another landmark's map position, its id
 is the likely error (of several positions in one direction, the one nearest the point their rays cross at), and two
-landmarks whose sightings each fit the other's position are a swapped pair; otherwise that point (``triangulate``)
-says where the landmark is. ``EMOptions.map_repair`` fits again on the logs
-with each swapped pair's ids exchanged (``repaired``); the other findings are warned of only: a fit in a world the wrong
-map bent can leave out a right landmark's sightings too (MRCLAM Dataset 1, robot 1's first half: two landmarks near the
-swapped one named as moved when the first gate's pruning counted as left out), so only the pair whose sightings vouch
-for each other is repaired.
+landmarks whose sightings each fit the other's position (or one's the other's, the other named too with its sightings
+at no landmark's position) are a swapped pair; otherwise that point (``triangulate``) says where the landmark is.
+``EMOptions.map_repair`` fits again on the logs with each swapped pair's ids exchanged (``repaired``); the other
+findings are warned of only: a fit in a world the wrong map bent can leave out a right landmark's sightings too
+(MRCLAM Dataset 1, robot 1's first half: two landmarks near the swapped one named as moved when the first gate's
+pruning counted as left out), so only a pair whose sightings vouch for each other is repaired.
 
 Measured (``scripts/mrclam_without_truth.py``, ``aibo learn`` with its defaults; docs/results.md, "Landmarks where the
 map does not put them"): MRCLAM Dataset 1 (a run never used to build anything here; its files as kept in GitHub
 curow/multi-robot-localization) sees landmarks 5 and 11 (subjects 11 and 17) where its map puts the other on every
 robot: robot 1's fit left out 462 of 546 and 230 of 230 of their sightings, whose bearings miss their own map
-positions by 2.6 and 1.8 rad (median) and fit each other's within 0.025 and 0.028 rad. On the ten whole logs of
-Datasets 6 and 7 it names no landmark.
+positions by 2.6 and 1.8 rad (median) and fit each other's within 0.025 and 0.028 rad; repaired, 14 of the 15 fits of
+Dataset 1 (whole logs and halves) are the fits with the map corrected by hand, number for number. On the ten whole logs
+of Datasets 6 and 7 and the 36 fits of Datasets 2-4 it names no landmark.
 """
 
 from __future__ import annotations
@@ -55,7 +56,7 @@ class MapDisagreement:
     bearing_error_rad: float  # the median |bearing error| of those left out, at the map position
     at_landmark: int | None  # the other landmark whose map position explains their bearings (AGREES_RAD), if any
     at_bearing_error_rad: float | None  # ... their median |bearing error| there
-    swapped: bool  # that landmark's sightings left out are in turn at this one's map position
+    swapped: bool  # that landmark's sightings left out are in turn at this one's map position (``check``)
     seen_xy: tuple[float, float] | None  # mm: where their bearings put it (``triangulate``), None: nowhere determined
     seen_sd_mm: float | None  # that point's standard error along its worst direction (mm)
 
