@@ -134,7 +134,9 @@ def import_robot(folder: str | os.PathLike, robot: int, dt: float = DEFAULT_DT, 
     odo = odo[keep]
     keep, gt_rep, gt_back = increasing(gt[:, 0]) if has_truth else (slice(None), 0, 0)
     gt = gt[keep]
-    tables = [("odometry", odo, odo_rep, odo_back)] + [("groundtruth", gt, gt_rep, gt_back)] * has_truth
+    tables = [("odometry", odo, odo_rep, odo_back)]
+    if has_truth:
+        tables.append(("groundtruth", gt, gt_rep, gt_back))
     for role, rows, rep, back in tables:
         if len(rows) < 2:
             raise MRCLAMError(f"{folder / names[role]}: fewer than 2 usable rows (times must increase: {rep} "

@@ -35,6 +35,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from mrclam_crossval import set_aside  # noqa: E402
+from mrclam_learn_starts import SEGMENTS, segments  # noqa: E402
 from study import resume, robots, run_aibo  # noqa: E402
 
 from aibo_core import trajectory  # noqa: E402
@@ -43,16 +44,7 @@ from learners.discrepancy.score import motion_score  # noqa: E402
 from learners.model.io import load_model  # noqa: E402
 from learners.scoring import _windows, face_value_model, model_window_velocities, smoothed_poses  # noqa: E402
 
-SEGMENTS = ("whole", "first", "second")
 MARGIN_MM = 500.0  # the landmarks' bounding box grown by this on every side: "inside the field"
-
-
-def segments(data: Path, robot: int) -> dict[str, trajectory.Trajectory]:
-    """The robot's whole log and its halves by time (0.1 s frames), by name."""
-    whole = import_robot(data, robot)
-    half = whole.n_frames * whole.dt / 2
-    return {"whole": whole, "first": import_robot(data, robot, seconds=half),
-            "second": import_robot(data, robot, start_s=half)}
 
 
 def inside_share(model, log) -> float:

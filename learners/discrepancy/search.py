@@ -526,12 +526,12 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
     base, refit, logs, n_out = base_and_outliers(logs, opts, action_model, progress)
     # landmarks the map misplaces (their sightings are outliers here): judged by the base on every sighting
     mapped = judged_by(base, make_batch(given), DEFAULT_GATE) if given else []
-    map_repair = None
-    if swaps(mapped) and repair_map:  # as ``aibo learn`` does (``EMOptions.map_repair``): the search runs on the repair
-        map_repair = repair_record(given, swaps(mapped))
+    map_repair, pairs = None, swaps(mapped)
+    if pairs and repair_map:  # as ``aibo learn`` does (``EMOptions.map_repair``): the search runs on the repair
+        map_repair = repair_record(given, pairs)
         progress(f"  the map and the sightings disagree (report.json: map_check): the search runs on the log(s) with "
                  f"{repair_text(map_repair)}")
-        given = repaired(given, swaps(mapped))
+        given = repaired(given, pairs)
         base, refit, logs, n_out = base_and_outliers(given, opts, action_model, progress)
     n_sightings = sum(tr.n_sightings for tr in given)
     train = [training_log(tr) for tr in logs]
@@ -562,8 +562,7 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
         found = finish(st, ctx, workers, max_rounds, progress)
     return {"base": base, "base_refit": None if refit is None else refit.info.spurious_refit, "logs": logs,
             "outliers": {"set_aside": n_out, "sightings": n_sightings}, "map_check": mapped, "map_repair": map_repair,
-            "skipped": skipped,
-            "context": ctx,
+            "skipped": skipped, "context": ctx,
             "action_model": action_model, "jobs": jobs, **found}
 
 

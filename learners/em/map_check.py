@@ -184,7 +184,6 @@ def map_warnings(found: list[MapDisagreement]) -> list[str]:
     return out
 
 
-
 def judged_by(model: Model, batch: Batch, gate: float) -> list[MapDisagreement]:
     """``check`` of ``batch``'s sightings under ``model``: its smoothed poses, the sightings not used (pruned) or beyond
     ``gate`` (Mahalanobis^2) not applied."""
