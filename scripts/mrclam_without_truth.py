@@ -11,7 +11,8 @@ with one line. Per row:
   warnings, the share of the smoothed poses inside the landmarks' bounding box grown by ``MARGIN_MM`` (a fit in a
   wrong world leaves it), and the model's forward speed and turn rate over 1 s windows as a multiple of the commands'
   (the mean of |model| over the mean of |face value|); the landmarks whose sightings the map does not explain
-  (``info["map_check"]``, ``learners.em.map_check``);
+  (``info["map_check"]``, ``learners.em.map_check``) and whether the fit was made on their ids exchanged
+  (``info["map_repair"]``);
 - ``first`` / ``second``: the same, and the model scored on the other half: the motion gap at 1, 2 and 5 s
   (``learners.discrepancy.score.motion_score``: every sighting predicted open loop from the filtered belief k seconds
   before and the commands alone, nats per sighting, lower is better; the half's gross outliers set aside once by the
@@ -82,6 +83,7 @@ def row(data: Path, robot: int, segment: str, out: Path, score_data: Path | None
     rec = {"dataset": data.name, "robot": robot, "segment": segment, "seconds": wall, "minutes": fitted.n_frames * fitted.dt / 60,
            "sightings": int(fitted.n_sightings), "kept": ((info.get("held_curve_fit") or {}).get("starts") or {}).get("kept"),
            "warnings": list(info.get("warnings", [])), "map_check": info.get("map_check", []),
+           "map_repair": info.get("map_repair"),
            "inside": inside_share(model, fitted), **speed_ratios(model, fitted)}
     other = {"first": logs["second"], "second": logs["first"]}.get(segment)
     if other is not None:
@@ -105,14 +107,17 @@ def table(rows: list[dict]) -> str:
 
 
 def map_cell(r: dict) -> str:
-    """The landmarks ``learners.em.map_check`` named: "5 <-> 11" for a swapped pair, "3 at 7", "3 moved"."""
+    """The landmarks ``learners.em.map_check`` named: "5 <-> 11" for a swapped pair, "3 at 7", "3 moved"; then what
+    the repair did with the pairs it tried (``info["map_repair"]``): "exchanged", or "tried, kept as given"."""
     found = r.get("map_check", [])
     pairs = sorted({tuple(sorted((d["landmark"], d["at_landmark"]))) for d in found if d["swapped"]})
     paired = {lm for p in pairs for lm in p}
     cells = [f"{a} <-> {b}" for a, b in pairs]
     cells += [f"{d['landmark']} at {d['at_landmark']}" if d["at_landmark"] is not None else f"{d['landmark']} moved"
               for d in found if d["landmark"] not in paired]
-    return ", ".join(cells) or "-"
+    repair = r.get("map_repair")
+    done = "" if not repair else "; exchanged" if repair["held"] else "; tried, kept as given"
+    return (", ".join(cells) or "-") + done
 
 
 def main(argv=None) -> int:

@@ -604,7 +604,8 @@ def _report(found: dict, effects: list[dict], before, after, sig_before) -> dict
         "outliers": set_aside(found),
         # landmarks whose sightings the map does not explain, judged by the base model (learners.em.map_check)
         "map_check": [d.to_dict() for d in found.get("map_check", [])],
-        # what the search ran on instead where it found some (EMOptions.map_repair: as aibo learn), else None
+        # pairs of them that may be swapped, tried exchanged (EMOptions.map_repair: as aibo learn): "held" true, the
+        # search ran on the exchange; None: none tried
         "map_repair": found.get("map_repair"),
         "base_change": base_shift(found["base"], found["model"]) if effects else None,
         # each round's winner, the limit, what it left significant, what the final fit dropped (``passed_over``)

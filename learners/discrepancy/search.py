@@ -38,7 +38,7 @@ from learners.arrays.batch import make_batch
 from learners.base import LearnResult
 from learners.em.estep import e_step
 from learners.em.learner import EMLearner
-from learners.em.map_check import judged_by, repair_record, repair_text, repaired, swaps
+from learners.em.map_check import exchanges, judged, repair_record, repair_warning, repaired
 from learners.em.options import DEFAULT_GATE, EMOptions
 from learners.model.effects import EFFECT_MODELS
 from learners.model.model import Model
@@ -513,8 +513,9 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
     would have tried again), and the current model after each addition (all fitted on the training half),
     the logs without outliers that every score uses (``"outliers"``: how many of how many sightings were set aside;
     ``"map_check"``: the landmarks whose sightings the base model's map does not explain, ``learners.em.map_check``,
-    and where ``opts.map_repair`` found some, ``"map_repair"``: the logs were repaired by them and every fit here,
-    the base's too, made on the repaired logs, which ``"logs"`` then are),
+    and where ``opts.map_repair`` found pairs that may be swapped, ``"map_repair"``, ``map_check.repair_record``: the
+    base fitted on the logs with their ids exchanged, and where that holds, every fit here, the base's too, made on
+    the repaired logs, which ``"logs"`` then are),
     the candidates the logs cannot support (``"skipped"``: name -> what the log lacks), the fits' context
     (``"context"``: a refit on the training halves) and where the rounds stand (``"state"``, :class:`SearchState`).
     ``action_model``: of the base fit (``aibo learn --action-model``). ``pool``: a worker pool of ``jobs`` workers to run in
@@ -525,14 +526,17 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
     given = logs
     base, refit, logs, n_out = base_and_outliers(logs, opts, action_model, progress)
     # landmarks the map misplaces (their sightings are outliers here): judged by the base on every sighting
-    mapped = judged_by(base, make_batch(given), DEFAULT_GATE) if given else []
-    map_repair, pairs = None, swaps(mapped)
-    if pairs and repair_map:  # as ``aibo learn`` does (``EMOptions.map_repair``): the search runs on the repair
-        map_repair = repair_record(given, pairs)
-        progress(f"  the map and the sightings disagree (report.json: map_check): the search runs on the log(s) with "
-                 f"{repair_text(map_repair)}")
-        given = repaired(given, pairs)
-        base, refit, logs, n_out = base_and_outliers(given, opts, action_model, progress)
+    mapped, left_out = judged(base, make_batch(given), DEFAULT_GATE) if given else ([], 0)
+    map_repair = None
+    for pairs in exchanges(mapped) if repair_map else []:  # as ``aibo learn`` does (``EMOptions.map_repair``)
+        fixed = repaired(given, pairs)
+        tried = base_and_outliers(fixed, opts, action_model, progress)
+        record = repair_record(given, pairs, left_out, judged(tried[0], make_batch(fixed), DEFAULT_GATE))
+        progress(f"  the map and the sightings disagree (report.json: map_check, map_repair): {repair_warning(record)}")
+        map_repair = record if map_repair is None or record["held"] else map_repair
+        if record["held"]:  # the search runs on the repair
+            given, (base, refit, logs, n_out) = fixed, tried
+            break
     n_sightings = sum(tr.n_sightings for tr in given)
     train = [training_log(tr) for tr in logs]
     # candidates are warm-started

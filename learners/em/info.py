@@ -64,8 +64,9 @@ class FitInfo:
     #: the landmarks whose sightings disagree with the map (``learners.em.map_check.MapDisagreement.to_dict`` each; []:
     #: none); None: not checked
     map_check: list[dict] | None = None
-    #: ``EMOptions.map_repair``: what the fit returned was made on the logs with the ids of ``map_check``'s swapped
-    #: pairs exchanged ({"exchanged": [[a, b, their sightings], ...]}); None: no repair
+    #: ``EMOptions.map_repair``: the fit tried on the logs with the ids of ``map_check``'s pairs that may be swapped
+    #: exchanged (``learners.em.map_check.repair_record``: {"exchanged": [[a, b, their sightings], ...], "left_out":
+    #: [as given, exchanged], "sightings", "held"}); "held" true: what the fit returned was made on them; None: none
     map_repair: dict | None = None
     timings: FitTimings = field(default_factory=FitTimings)
 

@@ -19,7 +19,16 @@ from learners.em.estep import e_step, weighed_on
 from learners.em.finish import fisher_scoring
 from learners.em.fit import EMState, initial_state, options_json, run, setback_from_best
 from learners.em.info import FitInfo, FitTimings
-from learners.em.map_check import MapDisagreement, judged_by, map_warnings, repair_record, repair_warning, repaired, swaps
+from learners.em.map_check import (
+    MapDisagreement,
+    exchanges,
+    judged,
+    judged_by,
+    map_warnings,
+    repair_record,
+    repair_warning,
+    repaired,
+)
 from learners.em.options import COMPARABLE_IMPROVEMENT, DEFAULT_DEGREE, DEFAULT_GATE, EARLY_STOP, STRICT_PATIENCE, EMOptions
 from learners.em.predictive import has_mixture
 from learners.em.start import initial_state_candidates
@@ -346,28 +355,39 @@ class EMLearner:
         heavy = pruned_warning(result.pruned_observations, sightings)
         if heavy:
             result.info.warnings = [heavy] + list(result.info.warnings or [])
-        pairs = swaps([MapDisagreement(**d) for d in result.info.map_check or []])
-        if self.options.map_repair and pairs:
-            return self._map_repaired(logs, init, progress, action_model, result, pairs)
+        tries = exchanges([MapDisagreement(**d) for d in result.info.map_check or []])
+        if self.options.map_repair and tries:
+            return self._map_repaired(logs, batch, init, progress, action_model, result, tries)
         return result
 
-    def _map_repaired(self, logs: list[Trajectory], init: Model | None, progress: ProgressFn | None,
-                      action_model: str | None, first: LearnResult, pairs: list[list[int]]) -> LearnResult:
+    def _map_repaired(self, logs: list[Trajectory], batch: Batch, init: Model | None, progress: ProgressFn | None,
+                      action_model: str | None, first: LearnResult, tries: list[list[list[int]]]) -> LearnResult:
         """``EMOptions.map_repair``: the fit made again, as ``fit`` makes it (its own checkpoint stage,
-        "map_repaired"), on the logs with the ids of each swapped pair of the first fit's map check exchanged
-        (``map_check.repaired``; the start-pose beliefs found again from their sightings); its info keeps the first
-        fit's findings (``map_check``; the refit's own check is among its warnings), says what was repaired
-        (``map_repair``) and carries the first fit's warnings on the map, then the refit's own."""
-        fixed = repaired(logs, pairs)
+        "map_repaired"), on the logs with the ids of the pairs of the first fit's map check that are or may be swapped
+        exchanged (``map_check.exchanges``, in order; ``map_check.repaired``; the start-pose beliefs found again
+        from their sightings), the first that explains the logs better kept (``map_check.exchange_holds``): its info
+        keeps the first fit's findings (``map_check``; the refit's own check is among its warnings), says what was
+        repaired (``map_repair``) and carries the first fit's warnings on the map, then the refit's own. Where none
+        holds, the first fit is returned with a line that says what was tried (its ``map_repair``'s "held" false)."""
+        gate = self.options.gate or DEFAULT_GATE
+        left_out = judged(first.params, batch, gate)[1]
+        said = map_warnings([MapDisagreement(**d) for d in first.info.map_check])
         learner = EMLearner(replace(self.options, map_repair=False),
                             stage_checkpoint(self.checkpoint_path, "map_repaired"), self.resume, self.checkpoint_every,
                             self.check_field)
-        result = learner.fit(fixed, init, progress, action_model)
-        record = repair_record(logs, pairs)
-        said = map_warnings([MapDisagreement(**d) for d in first.info.map_check])
-        result.info.warnings = said + [repair_warning(record)] + list(result.info.warnings or [])
-        result.info.map_check, result.info.map_repair = first.info.map_check, record
-        return result
+        records = []
+        for pairs in tries:
+            fixed = repaired(logs, pairs)
+            result = learner.fit(fixed, init, progress, action_model)
+            records.append(repair_record(logs, pairs, left_out, judged(result.params, make_batch(fixed), gate)))
+            if records[-1]["held"]:
+                result.info.warnings = said + [repair_warning(records[-1])] + list(result.info.warnings or [])
+                result.info.map_check, result.info.map_repair = first.info.map_check, records[-1]
+                return result
+        first.info.warnings = said + [repair_warning(r) for r in records] + [
+            w for w in first.info.warnings or [] if w not in said]
+        first.info.map_repair = records[0]
+        return first
 
     def fit_in_field(self, logs: list[Trajectory], action_model: str | None = None,
                      initial: tuple[InitialState, ...] | None = None) -> tuple[LearnResult, LearnResult | None]:

@@ -9,10 +9,13 @@ their noise, not the map; where it is large, the map disagrees. Where they fit a
 is the likely error (of several positions in one direction, the one nearest the point their rays cross at), and two
 landmarks whose sightings each fit the other's position (or one's the other's, the other named too with its sightings
 at no landmark's position) are a swapped pair; otherwise that point (``triangulate``) says where the landmark is.
-``EMOptions.map_repair`` fits again on the logs with each swapped pair's ids exchanged (``repaired``); the other
-findings are warned of only: a fit in a world the wrong map bent can leave out a right landmark's sightings too
-(MRCLAM Dataset 1, robot 1's first half: two landmarks near the swapped one named as moved when the first gate's
-pruning counted as left out), so only a pair whose sightings vouch for each other is repaired.
+``EMOptions.map_repair`` fits again on the logs with the ids exchanged of each swapped pair and of each pair that may
+be one (``suspects``: a landmark at another's position that is not named, its sightings absorbed by a world the wrong
+map bent), and keeps that fit where it explains the logs better (``exchange_holds``: at least ``MIN_SIGHTINGS`` fewer
+sightings left out, and neither landmark named by its own check). The other findings are warned of only: a fit in a
+world the wrong map bent can leave out a right landmark's sightings too (MRCLAM Dataset 1, robot 1's first half: two
+landmarks near the swapped one named as moved when the first gate's pruning counted as left out), and a moved landmark
+has no id to exchange.
 
 Measured (``scripts/mrclam_without_truth.py``, ``aibo learn`` with its defaults; docs/results.md, "Landmarks where the
 map does not put them"): MRCLAM Dataset 1 (a run never used to build anything here; its files as kept in GitHub
@@ -184,13 +187,53 @@ def map_warnings(found: list[MapDisagreement]) -> list[str]:
     return out
 
 
-def judged_by(model: Model, batch: Batch, gate: float) -> list[MapDisagreement]:
-    """``check`` of ``batch``'s sightings under ``model``: its smoothed poses, the sightings not used (pruned) or beyond
-    ``gate`` (Mahalanobis^2) not applied."""
+def suspects(found: list[MapDisagreement]) -> list[list[int]]:
+    """The pairs of ``found`` that may be swapped but that ``swaps`` cannot vouch for: a landmark whose sightings fit
+    another's map position while that other is not named (its sightings absorbed by a world the wrong map bent:
+    MRCLAM Dataset 1, robot 4's first half), [[a, b], ...] with a < b, disjoint from each other and from ``swaps``;
+    the refit on their exchange decides (``exchange_holds``)."""
+    named = {d.landmark for d in found}
+    taken = {lm for pair in swaps(found) for lm in pair}
+    out: list[list[int]] = []
+    for d in found:
+        pair = sorted((d.landmark, d.at_landmark)) if d.at_landmark is not None else None
+        if pair and not d.swapped and d.at_landmark not in named and not taken & set(pair):
+            out.append(pair)
+            taken |= set(pair)
+    return sorted(out)
+
+
+def exchanges(found: list[MapDisagreement]) -> list[list[list[int]]]:
+    """The exchanges of ids to try, in order (each a list of pairs): every pair of ``found`` that is or may be swapped
+    (``swaps``, ``suspects``); where some are suspects only, then the pairs ``check`` vouches for alone (a wrong suspect
+    would sink their exchange with it)."""
+    sure, maybe = swaps(found), suspects(found)
+    return ([sorted(sure + maybe)] if sure or maybe else []) + ([sure] if sure and maybe else [])
+
+
+def judged(model: Model, batch: Batch, gate: float) -> tuple[list[MapDisagreement], int]:
+    """(``check`` of ``batch``'s sightings under ``model``: its smoothed poses, the sightings not used (pruned) or
+    beyond ``gate`` (Mahalanobis^2) not applied; how many of the sightings it left out so)."""
     from learners.em.estep import e_step
 
     post = e_step(model, batch, "compiled", gate)
-    return check(batch, post.mu_gamma, batch.used & ~(post.mahal2 > gate))
+    applied = batch.used & ~(post.mahal2 > gate)
+    return check(batch, post.mu_gamma, applied), int(np.count_nonzero(~applied))
+
+
+def judged_by(model: Model, batch: Batch, gate: float) -> list[MapDisagreement]:
+    """``check`` of ``batch``'s sightings under ``model`` (``judged``)."""
+    return judged(model, batch, gate)[0]
+
+
+def exchange_holds(left_out_before: int, after: tuple[list[MapDisagreement], int], pairs: list[list[int]]) -> bool:
+    """Whether the fit on the logs with ``pairs`` exchanged (``after``: ``judged`` by it) explains them better than the
+    fit on the logs as given (which left out ``left_out_before`` sightings): at least ``MIN_SIGHTINGS`` fewer left out,
+    and none of the exchanged landmarks named by its own check. A wrong exchange moves the right landmark's sightings
+    to a map position where they are not: its refit leaves them out and names it."""
+    found, left_out = after
+    exchanged = {lm for pair in pairs for lm in pair}
+    return left_out + MIN_SIGHTINGS <= left_out_before and not exchanged & {d.landmark for d in found}
 
 
 def repaired(logs: list[Trajectory], pairs: list[list[int]]) -> list[Trajectory]:
@@ -204,10 +247,15 @@ def repaired(logs: list[Trajectory], pairs: list[list[int]]) -> list[Trajectory]
     return out
 
 
-def repair_record(logs: list[Trajectory], pairs: list[list[int]]) -> dict:
-    """``FitInfo.map_repair``: {"exchanged": [[a, b, their sightings], ...]}."""
+def repair_record(logs: list[Trajectory], pairs: list[list[int]], before: int,
+                  after: tuple[list[MapDisagreement], int]) -> dict:
+    """``FitInfo.map_repair``: {"exchanged": [[a, b, their sightings], ...], "left_out": [of the sightings, by the fit
+    on the logs as given (``before``), by the fit on the exchange (``after``: ``judged`` by it)], "sightings": of the
+    logs, "held": ``exchange_holds``, so the fit on the exchange is the one returned}."""
     seen = np.concatenate([tr.sighting_landmark for tr in logs])
-    return {"exchanged": [[a, b, int(np.isin(seen, [a, b]).sum())] for a, b in pairs]}
+    return {"exchanged": [[a, b, int(np.isin(seen, [a, b]).sum())] for a, b in pairs],
+            "left_out": [int(before), int(after[1])], "sightings": int(len(seen)),
+            "held": exchange_holds(before, after, pairs)}
 
 
 def repair_text(record: dict) -> str:
@@ -215,7 +263,17 @@ def repair_text(record: dict) -> str:
     return ", ".join(f"landmarks {a} and {b}'s ids exchanged in their {n:,d} sightings" for a, b, n in record["exchanged"])
 
 
+def left_out_text(record: dict) -> str:
+    """E.g. "it leaves out 2 of 1,533 sightings, the fit on the map as given 228" (``repair_record``)."""
+    (before, after), n = record["left_out"], record["sightings"]
+    return f"it leaves out {after:,d} of {n:,d} sightings, the fit on the map as given {before:,d}"
+
+
 def repair_warning(record: dict) -> str:
-    """The line that says what the fit was made on (``FitInfo.map_repair``)."""
-    return (f"the model was fitted again on the log(s) with {repair_text(record)} (--no-map-repair fits the map as "
-            "given): correct the map and these lines go")
+    """The line that says what the fit was made on, or that the exchange was tried and did not hold
+    (``FitInfo.map_repair``)."""
+    if not record["held"]:
+        return (f"a fit with {repair_text(record)} was tried and explains the log(s) no better "
+                f"({left_out_text(record)}, or its map check names one of them): the fit on the map as given is kept")
+    return (f"the model was fitted again on the log(s) with {repair_text(record)} ({left_out_text(record)}; "
+            "--no-map-repair fits the map as given): correct the map and these lines go")

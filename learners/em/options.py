@@ -101,10 +101,11 @@ class EMOptions:
     # settled in a wrong world on MRCLAM Dataset 6's robot 1 (first half: the turn rate's error 1.5 times the face
     # value's on the other half; docs/results.md, "A second start at the face value"). Paper: off (one start).
     face_value_start: bool = True
-    # where the fit finds two landmarks whose sightings each fit the other's map position (``learners.em.map_check``:
-    # their ids swapped), it is made again from the start on the logs with the pair's ids exchanged
-    # (``map_check.repaired``); other disagreements are warned of only. MRCLAM Dataset 1 holds such a pair on every
-    # robot (docs/results.md, "Landmarks where the map does not put them"). Paper: off (the map as given).
+    # where the fit finds a landmark whose sightings fit another's map position (``learners.em.map_check``: their ids
+    # swapped, or maybe: ``swaps``, ``suspects``), it is made again from the start on the logs with the pair's ids
+    # exchanged (``map_check.repaired``) and that fit kept where it explains them better (``exchange_holds``); other
+    # disagreements are warned of only. MRCLAM Dataset 1 holds such a pair on every robot (docs/results.md,
+    # "Landmarks where the map does not put them"). Paper: off (the map as given).
     map_repair: bool = True
     hold_curve: bool = False  # internal: the curve held at its start (range_curve "held"; a final fit's first stage)
     # ``aibo diagnose``'s final fit (``learners.discrepancy.final.fit_from``; EM itself does not read it): once converged,
