@@ -21,9 +21,9 @@ Measured (``scripts/mrclam_without_truth.py``, ``aibo learn`` with its defaults;
 map does not put them"): MRCLAM Dataset 1 (a run never used to build anything here; its files as kept in GitHub
 curow/multi-robot-localization) sees landmarks 5 and 11 (subjects 11 and 17) where its map puts the other on every
 robot: robot 1's fit left out 462 of 546 and 230 of 230 of their sightings, whose bearings miss their own map
-positions by 2.6 and 1.8 rad (median) and fit each other's within 0.025 and 0.028 rad; repaired, 14 of the 15 fits of
-Dataset 1 (whole logs and halves) are the fits with the map corrected by hand, number for number. On the ten whole logs
-of Datasets 6 and 7 and the 36 fits of Datasets 2-4 it names no landmark.
+positions by 2.6 and 1.8 rad (median) and fit each other's within 0.025 and 0.028 rad; repaired (robot 4's first half
+as a suspect pair), all 15 fits of Dataset 1 (whole logs and halves) are the fits with the map corrected by hand,
+number for number. On the ten whole logs of Datasets 6 and 7 and the 36 fits of Datasets 2-4 it names no landmark.
 """
 
 from __future__ import annotations
