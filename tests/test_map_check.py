@@ -100,7 +100,7 @@ def test_swapped_ids_are_exchanged_back_and_the_model_is_the_right_logs(fits):
     repair = info["map_repair"]
     assert repair["exchanged"] == [[a, b, sum(d["sightings"] for d in info["map_check"])]] and repair["held"]
     before, after = repair["left_out"]
-    assert before >= 186 > 20 >= after and repair["sightings"] == 3962
+    assert before >= 186 > 20 >= after and repair["sightings"] == 3962 and repair["named"] == []
     assert fits["swapped"]["action_model"] == fits["right"]["action_model"]
     assert fits["swapped"]["sensor_model"] == fits["right"]["sensor_model"]
     said = [w for w in info["warnings"] if "fitted again" in w]
@@ -192,8 +192,9 @@ def test_an_exchange_that_does_not_explain_the_log_is_refused(tmp_path):
     a, b = SWAPPED
     assert [(d["landmark"], d["at_landmark"], d["swapped"]) for d in info["map_check"]] == [(a, b, False)]
     repair = info["map_repair"]
-    assert repair["exchanged"][0][:2] == [a, b] and not repair["held"]
-    assert any("was tried and explains the log(s) no better" in w for w in info["warnings"])
+    assert repair["exchanged"][0][:2] == [a, b] and not repair["held"] and repair["named"]
+    (said,) = [w for w in info["warnings"] if "was tried and explains the log(s) no better" in w]
+    assert "its own map check names landmark(s)" in said, said
     assert sorted(p.name for p in tmp_path.iterdir()) == ["log.npz", "model.json"]
 
 

@@ -66,7 +66,7 @@ class FitInfo:
     map_check: list[dict] | None = None
     #: ``EMOptions.map_repair``: the fit tried on the logs with the ids of ``map_check``'s pairs that may be swapped
     #: exchanged (``learners.em.map_check.repair_record``: {"exchanged": [[a, b, their sightings], ...], "left_out":
-    #: [as given, exchanged], "sightings", "held"}); "held" true: what the fit returned was made on them; None: none
+    #: [as given, exchanged], "sightings", "named", "held"}); "held" true: what the fit returned was made on them; None: none
     map_repair: dict | None = None
     timings: FitTimings = field(default_factory=FitTimings)
 

@@ -251,10 +251,13 @@ def repair_record(logs: list[Trajectory], pairs: list[list[int]], before: int,
                   after: tuple[list[MapDisagreement], int]) -> dict:
     """``FitInfo.map_repair``: {"exchanged": [[a, b, their sightings], ...], "left_out": [of the sightings, by the fit
     on the logs as given (``before``), by the fit on the exchange (``after``: ``judged`` by it)], "sightings": of the
-    logs, "held": ``exchange_holds``, so the fit on the exchange is the one returned}."""
+    logs, "named": the exchanged landmarks that fit's own check names, "held": ``exchange_holds``, so the fit on the
+    exchange is the one returned}."""
     seen = np.concatenate([tr.sighting_landmark for tr in logs])
+    exchanged = {lm for pair in pairs for lm in pair}
     return {"exchanged": [[a, b, int(np.isin(seen, [a, b]).sum())] for a, b in pairs],
             "left_out": [int(before), int(after[1])], "sightings": int(len(seen)),
+            "named": sorted(d.landmark for d in after[0] if d.landmark in exchanged),
             "held": exchange_holds(before, after, pairs)}
 
 
@@ -273,7 +276,9 @@ def repair_warning(record: dict) -> str:
     """The line that says what the fit was made on, or that the exchange was tried and did not hold
     (``FitInfo.map_repair``)."""
     if not record["held"]:
+        named = ("; its own map check names landmark(s) " + ", ".join(map(str, record["named"]))
+                 if record["named"] else "")
         return (f"a fit with {repair_text(record)} was tried and explains the log(s) no better "
-                f"({left_out_text(record)}, or its map check names one of them): the fit on the map as given is kept")
+                f"({left_out_text(record)}{named}): the fit on the map as given is kept")
     return (f"the model was fitted again on the log(s) with {repair_text(record)} ({left_out_text(record)}; "
             "--no-map-repair fits the map as given): correct the map and these lines go")
