@@ -526,7 +526,8 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
     given = logs
     base, refit, logs, n_out = base_and_outliers(logs, opts, action_model, progress)
     # landmarks the map misplaces (their sightings are outliers here): judged by the base on every sighting
-    mapped, left_out = judged(base, make_batch(given), DEFAULT_GATE) if given else ([], 0)
+    judgement = judged(base, make_batch(given), DEFAULT_GATE) if given else None
+    mapped, left_out = (judgement.found, judgement.left_out) if judgement else ([], 0)
     map_repair = None
     for pairs in exchanges(mapped) if repair_map else []:  # as ``aibo learn`` does (``EMOptions.map_repair``)
         fixed = repaired(given, pairs)

@@ -68,6 +68,9 @@ class FitInfo:
     #: exchanged (``learners.em.map_check.repair_record``: {"exchanged": [[a, b, their sightings], ...], "left_out":
     #: [as given, exchanged], "sightings", "named", "held"}); "held" true: what the fit returned was made on them; None: none
     map_repair: dict | None = None
+    #: the stretches of the logs where the fitted model lost track of the robot, every sighting there left out
+    #: (``learners.em.map_check.LostStretch.to_dict`` each; []: none); None: not checked
+    lost_track: list[dict] | None = None
     timings: FitTimings = field(default_factory=FitTimings)
 
     def to_dict(self, timings: bool = True) -> dict[str, Any]:
@@ -111,6 +114,8 @@ class FitInfo:
             out["map_check"] = self.map_check
         if self.map_repair is not None:
             out["map_repair"] = self.map_repair
+        if self.lost_track is not None:
+            out["lost_track"] = self.lost_track
         return out
 
     # Read access by key, as for the other learners' plain ``info`` dicts (``result.info["best_iteration"]``).

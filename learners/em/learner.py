@@ -23,7 +23,7 @@ from learners.em.map_check import (
     MapDisagreement,
     exchanges,
     judged,
-    judged_by,
+    lost_warning,
     map_warnings,
     repair_record,
     repair_warning,
@@ -370,7 +370,7 @@ class EMLearner:
         repaired (``map_repair``) and carries the first fit's warnings on the map, then the refit's own. Where none
         holds, the first fit is returned with a line that says what was tried (its ``map_repair``'s "held" false)."""
         gate = self.options.gate or DEFAULT_GATE
-        left_out = judged(first.params, batch, gate)[1]
+        left_out = judged(first.params, batch, gate).left_out
         said = map_warnings([MapDisagreement(**d) for d in first.info.map_check])
         learner = EMLearner(replace(self.options, map_repair=False),
                             stage_checkpoint(self.checkpoint_path, "map_repaired"), self.resume, self.checkpoint_every,
@@ -546,9 +546,11 @@ class EMLearner:
             per_iteration=float(np.median(state.seconds[1:])) if len(state.seconds) > 1 else 0.0)
         off_field = self._check(used, state.best, logs)
         # the map judged by the fitted model on every sighting (the first gate's pruning was the start model's view)
-        mapped = judged_by(state.best, batch, self.options.gate or DEFAULT_GATE)
+        judgement = judged(state.best, batch, self.options.gate or DEFAULT_GATE)
+        mapped = judgement.found
         info = FitInfo(state.best_iteration + 1, resumed_from, self.options.__dict__.copy(),
                        off_field_fraction=off_field, map_check=[d.to_dict() for d in mapped],
+                       lost_track=[st.to_dict() for st in judgement.lost],
                        undetermined=undetermined,  # parameters the data did not determine (kept at their start)
                        starts=state.starts or None, timings=times,
                        # E-steps of the whole fit: the winner's, and the other starts' screening
@@ -574,7 +576,7 @@ class EMLearner:
             mirror_warnings(state.best, batch.controls) + (
             [split] if split else []) + ([close] if close else []) + field_warnings(info.off_field_fraction) + \
             weak_command_warnings(state.best, se) + correlated_size_warnings(state.best, used) + \
-            map_warnings(mapped) + \
+            map_warnings(mapped) + lost_warning(judgement.lost) + \
             setback_warnings(None if scoring is not None and scoring.record["converged"] else setback) + (
             [f"{len(undetermined)} parameter(s) not determined by the data (e.g. {undetermined[0]}): kept at their "
              "start values"] if undetermined else [])

@@ -46,6 +46,11 @@ LEFT_OUT_SHARE = 0.5
 AGREES_RAD = 0.1
 #: ``triangulate``: rays further than this many times the median distance from the point are dropped, twice.
 TRIM = 3.0
+#: ``lost_track``: a sighting is where the fit lost track when, of the sightings within this many seconds of it (its
+#: own log's, at least ``LOST_MIN_SIGHTINGS``), the fit applied fewer than ``LOST_SHARE``.
+LOST_WINDOW_S = 5.0
+LOST_MIN_SIGHTINGS = 5
+LOST_SHARE = 0.5
 
 
 @dataclass(frozen=True)
@@ -65,6 +70,30 @@ class MapDisagreement:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+
+@dataclass(frozen=True)
+class LostStretch:
+    """A stretch of a log where the fit applied almost none of the sightings (``lost_track``): its smoothed path is
+    wrong there, so nothing it says about the map there is evidence."""
+
+    log: int
+    from_s: float  # s since the log's start: its first sighting
+    to_s: float  # ... its last
+    sightings: int
+    left_out: int
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class Judgement:
+    """A fitted model's view of the logs' sightings (``judged``)."""
+
+    found: list[MapDisagreement]  # ``check``
+    left_out: int  # sightings it did not apply (pruned, or beyond the gate)
+    lost: list[LostStretch]  # ``lost_track``
 
 
 def triangulate(origins: np.ndarray, angles: np.ndarray) -> tuple[np.ndarray, float] | None:
@@ -114,11 +143,59 @@ def where_seen(pose: np.ndarray, world: np.ndarray, rays: np.ndarray, landmarks:
     return err, min(fit, key=lambda k: float(np.hypot(*(landmarks[k] - seen[0])))), seen
 
 
+def lost_sightings(batch: Batch, applied: np.ndarray) -> np.ndarray:
+    """(S,) bool: the sightings of ``batch`` where the fit lost track, of the sightings within ``LOST_WINDOW_S`` of
+    each (its own log's, at least ``LOST_MIN_SIGHTINGS``) fewer than ``LOST_SHARE`` applied (``applied`` (S,)). A
+    filter whose heading or position went wrong (a turn, a slip or a push its motion model does not predict, with no
+    sighting to correct it) gates out every sighting after it until it is found again: MRCLAM Dataset 9, robot 4's
+    second half, 9 s of turning unseen and then 143 of 144 sightings over 58 s left out."""
+    key = batch.sight_log * 1e9 + batch.frame_time[batch.sight_frame]  # s, logs kept apart; non-decreasing
+    done = np.concatenate([[0], np.cumsum(applied)])
+    lo = np.searchsorted(key, key - LOST_WINDOW_S, "left")
+    hi = np.searchsorted(key, key + LOST_WINDOW_S, "right")
+    near = hi - lo
+    return (near >= LOST_MIN_SIGHTINGS) & (done[hi] - done[lo] < LOST_SHARE * near)
+
+
+def lost_track(batch: Batch, applied: np.ndarray) -> list[LostStretch]:
+    """The stretches of ``lost_sightings`` (runs of them, in each log's time order) that left out at least
+    ``MIN_SIGHTINGS`` / 2 sightings."""
+    lost = lost_sightings(batch, applied)
+    time = batch.frame_time[batch.sight_frame]
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], lost.astype(np.int8), [0]])))
+    out = []
+    for a, b in zip(edges[::2], edges[1::2]):  # runs [a, b) of lost sightings
+        logs = batch.sight_log[a:b]
+        for k in np.unique(logs):  # a run that crosses from one log to the next is two stretches
+            idx = np.arange(a, b)[logs == k]
+            left = int(np.count_nonzero(~applied[idx]))
+            if left >= MIN_SIGHTINGS / 2:
+                out.append(LostStretch(int(k), float(time[idx[0]]), float(time[idx[-1]]), len(idx), left))
+    return out
+
+
+def lost_warning(lost: list[LostStretch]) -> list[str]:
+    """The line that says where the fit lost track (``lost_track``), if anywhere."""
+    if not lost:
+        return []
+    span = sum(st.to_s - st.from_s for st in lost)
+    left, sightings = sum(st.left_out for st in lost), sum(st.sightings for st in lost)
+    longest = max(lost, key=lambda st: st.to_s - st.from_s)
+    where = f" of log {longest.log}" if any(st.log for st in lost) else ""
+    return [f"the fit lost track of the robot in {len(lost)} stretch(es), {span:,.0f} s in all (the longest "
+            f"{longest.from_s:,.0f}-{longest.to_s:,.0f} s{where}): it left out {left:,d} of the {sightings:,d} sightings "
+            f"there (model.json: info[\"lost_track\"]), so its smoothed path is wrong there: a turn, slip or push the "
+            "motion model does not predict, with no sighting to correct it; the model was fitted without them"]
+
+
 def check(batch: Batch, poses: np.ndarray, applied: np.ndarray) -> list[MapDisagreement]:
     """The landmarks whose sightings disagree with the map (module docstring): ``poses`` (P, 3) the fit's smoothed
-    poses [x mm, y mm, theta rad], ``applied`` (S,) which sightings of ``batch`` the fit applied."""
+    poses [x mm, y mm, theta rad], ``applied`` (S,) which sightings of ``batch`` the fit applied. A landmark whose
+    sightings left out fit no other landmark's position is named (as moved) only where most of them were made where
+    the fit kept track (``lost_sightings``): where it lost track its path, not the map, is wrong."""
     pose = poses[batch.sight_pose]
     world = pose[:, 2] + batch.sight_value[:, 1]  # the bearing is the body's (a head's pan included)
+    lost = lost_sightings(batch, applied)
     found = []
     for lm in range(len(batch.landmarks)):
         mine = batch.sight_landmark == lm
@@ -128,6 +205,8 @@ def check(batch: Batch, poses: np.ndarray, applied: np.ndarray) -> list[MapDisag
             continue
         err, at, seen = where_seen(pose, world, left, batch.landmarks, lm)
         if err[lm] <= AGREES_RAD:  # at its map position after all: left out for its sizes, or its noise
+            continue
+        if at is None and np.count_nonzero(left & lost) >= out / 2:  # the path lost there, not the map
             continue
         swapped = False
         if at is not None:  # a swap: the other's sightings left out (at least half of MIN_SIGHTINGS) are at this one
@@ -211,29 +290,23 @@ def exchanges(found: list[MapDisagreement]) -> list[list[list[int]]]:
     return ([sorted(sure + maybe)] if sure or maybe else []) + ([sure] if sure and maybe else [])
 
 
-def judged(model: Model, batch: Batch, gate: float) -> tuple[list[MapDisagreement], int]:
-    """(``check`` of ``batch``'s sightings under ``model``: its smoothed poses, the sightings not used (pruned) or
-    beyond ``gate`` (Mahalanobis^2) not applied; how many of the sightings it left out so)."""
+def judged(model: Model, batch: Batch, gate: float) -> Judgement:
+    """``batch``'s sightings under ``model``: its smoothed poses, the sightings not used (pruned) or beyond ``gate``
+    (Mahalanobis^2) not applied; ``check`` and ``lost_track`` of them."""
     from learners.em.estep import e_step
 
     post = e_step(model, batch, "compiled", gate)
     applied = batch.used & ~(post.mahal2 > gate)
-    return check(batch, post.mu_gamma, applied), int(np.count_nonzero(~applied))
+    return Judgement(check(batch, post.mu_gamma, applied), int(np.count_nonzero(~applied)), lost_track(batch, applied))
 
 
-def judged_by(model: Model, batch: Batch, gate: float) -> list[MapDisagreement]:
-    """``check`` of ``batch``'s sightings under ``model`` (``judged``)."""
-    return judged(model, batch, gate)[0]
-
-
-def exchange_holds(left_out_before: int, after: tuple[list[MapDisagreement], int], pairs: list[list[int]]) -> bool:
+def exchange_holds(left_out_before: int, after: Judgement, pairs: list[list[int]]) -> bool:
     """Whether the fit on the logs with ``pairs`` exchanged (``after``: ``judged`` by it) explains them better than the
     fit on the logs as given (which left out ``left_out_before`` sightings): at least ``MIN_SIGHTINGS`` fewer left out,
     and none of the exchanged landmarks named by its own check. A wrong exchange moves the right landmark's sightings
     to a map position where they are not: its refit leaves them out and names it."""
-    found, left_out = after
     exchanged = {lm for pair in pairs for lm in pair}
-    return left_out + MIN_SIGHTINGS <= left_out_before and not exchanged & {d.landmark for d in found}
+    return after.left_out + MIN_SIGHTINGS <= left_out_before and not exchanged & {d.landmark for d in after.found}
 
 
 def repaired(logs: list[Trajectory], pairs: list[list[int]]) -> list[Trajectory]:
@@ -247,8 +320,7 @@ def repaired(logs: list[Trajectory], pairs: list[list[int]]) -> list[Trajectory]
     return out
 
 
-def repair_record(logs: list[Trajectory], pairs: list[list[int]], before: int,
-                  after: tuple[list[MapDisagreement], int]) -> dict:
+def repair_record(logs: list[Trajectory], pairs: list[list[int]], before: int, after: Judgement) -> dict:
     """``FitInfo.map_repair``: {"exchanged": [[a, b, their sightings], ...], "left_out": [of the sightings, by the fit
     on the logs as given (``before``), by the fit on the exchange (``after``: ``judged`` by it)], "sightings": of the
     logs, "named": the exchanged landmarks that fit's own check names, "held": ``exchange_holds``, so the fit on the
@@ -256,8 +328,8 @@ def repair_record(logs: list[Trajectory], pairs: list[list[int]], before: int,
     seen = np.concatenate([tr.sighting_landmark for tr in logs])
     exchanged = {lm for pair in pairs for lm in pair}
     return {"exchanged": [[a, b, int(np.isin(seen, [a, b]).sum())] for a, b in pairs],
-            "left_out": [int(before), int(after[1])], "sightings": int(len(seen)),
-            "named": sorted(d.landmark for d in after[0] if d.landmark in exchanged),
+            "left_out": [int(before), after.left_out], "sightings": int(len(seen)),
+            "named": sorted(d.landmark for d in after.found if d.landmark in exchanged),
             "held": exchange_holds(before, after, pairs)}
 
 
