@@ -12,7 +12,7 @@ with one line. Per row:
   wrong world leaves it), and the model's forward speed and turn rate over 1 s windows as a multiple of the commands'
   (the mean of |model| over the mean of |face value|); the landmarks whose sightings the map does not explain
   (``info["map_check"]``, ``learners.em.map_check``) and whether the fit was made on their ids exchanged
-  (``info["map_repair"]``);
+  (``info["map_repair"]``); the stretches where the fit lost track of the robot (``info["lost_track"]``);
 - ``first`` / ``second``: the same, and the model scored on the other half: the motion gap at 1, 2 and 5 s
   (``learners.discrepancy.score.motion_score``: every sighting predicted open loop from the filtered belief k seconds
   before and the commands alone, nats per sighting, lower is better; the half's gross outliers set aside once by the
@@ -83,7 +83,7 @@ def row(data: Path, robot: int, segment: str, out: Path, score_data: Path | None
     rec = {"dataset": data.name, "robot": robot, "segment": segment, "seconds": wall, "minutes": fitted.n_frames * fitted.dt / 60,
            "sightings": int(fitted.n_sightings), "kept": ((info.get("held_curve_fit") or {}).get("starts") or {}).get("kept"),
            "warnings": list(info.get("warnings", [])), "map_check": info.get("map_check", []),
-           "map_repair": info.get("map_repair"),
+           "map_repair": info.get("map_repair"), "lost_track": info.get("lost_track"),
            "inside": inside_share(model, fitted), **speed_ratios(model, fitted)}
     other = {"first": logs["second"], "second": logs["first"]}.get(segment)
     if other is not None:
@@ -96,14 +96,25 @@ def row(data: Path, robot: int, segment: str, out: Path, score_data: Path | None
 
 def table(rows: list[dict]) -> str:
     head = ("| dataset | robot | fitted on | min | sightings | kept | inside | forward / turn x commands | motion gap 5 s on "
-            "the other half: learn / face value | map check | warnings | s |\n|" + "---|" * 12)
+            "the other half: learn / face value | map check | lost track: stretches, s, left out | warnings | s |\n|"
+            + "---|" * 13)
     lines = []
     for r in rows:
         gap = (f"{r['motion_gap']['5']:.2f} / {r['motion_gap_face']['5']:.2f}" if "motion_gap" in r else "")
         lines.append(f"| {r['dataset']} | {r['robot']} | {r['segment']} | {r['minutes']:.1f} | {r['sightings']} | "
                      f"{r['kept'] or '-'} | {r['inside']:.0%} | {r['forward_x_commands']:.2f} / {r['turn_x_commands']:.2f} | "
-                     f"{gap} | {map_cell(r)} | {len(r['warnings'])} | {r['seconds']:.0f} |")
+                     f"{gap} | {map_cell(r)} | {lost_cell(r)} | {len(r['warnings'])} | {r['seconds']:.0f} |")
     return head + "\n" + "\n".join(lines) + "\n"
+
+
+def lost_cell(r: dict) -> str:
+    """Where the fit lost track (``info["lost_track"]``): "3, 85 s, 212" (stretches, their seconds, sightings left
+    out); "-" none; "?" a row kept before it was recorded."""
+    lost = r.get("lost_track")
+    if lost is None:
+        return "?"
+    return (f"{len(lost)}, {sum(st['to_s'] - st['from_s'] for st in lost):.0f} s, {sum(st['left_out'] for st in lost)}"
+            if lost else "-")
 
 
 def map_cell(r: dict) -> str:

@@ -267,6 +267,6 @@ def test_aibo_diagnose_names_the_swap_and_runs_on_the_repaired_log(tmp_path):
     report = diagnose(tmp_path, replace(tr, sighting_landmark=ids), "actuation_lag")
     assert {d["landmark"] for d in report["map_check"]} == set(SWAPPED)
     assert report["map_repair"]["exchanged"] == [[a, b, 186]] and report["map_repair"]["held"]
-    assert report["outliers"]["set_aside"] <= 0.01 * tr.n_sightings
+    assert report["outliers"]["set_aside"] <= 0.01 * tr.n_sightings and report["lost_track"] == []
     assert any("ids look swapped" in w for w in report["warnings"])
     assert any("fitted again" in w and f"landmarks {a} and {b}'s ids exchanged" in w for w in report["warnings"])

@@ -155,6 +155,36 @@ def test_a_horizon_longer_than_the_log_gives_no_prediction():
     assert np.all(np.isnan(open_loop_logdens(lo, batch, post, idx, batch.n_frames + 1)))
 
 
+def test_a_run_the_model_was_not_fitted_to_starts_where_the_model_itself_says(monkeypatch):
+    """``start_beliefs`` judges the candidate starts under the fitted model, never its commands at face value, which
+    on a robot that turns at 0.6 of the commanded rate chose a start 3.5 m and 2 rad off (MRCLAM Dataset 9, robot 3:
+    docs/results.md, "Where the fit lost track"). A wheeled log whose robot turns at half the commanded rate, its
+    true model (the oracle's): the face value is not consulted, and the start chosen is the candidate nearest the
+    truth (32 mm and 0.29 rad from it)."""
+    import learners.scoring
+    from aibo_gym.collect_wheeled import collect_wheeled
+    from aibo_gym.wheeled_config import make_config
+    from learners.em.start import initial_state_candidates
+    from learners.em.starts import start_beliefs
+    from learners.oracle import OracleLearner
+
+    weights = np.array(make_config()["weights"], float)
+    weights[1, 2] *= 0.5
+    tr = collect_wheeled({"start_pose": "random", "weights": weights.tolist()}, 3000, seed=0)
+    model = OracleLearner().fit([tr]).params
+
+    def face_value(*args, **kwargs):
+        raise AssertionError("start_beliefs consulted the commands at face value")
+
+    monkeypatch.setattr(learners.scoring, "face_value_model", face_value)
+    (own,) = start_beliefs(model, [tr])
+    candidates = initial_state_candidates(tr)
+    assert len(candidates) == 2
+    nearest = min(candidates, key=lambda c: float(np.hypot(*(c.mean[:2] - tr.pose[0, :2]))))
+    np.testing.assert_array_equal(own.mean, nearest.mean)
+    assert np.hypot(*(own.mean[:2] - tr.pose[0, :2])) < 100.0
+
+
 @pytest.mark.realdata
 @needs_data
 def test_on_a_run_it_was_not_fitted_to_the_motion_gap_starts_from_that_runs_own_start():

@@ -130,6 +130,8 @@ def run(args) -> int:
                          + off_held([e], batch))
     report.update(motion)
     report["final_fit_starts"] = final.starts
+    # where the diagnosed model lost track of the robot on the logs (learners.em.map_check.lost_track; [] none)
+    report["lost_track"] = final.result.info.get("lost_track")
     report["restricted_noise"] = final.result.info.restricted_noise  # None unless --restricted-noise
     if report["restricted_noise"]:
         say(fig.restricted_text(report["restricted_noise"]))

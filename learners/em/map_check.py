@@ -184,8 +184,9 @@ def lost_warning(lost: list[LostStretch]) -> list[str]:
     where = f" of log {longest.log}" if any(st.log for st in lost) else ""
     return [f"the fit lost track of the robot in {len(lost)} stretch(es), {span:,.0f} s in all (the longest "
             f"{longest.from_s:,.0f}-{longest.to_s:,.0f} s{where}): it left out {left:,d} of the {sightings:,d} sightings "
-            f"there (model.json: info[\"lost_track\"]), so its smoothed path is wrong there: a turn, slip or push the "
-            "motion model does not predict, with no sighting to correct it; the model was fitted without them"]
+            f"there (model.json: info[\"lost_track\"]): its smoothed path is wrong there, after a turn, slip or push "
+            "the motion model does not predict with no sighting to correct it, and so is what is read from it there "
+            "(the map check names no landmark from those sightings)"]
 
 
 def check(batch: Batch, poses: np.ndarray, applied: np.ndarray) -> list[MapDisagreement]:
