@@ -38,7 +38,7 @@ from learners.arrays.batch import make_batch
 from learners.base import LearnResult
 from learners.em.estep import e_step
 from learners.em.learner import EMLearner
-from learners.em.map_check import exchanges, judged, repair_record, repair_warning, repaired
+from learners.em.map_check import exchanges, judged, repair_warning, tried_exchanges
 from learners.em.options import DEFAULT_GATE, EMOptions
 from learners.model.effects import EFFECT_MODELS
 from learners.model.model import Model
@@ -528,16 +528,19 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
     # landmarks the map misplaces (their sightings are outliers here): judged by the base on every sighting
     judgement = judged(base, make_batch(given), DEFAULT_GATE) if given else None
     mapped, left_out = (judgement.found, judgement.left_out) if judgement else ([], 0)
-    map_repair = None
-    for pairs in exchanges(mapped) if repair_map else []:  # as ``aibo learn`` does (``EMOptions.map_repair``)
-        fixed = repaired(given, pairs)
-        tried = base_and_outliers(fixed, opts, action_model, progress)
-        record = repair_record(given, pairs, left_out, judged(tried[0], make_batch(fixed), DEFAULT_GATE))
-        progress(f"  the map and the sightings disagree (report.json: map_check, map_repair): {repair_warning(record)}")
-        map_repair = record if map_repair is None or record["held"] else map_repair
-        if record["held"]:  # the search runs on the repair
+    map_repair, tries = None, exchanges(mapped) if repair_map else []
+    if tries:  # as ``aibo learn`` does (``EMOptions.map_repair``)
+        def fit(fixed: list[Trajectory]) -> tuple[tuple, Model]:
+            tried = base_and_outliers(fixed, opts, action_model, progress)
+            return tried, tried[0]
+
+        records, tried, fixed = tried_exchanges(given, tries, left_out, DEFAULT_GATE, fit)
+        for record in records:
+            progress(f"  the map and the sightings disagree (report.json: map_check, map_repair): "
+                     f"{repair_warning(record)}")
+        map_repair = records[-1] if tried is not None else records[0]
+        if tried is not None:  # the search runs on the repair
             given, (base, refit, logs, n_out) = fixed, tried
-            break
     n_sightings = sum(tr.n_sightings for tr in given)
     train = [training_log(tr) for tr in logs]
     # candidates are warm-started

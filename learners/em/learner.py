@@ -25,9 +25,8 @@ from learners.em.map_check import (
     judged,
     lost_warning,
     map_warnings,
-    repair_record,
     repair_warning,
-    repaired,
+    tried_exchanges,
 )
 from learners.em.options import COMPARABLE_IMPROVEMENT, DEFAULT_DEGREE, DEFAULT_GATE, EARLY_STOP, STRICT_PATIENCE, EMOptions
 from learners.em.predictive import has_mixture
@@ -370,20 +369,20 @@ class EMLearner:
         repaired (``map_repair``) and carries the first fit's warnings on the map, then the refit's own. Where none
         holds, the first fit is returned with a line that says what was tried (its ``map_repair``'s "held" false)."""
         gate = self.options.gate or DEFAULT_GATE
-        left_out = judged(first.params, batch, gate).left_out
         said = map_warnings([MapDisagreement(**d) for d in first.info.map_check])
         learner = EMLearner(replace(self.options, map_repair=False),
                             stage_checkpoint(self.checkpoint_path, "map_repaired"), self.resume, self.checkpoint_every,
                             self.check_field)
-        records = []
-        for pairs in tries:
-            fixed = repaired(logs, pairs)
+
+        def fit(fixed: list[Trajectory]) -> tuple[LearnResult, Model]:
             result = learner.fit(fixed, init, progress, action_model)
-            records.append(repair_record(logs, pairs, left_out, judged(result.params, make_batch(fixed), gate)))
-            if records[-1]["held"]:
-                result.info.warnings = said + [repair_warning(records[-1])] + list(result.info.warnings or [])
-                result.info.map_check, result.info.map_repair = first.info.map_check, records[-1]
-                return result
+            return result, result.params
+
+        records, result, _ = tried_exchanges(logs, tries, judged(first.params, batch, gate).left_out, gate, fit)
+        if result is not None:
+            result.info.warnings = said + [repair_warning(records[-1])] + list(result.info.warnings or [])
+            result.info.map_check, result.info.map_repair = first.info.map_check, records[-1]
+            return result
         first.info.warnings = said + [repair_warning(r) for r in records] + [
             w for w in first.info.warnings or [] if w not in said]
         first.info.map_repair = records[0]

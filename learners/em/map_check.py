@@ -28,13 +28,15 @@ number for number. On the ten whole logs of Datasets 6 and 7 and the 36 fits of 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
+from typing import Any
 
 import numpy as np
 
 from aibo_core.geometry import wrap
 from aibo_core.trajectory import Trajectory
-from learners.arrays.batch import Batch
+from learners.arrays.batch import Batch, make_batch
 from learners.model.model import Model
 
 #: Fewest sightings of a landmark for a verdict on it.
@@ -301,13 +303,33 @@ def judged(model: Model, batch: Batch, gate: float) -> Judgement:
     return Judgement(check(batch, post.mu_gamma, applied), int(np.count_nonzero(~applied)), lost_track(batch, applied))
 
 
+def named_among(pairs: list[list[int]], found: list[MapDisagreement]) -> list[int]:
+    """The landmarks of ``pairs`` that ``found`` names, in order."""
+    exchanged = {lm for pair in pairs for lm in pair}
+    return sorted(d.landmark for d in found if d.landmark in exchanged)
+
+
 def exchange_holds(left_out_before: int, after: Judgement, pairs: list[list[int]]) -> bool:
     """Whether the fit on the logs with ``pairs`` exchanged (``after``: ``judged`` by it) explains them better than the
     fit on the logs as given (which left out ``left_out_before`` sightings): at least ``MIN_SIGHTINGS`` fewer left out,
     and none of the exchanged landmarks named by its own check. A wrong exchange moves the right landmark's sightings
     to a map position where they are not: its refit leaves them out and names it."""
-    exchanged = {lm for pair in pairs for lm in pair}
-    return after.left_out + MIN_SIGHTINGS <= left_out_before and not exchanged & {d.landmark for d in after.found}
+    return after.left_out + MIN_SIGHTINGS <= left_out_before and not named_among(pairs, after.found)
+
+
+def tried_exchanges(logs: list[Trajectory], tries: list[list[list[int]]], left_out: int, gate: float,
+                    fit: Callable[[list[Trajectory]], tuple[Any, Model]]) -> tuple[list[dict], Any, list[Trajectory]]:
+    """Each exchange of ``tries`` (``exchanges``) in order, until one holds: ``fit(the logs exchanged)`` -> (its
+    result, its model), the model ``judged`` at ``gate`` on them against ``left_out`` (the fit on ``logs`` as given).
+    (every tried exchange's ``repair_record``; the result and the logs of the one that held, else None and ``logs``)."""
+    records = []
+    for pairs in tries:
+        fixed = repaired(logs, pairs)
+        result, model = fit(fixed)
+        records.append(repair_record(logs, pairs, left_out, judged(model, make_batch(fixed), gate)))
+        if records[-1]["held"]:
+            return records, result, fixed
+    return records, None, logs
 
 
 def repaired(logs: list[Trajectory], pairs: list[list[int]]) -> list[Trajectory]:
@@ -327,11 +349,9 @@ def repair_record(logs: list[Trajectory], pairs: list[list[int]], before: int, a
     logs, "named": the exchanged landmarks that fit's own check names, "held": ``exchange_holds``, so the fit on the
     exchange is the one returned}."""
     seen = np.concatenate([tr.sighting_landmark for tr in logs])
-    exchanged = {lm for pair in pairs for lm in pair}
     return {"exchanged": [[a, b, int(np.isin(seen, [a, b]).sum())] for a, b in pairs],
             "left_out": [int(before), after.left_out], "sightings": int(len(seen)),
-            "named": sorted(d.landmark for d in after.found if d.landmark in exchanged),
-            "held": exchange_holds(before, after, pairs)}
+            "named": named_among(pairs, after.found), "held": exchange_holds(before, after, pairs)}
 
 
 def repair_text(record: dict) -> str:
