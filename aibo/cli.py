@@ -20,7 +20,7 @@ import argparse
 import sys
 
 from aibo.errors import CLIError
-from aibo.options import MAX_SEEDS, MAX_STARTS, finite, integer, json_object, path, replica_count, steps, workers
+from aibo.options import MAX_SEEDS, MAX_STARTS, finite, integer, json_object, path, replica_count, sensor_pose, steps, workers
 
 #: What an interrupt leaves, for commands that do not resume: every output is written whole, at the end.
 NOTHING_WRITTEN = "no output was written or changed (each is written whole, at the end)"
@@ -264,7 +264,17 @@ def _add_import_bag(isub, commands) -> None:
                     help="a message definition the bag lacks (old ROS 2 .db3 bags embed none): FILE.msg for the "
                     "detections' type, TYPE=FILE.msg for another; dependencies in the file as 'ros2 interface show' prints "
                     "them (repeatable)")
+    _add_sensor_pose(bg)
     bg.set_defaults(run=commands.run_import_bag)
+
+
+def _add_sensor_pose(parser) -> None:
+    """``--sensor-pose`` of the importers that read range and bearing (``aibo_core.timed_log.SensorPose``)."""
+    parser.add_argument("--sensor-pose", type=sensor_pose, default=(0.0, 0.0, 0.0), metavar="X,Y,YAW",
+                        help="where the sensor that measured the detections sits on the robot: X m forward and Y m left "
+                        "of the robot's origin (the point its commands turn about), its axis YAW rad counter-clockwise of "
+                        "the heading (default 0,0,0: at the origin, facing forward); each detection is moved to the "
+                        "robot's origin")
 
 
 def _add_import_csv(isub, commands) -> None:
@@ -277,6 +287,7 @@ def _add_import_csv(isub, commands) -> None:
     cs.add_argument("folder", help="the folder holding the CSV files")
     cs.add_argument("--out", required=True, metavar="LOG.npz", help="log file to write")
     cs.add_argument("--dt", type=finite(1e-3), default=0.1, help="seconds per frame (default 0.1)")
+    _add_sensor_pose(cs)
     cs.set_defaults(run=commands.run_import_csv)
 
 

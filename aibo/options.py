@@ -89,6 +89,27 @@ def finite(least: float) -> Callable[[str], float]:
     return parse
 
 
+#: Farthest a sensor may sit from the robot's origin (m) in ``--sensor-pose``: beyond it the value is no mount on a
+#: robot (millimetres given as metres, most likely).
+MAX_SENSOR_OFFSET_M = 10.0
+
+
+def sensor_pose(text: str) -> tuple[float, float, float]:
+    """An option type: ``X,Y,YAW``, the sensor's position (m, forward and left of the robot's origin) and heading
+    (rad, counter-clockwise of the robot's), each finite, the position within ``MAX_SENSOR_OFFSET_M``."""
+    parts = text.split(",")
+    try:
+        values = tuple(float(v) for v in parts)
+    except ValueError:
+        values = ()
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected X,Y,YAW (metres, metres, radians: three finite numbers), got {text!r}")
+    if math.hypot(values[0], values[1]) > MAX_SENSOR_OFFSET_M:
+        raise argparse.ArgumentTypeError(f"the sensor {math.hypot(values[0], values[1]):g} m from the robot's origin: at "
+                                         f"most {MAX_SENSOR_OFFSET_M:g} m (X and Y are metres), got {text!r}")
+    return values  # type: ignore[return-value]
+
+
 def path(text: str) -> str:
     """An option type: a file or folder name, not empty (an empty one was taken as the current folder, or
     ignored, and some commands failed only after all their work)."""

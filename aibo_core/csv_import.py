@@ -15,8 +15,8 @@ file                columns                              meaning
 ==================  ===================================  ==================================================
 
 Times must not go back within a file (a repeated command or truth time: the first row kept, counted); a
-detection of an id not in ``landmarks.csv`` is counted and dropped, not fatal. Frames as in
-``aibo_core.timed_log``.
+detection of an id not in ``landmarks.csv`` is counted and dropped, not fatal. Frames, and detections measured by a
+sensor away from the robot's origin (``SensorPose``), as in ``aibo_core.timed_log``.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from .timed_log import LogSourceError, Streams, build, first_backward, increasing
+from .timed_log import LogSourceError, SensorPose, Streams, build, first_backward, increasing
 from .trajectory import Trajectory
 
 FILES = {"commands": ("t", "v_m_s", "omega_rad_s"), "detections": ("t", "id", "range_m", "bearing_rad"),
@@ -111,8 +111,9 @@ def dedupe(t: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray, i
     return t[keep], values[keep], repeated
 
 
-def import_folder(folder: str | os.PathLike, dt: float) -> Trajectory:
-    """The CSV log in ``folder`` (module docstring) as an aibo-trajectory/2 log in frames of ``dt`` s."""
+def import_folder(folder: str | os.PathLike, dt: float, sensor: SensorPose = SensorPose()) -> Trajectory:
+    """The CSV log in ``folder`` (module docstring) as an aibo-trajectory/2 log in frames of ``dt`` s, its detections
+    measured by ``sensor``."""
     folder = Path(folder)
     if not folder.is_dir():
         raise LogSourceError(f"{folder}: no such folder (give the folder holding commands.csv, detections.csv, "
@@ -137,4 +138,4 @@ def import_folder(folder: str | os.PathLike, dt: float) -> Trajectory:
             "source": {"folder": folder.resolve().name, "files": sorted(p.name for p in paths.values() if p.exists())},
             "landmark_ids": map_ids.tolist(), "dropped": dropped,
             "unknown_ids": sorted({int(i) for i in ids[streams.sighting_landmark < 0]})}
-    return build(streams, dt, meta, str(folder))
+    return build(streams, dt, meta, str(folder), sensor)

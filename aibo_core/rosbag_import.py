@@ -29,7 +29,7 @@ from typing import Any, Callable, Iterator
 import numpy as np
 
 from .csv_import import dedupe, landmark_index, ordered, read_landmark_map
-from .timed_log import LogSourceError, Streams, build
+from .timed_log import LogSourceError, SensorPose, Streams, build
 from .trajectory import Trajectory
 
 DEFAULT_NAMES = {"id": ("id", "ids"), "range": ("range", "ranges"), "bearing": ("bearing", "bearings")}
@@ -40,8 +40,8 @@ TIME_SOURCES = ("header", "log")
 @dataclass
 class BagOptions:
     """What to read from a bag: topics (``commands`` or ``odometry`` required), detection field names (None:
-    the defaults), the marker frame, the time source and extra message definitions ``(type or None, path)``
-    (None: the detections topic's type)."""
+    the defaults), the marker frame, the time source, extra message definitions ``(type or None, path)``
+    (None: the detections topic's type) and where the sensor sits on the robot (``timed_log.SensorPose``)."""
 
     detections: str
     commands: str | None = None
@@ -53,6 +53,7 @@ class BagOptions:
     marker_frame: str = "optical"
     time: str = "header"
     msg_defs: tuple[tuple[str | None, str], ...] = ()
+    sensor: SensorPose = SensorPose()
 
 
 class _Bag:
@@ -324,4 +325,4 @@ def read_streams(path: str | os.PathLike, landmarks_csv: str | os.PathLike,
 def import_bag(path: str | os.PathLike, landmarks_csv: str | os.PathLike, opts: BagOptions, dt: float) -> Trajectory:
     """The bag as an aibo-trajectory/2 log in frames of ``dt`` s (module docstring)."""
     streams, meta = read_streams(path, landmarks_csv, opts)
-    return build(streams, dt, meta, str(path))
+    return build(streams, dt, meta, str(path), opts.sensor)

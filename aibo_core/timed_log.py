@@ -33,6 +33,38 @@ class LogSourceError(ValueError):
     """A robot's log that cannot be imported: one line naming the file (or topic) and what is wrong."""
 
 
+@dataclass(frozen=True)
+class SensorPose:
+    """Where the sensor sits on the robot: its origin ``x_mm`` forward and ``y_mm`` left of the robot's origin (the
+    point the commands turn about and the truth tracks), its axis ``yaw_rad`` counter-clockwise of the robot's
+    heading (REP 103's base frame)."""
+
+    x_mm: float = 0.0
+    y_mm: float = 0.0
+    yaw_rad: float = 0.0
+
+    def is_origin(self) -> bool:
+        return self.x_mm == 0.0 and self.y_mm == 0.0 and self.yaw_rad == 0.0
+
+    def as_meta(self) -> dict[str, float]:
+        """The log's ``meta["sensor_pose"]`` (m, m, rad: the units the importers' option takes)."""
+        return {"x_m": self.x_mm / 1000.0, "y_m": self.y_mm / 1000.0, "yaw_rad": self.yaw_rad}
+
+
+def sensor_from_option(x_y_yaw: tuple[float, float, float]) -> SensorPose:
+    """The importers' ``--sensor-pose X,Y,YAW`` (m, m, rad) as a ``SensorPose``."""
+    return SensorPose(x_mm=1000.0 * x_y_yaw[0], y_mm=1000.0 * x_y_yaw[1], yaw_rad=x_y_yaw[2])
+
+
+def from_sensor(values: np.ndarray, sensor: SensorPose) -> np.ndarray:
+    """(S, 2) ``[range mm, bearing rad]`` measured from ``sensor`` -> the same landmarks' range and bearing from the
+    robot's origin (bearing wrapped to [-pi, pi))."""
+    r, b = values[:, 0], values[:, 1] + sensor.yaw_rad
+    x = sensor.x_mm + r * np.cos(b)
+    y = sensor.y_mm + r * np.sin(b)
+    return np.stack([np.hypot(x, y), wrap(np.arctan2(y, x))], axis=1)
+
+
 @dataclass
 class Streams:
     """One robot's measurements on one clock (module docstring for units)."""
@@ -128,11 +160,13 @@ def frame_count(s: Streams, dt: float) -> int:
     return int(np.floor((t_end - float(s.command_t[0])) / dt + 1e-9))
 
 
-def build(s: Streams, dt: float, meta: dict[str, Any], source: str) -> Trajectory:
+def build(s: Streams, dt: float, meta: dict[str, Any], source: str, sensor: SensorPose = SensorPose()) -> Trajectory:
     """The log of ``s`` in frames of ``dt`` s (module docstring). ``meta`` gets ``t0_s`` (the first command's
     time), ``dropped`` counts (sightings of ids not in the map, with non-positive ranges, outside the span; the
-    caller's own counts kept) and, with truth, ``pose_gaps``. ``source`` names the input in validation errors.
-    Raises LogSourceError when the commands span no frame, TrajectoryError on a log that fails validation."""
+    caller's own counts kept), ``sensor_pose`` and, with truth, ``pose_gaps``. ``sensor``: where the sightings were
+    measured from (their ranges checked as measured, then moved to the robot's origin). ``source`` names the input in
+    validation errors. Raises LogSourceError when the commands span no frame, TrajectoryError on a log that fails
+    validation."""
     t0 = float(s.command_t[0])
     T = frame_count(s, dt)
     if T < 1:
@@ -141,13 +175,17 @@ def build(s: Streams, dt: float, meta: dict[str, Any], source: str) -> Trajector
     controls = held_average(s.command_t, s.commands, edges)
     frame = nearest_frame_end(s.sighting_t, t0, dt)
     unknown = s.sighting_landmark < 0
-    bad_range = ~unknown & ~(s.sighting_value[:, 0] > 0)
+    measured = s.sighting_value
+    bad_range = ~unknown & ~(measured[:, 0] > 0)
+    if not sensor.is_origin():
+        measured = from_sensor(measured, sensor)
     inside = (frame >= 0) & (frame < T)
     use = ~unknown & ~bad_range & inside
     order = np.flatnonzero(use)[np.argsort(frame[use], kind="stable")]
-    values = np.stack([s.sighting_value[order, 0], wrap(s.sighting_value[order, 1])], axis=1)
+    values = np.stack([measured[order, 0], wrap(measured[order, 1])], axis=1)
     meta = dict(meta)
     meta["t0_s"] = t0
+    meta["sensor_pose"] = sensor.as_meta()
     meta["dropped"] = {**meta.get("dropped", {}), "sightings_unknown_id": int(unknown.sum()),
                        "sightings_nonpositive_range": int(bad_range.sum()),
                        "sightings_outside_span": int((~unknown & ~bad_range & ~inside).sum())}

@@ -62,8 +62,9 @@ def mrclam_slice(robot: int = 1, seconds: float = 150.0) -> tuple[Rows, float]:
     return Rows(odo, meas, gt, lm), float(t_last - t0)
 
 
-def drive(seconds: float = 6.0, seed: int = 0) -> Rows:
-    """A small synthetic drive: 10 Hz commands, a truth that follows them at 20 Hz, 3 landmarks seen at 5 Hz."""
+def drive(seconds: float = 6.0, seed: int = 0, sensor: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> Rows:
+    """A small synthetic drive: 10 Hz commands, a truth that follows them at 20 Hz, 3 landmarks seen at 5 Hz by a
+    sensor at ``sensor`` = (x m forward, y m left, yaw rad) on the robot."""
     rng = np.random.default_rng(seed)
     t = 1000.0 + np.round(np.arange(0.0, seconds, 0.1), 3)
     v, w = rng.uniform(0.05, 0.2, len(t)), rng.uniform(-0.3, 0.3, len(t))
@@ -73,9 +74,11 @@ def drive(seconds: float = 6.0, seed: int = 0) -> Rows:
     lm = np.array([[11, 2.0, 1.0], [12, 3.0, -1.0], [13, 1.0, 2.0]])
     rows = []
     for k in range(0, len(tt), 4):
+        c, s = np.cos(th[k]), np.sin(th[k])
+        sx, sy = x[k] + c * sensor[0] - s * sensor[1], y[k] + s * sensor[0] + c * sensor[1]
         for ident, lx, ly in lm:
-            d = np.hypot(lx - x[k], ly - y[k])
-            b = np.arctan2(ly - y[k], lx - x[k]) - th[k]
+            d = np.hypot(lx - sx, ly - sy)
+            b = np.arctan2(ly - sy, lx - sx) - th[k] - sensor[2]
             rows.append([tt[k], ident, d, np.arctan2(np.sin(b), np.cos(b))])
     return Rows(np.column_stack([t, v, w]), np.array(rows), np.column_stack([tt, x, y, th]), lm)
 

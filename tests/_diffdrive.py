@@ -50,13 +50,16 @@ def diff_drive_log(seconds: float = 600.0, dt: float = 0.05, seed: int = 0,
                    drift_mm_s: tuple[float, float] = (0.0, 0.0),
                    range_bias: tuple[float, float] | None = None,
                    turn_gain: tuple[float, float] | None = None,
-                   bearing_bias: tuple[float, float] | None = None) -> Trajectory:
+                   bearing_bias: tuple[float, float] | None = None,
+                   sensor: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> Trajectory:
     """A log of ``seconds`` with commands held 1-3 s, wandering among 8 landmarks in a 6 m square;
     ``drift_mm_s``: a hidden world-frame drift (mm/s), recorded nowhere in the log; ``range_bias``: (sigma_rel, tau_s)
     of a slowly varying relative bias per landmark on the range (``range_biases``; range = d (1 + b) + noise; the
     rest of the log is the same as without it), as ``landmark_bias`` models it; ``turn_gain``: (sigma, tau_s) of an
     error of the turn's gain, the same process on its own stream (each frame turns by its true turn times (1 + g));
-    ``bearing_bias``: (sigma rad, tau_s) of a bias per landmark added to its bearings, the same process on its own."""
+    ``bearing_bias``: (sigma rad, tau_s) of a bias per landmark added to its bearings, the same process on its own;
+    ``sensor``: where the sensor sits on the robot (x mm forward, y mm left, yaw rad), the sightings measured from there
+    (which landmarks are in view is decided from the robot's origin, so the same landmarks are seen wherever it sits)."""
     rng = np.random.default_rng(seed)
     T = int(round(seconds / dt))
     landmarks = rng.uniform(-3000.0, 3000.0, size=(8, 2))
@@ -82,10 +85,15 @@ def diff_drive_log(seconds: float = 600.0, dt: float = 0.05, seed: int = 0,
         dx, dy = (landmarks - pose[t + 1, :2]).T
         d = np.hypot(dx, dy)
         bearing = wrap(np.arctan2(dy, dx) - pose[t + 1, 2])
+        c1, s1 = np.cos(pose[t + 1, 2]), np.sin(pose[t + 1, 2])
+        sx = pose[t + 1, 0] + c1 * sensor[0] - s1 * sensor[1]
+        sy = pose[t + 1, 1] + s1 * sensor[0] + c1 * sensor[1]
+        ds = np.hypot(landmarks[:, 0] - sx, landmarks[:, 1] - sy)
+        bs = wrap(np.arctan2(landmarks[:, 1] - sy, landmarks[:, 0] - sx) - pose[t + 1, 2] - sensor[2])
         for b in np.flatnonzero((d > 300) & (d < 4000) & (np.abs(bearing) < 0.9) & (rng.random(8) < 0.4)):
             frames.append(t)
             marks.append(b)
-            values.append((d[b] * (1.0 + bias[t, b]) + rng.normal(0, 40.0), wrap(bearing[b] + offset[t, b] + rng.normal(0, 0.02))))
+            values.append((ds[b] * (1.0 + bias[t, b]) + rng.normal(0, 40.0), wrap(bs[b] + offset[t, b] + rng.normal(0, 0.02))))
     return Trajectory(dt=dt, landmarks=landmarks, sighting_frame=np.array(frames), sighting_landmark=np.array(marks),
                       sighting_value=np.array(values).reshape(-1, 2), sensor_kind="range_mm", controls=controls,
                       control_names=("v_mm_s", "omega_rad_s"), pose=pose,

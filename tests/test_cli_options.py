@@ -39,6 +39,10 @@ BAD = [
     (["experiment", "policies", "--out", "d", "--seeds", "1000000000"], "--seeds", "must be <= 10,000"),
     (["experiment", "policies", "--out", "d", "--jobs", "100000"], "--jobs", "worker processes on"),
     (["train-explorer", "--policy", "sb3", "--out", "a.zip", "--n-envs", "100000"], "--n-envs", "worker processes on"),
+    (["import", "csv", "log", "--out", "l.npz", "--sensor-pose", "0.2,0"], "--sensor-pose", "expected X,Y,YAW (metres"),
+    (["import", "bag", "b.bag", "--commands", "/c", "--detections", "/d", "--landmarks", "m.csv", "--out", "l.npz",
+      "--sensor-pose=0.2,0,nan"], "--sensor-pose", "three finite numbers"),
+    (["import", "csv", "log", "--out", "l.npz", "--sensor-pose", "250,0,0"], "--sensor-pose", "250 m from the robot's origin"),
 ]
 
 

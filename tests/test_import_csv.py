@@ -72,3 +72,22 @@ def test_a_missing_folder_or_file(tmp_path, capsys):
     (folder / "commands.csv").unlink()
     assert _import(folder, tmp_path / "log.npz") == 2
     assert "commands.csv: file not found" in capsys.readouterr().err
+
+
+def test_a_sensor_away_from_the_origin_is_moved_to_it(tmp_path):
+    """A drive seen by a sensor 0.25 m ahead, 0.05 m left and turned 0.3 rad, imported with its ``--sensor-pose``:
+    the sightings the same drive gives with the sensor at the origin, to rounding (without the option, off by more
+    than 0.2 m in range)."""
+    pose = (0.25, 0.05, 0.3)
+    at_origin, mounted = drive(seconds=6.0), drive(seconds=6.0, sensor=pose)
+    assert _import(write_csv(tmp_path / "origin", at_origin), tmp_path / "origin.npz") == 0
+    folder = write_csv(tmp_path / "mounted", mounted)
+    assert main(["import", "csv", str(folder), "--out", str(tmp_path / "moved.npz"), "--sensor-pose", "0.25,0.05,0.3"]) == 0
+    assert _import(folder, tmp_path / "as_is.npz") == 0
+    origin, moved, as_is = (trajectory.load(tmp_path / f"{n}.npz") for n in ("origin", "moved", "as_is"))
+    np.testing.assert_allclose(moved.sighting_value[:, 0], origin.sighting_value[:, 0], atol=1e-6)
+    np.testing.assert_allclose(wrap(moved.sighting_value[:, 1] - origin.sighting_value[:, 1]), 0.0, atol=1e-9)
+    assert np.max(np.abs(as_is.sighting_value[:, 0] - origin.sighting_value[:, 0])) > 200.0
+    assert moved.meta["sensor_pose"] == {"x_m": 0.25, "y_m": 0.05, "yaw_rad": 0.3}
+    assert origin.meta["sensor_pose"] == {"x_m": 0.0, "y_m": 0.0, "yaw_rad": 0.0}
+

@@ -9,7 +9,7 @@ from aibo.errors import CLIError
 from aibo.paths import check_files, declared_inputs
 from aibo_core import trajectory
 from aibo_core.rosbag_import import BagOptions, import_bag
-from aibo_core.timed_log import LogSourceError
+from aibo_core.timed_log import LogSourceError, sensor_from_option
 
 
 def msg_defs(values: list[str] | None) -> tuple[tuple[str | None, str], ...]:
@@ -27,7 +27,8 @@ def run(args) -> int:
     check_files(inputs=declared_inputs(args, extra), outputs=[("--out", args.out)])
     opts = BagOptions(detections=args.detections, commands=args.commands, odometry=args.odometry, truth=args.truth,
                       id_field=args.id_field, range_field=args.range_field, bearing_field=args.bearing_field,
-                      marker_frame=args.marker_frame, time=args.time, msg_defs=defs)
+                      marker_frame=args.marker_frame, time=args.time, msg_defs=defs,
+                      sensor=sensor_from_option(args.sensor_pose))
     t0 = time.perf_counter()
     try:
         tr = import_bag(args.bag, args.landmarks, opts, args.dt)

@@ -10,7 +10,7 @@ from aibo.errors import CLIError
 from aibo.paths import check_files, declared_inputs
 from aibo_core import trajectory
 from aibo_core.csv_import import FILES, import_folder
-from aibo_core.timed_log import LogSourceError
+from aibo_core.timed_log import LogSourceError, sensor_from_option
 
 
 def run(args) -> int:
@@ -18,7 +18,7 @@ def run(args) -> int:
     check_files(inputs=declared_inputs(args, files), outputs=[("--out", args.out)])
     t0 = time.perf_counter()
     try:
-        tr = import_folder(args.folder, args.dt)
+        tr = import_folder(args.folder, args.dt, sensor_from_option(args.sensor_pose))
     except LogSourceError as exc:
         raise CLIError(str(exc)) from None
     trajectory.save(tr, args.out)
