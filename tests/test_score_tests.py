@@ -86,6 +86,15 @@ def test_the_plain_reading_of_the_speed_trend_says_which_way():
     assert "faster later" in plain_reading(SPEED_TREND, 8.0)
 
 
+def test_bearing_errors_that_persist_per_landmark_name_both_causes():
+    """Persistent bearing errors per landmark: a bearing bias of the landmark, or a sensor away from the robot's origin
+    (scripts/sensor_mount.py: z +8.9 after the named effects where the camera sat 0.25 m ahead, none at the origin)."""
+    for statistic in (BEARING_BIAS, "bearing-innovation autocorrelation (lag 1, per landmark)"):
+        more, less = plain_reading(statistic, 6.0), plain_reading(statistic, -6.0)
+        assert "landmark_bearing_bias" in more and "--sensor-pose" in more, more
+        assert "--sensor-pose" not in less, less
+
+
 @pytest.mark.parametrize("effect", ["landmark_bias", "actuation_lag"])
 def test_the_score_is_computed_under_bias_states_and_a_lag(effect):
     """Bias states take the augmented E-step's displacement beliefs (the first version read the plain E-step's and
