@@ -20,7 +20,19 @@ import argparse
 import sys
 
 from aibo.errors import CLIError
-from aibo.options import MAX_SEEDS, MAX_STARTS, finite, integer, json_object, path, replica_count, sensor_pose, steps, workers
+from aibo.options import (
+    MAX_SEEDS,
+    MAX_STARTS,
+    bag_sensor_pose,
+    finite,
+    integer,
+    json_object,
+    path,
+    replica_count,
+    sensor_pose,
+    steps,
+    workers,
+)
 
 #: What an interrupt leaves, for commands that do not resume: every output is written whole, at the end.
 NOTHING_WRITTEN = "no output was written or changed (each is written whole, at the end)"
@@ -264,17 +276,24 @@ def _add_import_bag(isub, commands) -> None:
                     help="a message definition the bag lacks (old ROS 2 .db3 bags embed none): FILE.msg for the "
                     "detections' type, TYPE=FILE.msg for another; dependencies in the file as 'ros2 interface show' prints "
                     "them (repeatable)")
-    _add_sensor_pose(bg)
+    _add_sensor_pose(bg, bag=True)
     bg.set_defaults(run=commands.run_import_bag)
 
 
-def _add_sensor_pose(parser) -> None:
-    """``--sensor-pose`` of the importers that read range and bearing (``aibo_core.timed_log.SensorPose``)."""
-    parser.add_argument("--sensor-pose", type=sensor_pose, default=(0.0, 0.0, 0.0), metavar="X,Y,YAW",
+def _add_sensor_pose(parser, bag: bool) -> None:
+    """``--sensor-pose`` of the importers that read range and bearing (``aibo_core.timed_log.SensorPose``); a bag's
+    also ``tf`` and ``--base-frame``."""
+    parser.add_argument("--sensor-pose", type=bag_sensor_pose if bag else sensor_pose, default=(0.0, 0.0, 0.0),
+                        metavar="X,Y,YAW" + ("|tf" if bag else ""),
                         help="where the sensor that measured the detections sits on the robot: X m forward and Y m left "
                         "of the robot's origin (the point its commands turn about), its axis YAW rad counter-clockwise of "
                         "the heading (default 0,0,0: at the origin, facing forward); each detection is moved to the "
-                        "robot's origin")
+                        "robot's origin" + ("; tf: each detection message's header.frame_id placed by the bag's "
+                                            "/tf_static under --base-frame (marker poses then in 3-D, whatever "
+                                            "--marker-frame says)" if bag else ""))
+    if bag:
+        parser.add_argument("--base-frame", default="base_link", metavar="FRAME",
+                            help="with --sensor-pose tf: the robot's frame in /tf_static (default base_link)")
 
 
 def _add_import_csv(isub, commands) -> None:
@@ -287,7 +306,7 @@ def _add_import_csv(isub, commands) -> None:
     cs.add_argument("folder", help="the folder holding the CSV files")
     cs.add_argument("--out", required=True, metavar="LOG.npz", help="log file to write")
     cs.add_argument("--dt", type=finite(1e-3), default=0.1, help="seconds per frame (default 0.1)")
-    _add_sensor_pose(cs)
+    _add_sensor_pose(cs, bag=False)
     cs.set_defaults(run=commands.run_import_csv)
 
 

@@ -94,6 +94,10 @@ def finite(least: float) -> Callable[[str], float]:
 MAX_SENSOR_OFFSET_M = 10.0
 
 
+#: What ``sensor_pose``'s error adds: only ``aibo import bag`` takes ``tf``.
+TF_TOO = "; or tf, for a bag, to read it from the bag's /tf_static"
+
+
 def sensor_pose(text: str) -> tuple[float, float, float]:
     """An option type: ``X,Y,YAW``, the sensor's position (m, forward and left of the robot's origin) and heading
     (rad, counter-clockwise of the robot's), each finite, the position within ``MAX_SENSOR_OFFSET_M``."""
@@ -103,11 +107,17 @@ def sensor_pose(text: str) -> tuple[float, float, float]:
     except ValueError:
         values = ()
     if len(values) != 3 or not all(math.isfinite(v) for v in values):
-        raise argparse.ArgumentTypeError(f"expected X,Y,YAW (metres, metres, radians: three finite numbers), got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected X,Y,YAW (metres, metres, radians: three finite numbers{TF_TOO}), got "
+                                         f"{text!r}")
     if math.hypot(values[0], values[1]) > MAX_SENSOR_OFFSET_M:
         raise argparse.ArgumentTypeError(f"the sensor {math.hypot(values[0], values[1]):g} m from the robot's origin: at "
                                          f"most {MAX_SENSOR_OFFSET_M:g} m (X and Y are metres), got {text!r}")
     return values  # type: ignore[return-value]
+
+
+def bag_sensor_pose(text: str) -> tuple[float, float, float] | str:
+    """An option type: ``sensor_pose``'s X,Y,YAW, or ``tf`` (the bag's static transforms place the sensor)."""
+    return "tf" if text == "tf" else sensor_pose(text)
 
 
 def path(text: str) -> str:

@@ -12,7 +12,10 @@ read. Units as ROS has them (REP 103: metres, radians, seconds; x forward, y lef
   ``geometry_msgs/Pose``), turned into planar range and bearing: ``optical`` frame (z forward, x right: the camera
   convention) or ``body`` (x forward, y left); a marker with several ids (AprilTag bundles) counts as its first;
 - truth (optional): ``PoseStamped``, ``PoseWithCovarianceStamped``, ``Odometry`` or ``TransformStamped``: x, y and
-  the yaw of the quaternion; the log's ``pose``, used only to score a fit.
+  the yaw of the quaternion; the log's ``pose``, used only to score a fit;
+- where the sensor sits (optional): given (``BagOptions.sensor``), or read from ``/tf_static`` (``sensor_from_tf``:
+  each detection message's ``header.frame_id`` placed under ``base_frame`` by ``aibo_core.static_tf``, its detections
+  moved to the robot's origin, marker poses as 3-D points).
 
 Times: each message's ``header.stamp`` when its type has a header (``time="header"``, the default), else, or with
 ``time="log"``, the time the bag recorded it. Types the bag does not define come from ``--msg-def`` files or the
@@ -29,11 +32,13 @@ from typing import Any, Callable, Iterator
 import numpy as np
 
 from .csv_import import dedupe, landmark_index, ordered, read_landmark_map
+from .static_tf import StaticTransforms
 from .timed_log import LogSourceError, SensorPose, Streams, build
 from .trajectory import Trajectory
 
 DEFAULT_NAMES = {"id": ("id", "ids"), "range": ("range", "ranges"), "bearing": ("bearing", "bearings")}
 MARKER_FRAMES = ("optical", "body")
+TF_STATIC = "/tf_static"
 TIME_SOURCES = ("header", "log")
 
 
@@ -41,7 +46,8 @@ TIME_SOURCES = ("header", "log")
 class BagOptions:
     """What to read from a bag: topics (``commands`` or ``odometry`` required), detection field names (None:
     the defaults), the marker frame, the time source, extra message definitions ``(type or None, path)``
-    (None: the detections topic's type) and where the sensor sits on the robot (``timed_log.SensorPose``)."""
+    (None: the detections topic's type) and where the sensor sits on the robot (``timed_log.SensorPose``, or with
+    ``sensor_from_tf`` the bag's static transforms from ``base_frame`` to each detection message's frame)."""
 
     detections: str
     commands: str | None = None
@@ -54,6 +60,8 @@ class BagOptions:
     time: str = "header"
     msg_defs: tuple[tuple[str | None, str], ...] = ()
     sensor: SensorPose = SensorPose()
+    sensor_from_tf: bool = False  # the detections' frames placed on the robot by the bag's /tf_static instead
+    base_frame: str = "base_link"  # the robot's frame in /tf_static (its origin: the point the commands turn about)
 
 
 class _Bag:
@@ -244,17 +252,33 @@ def _layout_of(bag: _Bag, topic: str, msgtype: str, opts: BagOptions) -> _Layout
     return layout
 
 
-def _marker(elem: Any, layout: _Layout, frame: str) -> tuple[int, float, float]:
+#: A detection without an id or a position: counted as an unknown id.
+_NO_ID = -(2**62)
+
+
+def _frame_id(obj: Any) -> str:
+    """The ``header.frame_id`` of a message (or a PoseStamped), "" where it has none."""
+    header = getattr(obj, "header", None)
+    return str(getattr(header, "frame_id", "") or "")
+
+
+def _marker(elem: Any, layout: _Layout) -> tuple[int, float, float, float, str]:
+    """(id, x, y, z m in the marker's frame, that frame's name where its pose carries one)."""
     ident = np.atleast_1d(getattr(elem, layout.id))
     p = _descend(elem.pose, ("position",), ("pose",))
     if p is None or len(ident) == 0:
-        return -(2**62), 0.0, 0.0  # no id or no position: counted as an unknown id
-    x, y, z = float(p.position.x), float(p.position.y), float(p.position.z)
+        return _NO_ID, 0.0, 0.0, 0.0, ""
+    return int(ident[0]), float(p.position.x), float(p.position.y), float(p.position.z), _frame_id(elem.pose)
+
+
+def _marker_range_bearing(x: float, y: float, z: float, frame: str) -> tuple[float, float]:
+    """Planar range and bearing of a marker at (x, y, z) in the sensor frame (``--marker-frame``)."""
     forward, left = (z, -x) if frame == "optical" else (x, y)
-    return int(ident[0]), float(np.hypot(forward, left)), float(np.arctan2(left, forward))
+    return float(np.hypot(forward, left)), float(np.arctan2(left, forward))
 
 
-def _detections(bag: _Bag, topic: str, layout: _Layout, frame: str, msg: Any) -> list[tuple[int, float, float]]:
+def _detections(bag: _Bag, topic: str, layout: _Layout, msg: Any) -> list[tuple]:
+    """The message's detections: (id, range m, bearing rad) or, for marker poses, ``_marker``'s (id, x, y, z, frame)."""
     if layout.kind == "parallel":
         ids, r, b = (np.atleast_1d(np.asarray(getattr(msg, f))) for f in (layout.id, layout.range, layout.bearing))
         if not len(ids) == len(r) == len(b):
@@ -265,21 +289,64 @@ def _detections(bag: _Bag, topic: str, layout: _Layout, frame: str, msg: Any) ->
     if layout.kind == "elements":
         return [(int(np.atleast_1d(getattr(e, layout.id))[0]), float(getattr(e, layout.range)),
                  float(getattr(e, layout.bearing))) for e in elems]
-    return [_marker(e, layout, frame) for e in elems]
+    return [_marker(e, layout) for e in elems]
 
 
-def _read_detections(bag: _Bag, opts: BagOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(times s (S,), ids (S,), [range m, bearing rad] (S, 2)): every detection, its message's time."""
+def _on_the_robot(bag: _Bag, opts: BagOptions, tf: StaticTransforms, frame: str, marker: bool,
+                  det: tuple) -> tuple[int, float, float]:
+    """(id, range m, bearing rad) from the robot's origin of a detection in ``frame`` (placed by the static transforms
+    ``tf``): a marker's point as given, a range and bearing as a point in the frame's x-y plane."""
+    ident, point = det[0], (det[1:4] if marker else (det[1] * np.cos(det[2]), det[1] * np.sin(det[2]), 0.0))
+    if ident == _NO_ID:
+        return _NO_ID, 0.0, 0.0
+    frame = (det[4] if marker and det[4] else frame)
+    if not frame:
+        raise LogSourceError(f"{bag.path}: --detections {opts.detections}: a message has no header.frame_id, so "
+                             "--sensor-pose tf cannot place it on the robot; give --sensor-pose X,Y,YAW")
+    found = tf.transform(opts.base_frame, frame)
+    if found is None:
+        raise LogSourceError(f"{bag.path}: --sensor-pose tf: no static transform joins --base-frame {opts.base_frame} and "
+                             f"the detections' frame {frame} in {TF_STATIC} (frames there: "
+                             f"{', '.join(tf.frames()) or 'none'})")
+    R, t = found
+    x, y, _ = R @ np.asarray(point, float) + t
+    return ident, float(np.hypot(x, y)), float(np.arctan2(y, x))
+
+
+def _read_detections(bag: _Bag, opts: BagOptions, tf: StaticTransforms | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(times s (S,), ids (S,), [range m, bearing rad] (S, 2)): every detection, its message's time; with ``tf``,
+    from the robot's origin (``_on_the_robot``), else as the sensor measured it (marker poses by ``--marker-frame``)."""
     topic = opts.detections
     layout = _layout_of(bag, topic, bag.topic_type(topic, "--detections"), opts)
-    t, per_msg = _read_topic(bag, topic, "--detections", opts.time,
-                             lambda m: _detections(bag, topic, layout, opts.marker_frame, m))
+    marker = layout.kind == "markers"
+
+    def extract(msg: Any) -> list[tuple[int, float, float]]:
+        dets = _detections(bag, topic, layout, msg)
+        if tf is not None:
+            return [_on_the_robot(bag, opts, tf, _frame_id(msg), marker, d) for d in dets]
+        return [(d[0], *_marker_range_bearing(*d[1:4], opts.marker_frame)) if marker else d for d in dets]
+
+    t, per_msg = _read_topic(bag, topic, "--detections", opts.time, extract)
     counts = [len(d) for d in per_msg]
     rows = [d for ds in per_msg for d in ds]
     if not rows:
         raise LogSourceError(f"{bag.path}: --detections {topic}: {len(per_msg)} messages but not one detection")
     ids = np.array([r[0] for r in rows], dtype=np.int64)
     return np.repeat(t, counts), ids, np.array([r[1:] for r in rows], dtype=float)
+
+
+def _static_transforms(bag: _Bag) -> StaticTransforms:
+    """The bag's ``/tf_static`` (every message's transforms; refused when the bag has no such topic)."""
+    bag.topic_type(TF_STATIC, "--sensor-pose tf")
+    tf = StaticTransforms()
+    for _, msg in bag.messages(TF_STATIC):
+        for ts in getattr(msg, "transforms", []):
+            tr, q = ts.transform.translation, ts.transform.rotation
+            try:
+                tf.add(ts.header.frame_id, ts.child_frame_id, (tr.x, tr.y, tr.z), (q.x, q.y, q.z, q.w))
+            except ValueError as exc:
+                raise LogSourceError(f"{bag.path}: {TF_STATIC}: the transform to {ts.child_frame_id}: {exc}") from None
+    return tf
 
 
 def read_streams(path: str | os.PathLike, landmarks_csv: str | os.PathLike,
@@ -298,7 +365,8 @@ def read_streams(path: str | os.PathLike, landmarks_csv: str | os.PathLike,
         bag.topic_type(topic, option)
         cmd_t, cmds = _read_topic(bag, topic, option, opts.time, lambda m: _twist(bag, topic, m))
         cmd_t, cmds, repeated = dedupe(cmd_t, np.array(cmds, float).reshape(-1, 2))
-        det_t, ids, values = _read_detections(bag, opts)
+        tf = _static_transforms(bag) if opts.sensor_from_tf else None
+        det_t, ids, values = _read_detections(bag, opts, tf)
         truth_t = truth = None
         if opts.truth:
             bag.topic_type(opts.truth, "--truth")
@@ -318,7 +386,9 @@ def read_streams(path: str | os.PathLike, landmarks_csv: str | os.PathLike,
                        "marker_frame": opts.marker_frame, "landmarks": Path(landmarks_csv).name},
             "command_source": "commands" if opts.commands else "odometry (measured velocities, not commands)",
             "landmark_ids": map_ids.tolist(), "dropped": dropped,
-            "unknown_ids": sorted({int(i) for i in ids[lm < 0] if i > -(2**62)})}
+            "unknown_ids": sorted({int(i) for i in ids[lm < 0] if i > _NO_ID})}
+    if tf is not None:
+        meta["sensor_pose"] = {"from": TF_STATIC, "base_frame": opts.base_frame}
     return streams, meta
 
 

@@ -185,7 +185,7 @@ def build(s: Streams, dt: float, meta: dict[str, Any], source: str, sensor: Sens
     values = np.stack([measured[order, 0], wrap(measured[order, 1])], axis=1)
     meta = dict(meta)
     meta["t0_s"] = t0
-    meta["sensor_pose"] = sensor.as_meta()
+    meta.setdefault("sensor_pose", sensor.as_meta())  # an importer that placed the sightings itself says how
     meta["dropped"] = {**meta.get("dropped", {}), "sightings_unknown_id": int(unknown.sum()),
                        "sightings_nonpositive_range": int(bad_range.sum()),
                        "sightings_outside_span": int((~unknown & ~bad_range & ~inside).sum())}

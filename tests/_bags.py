@@ -28,6 +28,7 @@ DETECTION_TYPES = {"arrays": (f"{PKG}/msg/RangeBearingArray", ARRAYS_MSG),
                    "elements": (f"{PKG}/msg/RangeBearingList", ELEMENTS_MSG),
                    "markers": (f"{PKG}/msg/MarkerArray", MARKERS_MSG)}
 FORMATS = ("ros1", "db3", "mcap")
+TF_TYPE = "tf2_msgs/msg/TFMessage"
 
 
 @dataclass
@@ -114,16 +115,27 @@ class _Store:
 
         self.ros1 = fmt == "ros1"
         self.store = get_typestore(Stores.ROS1_NOETIC if self.ros1 else Stores.ROS2_HUMBLE)
+        if TF_TYPE not in self.store.types:  # rosbags' ROS 1 store lacks it; ROS 1 bags embed definitions
+            extra = {**extra, TF_TYPE: "geometry_msgs/TransformStamped[] transforms\n"}
         for name, text in extra.items():
             self.store.register(get_types_from_msg(text, name))
         self.t = self.store.types
 
-    def header(self, t: float):
+    def header(self, t: float, frame: str = ""):
         sec, nsec = divmod(ns(t), 10**9)
         stamp = self.t["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec)
         if self.ros1:
-            return self.t["std_msgs/msg/Header"](seq=0, stamp=stamp, frame_id="")
-        return self.t["std_msgs/msg/Header"](stamp=stamp, frame_id="")
+            return self.t["std_msgs/msg/Header"](seq=0, stamp=stamp, frame_id=frame)
+        return self.t["std_msgs/msg/Header"](stamp=stamp, frame_id=frame)
+
+    def static_transforms(self, t: float, transforms: list[tuple[str, str, tuple, tuple]]):
+        """A TFMessage of (parent, child, (x, y, z) m, (qx, qy, qz, qw))."""
+        g = self.t
+        return g[TF_TYPE](transforms=[g["geometry_msgs/msg/TransformStamped"](
+            header=self.header(t, parent), child_frame_id=child, transform=g["geometry_msgs/msg/Transform"](
+                translation=g["geometry_msgs/msg/Vector3"](x=xyz[0], y=xyz[1], z=xyz[2]),
+                rotation=g["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3])))
+            for parent, child, xyz, q in transforms])
 
     def pose(self, x: float, y: float, z: float, yaw: float):
         g = self.t
@@ -145,9 +157,9 @@ class _Store:
             pose=g["geometry_msgs/msg/PoseWithCovariance"](pose=self.pose(0.0, 0.0, 0.0, 0.0), covariance=cov),
             twist=g["geometry_msgs/msg/TwistWithCovariance"](twist=self.twist(t, v, w, False), covariance=cov))
 
-    def detections(self, kind: str, t: float, group: np.ndarray):
+    def detections(self, kind: str, t: float, group: np.ndarray, frame: str = ""):
         name = DETECTION_TYPES[kind][0]
-        h = self.header(t)
+        h = self.header(t, frame)
         if kind == "arrays":
             return self.t[name](header=h, ids=group[:, 1].astype(np.int32), ranges=group[:, 2].copy(),
                                 bearings=group[:, 3].copy())
@@ -170,10 +182,11 @@ def bag_path(folder: Path, fmt: str) -> Path:
 
 def write_bag(folder: Path, rows: Rows, fmt: str, detections: str = "arrays", stamped: bool = False,
               odometry: bool = False, truth: bool = True, empty: dict[str, str] | None = None,
-              truth_stamps: np.ndarray | None = None) -> Path:
+              truth_stamps: np.ndarray | None = None, frame: str = "", tf: list | None = None) -> Path:
     """Write ``rows`` as a bag in ``folder`` (topics /cmd_vel, /landmarks, /vicon/pose, with ``odometry`` also
     /odom; ``empty``: {topic: type} of topics without messages; ``truth_stamps``: the truth's header stamps when
-    not its record times); return the path to give the importer."""
+    not its record times; ``frame``: the detections' header.frame_id; ``tf``: /tf_static's transforms, one message at
+    the start, as ``_Store.static_transforms`` takes them); return the path to give the importer."""
     from rosbags.rosbag1 import Writer as Writer1
     from rosbags.rosbag2 import StoragePlugin
     from rosbags.rosbag2 import Writer as Writer2
@@ -190,7 +203,10 @@ def write_bag(folder: Path, rows: Rows, fmt: str, detections: str = "arrays", st
                      for t, v, w in rows.commands]
     for t, group in itertools.groupby(rows.detections, key=lambda r: r[0]):
         g = np.array(list(group))
-        messages.append(("/landmarks", det_type, t, lambda t=t, g=g: store.detections(detections, t, g)))
+        messages.append(("/landmarks", det_type, t, lambda t=t, g=g: store.detections(detections, t, g, frame)))
+    if tf:
+        t0 = float(rows.commands[0, 0])
+        messages.append(("/tf_static", TF_TYPE, t0, lambda: store.static_transforms(t0, tf)))
     if truth:
         stamps = rows.truth[:, 0] if truth_stamps is None else truth_stamps
         messages += [("/vicon/pose", "geometry_msgs/msg/PoseStamped", t,

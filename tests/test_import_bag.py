@@ -171,14 +171,49 @@ def test_a_sensor_pose_moves_the_sightings_to_the_origin(tmp_path, small):
     """A bag whose camera sat 0.2 m ahead and 0.1 m right, turned 0.25 rad, imported with that --sensor-pose: the
     sightings of the same drive seen from the robot's origin."""
     mounted = drive(sensor=(0.2, -0.1, -0.25))
-    bag = write_bag(tmp_path / "mounted", mounted, "ros2")
+    bag = write_bag(tmp_path / "mounted", mounted, "db3")
     assert _import(tmp_path, bag, *TOPICS, "--sensor-pose", "0.2,-0.1,-0.25")[0] == 0
     moved = trajectory.load(tmp_path / "out.npz")
     (tmp_path / "out.npz").unlink()
-    assert _import(tmp_path, write_bag(tmp_path / "origin", small, "ros2"), *TOPICS)[0] == 0
+    assert _import(tmp_path, write_bag(tmp_path / "origin", small, "db3"), *TOPICS)[0] == 0
     origin = trajectory.load(tmp_path / "out.npz")
     np.testing.assert_allclose(moved.sighting_value, origin.sighting_value, atol=1e-6)
     assert moved.meta["sensor_pose"] == {"x_m": 0.2, "y_m": -0.1, "yaw_rad": -0.25}
+
+
+#: base_footprint -> base_link -> a mount 0.2 m ahead -> a camera 0.1 m right of it, turned 0.25 rad clockwise -> its
+#: optical frame (z forward, x right: the standard rotation)
+MOUNT_TF = [("base_footprint", "base_link", (0.0, 0.0, 0.1), (0.0, 0.0, 0.0, 1.0)),
+            ("base_link", "mount", (0.2, 0.0, 0.3), (0.0, 0.0, 0.0, 1.0)),
+            ("mount", "camera", (0.0, -0.1, 0.0), (0.0, 0.0, np.sin(-0.125), np.cos(-0.125))),
+            ("camera", "camera_optical", (0.0, 0.0, 0.0), (-0.5, 0.5, -0.5, 0.5))]
+
+
+@pytest.mark.parametrize("fmt,detections,frame", [("db3", "arrays", "camera"), ("mcap", "markers", "camera_optical"),
+                                                  ("ros1", "elements", "/camera")])
+def test_sensor_pose_tf_places_the_sensor_by_the_static_transforms(tmp_path, small, fmt, detections, frame):
+    """The drive seen from the camera of ``MOUNT_TF``, its detections in the camera's frame (range and bearing) or
+    its optical frame (marker poses), imported with --sensor-pose tf: the sightings from the robot's origin."""
+    mounted = drive(sensor=(0.2, -0.1, -0.25))
+    (tmp_path / "mounted").mkdir()
+    bag = write_bag(tmp_path / "mounted", mounted, fmt, detections=detections, frame=frame, tf=MOUNT_TF)
+    assert _import(tmp_path, bag, *TOPICS, "--sensor-pose", "tf")[0] == 0
+    moved = trajectory.load(tmp_path / "out.npz")
+    (tmp_path / "out.npz").unlink()
+    assert _import(tmp_path, write_bag(tmp_path / "origin", small, "db3"), *TOPICS)[0] == 0
+    np.testing.assert_allclose(moved.sighting_value, trajectory.load(tmp_path / "out.npz").sighting_value, atol=1e-6)
+    assert moved.meta["sensor_pose"] == {"from": "/tf_static", "base_frame": "base_link"}
+
+
+def test_sensor_pose_tf_names_what_it_cannot_find(tmp_path, small, capsys):
+    bag = write_bag(tmp_path / "a", small, "db3", frame="lidar", tf=MOUNT_TF)
+    err = _fails(tmp_path, capsys, bag, *TOPICS, "--sensor-pose", "tf")
+    assert "no static transform joins --base-frame base_link and the detections' frame lidar in /tf_static (frames " \
+           "there: base_footprint, base_link, camera, camera_optical, mount)" in err, err
+    err = _fails(tmp_path, capsys, write_bag(tmp_path / "b", small, "db3", tf=MOUNT_TF), *TOPICS, "--sensor-pose", "tf")
+    assert "a message has no header.frame_id" in err and "--sensor-pose X,Y,YAW" in err, err
+    err = _fails(tmp_path, capsys, write_bag(tmp_path / "c", small, "db3", frame="camera"), *TOPICS, "--sensor-pose", "tf")
+    assert "/tf_static" in err and "/landmarks" in err, err  # no such topic: the topics present listed
 
 
 def test_a_truncated_bag_is_one_line(tmp_path, small, capsys):

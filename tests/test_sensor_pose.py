@@ -1,13 +1,15 @@
 """A sensor away from the robot's origin (``aibo_core.timed_log.SensorPose``, the importers' ``--sensor-pose``): the
-conversion on cases with known answers, and what it does for a fit on an independent generator's log (the importers
-end to end: tests/test_import_csv.py, tests/test_import_bag.py)."""
+conversion and the static transforms (``aibo_core.static_tf``) on cases with known answers, and what it does for a fit
+on an independent generator's log (the importers end to end: tests/test_import_csv.py, tests/test_import_bag.py)."""
 
 from __future__ import annotations
 
 import dataclasses
 
 import numpy as np
+import pytest
 
+from aibo_core.static_tf import StaticTransforms, rotation
 from aibo_core.timed_log import SensorPose, Streams, build, from_sensor
 from learners.em.learner import EMLearner
 from learners.em.options import EMOptions
@@ -65,3 +67,26 @@ def test_a_fit_of_the_moved_sightings_tracks_the_robot():
     pose = {name: pose_scores(EMLearner(EMOptions()).fit([tr]).params, [tr])["pose_rms"]
             for name, tr in (("origin", at_origin), ("as is", mounted), ("moved", moved))}
     assert pose["moved"] < 1.1 * pose["origin"] and pose["as is"] > 150.0, pose
+
+
+def test_static_transforms_compose_up_and_down_the_tree():
+    """base_footprint -> base_link (0.1 m up) -> camera (0.2 m ahead, turned 90 degrees left); base_link -> lidar
+    (0.3 m behind): a point 1 m ahead of the camera is 0.2 m ahead and 1 m left of base_link, 0.5 m ahead and 1 m left
+    of the lidar (a sibling branch), 0.1 m higher in base_footprint."""
+    tf = StaticTransforms()
+    tf.add("/base_footprint", "base_link", (0.0, 0.0, 0.1), (0.0, 0.0, 0.0, 1.0))
+    tf.add("base_link", "camera", (0.2, 0.0, 0.0), (0.0, 0.0, np.sin(np.pi / 4), np.cos(np.pi / 4)))
+    tf.add("base_link", "/lidar", (-0.3, 0.0, 0.0), (0.0, 0.0, 0.0, 2.0))  # not normalized: normalized first
+    ahead = np.array([1.0, 0.0, 0.0])
+    for base, expected in (("base_link", [0.2, 1.0, 0.0]), ("lidar", [0.5, 1.0, 0.0]), ("base_footprint", [0.2, 1.0, 0.1])):
+        R, t = tf.transform(base, "camera")
+        np.testing.assert_allclose(R @ ahead + t, expected, atol=1e-12)
+    R, t = tf.transform("camera", "base_link")  # the inverse: base_link's origin is 0.2 m behind the camera
+    np.testing.assert_allclose(R @ np.zeros(3) + t, [0.0, 0.2, 0.0], atol=1e-12)
+    assert tf.transform("base_link", "odom") is None and tf.frames() == ["base_footprint", "base_link", "camera", "lidar"]
+    np.testing.assert_allclose(rotation(-0.5, 0.5, -0.5, 0.5), [[0, 0, 1], [-1, 0, 0], [0, -1, 0]], atol=1e-12)  # optical
+    with pytest.raises(ValueError, match="not a rotation"):
+        rotation(0.0, 0.0, 0.0, 0.0)
+    tf.add("camera", "base_footprint", (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
+    with pytest.raises(ValueError, match="loop"):
+        tf.transform("base_link", "camera")

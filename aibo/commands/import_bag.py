@@ -9,7 +9,7 @@ from aibo.errors import CLIError
 from aibo.paths import check_files, declared_inputs
 from aibo_core import trajectory
 from aibo_core.rosbag_import import BagOptions, import_bag
-from aibo_core.timed_log import LogSourceError, sensor_from_option
+from aibo_core.timed_log import LogSourceError, SensorPose, sensor_from_option
 
 
 def msg_defs(values: list[str] | None) -> tuple[tuple[str | None, str], ...]:
@@ -28,7 +28,8 @@ def run(args) -> int:
     opts = BagOptions(detections=args.detections, commands=args.commands, odometry=args.odometry, truth=args.truth,
                       id_field=args.id_field, range_field=args.range_field, bearing_field=args.bearing_field,
                       marker_frame=args.marker_frame, time=args.time, msg_defs=defs,
-                      sensor=sensor_from_option(args.sensor_pose))
+                      sensor=SensorPose() if args.sensor_pose == "tf" else sensor_from_option(args.sensor_pose),
+                      sensor_from_tf=args.sensor_pose == "tf", base_frame=args.base_frame)
     t0 = time.perf_counter()
     try:
         tr = import_bag(args.bag, args.landmarks, opts, args.dt)
