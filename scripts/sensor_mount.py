@@ -51,8 +51,10 @@ def _commands(rng: np.random.Generator, seconds: float, top: float) -> tuple[np.
     return t, rng.uniform(0.0, top, len(change) + 1)[k], rng.uniform(-1.2, 1.2, len(change) + 1)[k]
 
 
-def write_drive(folder: Path, seed: int, top: float, minutes: float, mount: tuple[float, float, float]) -> None:
-    """One log of the generator (module docstring) as ``aibo import csv``'s files in ``folder``."""
+def write_drive(folder: Path, seed: int, top: float, minutes: float, mount: tuple[float, float, float],
+                delay_s: float = 0.0) -> None:
+    """One log of the generator (module docstring) as ``aibo import csv``'s files in ``folder``; ``delay_s``: the
+    camera's time stamps that much after the moment seen (negative: before it)."""
     rng = np.random.default_rng(seed)
     width, height = FIELD_M
     ids = rng.choice(np.arange(100, 400), 12, replace=False)
@@ -83,7 +85,7 @@ def write_drive(folder: Path, seed: int, top: float, minutes: float, mount: tupl
             r = np.hypot(d[:, 0], d[:, 1])
             b = _wrap(np.arctan2(d[:, 1], d[:, 0]) - x[2] - mount[2])
             for j in np.flatnonzero((r < 8.0) & (np.abs(b) < 0.8) & (rng.random(12) < 0.7)):
-                seen.append((t0 + t, ids[j], r[j] * (1 + rng.normal(0, 0.02)) + rng.normal(0, 0.05),
+                seen.append((t0 + t + delay_s, ids[j], r[j] * (1 + rng.normal(0, 0.02)) + rng.normal(0, 0.05),
                              b[j] + rng.normal(0, 0.03)))
     folder.mkdir(parents=True, exist_ok=True)
     tables = {"commands": ("t,v_m_s,omega_rad_s", np.column_stack([t0 + cmd_t, speed, turn]), "%.6f"),

@@ -106,6 +106,28 @@ def test_learn_recovers_a_sub_frame_lag_with_an_interval_that_holds_it():
     assert abs(info["lag_s"] - 0.25) < 0.02 and lo <= 0.25 <= hi and hi - lo < 0.1, info
 
 
+def test_learn_finds_a_lag_below_the_grids_first_step(tmp_path):
+    """An independent generator's robot (``scripts/sensor_mount.py``: it moves 0.1 s after its commands) whose camera
+    stamps its sightings 0.05 s early: the net lag, 0.05 s, is as far from no lag as from the grid's 0.1 s, which fits
+    worse than none; the refit half a step in finds it (within 5 ms, its interval holding it). Stamped 0.1 s early
+    (no net lag), none is kept."""
+    from aibo_core.csv_import import import_folder
+    from learners.em.learner import EMLearner
+    from learners.em.options import EMOptions
+    from tests._scripts import load_script
+
+    drive = load_script("sensor_mount").write_drive
+    found = {}
+    for early in (0.05, 0.1):
+        drive(tmp_path / f"{early}", 1, 0.3, 5.0, (0.0, 0.0, 0.0), delay_s=-early)
+        found[early] = EMLearner(EMOptions(uncertainty=False)).fit([import_folder(tmp_path / f"{early}", 0.1)]).info["lag_search"]
+    info = found[0.05]
+    lo, hi = info["interval_95"]
+    assert info["loglik"][0] < info["null_loglik"] < info["below_grid"][1], info  # 0.1 s worse than none, 0.05 better
+    assert abs(info["lag_s"] - 0.05) < 0.005 and lo <= 0.05 <= hi, info
+    assert found[0.1]["lag_s"] == 0.0, found[0.1]
+
+
 @pytest.mark.realdata
 def test_on_a_real_robot_a_known_shift_of_the_commands_is_recovered():
     """MRCLAM robot 1's first 5 minutes, its commands stamped 0.15 s earlier (a shift between two grid values): the

@@ -45,14 +45,14 @@ def lag_report(info: dict) -> list[str]:
     lag = info.get("lag_search")
     if not lag:
         return []
+    grid = ", ".join(f"{g:g}" for g in lag["grid_s"]) + (f" and {lag['below_grid'][0]:g}" if "below_grid" in lag else "")
     if lag["lag_s"] > 0:
         ci = lag.get("interval_95")
         within = (f", 95% interval {ci[0]:.3f}-{ci[1]:.3f} s" + (f" ({lag['interval_note']})" if lag.get("interval_note")
                                                                else "")) if ci else ""
         return [f"actuation lag: {lag['lag_s']:.3f} s kept{within} (+{lag['gain_nats']:.1f} nats over no lag; grid "
-                f"{', '.join(f'{g:g}' for g in lag['grid_s'])} s, refined between them); the model carries it "
-                "(--no-lag-search: without)"]
-    return [f"actuation lag: none significant (grid {', '.join(f'{g:g}' for g in lag['grid_s'])} s)"]
+                f"{grid} s, refined between them); the model carries it (--no-lag-search: without)"]
+    return [f"actuation lag: none significant (grid {grid} s)"]
 
 
 def make_learner(args):
