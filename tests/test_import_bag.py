@@ -189,20 +189,22 @@ MOUNT_TF = [("base_footprint", "base_link", (0.0, 0.0, 0.1), (0.0, 0.0, 0.0, 1.0
             ("camera", "camera_optical", (0.0, 0.0, 0.0), (-0.5, 0.5, -0.5, 0.5))]
 
 
-@pytest.mark.parametrize("fmt,detections,frame", [("db3", "arrays", "camera"), ("mcap", "markers", "camera_optical"),
-                                                  ("ros1", "elements", "/camera")])
-def test_sensor_pose_tf_places_the_sensor_by_the_static_transforms(tmp_path, small, fmt, detections, frame):
+@pytest.mark.parametrize("fmt,detections,frame,base", [("db3", "arrays", "camera", "base_link"),
+                                                       ("mcap", "markers", "camera_optical", "base_link"),
+                                                       ("ros1", "elements", "/camera", "base_footprint")])
+def test_sensor_pose_tf_places_the_sensor_by_the_static_transforms(tmp_path, small, fmt, detections, frame, base):
     """The drive seen from the camera of ``MOUNT_TF``, its detections in the camera's frame (range and bearing) or
-    its optical frame (marker poses), imported with --sensor-pose tf: the sightings from the robot's origin."""
+    its optical frame (marker poses), imported with --sensor-pose tf: the sightings from the robot's origin (under
+    base_link, or base_footprint, which sits right below it)."""
     mounted = drive(sensor=(0.2, -0.1, -0.25))
     (tmp_path / "mounted").mkdir()
     bag = write_bag(tmp_path / "mounted", mounted, fmt, detections=detections, frame=frame, tf=MOUNT_TF)
-    assert _import(tmp_path, bag, *TOPICS, "--sensor-pose", "tf")[0] == 0
+    assert _import(tmp_path, bag, *TOPICS, "--sensor-pose", "tf", "--base-frame", base)[0] == 0
     moved = trajectory.load(tmp_path / "out.npz")
     (tmp_path / "out.npz").unlink()
     assert _import(tmp_path, write_bag(tmp_path / "origin", small, "db3"), *TOPICS)[0] == 0
     np.testing.assert_allclose(moved.sighting_value, trajectory.load(tmp_path / "out.npz").sighting_value, atol=1e-6)
-    assert moved.meta["sensor_pose"] == {"from": "/tf_static", "base_frame": "base_link"}
+    assert moved.meta["sensor_pose"] == {"from": "/tf_static", "base_frame": base}
 
 
 def test_sensor_pose_tf_names_what_it_cannot_find(tmp_path, small, capsys):
@@ -214,6 +216,8 @@ def test_sensor_pose_tf_names_what_it_cannot_find(tmp_path, small, capsys):
     assert "a message has no header.frame_id" in err and "--sensor-pose X,Y,YAW" in err, err
     err = _fails(tmp_path, capsys, write_bag(tmp_path / "c", small, "db3", frame="camera"), *TOPICS, "--sensor-pose", "tf")
     assert "/tf_static" in err and "/landmarks" in err, err  # no such topic: the topics present listed
+    err = _fails(tmp_path, capsys, bag, *TOPICS, "--base-frame", "base_footprint")
+    assert "--base-frame base_footprint: used only with --sensor-pose tf" in err, err
 
 
 def test_a_truncated_bag_is_one_line(tmp_path, small, capsys):

@@ -22,6 +22,9 @@ def msg_defs(values: list[str] | None) -> tuple[tuple[str | None, str], ...]:
 
 
 def run(args) -> int:
+    if args.base_frame != "base_link" and args.sensor_pose != "tf":
+        raise CLIError(f"--base-frame {args.base_frame}: used only with --sensor-pose tf (the frame the static "
+                       "transforms place the sensor under)")
     defs = msg_defs(args.msg_def)
     extra = [("bag", args.bag), ("--landmarks", args.landmarks)] + [("--msg-def", f) for _, f in defs]
     check_files(inputs=declared_inputs(args, extra), outputs=[("--out", args.out)])
