@@ -262,9 +262,14 @@ def map_warnings(found: list[MapDisagreement]) -> list[str]:
             out.append(f"{head} and fit landmark {d.at_landmark}'s ({d.at_bearing_error_rad:.3f} rad): its id may be "
                        "wrong; correct the map and fit again")
         else:
-            seen = ("" if d.seen_xy is None else f"; they put it at ({d.seen_xy[0]:,.0f}, {d.seen_xy[1]:,.0f}) mm "
-                    f"(+-{2 * d.seen_sd_mm:,.0f} mm)")
-            out.append(f"{head}{seen}: its map position may be wrong (or it was moved); correct the map and fit again")
+            if d.seen_xy is None:  # no point where their rays cross: sightings of other things under its id
+                out.append(f"{head}; their bearings cross at no one point: they may be of other landmarks under its id "
+                           "(misread ids, reflections) rather than of a landmark the map misplaces; check the "
+                           "detector's ids and the map, and fit again")
+            else:
+                out.append(f"{head}; they put it at ({d.seen_xy[0]:,.0f}, {d.seen_xy[1]:,.0f}) mm (+-"
+                           f"{2 * d.seen_sd_mm:,.0f} mm): its map position may be wrong (or it was moved); correct the "
+                           "map and fit again")
         said.add(d.landmark)
     return out
 
