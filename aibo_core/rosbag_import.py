@@ -292,23 +292,36 @@ def _detections(bag: _Bag, topic: str, layout: _Layout, msg: Any) -> list[tuple]
     return [_marker(e, layout) for e in elems]
 
 
-def _on_the_robot(bag: _Bag, opts: BagOptions, tf: StaticTransforms, frame: str, marker: bool,
+def _placer(bag: _Bag, opts: BagOptions, tf: StaticTransforms) -> Callable[[str], tuple[np.ndarray, np.ndarray]]:
+    """frame name -> (R, t) taking its points into ``opts.base_frame`` (``StaticTransforms.transform``), each frame's
+    chain composed once; a detection without a frame, or a frame the transforms do not join, is a LogSourceError."""
+    placed: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+
+    def place(frame: str) -> tuple[np.ndarray, np.ndarray]:
+        if frame not in placed:
+            if not frame:
+                raise LogSourceError(f"{bag.path}: --detections {opts.detections}: a message has no header.frame_id, so "
+                                     "--sensor-pose tf cannot place it on the robot; give --sensor-pose X,Y,YAW")
+            found = tf.transform(opts.base_frame, frame)
+            if found is None:
+                raise LogSourceError(f"{bag.path}: --sensor-pose tf: no static transform joins --base-frame "
+                                     f"{opts.base_frame} and the detections' frame {frame} in {TF_STATIC} (frames there: "
+                                     f"{', '.join(tf.frames()) or 'none'})")
+            placed[frame] = found
+        return placed[frame]
+
+    return place
+
+
+def _on_the_robot(place: Callable[[str], tuple[np.ndarray, np.ndarray]], frame: str, marker: bool,
                   det: tuple) -> tuple[int, float, float]:
-    """(id, range m, bearing rad) from the robot's origin of a detection in ``frame`` (placed by the static transforms
-    ``tf``): a marker's point as given, a range and bearing as a point in the frame's x-y plane."""
+    """(id, range m, bearing rad) from the robot's origin of a detection in ``frame`` (its marker pose's own frame
+    first; ``place``: ``_placer``'s): a marker's point as given, a range and bearing as a point in the frame's x-y
+    plane."""
     ident, point = det[0], (det[1:4] if marker else (det[1] * np.cos(det[2]), det[1] * np.sin(det[2]), 0.0))
     if ident == _NO_ID:
         return _NO_ID, 0.0, 0.0
-    frame = (det[4] if marker and det[4] else frame)
-    if not frame:
-        raise LogSourceError(f"{bag.path}: --detections {opts.detections}: a message has no header.frame_id, so "
-                             "--sensor-pose tf cannot place it on the robot; give --sensor-pose X,Y,YAW")
-    found = tf.transform(opts.base_frame, frame)
-    if found is None:
-        raise LogSourceError(f"{bag.path}: --sensor-pose tf: no static transform joins --base-frame {opts.base_frame} and "
-                             f"the detections' frame {frame} in {TF_STATIC} (frames there: "
-                             f"{', '.join(tf.frames()) or 'none'})")
-    R, t = found
+    R, t = place(det[4] if marker and det[4] else frame)
     x, y, _ = R @ np.asarray(point, float) + t
     return ident, float(np.hypot(x, y)), float(np.arctan2(y, x))
 
@@ -319,11 +332,12 @@ def _read_detections(bag: _Bag, opts: BagOptions, tf: StaticTransforms | None) -
     topic = opts.detections
     layout = _layout_of(bag, topic, bag.topic_type(topic, "--detections"), opts)
     marker = layout.kind == "markers"
+    place = None if tf is None else _placer(bag, opts, tf)
 
     def extract(msg: Any) -> list[tuple[int, float, float]]:
         dets = _detections(bag, topic, layout, msg)
-        if tf is not None:
-            return [_on_the_robot(bag, opts, tf, _frame_id(msg), marker, d) for d in dets]
+        if place is not None:
+            return [_on_the_robot(place, _frame_id(msg), marker, d) for d in dets]
         return [(d[0], *_marker_range_bearing(*d[1:4], opts.marker_frame)) if marker else d for d in dets]
 
     t, per_msg = _read_topic(bag, topic, "--detections", opts.time, extract)
