@@ -167,17 +167,23 @@ def test_an_unknown_landmark_id_is_counted_not_fatal(tmp_path, small, capsys):
     assert "(ids not in the map: 99)" in capsys.readouterr().out
 
 
+def _as_from_the_origin(tmp_path, small) -> trajectory.Trajectory:
+    """The log just imported (``out.npz``), checked to hold the sightings of ``small`` imported from a bag whose sensor
+    sat at the robot's origin (to 1e-6 mm and rad)."""
+    moved = trajectory.load(tmp_path / "out.npz")
+    (tmp_path / "out.npz").unlink()
+    assert _import(tmp_path, write_bag(tmp_path / "origin", small, "db3"), *TOPICS)[0] == 0
+    np.testing.assert_allclose(moved.sighting_value, trajectory.load(tmp_path / "out.npz").sighting_value, atol=1e-6)
+    return moved
+
+
 def test_a_sensor_pose_moves_the_sightings_to_the_origin(tmp_path, small):
     """A bag whose camera sat 0.2 m ahead and 0.1 m right, turned 0.25 rad, imported with that --sensor-pose: the
     sightings of the same drive seen from the robot's origin."""
     mounted = drive(sensor=(0.2, -0.1, -0.25))
     bag = write_bag(tmp_path / "mounted", mounted, "db3")
     assert _import(tmp_path, bag, *TOPICS, "--sensor-pose", "0.2,-0.1,-0.25")[0] == 0
-    moved = trajectory.load(tmp_path / "out.npz")
-    (tmp_path / "out.npz").unlink()
-    assert _import(tmp_path, write_bag(tmp_path / "origin", small, "db3"), *TOPICS)[0] == 0
-    origin = trajectory.load(tmp_path / "out.npz")
-    np.testing.assert_allclose(moved.sighting_value, origin.sighting_value, atol=1e-6)
+    moved = _as_from_the_origin(tmp_path, small)
     assert moved.meta["sensor_pose"] == {"x_m": 0.2, "y_m": -0.1, "yaw_rad": -0.25}
 
 
@@ -200,10 +206,7 @@ def test_sensor_pose_tf_places_the_sensor_by_the_static_transforms(tmp_path, sma
     (tmp_path / "mounted").mkdir()
     bag = write_bag(tmp_path / "mounted", mounted, fmt, detections=detections, frame=frame, tf=MOUNT_TF)
     assert _import(tmp_path, bag, *TOPICS, "--sensor-pose", "tf", "--base-frame", base)[0] == 0
-    moved = trajectory.load(tmp_path / "out.npz")
-    (tmp_path / "out.npz").unlink()
-    assert _import(tmp_path, write_bag(tmp_path / "origin", small, "db3"), *TOPICS)[0] == 0
-    np.testing.assert_allclose(moved.sighting_value, trajectory.load(tmp_path / "out.npz").sighting_value, atol=1e-6)
+    moved = _as_from_the_origin(tmp_path, small)
     assert moved.meta["sensor_pose"] == {"from": "/tf_static", "base_frame": base}
 
 
