@@ -135,6 +135,16 @@ def test_collect_bad_config_is_one_line(tmp_path):
     assert not (tmp_path / "x.npz").exists()
 
 
+def test_python_dash_m_aibo_is_the_command(tmp_path):
+    """``python -m aibo`` runs the same command: its exit status and its one-line errors."""
+    r = subprocess.run([sys.executable, "-m", "aibo", "learn", str(tmp_path / "absent.npz"), "--out",
+                        str(tmp_path / "m.json")], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and r.stderr.startswith("aibo: error:") and "absent.npz" in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr and not (tmp_path / "m.json").exists()
+    r = subprocess.run([sys.executable, "-m", "aibo", "--help"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and "diagnose" in r.stdout
+
+
 @pytest.mark.slow
 def test_reproduce_quick_end_to_end(tmp_path):
     """--quick writes to its own folder by default (runs/reproduce-quick) and says it is not held to the bar."""
