@@ -26,6 +26,7 @@ from aibo.options import (
     bag_sensor_pose,
     finite,
     integer,
+    joined_negative_values,
     json_object,
     path,
     replica_count,
@@ -362,7 +363,7 @@ def _add_experiment_commands(sub, commands) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(joined_negative_values(sys.argv[1:] if argv is None else list(argv)))
     from aibo_core.trajectory import TrajectoryError
     from learners.em.learner import EMDivergedError
     from learners.model.io import ModelFileError

@@ -98,26 +98,62 @@ MAX_SENSOR_OFFSET_M = 10.0
 TF_TOO = "; or tf, for a bag, to read it from the bag's /tf_static"
 
 
-def sensor_pose(text: str) -> tuple[float, float, float]:
-    """An option type: ``X,Y,YAW``, the sensor's position (m, forward and left of the robot's origin) and heading
-    (rad, counter-clockwise of the robot's), each finite, the position within ``MAX_SENSOR_OFFSET_M``."""
+#: Largest sensor heading (rad) in ``--sensor-pose``: beyond a full turn the value is degrees, most likely.
+MAX_SENSOR_YAW_RAD = 2.0 * math.pi
+
+
+def _x_y_yaw(text: str, tf_too: str) -> tuple[float, float, float]:
+    """``sensor_pose``'s parse; ``tf_too``: what its first error adds (``TF_TOO`` for a bag's option)."""
     parts = text.split(",")
     try:
         values = tuple(float(v) for v in parts)
     except ValueError:
         values = ()
     if len(values) != 3 or not all(math.isfinite(v) for v in values):
-        raise argparse.ArgumentTypeError(f"expected X,Y,YAW (metres, metres, radians: three finite numbers{TF_TOO}), got "
-                                         f"{text!r}")
+        raise argparse.ArgumentTypeError(f"expected X,Y,YAW (metres, metres, radians: three finite numbers{tf_too}), "
+                                         f"got {text!r}")
     if math.hypot(values[0], values[1]) > MAX_SENSOR_OFFSET_M:
         raise argparse.ArgumentTypeError(f"the sensor {math.hypot(values[0], values[1]):g} m from the robot's origin: at "
                                          f"most {MAX_SENSOR_OFFSET_M:g} m (X and Y are metres), got {text!r}")
+    if abs(values[2]) > MAX_SENSOR_YAW_RAD:
+        raise argparse.ArgumentTypeError(f"the sensor's heading {values[2]:g} rad is more than a full turn (YAW is "
+                                         f"radians, not degrees), got {text!r}")
     return values  # type: ignore[return-value]
+
+
+def sensor_pose(text: str) -> tuple[float, float, float]:
+    """An option type: ``X,Y,YAW``, the sensor's position (m, forward and left of the robot's origin) and heading
+    (rad, counter-clockwise of the robot's), each finite, the position within ``MAX_SENSOR_OFFSET_M``, the heading
+    within ``MAX_SENSOR_YAW_RAD``. A value that begins with a minus sign (a sensor behind the origin) is taken after
+    a space too (``NEGATIVE_VALUED``)."""
+    return _x_y_yaw(text, "")
 
 
 def bag_sensor_pose(text: str) -> tuple[float, float, float] | str:
     """An option type: ``sensor_pose``'s X,Y,YAW, or ``tf`` (the bag's static transforms place the sensor)."""
-    return "tf" if text == "tf" else sensor_pose(text)
+    return "tf" if text == "tf" else _x_y_yaw(text, TF_TOO)
+
+
+#: Options whose value may begin with a minus sign (``--sensor-pose -0.1,0,0``: a sensor behind the robot's origin).
+#: argparse takes such a value for an option unless it is one plain negative number; ``joined_negative_values`` joins it.
+NEGATIVE_VALUED = ("--sensor-pose",)
+
+
+def joined_negative_values(argv: list[str]) -> list[str]:
+    """``argv`` with each ``NEGATIVE_VALUED`` option followed by a value that begins with a minus sign and a digit or a
+    point written as one ``--option=value`` argument, which argparse reads as the option's value."""
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        arg = argv[i]
+        nxt = argv[i + 1] if i + 1 < len(argv) else ""
+        if arg in NEGATIVE_VALUED and len(nxt) > 1 and nxt[0] == "-" and (nxt[1].isdigit() or nxt[1] == "."):
+            out.append(f"{arg}={nxt}")
+            i += 2
+            continue
+        out.append(arg)
+        i += 1
+    return out
 
 
 def path(text: str) -> str:

@@ -24,6 +24,7 @@ standard ROS types (Noetic for ROS 1 bags, Humble for ROS 2). Frames as in ``aib
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,7 +32,7 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 
-from .csv_import import dedupe, landmark_index, ordered, read_landmark_map
+from .csv_import import check_bearings, dedupe, landmark_index, ordered, read_landmark_map
 from .static_tf import StaticTransforms
 from .timed_log import LogSourceError, SensorPose, Streams, build
 from .trajectory import Trajectory
@@ -154,6 +155,16 @@ def _stamp_ns(msg: Any, log_ns: int, time: str) -> int:
     return int(log_ns)
 
 
+def _finite(where: str, rows: list[Any], names: tuple[str, ...]) -> np.ndarray:
+    """(N, len(names)) float of one value tuple per message; a value that is not finite refused, its message named."""
+    values = np.array(rows, float).reshape(-1, len(names))
+    bad = ~np.isfinite(values)
+    if bad.any():
+        i, k = (int(v[0]) for v in np.nonzero(bad))
+        raise LogSourceError(f"{where}: message {i + 1}: {names[k]} is {float(values[i, k])!r} (not a finite number)")
+    return values
+
+
 def _read_topic(bag: _Bag, topic: str, option: str, time: str,
                 extract: Callable[[Any], Any]) -> tuple[np.ndarray, list[Any]]:
     """(times s (N,), extracted values) of a topic; times must not go back; header stamps must be set."""
@@ -268,7 +279,7 @@ def _marker(elem: Any, layout: _Layout) -> tuple[int, float, float, float, str]:
     p = _descend(elem.pose, ("position",), ("pose",))
     if p is None or len(ident) == 0:
         return _NO_ID, 0.0, 0.0, 0.0, ""
-    return int(ident[0]), float(p.position.x), float(p.position.y), float(p.position.z), _frame_id(elem.pose)
+    return ident[0], float(p.position.x), float(p.position.y), float(p.position.z), _frame_id(elem.pose)
 
 
 def _marker_range_bearing(x: float, y: float, z: float, frame: str) -> tuple[float, float]:
@@ -278,16 +289,17 @@ def _marker_range_bearing(x: float, y: float, z: float, frame: str) -> tuple[flo
 
 
 def _detections(bag: _Bag, topic: str, layout: _Layout, msg: Any) -> list[tuple]:
-    """The message's detections: (id, range m, bearing rad) or, for marker poses, ``_marker``'s (id, x, y, z, frame)."""
+    """The message's detections: (id, range m, bearing rad) or, for marker poses, ``_marker``'s (id, x, y, z, frame);
+    each id as the message holds it (``_landmark_ids`` checks them)."""
     if layout.kind == "parallel":
         ids, r, b = (np.atleast_1d(np.asarray(getattr(msg, f))) for f in (layout.id, layout.range, layout.bearing))
         if not len(ids) == len(r) == len(b):
             raise LogSourceError(f"{bag.path}: --detections {topic}: a message holds {len(ids)} ids, {len(r)} ranges and "
                                  f"{len(b)} bearings: the arrays must be parallel")
-        return [(int(i), float(x), float(y)) for i, x, y in zip(ids, r, b)]
+        return [(i, float(x), float(y)) for i, x, y in zip(ids, r, b)]
     elems = getattr(msg, layout.items) if layout.items else [msg]
     if layout.kind == "elements":
-        return [(int(np.atleast_1d(getattr(e, layout.id))[0]), float(getattr(e, layout.range)),
+        return [(np.atleast_1d(getattr(e, layout.id))[0], float(getattr(e, layout.range)),
                  float(getattr(e, layout.bearing))) for e in elems]
     return [_marker(e, layout) for e in elems]
 
@@ -345,8 +357,38 @@ def _read_detections(bag: _Bag, opts: BagOptions, tf: StaticTransforms | None) -
     rows = [d for ds in per_msg for d in ds]
     if not rows:
         raise LogSourceError(f"{bag.path}: --detections {topic}: {len(per_msg)} messages but not one detection")
-    ids = np.array([r[0] for r in rows], dtype=np.int64)
-    return np.repeat(t, counts), ids, np.array([r[1:] for r in rows], dtype=float)
+    message = np.repeat(np.arange(1, len(per_msg) + 1), counts)  # each detection's message, counted from 1
+    where = f"{bag.path}: --detections {topic}"
+    ids = _landmark_ids(where, [r[0] for r in rows], message)
+    values = np.array([r[1:] for r in rows], dtype=float)
+    for k, name in enumerate(("range", "bearing")):
+        if not np.isfinite(values[:, k]).all():
+            i = int(np.argmin(np.isfinite(values[:, k])))
+            raise LogSourceError(f"{where}: message {message[i]}: a {name} of {float(values[i, k])!r} (not a finite "
+                                 "number)")
+    check_bearings(where, values[:, 1], lambda i: f"message {message[i]}")
+    return np.repeat(t, counts), ids, values
+
+
+def _plain(v: Any) -> Any:
+    """A NumPy scalar as the Python value it holds (for messages: 11.7, not np.float64(11.7))."""
+    return v.item() if isinstance(v, np.generic) else v
+
+
+def _landmark_ids(where: str, raw: list[Any], message: np.ndarray) -> np.ndarray:
+    """(S,) int64: the detections' ids as the messages hold them (integers, integral floats, or strings of integers;
+    ``_NO_ID`` kept); any other one refused, its message named."""
+    out = np.empty(len(raw), dtype=np.int64)
+    for i, v in enumerate(raw):
+        try:
+            x = float(v) if isinstance(v, (str, bytes, np.str_)) else v
+            if isinstance(x, (float, np.floating)) and not (math.isfinite(x) and x == round(x)):
+                raise ValueError
+            out[i] = int(x)
+        except (TypeError, ValueError, OverflowError):
+            raise LogSourceError(f"{where}: message {message[i]}: the id {_plain(v)!r} is not an integer (landmark ids are "
+                                 "the map's integers)") from None
+    return out
 
 
 def _static_transforms(bag: _Bag) -> StaticTransforms:
@@ -378,14 +420,16 @@ def read_streams(path: str | os.PathLike, landmarks_csv: str | os.PathLike,
         option, topic = ("--commands", opts.commands) if opts.commands else ("--odometry", opts.odometry)
         bag.topic_type(topic, option)
         cmd_t, cmds = _read_topic(bag, topic, option, opts.time, lambda m: _twist(bag, topic, m))
-        cmd_t, cmds, repeated = dedupe(cmd_t, np.array(cmds, float).reshape(-1, 2))
+        cmds = _finite(f"{bag.path}: {option} {topic}", cmds, ("linear.x", "angular.z"))
+        cmd_t, cmds, repeated = dedupe(cmd_t, cmds)
         tf = _static_transforms(bag) if opts.sensor_from_tf else None
         det_t, ids, values = _read_detections(bag, opts, tf)
         truth_t = truth = None
         if opts.truth:
             bag.topic_type(opts.truth, "--truth")
             truth_t, poses = _read_topic(bag, opts.truth, "--truth", opts.time, lambda m: _planar_pose(bag, opts.truth, m))
-            truth_t, truth, truth_rep = dedupe(truth_t, np.array(poses, float).reshape(-1, 3))
+            poses = _finite(f"{bag.path}: --truth {opts.truth}", poses, ("x", "y", "yaw"))
+            truth_t, truth, truth_rep = dedupe(truth_t, poses)
         types = {t: bag.topics[t].msgtype for t in (topic, opts.detections, opts.truth) if t}
     finally:
         bag.close()

@@ -27,6 +27,9 @@ from .trajectory import VELOCITY_CONTROLS, Trajectory
 
 #: A ground-truth interval longer than this (s) is a dropout: poses inside it are flagged.
 GAP_S = 0.1
+#: Times (s) this close are one time where a frame boundary meets a truth row: t0 + k dt misses a row at the same
+#: time by rounding (0 + 3 x 0.1 = 0.30000000000000004; at Unix-epoch times a double's step is 2.4e-7 s).
+TIME_SLACK_S = 1e-6
 
 
 class LogSourceError(ValueError):
@@ -134,7 +137,8 @@ def truth_at(t: np.ndarray, x_m: np.ndarray, y_m: np.ndarray, theta: np.ndarray,
     in_span = (t[1:] > edges[0]) & (t[:-1] < edges[-1])
     gaps = np.flatnonzero((gdt > GAP_S) & in_span)
     j = np.searchsorted(t, edges, side="right") - 1
-    out_of_span = (edges < t[0]) | (edges > t[-1])  # held at the first or last truth row: no truth there
+    slack = TIME_SLACK_S  # a boundary computed as t0 + k dt may land a rounding error past a row at the same time
+    out_of_span = (edges < t[0] - slack) | (edges > t[-1] + slack)  # held at the first or last row: no truth there
     flagged = np.flatnonzero(out_of_span | ((j >= 0) & (j < len(gdt)) & (gdt[np.clip(j, 0, len(gdt) - 1)] > GAP_S)
                                             & (edges > t[np.clip(j, 0, len(t) - 1)])))
     outside = int(out_of_span.sum())
@@ -160,13 +164,35 @@ def frame_count(s: Streams, dt: float) -> int:
     return int(np.floor((t_end - float(s.command_t[0])) / dt + 1e-9))
 
 
+def _some(ids: list[int], at_most: int = 5) -> str:
+    return ", ".join(str(i) for i in ids[:at_most]) + (", ..." if len(ids) > at_most else "")
+
+
+def none_usable(s: Streams, unknown: np.ndarray, bad_range: np.ndarray, inside: np.ndarray, edges: np.ndarray,
+                meta: dict[str, Any]) -> str:
+    """Why not one of the streams' sightings is in the log: the counts by cause (the ids seen and the map's, from
+    ``meta``'s ``unknown_ids`` and ``landmark_ids`` where the importer gives them), the detections' and the frames'
+    time spans when they miss each other (another clock, most likely)."""
+    n = len(unknown)
+    ids = (f" (ids {_some(meta['unknown_ids'])}; the map's {_some(meta['landmark_ids'])})"
+           if meta.get("unknown_ids") and meta.get("landmark_ids") is not None else "")
+    why = [f"{int(unknown.sum())} of ids the map does not hold{ids}" if unknown.any() else "",
+           f"{int((~unknown & bad_range).sum())} with a range <= 0" if (~unknown & bad_range).any() else "",
+           f"{int((~unknown & ~bad_range & ~inside).sum())} outside the commands' span "
+           f"{edges[0]:.6g}-{edges[-1]:.6g} s (the detections' times {s.sighting_t.min():.6g}-{s.sighting_t.max():.6g} s: "
+           "another clock, or another unit?)" if (~unknown & ~bad_range & ~inside).any() else ""]
+    hint = ("; --time log takes every topic's record times" if (~unknown & ~bad_range & ~inside).any()
+            and meta.get("source", {}).get("time") == "header" else "")
+    return f"none of the {n} detections can be used: " + ", ".join(w for w in why if w) + hint
+
+
 def build(s: Streams, dt: float, meta: dict[str, Any], source: str, sensor: SensorPose = SensorPose()) -> Trajectory:
     """The log of ``s`` in frames of ``dt`` s (module docstring). ``meta`` gets ``t0_s`` (the first command's
     time), ``dropped`` counts (sightings of ids not in the map, with non-positive ranges, outside the span; the
     caller's own counts kept), ``sensor_pose`` and, with truth, ``pose_gaps``. ``sensor``: where the sightings were
     measured from (their ranges checked as measured, then moved to the robot's origin). ``source`` names the input in
-    validation errors. Raises LogSourceError when the commands span no frame, TrajectoryError on a log that fails
-    validation."""
+    validation errors. Raises LogSourceError when the commands span no frame or not one sighting can be used (each
+    cause counted), TrajectoryError on a log that fails validation."""
     t0 = float(s.command_t[0])
     T = frame_count(s, dt)
     if T < 1:
@@ -181,6 +207,8 @@ def build(s: Streams, dt: float, meta: dict[str, Any], source: str, sensor: Sens
         measured = from_sensor(measured, sensor)
     inside = (frame >= 0) & (frame < T)
     use = ~unknown & ~bad_range & inside
+    if len(use) and not use.any():
+        raise LogSourceError(f"{source}: {none_usable(s, unknown, bad_range, inside, edges, meta)}")
     order = np.flatnonzero(use)[np.argsort(frame[use], kind="stable")]
     values = np.stack([measured[order, 0], wrap(measured[order, 1])], axis=1)
     meta = dict(meta)

@@ -43,6 +43,7 @@ BAD = [
     (["import", "bag", "b.bag", "--commands", "/c", "--detections", "/d", "--landmarks", "m.csv", "--out", "l.npz",
       "--sensor-pose=0.2,0,nan"], "--sensor-pose", "three finite numbers"),
     (["import", "csv", "log", "--out", "l.npz", "--sensor-pose", "250,0,0"], "--sensor-pose", "250 m from the robot's origin"),
+    (["import", "csv", "log", "--out", "l.npz", "--sensor-pose", "-0.1,0,90"], "--sensor-pose", "radians, not degrees"),
 ]
 
 

@@ -291,6 +291,33 @@ def test_an_empty_topic(tmp_path, small, capsys):
     assert "--detections /tag_detections: the topic has no messages" in err
 
 
+@pytest.mark.parametrize("edit,expected", [
+    (lambda r: r.detections.__setitem__((4, 3), np.nan), "--detections /landmarks: message 2: a bearing of nan (not a "
+     "finite number)"),
+    (lambda r: r.detections.__setitem__((slice(None), 3), np.degrees(r.detections[:, 3]) + 10.0),
+     "--detections /landmarks: message 1: bearing"),  # degrees: "... more than a full turn ...: radians, not degrees"
+    (lambda r: r.commands.__setitem__((5, 1), np.nan), "--commands /cmd_vel: message 6: linear.x is nan"),
+    (lambda r: r.detections.__setitem__((slice(None), 0), r.detections[:, 0] - 100.0),
+     "none of the 90 detections can be used: 90 outside the commands' span"),
+])
+def test_bad_values_name_their_message(tmp_path, small, capsys, edit, expected):
+    edit(small)
+    err = _fails(tmp_path, capsys, write_bag(tmp_path, small, "ros1"), *TOPICS)
+    assert expected in err, err
+
+
+def test_landmark_ids_as_messages_hold_them():
+    """Integers, integral floats and strings of integers are ids; a fraction or a name is refused, its message named."""
+    from aibo_core.rosbag_import import _landmark_ids
+
+    message = np.array([1, 2, 2, 3])
+    np.testing.assert_array_equal(_landmark_ids("bag", [np.int32(11), 12.0, "13", np.str_("14")], message),
+                                  [11, 12, 13, 14])
+    for raw, shown in ((np.float64(11.7), "11.7"), (np.str_("L11"), "'L11'")):
+        with pytest.raises(ValueError, match=f"bag: message 2: the id {shown} is not an integer"):
+            _landmark_ids("bag", [11, raw, 12, 13], message)
+
+
 def test_commands_or_odometry_is_required(tmp_path, small, capsys):
     bag = write_bag(tmp_path, small, "ros1")
     assert "--commands" in _fails(tmp_path, capsys, bag, "--detections", "/landmarks")

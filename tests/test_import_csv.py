@@ -45,15 +45,49 @@ def test_truth_is_optional_and_unknown_ids_are_counted(tmp_path, capsys):
     assert "no truth; dropped: sightings unknown id 1" in capsys.readouterr().out
 
 
+def _degrees(text: str) -> str:
+    """detections.csv with its first bearing given in degrees (1 rad)."""
+    lines = text.splitlines()
+    cells = lines[1].split(",")
+    cells[3] = f"{np.degrees(1.0):.6g}"
+    return "\n".join([lines[0], ",".join(cells), *lines[2:]]) + "\n"
+
+
+def _milliseconds(text: str) -> str:
+    """commands.csv with its times in milliseconds."""
+    lines = text.splitlines()
+    rows = [line.split(",") for line in lines[1:]]
+    return "\n".join([lines[0]] + [",".join([f"{float(r[0]) * 1000:.1f}", *r[1:]]) for r in rows]) + "\n"
+
+
+def _shifted(seconds: float):
+    """An edit moving every time of a file by ``seconds`` (another clock)."""
+    def edit(text: str) -> str:
+        lines = text.splitlines()
+        rows = [line.split(",") for line in lines[1:]]
+        return "\n".join([lines[0]] + [",".join([f"{float(r[0]) + seconds:.3f}", *r[1:]]) for r in rows]) + "\n"
+    return edit
+
+
 @pytest.mark.parametrize("name,edit,expected", [
     ("commands", lambda text: text.replace("omega_rad_s", "w"), "commands.csv: header 't,v_m_s,w' lacks column 'omega_rad_s'"),
     ("detections", lambda text: text.replace(",11,", ",eleven,", 1), "detections.csv: row 2, column 'id': 'eleven' is not a finite"),
     ("detections", lambda text: text.replace(",11,", ",11.5,", 1), "detections.csv: row 2, column 'id': 11.5 is not an integer"),
     ("truth", lambda text: text.replace("1000.05,", "999.0,", 1), "truth.csv: row 3: time 999.0 s is earlier than the row before"),
-    ("landmarks", lambda text: text + "11,0.0,0.0\n", "landmarks.csv: column 'id': landmark 11 appears more than once"),
+    ("landmarks", lambda text: text + "11,0.0,0.0\n", "landmarks.csv: column 'id': landmark 11 appears more than once (rows 2, "),
     ("commands", lambda text: text.splitlines()[0] + "\n", "commands.csv: no data rows after the header"),
     ("detections", lambda text: "", "detections.csv: empty"),
     ("commands", lambda text: text.replace("1000.1,", "nan,", 1), "commands.csv: row 3, column 't': 'nan' is not a finite"),
+    ("commands", lambda text: text.replace("1000.1,", "\n\n1000.1,", 1).replace("1000.2,", ",", 1),
+     "commands.csv: row 6, column 't': empty"),  # the row's line in the file, blank lines counted
+    ("detections", lambda text: text.replace("range_m,bearing_rad", "range_m,range_m,bearing_rad"),
+     "detections.csv: header 't,id,range_m,range_m,bearing_rad' names column 'range_m' more than once"),
+    ("detections", _degrees, "detections.csv: row 2, column 'bearing_rad': bearing 57.2958 is more than a full turn"),
+    ("commands", _milliseconds, "commands.csv: column 't': the commands are a median 100 s apart"),
+    ("detections", _shifted(-100.0), "none of the 90 detections can be used: 90 outside the commands' span 1000-1005.9 s "
+     "(the detections' times 900-905.8 s: another clock"),
+    ("landmarks", lambda text: text.replace("\n11,", "\n111,").replace("\n12,", "\n112,").replace("\n13,", "\n113,"),
+     "none of the 90 detections can be used: 90 of ids the map does not hold (ids 11, 12, 13; the map's 111, 112, 113)"),
 ])
 def test_bad_files_are_one_line(tmp_path, capsys, name, edit, expected):
     folder = write_csv(tmp_path / "log", drive())
@@ -91,3 +125,27 @@ def test_a_sensor_away_from_the_origin_is_moved_to_it(tmp_path):
     assert moved.meta["sensor_pose"] == {"x_m": 0.25, "y_m": 0.05, "yaw_rad": 0.3}
     assert origin.meta["sensor_pose"] == {"x_m": 0.0, "y_m": 0.0, "yaw_rad": 0.0}
 
+
+
+def test_a_spreadsheet_export_imports_as_the_file(tmp_path):
+    """A byte-order mark (Excel's "CSV UTF-8"), CRLF line ends, blank lines, and detections in no time order (sorted
+    by landmark, as a per-landmark export): the same log as the plain files."""
+    rows = drive(seconds=6.0)
+    assert _import(write_csv(tmp_path / "plain", rows), tmp_path / "plain.npz") == 0
+    folder = write_csv(tmp_path / "sheet", rows)
+    for name in ("commands", "landmarks", "detections"):
+        lines = (folder / f"{name}.csv").read_text().splitlines()
+        if name == "detections":
+            lines = [lines[0]] + sorted(lines[1:], key=lambda line: line.split(",")[1])
+        (folder / f"{name}.csv").write_bytes(("\ufeff" + "\r\n\r\n".join(lines) + "\r\n").encode("utf-8"))
+    assert _import(folder, tmp_path / "sheet.npz") == 0
+    plain, sheet = (trajectory.load(tmp_path / f"{n}.npz") for n in ("plain", "sheet"))
+    for field in ("controls", "landmarks", "sighting_frame", "sighting_landmark", "sighting_value", "sighting_time"):
+        np.testing.assert_array_equal(getattr(sheet, field), getattr(plain, field), err_msg=field)
+
+
+def test_a_sensor_behind_the_origin_is_given_after_a_space(tmp_path):
+    """``--sensor-pose -0.25,0,0``: the value read as the option's (argparse alone takes it for an option)."""
+    folder = write_csv(tmp_path / "log", drive(seconds=6.0))
+    assert main(["import", "csv", str(folder), "--out", str(tmp_path / "l.npz"), "--sensor-pose", "-0.25,0,0"]) == 0
+    assert trajectory.load(tmp_path / "l.npz").meta["sensor_pose"] == {"x_m": -0.25, "y_m": 0.0, "yaw_rad": 0.0}
