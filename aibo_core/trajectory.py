@@ -49,6 +49,12 @@ FORMAT_V1 = "aibo-trajectory/1"
 SENSOR_KINDS = ("height_px", "range_mm")
 #: ``control_names`` of commands that are velocities (forward mm/s, turn rad/s): their face value is a motion
 VELOCITY_CONTROLS = ("v_mm_s", "omega_rad_s")
+#: The largest |command| of each velocity column: 100 m/s and 100 rad/s, beyond any ground robot (a unit's mistake or a
+#: corrupt value: one command of 1e9 mm/s made the filter's covariance overflow with no field named).
+MAX_VELOCITY_COMMAND = (1e5, 100.0)
+#: The frame length's bounds (s): 10 kHz to one frame in 10 s; outside them the log's time unit is wrong (33.3 is a
+#: 30 Hz frame in milliseconds).
+MIN_DT_S, MAX_DT_S = 1e-4, 10.0
 KEYS = ("format", "dt", "actions", "attempted", "controls", "control_names", "sighting_frame",
         "sighting_landmark", "sighting_value", "sighting_time", "sensor_kind", "landmarks", "head_pan", "field", "pose", "meta")
 KEYS_V1 = ("format", "dt", "actions", "obs", "beacon", "head_pan", "beacons", "field", "attempted", "pose", "meta")
@@ -136,6 +142,9 @@ def _check_index(source: str, key: str, a: np.ndarray, shape: tuple, lo: int, hi
 def _validate(tr: Trajectory, source: str) -> None:
     if not (isinstance(tr.dt, (int, float)) and np.isfinite(tr.dt) and tr.dt > 0):
         _fail(source, "dt", f"must be a positive number of seconds, got {tr.dt}")
+    if not MIN_DT_S <= tr.dt <= MAX_DT_S:
+        _fail(source, "dt", f"{tr.dt:g} s per frame is outside {MIN_DT_S:g}..{MAX_DT_S:g} s (dt is seconds, not "
+                            "milliseconds)")
     if (tr.actions is None) == (tr.controls is None):
         _fail(source, "actions", "a log has either 'actions' (discrete) or 'controls' (continuous), exactly one")
     T = _check_commands(tr, source)
@@ -196,6 +205,18 @@ def _check_commands(tr: Trajectory, source: str) -> int:
     names = tr.control_names
     if names is None or len(names) != C.shape[1] or not all(isinstance(n, str) and n for n in names):
         _fail(source, "control_names", f"expected {C.shape[1]} non-empty names (one per control column), got {names!r}")
+    if len(set(names)) != len(names):
+        _fail(source, "control_names", f"a name repeated: {list(names)!r}")
+    if set(names) == set(VELOCITY_CONTROLS) and tuple(names) != VELOCITY_CONTROLS:
+        _fail(source, "control_names", f"velocity commands' columns are {', '.join(VELOCITY_CONTROLS)} in that order, "
+                                       f"got {', '.join(names)}")
+    if tuple(names) == VELOCITY_CONTROLS:
+        for k, (name, limit) in enumerate(zip(names, MAX_VELOCITY_COMMAND)):
+            beyond = np.abs(C[:, k]) > limit
+            if beyond.any():
+                i = int(np.argmax(beyond))
+                _fail(source, "controls", f"{name} {C[i, k]:g} at row {i} is beyond {limit:g} (a velocity command in "
+                                          f"{name.split('_', 1)[1].replace('_', '/')})")
     return C.shape[0]
 
 

@@ -99,3 +99,16 @@ def test_export_errors(fitted, tmp_path, capsys):
     assert main(["export", "tum", str(fitted / "log.npz"), "--model", str(fitted / "model.json"),
                  "--out", str(fitted / "log.npz")]) == 2
     assert "an input is never overwritten" in capsys.readouterr().err
+
+
+def test_a_model_of_the_other_kind_of_commands_is_named(fitted, tmp_path, capsys):
+    """A model of discrete commands given for a log of velocity commands: one line naming the model's field and the
+    log (it failed deep in the smoother with neither)."""
+    assert main(["collect", "--steps", "300", "--seed", "1", "--out", str(tmp_path / "aibo.npz")]) == 0
+    assert main(["learn", str(tmp_path / "aibo.npz"), "--out", str(tmp_path / "aibo.json"), "--max-iter", "3"]) == 0
+    capsys.readouterr()
+    assert main(["export", "tum", str(fitted / "log.npz"), "--model", str(tmp_path / "aibo.json"),
+                 "--out", str(tmp_path / "est.tum")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "aibo.json: field 'action_model.feature_map': a model of discrete commands" in err
+    assert "log.npz holds velocity commands" in err and not (tmp_path / "est.tum").exists()

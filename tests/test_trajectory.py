@@ -84,6 +84,26 @@ def test_continuous_log_with_several_sightings_per_frame(tmp_path):
     assert short.n_frames == 4 and short.n_sightings == 3
 
 
+@pytest.mark.parametrize("names,controls,expected", [
+    (("omega_rad_s", "v_mm_s"), None, "columns are v_mm_s, omega_rad_s in that order"),
+    (("v_mm_s", "v_mm_s"), None, "a name repeated"),
+    (("v_mm_s", "omega_rad_s"), (7, 0, 1e9), "v_mm_s 1e+09 at row 7 is beyond 100000 (a velocity command in mm/s)"),
+    (("v_mm_s", "omega_rad_s"), (3, 1, -500.0), "omega_rad_s -500 at row 3 is beyond 100"),
+])
+def test_velocity_commands_are_checked(names, controls, expected):
+    """Velocity commands: their columns in the documented order, and values no ground robot commands (a corrupt
+    value, or another unit) refused by field before a fit's filter overflows on them."""
+    C = np.random.default_rng(0).normal(size=(20, 2))
+    if controls is not None:
+        C[controls[0], controls[1]] = controls[2]
+    log = Trajectory(dt=0.1, landmarks=np.array([[0.0, 1000.0]]), sighting_frame=np.array([0]),
+                     sighting_landmark=np.array([0]), sighting_value=np.array([[1500.0, 0.3]]), sensor_kind="range_mm",
+                     controls=C, control_names=names)
+    with pytest.raises(TrajectoryError, match="log.npz: field '(controls|control_names)'") as err:
+        log.validate("log.npz")
+    assert expected in str(err.value)
+
+
 def test_same_log_same_bytes(tr, tmp_path):
     save(tr, tmp_path / "a.npz")
     save(tr, tmp_path / "b.npz")
@@ -131,6 +151,7 @@ def _broken(tr):
         "action beyond the attempted table": (replace("attempted", np.zeros((3, 3))), "actions"),
         "landmarks wrong shape": (replace("landmarks", np.zeros((4, 3))), "landmarks"),
         "non-positive dt": (replace("dt", np.array(0.0)), "dt"),
+        "dt in milliseconds": (replace("dt", np.array(33.3)), "dt"),
         "dt not a scalar": (replace("dt", np.array([0.1, 0.2])), "dt"),
         "negative field": (replace("field", np.array([5400.0, -1.0])), "field"),
         "bad JSON meta": (replace("meta", np.array("{not json")), "meta"),
