@@ -77,6 +77,8 @@ class _Bag:
                                  "(or pip install rosbags)") from None
         if not path.exists():
             raise LogSourceError(f"{path}: no such file or folder (give a ROS 1 .bag, a ROS 2 bag folder or a .mcap)")
+        if path.name == "metadata.yaml":
+            raise LogSourceError(f"{path}: a ROS 2 bag's metadata file: give the bag's folder, {path.parent}")
         if path.is_dir() and not (path / "metadata.yaml").exists():
             raise LogSourceError(f"{path}: a folder without metadata.yaml is no ROS 2 bag (give the bag's folder, a .bag "
                                  "or a .mcap file)")

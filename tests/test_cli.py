@@ -135,6 +135,30 @@ def test_collect_bad_config_is_one_line(tmp_path):
     assert not (tmp_path / "x.npz").exists()
 
 
+def test_a_failed_fit_leaves_no_checkpoint_of_its_own(log_path, tmp_path, monkeypatch):
+    """A fit that fails with an error deletes the checkpoints it wrote (the next run on the mended log stopped at
+    "checkpoint is for other logs"); an earlier run's checkpoint that this one did not touch is kept."""
+    from pathlib import Path
+
+    from aibo.paths import checkpoint_path
+    from learners.em import learner as em
+
+    out = tmp_path / "m.json"
+    ck = Path(checkpoint_path(out))
+    earlier = Path(em.stage_checkpoint(ck, "spurious-1"))
+    earlier.write_bytes(b"an earlier run's")
+
+    def failing(self, logs, **kwargs):
+        Path(self.checkpoint_path).write_bytes(b"this run's")
+        Path(em.stage_checkpoint(self.checkpoint_path, "held")).write_bytes(b"this run's")
+        raise em.EMDivergedError("EM converged to a world that does not fit the field", 1.0)
+
+    monkeypatch.setattr(em.EMLearner, "fit", failing)
+    assert main(["learn", str(log_path), "--out", str(out)]) == 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == [earlier.name]
+    assert earlier.read_bytes() == b"an earlier run's"
+
+
 def test_python_dash_m_aibo_is_the_command(tmp_path):
     """``python -m aibo`` runs the same command: its exit status and its one-line errors."""
     r = subprocess.run([sys.executable, "-m", "aibo", "learn", str(tmp_path / "absent.npz"), "--out",

@@ -233,6 +233,14 @@ def test_a_truncated_bag_is_one_line(tmp_path, small, capsys):
         assert str(bag) in err and ("truncated" in err or "cannot" in err)
 
 
+def test_a_ros2_bags_metadata_file_points_to_its_folder(tmp_path, small, capsys):
+    bag = write_bag(tmp_path, small, "db3")
+    folder = bag if bag.is_dir() else bag.parent
+    err = _fails(tmp_path, capsys, folder / "metadata.yaml", *TOPICS)
+    assert f"a ROS 2 bag's metadata file: give the bag's folder, {folder}" in err
+    assert _import(tmp_path, folder, *TOPICS)[0] == 0
+
+
 def test_a_missing_topic_lists_the_topics_present(tmp_path, small, capsys):
     bag = write_bag(tmp_path, small, "db3")
     err = _fails(tmp_path, capsys, bag, "--commands", "/cmd_vel_stamped", "--detections", "/landmarks")

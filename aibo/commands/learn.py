@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
 
@@ -15,7 +16,7 @@ from aibo_core import trajectory
 from aibo_core.compat import check_compatible
 from learners.base import LearnResult, get_learner
 from learners.em.alias import fixed_line
-from learners.em.learner import check_model_fits, feature_map_for
+from learners.em.learner import EMDivergedError, check_model_fits, feature_map_for
 from learners.em.options import EMOptions
 from learners.metrics import model_errors, observed_distance_range, true_height, truth_problem, velocity_errors
 from learners.model import io as model_io
@@ -183,6 +184,21 @@ def check_action_model(action_model: str | None, init, init_path: str, tr) -> No
                        "model, which the fit starts from and keeps; leave --action-model out, or start without --init")
 
 
+def checkpoints_now(learner) -> dict[str, float]:
+    """The learner's checkpoint files that exist now, with their modification times (ns)."""
+    files = learner.checkpoint_files() if hasattr(learner, "checkpoint_files") else []
+    return {p: os.stat(p).st_mtime_ns for p in files if os.path.exists(p)}
+
+
+def discard_written(learner, before: dict[str, float]) -> None:
+    """Delete the checkpoint files the learner wrote since ``before`` (``checkpoints_now``): those of a fit that failed
+    with an error, which would stop the next run on the mended log ("checkpoint is for other logs"). A checkpoint of
+    an earlier run that this one did not touch is kept (it may resume that run); an interrupted fit keeps its own."""
+    for path, mtime in checkpoints_now(learner).items():
+        if before.get(path) != mtime:
+            os.unlink(path)
+
+
 def run(args) -> int:
     check_learn_files(args)
     logs = [trajectory.load(p) for p in args.logs]
@@ -197,8 +213,13 @@ def run(args) -> int:
         check_action_model(args.action_model, init, args.init, logs[0])
     learner = make_learner(args)
     progress = Progress(args.learner)
-    with naming_files(args.logs, args.init):
-        result = learner.fit(logs, init=init, progress=progress, action_model=args.action_model)
+    before = checkpoints_now(learner)
+    try:
+        with naming_files(args.logs, args.init):
+            result = learner.fit(logs, init=init, progress=progress, action_model=args.action_model)
+    except (CLIError, EMDivergedError, FloatingPointError, ValueError):
+        discard_written(learner, before)  # a fit that fails for good: resuming it would fail again
+        raise
     progress.close()
     model_io.save_result(result, args.out)
     if hasattr(learner, "discard_checkpoint"):

@@ -659,17 +659,25 @@ class EMLearner:
                                                 if not any(u.startswith(key) for key in filled)]
         info.timings.uncertainty, info.timings.uncertainty_cpu = seconds, cpu_seconds
 
-    def discard_checkpoint(self) -> None:
-        """Delete the checkpoint (call after the model is on disk)."""
+    def checkpoint_files(self) -> list[str]:
+        """Every file a fit may checkpoint to: its stages' (the spurious-sighting refits, the held fits of the lag
+        search, the map repair's fit and its stages), existing or not; [] without a checkpoint."""
+        if not self.checkpoint_path:
+            return []
         stages = (self.checkpoint_path, stage_checkpoint(self.checkpoint_path, "spurious-1"),
                   stage_checkpoint(self.checkpoint_path, "spurious-2"))
-        for path in [p for stage in stages for p in (stage, stage_checkpoint(stage, "held"),
-                                                        stage_checkpoint(stage, "held_face_value"))]:
-            if path and os.path.exists(path):
+        paths = [p for stage in stages for p in (stage, stage_checkpoint(stage, "held"),
+                                                 stage_checkpoint(stage, "held_face_value"))]
+        if self.options.map_repair:  # the repaired logs' fit and its stages
+            paths += EMLearner(replace(self.options, map_repair=False),
+                               stage_checkpoint(self.checkpoint_path, "map_repaired")).checkpoint_files()
+        return [p for p in paths if p]
+
+    def discard_checkpoint(self) -> None:
+        """Delete the checkpoint (call after the model is on disk)."""
+        for path in self.checkpoint_files():
+            if os.path.exists(path):
                 os.unlink(path)
-        if self.options.map_repair and self.checkpoint_path:  # the repaired logs' fit and its stages
-            EMLearner(replace(self.options, map_repair=False),
-                      stage_checkpoint(self.checkpoint_path, "map_repaired")).discard_checkpoint()
 
     def _load_or_start(self, batch: Batch, start: Model, fp: str, record) -> tuple[EMState, int]:
         """(state to continue, iteration it was resumed from: 0 for a fresh start). A fresh start with
