@@ -16,6 +16,7 @@ from aibo_core import trajectory
 from aibo_core.compat import check_compatible
 from learners.base import LearnResult, get_learner
 from learners.em.alias import fixed_line
+from learners.em.bearing_sign import sign_check, sign_warnings
 from learners.em.learner import EMDivergedError, check_model_fits, feature_map_for
 from learners.em.options import EMOptions
 from learners.metrics import model_errors, observed_distance_range, true_height, truth_problem, velocity_errors
@@ -221,6 +222,10 @@ def run(args) -> int:
         discard_written(learner, before)  # a fit that fails for good: resuming it would fail again
         raise
     progress.close()
+    if isinstance(getattr(learner, "options", None), EMOptions):  # bearings of the other sign: a second fit to tell
+        record = sign_check(logs, result.params, learner.options)
+        result.info.warnings = list(result.info.warnings or []) + sign_warnings(record)
+        result.info.bearing_sign = record
     model_io.save_result(result, args.out)
     if hasattr(learner, "discard_checkpoint"):
         learner.discard_checkpoint()  # only now that the model is safely on disk

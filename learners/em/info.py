@@ -71,6 +71,9 @@ class FitInfo:
     #: the stretches of the logs where the fitted model lost track of the robot, every sighting there left out
     #: (``learners.em.map_check.LostStretch.to_dict`` each; []: none); None: not checked
     lost_track: list[dict] | None = None
+    #: ``aibo learn``'s check of a range sensor's bearings whose fit looks wrong (``learners.em.bearing_sign.
+    #: sign_check``: both fits' log-likelihoods and bearing noise); None: not made (the bearings looked right)
+    bearing_sign: dict | None = None
     timings: FitTimings = field(default_factory=FitTimings)
 
     def to_dict(self, timings: bool = True) -> dict[str, Any]:
@@ -116,6 +119,8 @@ class FitInfo:
             out["map_repair"] = self.map_repair
         if self.lost_track is not None:
             out["lost_track"] = self.lost_track
+        if self.bearing_sign is not None:
+            out["bearing_sign"] = self.bearing_sign
         return out
 
     # Read access by key, as for the other learners' plain ``info`` dicts (``result.info["best_iteration"]``).
