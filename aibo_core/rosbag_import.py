@@ -196,10 +196,10 @@ def _descend(msg: Any, wanted: tuple[str, ...], via: tuple[str, ...]) -> Any:
     return None
 
 
-def _twist(bag: _Bag, topic: str, msg: Any) -> tuple[float, float]:
+def _twist(bag: _Bag, option: str, topic: str, msg: Any) -> tuple[float, float]:
     tw = _descend(msg, ("linear", "angular"), ("twist",))
     if tw is None:
-        raise LogSourceError(f"{bag.path}: topic {topic}: type {msg.__msgtype__} holds no twist (linear, angular): "
+        raise LogSourceError(f"{bag.path}: {option} {topic}: type {msg.__msgtype__} holds no twist (linear, angular): "
                              "give geometry_msgs/Twist, TwistStamped or nav_msgs/Odometry")
     return float(tw.linear.x) * 1000.0, float(tw.angular.z)
 
@@ -421,7 +421,7 @@ def read_streams(path: str | os.PathLike, landmarks_csv: str | os.PathLike,
     try:
         option, topic = ("--commands", opts.commands) if opts.commands else ("--odometry", opts.odometry)
         bag.topic_type(topic, option)
-        cmd_t, cmds = _read_topic(bag, topic, option, opts.time, lambda m: _twist(bag, topic, m))
+        cmd_t, cmds = _read_topic(bag, topic, option, opts.time, lambda m: _twist(bag, option, topic, m))
         cmds = _finite(f"{bag.path}: {option} {topic}", cmds, ("linear.x", "angular.z"))
         cmd_t, cmds, repeated = dedupe(cmd_t, cmds)
         tf = _static_transforms(bag) if opts.sensor_from_tf else None

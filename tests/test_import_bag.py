@@ -254,6 +254,8 @@ def test_a_detection_type_it_cannot_read(tmp_path, small, capsys):
     assert "--detections /vicon/pose: cannot read detections from type geometry_msgs/msg/PoseStamped (fields: header, pose)" in err
     err = _fails(tmp_path, capsys, bag, *TOPICS, "--range-field", "distance")
     assert "expected fields id/ids, distance and bearing/bearings" in err
+    err = _fails(tmp_path, capsys, bag, "--commands", "/vicon/pose", "--detections", "/landmarks")
+    assert "--commands /vicon/pose: type geometry_msgs/msg/PoseStamped holds no twist" in err
 
 
 def test_field_names_can_be_given(tmp_path, small):
