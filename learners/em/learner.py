@@ -39,6 +39,7 @@ from learners.em.support import (
     curve_warnings,
     face_value_warnings,
     mirror_warnings,
+    walk_warnings,
     weak_command_warnings,
 )
 from learners.model.catalogue import OffCenterShrink
@@ -574,7 +575,8 @@ class EMLearner:
         info.warnings = curve_warnings(state.best) + face_value_warnings(state.best, batch.controls) + \
             mirror_warnings(state.best, batch.controls) + (
             [split] if split else []) + ([close] if close else []) + field_warnings(info.off_field_fraction) + \
-            weak_command_warnings(state.best, se) + correlated_size_warnings(state.best, used) + \
+            weak_command_warnings(state.best, se) + walk_warnings(state.best, logs) + \
+            correlated_size_warnings(state.best, used) + \
             map_warnings(mapped) + lost_warning(judgement.lost) + \
             setback_warnings(None if scoring is not None and scoring.record["converged"] else setback) + (
             [f"{len(undetermined)} parameter(s) not determined by the data (e.g. {undetermined[0]}): kept at their "

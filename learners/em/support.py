@@ -23,13 +23,19 @@ errors above 5% of the range; started at the true velocities, EM reached a point
 and within 1 standard error of the fit (no missed optimum), and the worst command's standard error was 5.7%,
 10.2% and 32.5% of the range. ``weak_command_warnings`` names commands whose standard error exceeds
 WEAK_SE_FRACTION of the range.
+
+A command table's fit can also end in a world turned or mirrored against the robot's where the map has two landmarks'
+ids swapped: the paper's four beacons allow a world where the bearings fit the swapped map to 0.003 rad (an `aibo`
+log of 1,500 frames, seed 2, beacons 0 and 1 swapped), the sizes taking the difference as noise (sigma_height 54% off)
+and the walk velocities turned by 155 degrees. ``walk_warnings`` says so where the learned (vx, vy) do not follow the
+attempted ones (``walk_agreement``; measured in ``MIN_WALK_AGREEMENT``'s comment).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from aibo_core.trajectory import VELOCITY_CONTROLS
+from aibo_core.trajectory import VELOCITY_CONTROLS, Trajectory
 from learners.arrays.batch import Batch
 from learners.model.model import Model
 
@@ -50,6 +56,15 @@ MAX_FACE_VALUE_DEPARTURE = 0.4
 #: Measured on the five MRCLAM robots (docs/results.md, "Why robots 3 and 4 ended in wrong worlds"): Vicon fits
 #: 0.001-0.010, learned 0.036-0.087 on robots 1, 2, 3, 5 and 0.28 on robot 4 (0.54 before the range curve was held).
 MAX_MIRROR_ASYMMETRY = 0.2
+#: Least R^2 of the learned walk velocities on a turn and scale of the attempted ones (``walk_agreement``) before the
+#: fit is called turned or mirrored. Measured on blind simulated logs (2026-12-02; seeds 0-5, both presets, 1,500 and
+#: 9,000 frames): the 21 fits that finished, R^2 0.88-0.97, turned -5.4 to +2.2 degrees; with beacons 0 and 1 exchanged
+#: in the map, 12 of 20 refused as a wrong world and the other 8 at R^2 -0.06 to 0.66, turned 1-176 degrees (each one
+#: below 0.5 or beyond 20 degrees). Out of sample, seeds 100-129 (60 logs of 1,500 frames): no warning.
+MIN_WALK_AGREEMENT = 0.5
+#: Largest turn (rad) between the attempted and the learned walk velocities (``walk_agreement``) before the fit is
+#: called turned: 20 degrees. Measured with ``MIN_WALK_AGREEMENT``.
+MAX_WALK_TURN_RAD = np.radians(20.0)
 
 
 class InsufficientDataError(ValueError):
@@ -166,6 +181,43 @@ def mirror_warnings(model: Model, controls: np.ndarray | None) -> list[str]:
     return [f"the learned forward speed depends on the turn direction by {asym:.0%} of the commanded speed range (RMS "
             f"half-difference between omega and -omega; above {MAX_MIRROR_ASYMMETRY:.0%}; a wheeled robot's hardly "
             "does): this fit may be in a wrong world; check it against ground truth or a longer log before using it"]
+
+
+def walk_agreement(model: Model, logs: list[Trajectory]) -> tuple[float, float] | None:
+    """How the learned walk velocities (vx, vy) of a command table follow the commands' attempted ones: the best turn
+    and scale of the attempted (vx, vy) onto the learned, each command weighted by its frames in ``logs`` (one complex
+    least-squares fit, learned ~ s x attempted), as (R^2, the turn, rad); None for velocity commands, or fewer than
+    three commands used."""
+    if not model.action.discrete or any(not tr.discrete for tr in logs):
+        return None
+    counts = np.bincount(np.concatenate([tr.actions for tr in logs]), minlength=len(model.action.velocities))
+    used = counts > 0
+    if np.count_nonzero(used) < 3:
+        return None
+    w = counts[used].astype(float)
+    att = np.asarray(logs[0].attempted, float)[used]
+    v = model.action.velocities[used]
+    a, learned = att[:, 0] + 1j * att[:, 1], v[:, 0] + 1j * v[:, 1]
+    total = np.sum(w * np.abs(learned - np.average(learned, weights=w)) ** 2)
+    if total <= 0 or np.sum(w * np.abs(a) ** 2) <= 0:
+        return None
+    s = np.sum(w * np.conj(a) * learned) / np.sum(w * np.abs(a) ** 2)
+    return float(1.0 - np.sum(w * np.abs(learned - s * a) ** 2) / total), float(np.angle(s))
+
+
+def walk_warnings(model: Model, logs: list[Trajectory]) -> list[str]:
+    """A warning where the learned walk velocities do not follow the commands' attempted ones (``walk_agreement``:
+    R^2 below ``MIN_WALK_AGREEMENT``, or turned by more than ``MAX_WALK_TURN_RAD``): the fit's world is turned or
+    mirrored against the robot's."""
+    agreement = walk_agreement(model, logs)
+    if agreement is None or (agreement[0] >= MIN_WALK_AGREEMENT and abs(agreement[1]) <= MAX_WALK_TURN_RAD):
+        return []
+    r2, turn = agreement
+    return [f"the learned walk velocities do not follow the commands' attempted ones (the best turn and scale of the "
+            f"attempted (vx, vy) explains R^2 {r2:.2f} of them, turned by {np.degrees(turn):+.0f} degrees; where the fit "
+            f"found the robot's world, R^2 {MIN_WALK_AGREEMENT:.1f} or more within {np.degrees(MAX_WALK_TURN_RAD):.0f} "
+            "degrees): the fit's world may be turned or mirrored against the robot's (two landmarks' ids swapped in "
+            "the map, or bearings of the other sign); check the map against a few sightings"]
 
 
 def weak_command_warnings(model: Model, se_velocities: np.ndarray | None) -> list[str]:
