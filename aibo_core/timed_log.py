@@ -137,8 +137,7 @@ def truth_at(t: np.ndarray, x_m: np.ndarray, y_m: np.ndarray, theta: np.ndarray,
     in_span = (t[1:] > edges[0]) & (t[:-1] < edges[-1])
     gaps = np.flatnonzero((gdt > GAP_S) & in_span)
     j = np.searchsorted(t, edges, side="right") - 1
-    slack = TIME_SLACK_S  # a boundary computed as t0 + k dt may land a rounding error past a row at the same time
-    out_of_span = (edges < t[0] - slack) | (edges > t[-1] + slack)  # held at the first or last row: no truth there
+    out_of_span = (edges < t[0] - TIME_SLACK_S) | (edges > t[-1] + TIME_SLACK_S)  # held at the first or last row
     flagged = np.flatnonzero(out_of_span | ((j >= 0) & (j < len(gdt)) & (gdt[np.clip(j, 0, len(gdt) - 1)] > GAP_S)
                                             & (edges > t[np.clip(j, 0, len(t) - 1)])))
     outside = int(out_of_span.sum())
@@ -165,6 +164,7 @@ def frame_count(s: Streams, dt: float) -> int:
 
 
 def _some(ids: list[int], at_most: int = 5) -> str:
+    """The first ``at_most`` of ``ids``, comma-separated, "..." after them where there are more."""
     return ", ".join(str(i) for i in ids[:at_most]) + (", ..." if len(ids) > at_most else "")
 
 
@@ -172,18 +172,21 @@ def none_usable(s: Streams, unknown: np.ndarray, bad_range: np.ndarray, inside: 
                 meta: dict[str, Any]) -> str:
     """Why not one of the streams' sightings is in the log: the counts by cause (the ids seen and the map's, from
     ``meta``'s ``unknown_ids`` and ``landmark_ids`` where the importer gives them), the detections' and the frames'
-    time spans when they miss each other (another clock, most likely)."""
-    n = len(unknown)
-    ids = (f" (ids {_some(meta['unknown_ids'])}; the map's {_some(meta['landmark_ids'])})"
-           if meta.get("unknown_ids") and meta.get("landmark_ids") is not None else "")
-    why = [f"{int(unknown.sum())} of ids the map does not hold{ids}" if unknown.any() else "",
-           f"{int((~unknown & bad_range).sum())} with a range <= 0" if (~unknown & bad_range).any() else "",
-           f"{int((~unknown & ~bad_range & ~inside).sum())} outside the commands' span "
-           f"{edges[0]:.6g}-{edges[-1]:.6g} s (the detections' times {s.sighting_t.min():.6g}-{s.sighting_t.max():.6g} s: "
-           "another clock, or another unit?)" if (~unknown & ~bad_range & ~inside).any() else ""]
-    hint = ("; --time log takes every topic's record times" if (~unknown & ~bad_range & ~inside).any()
-            and meta.get("source", {}).get("time") == "header" else "")
-    return f"none of the {n} detections can be used: " + ", ".join(w for w in why if w) + hint
+    time spans when they miss each other (another clock, most likely; for a bag's header stamps, ``--time log``)."""
+    bad_range, outside = ~unknown & bad_range, ~unknown & ~bad_range & ~inside
+    why = []
+    if unknown.any():
+        ids = (f" (ids {_some(meta['unknown_ids'])}; the map's {_some(meta['landmark_ids'])})"
+               if meta.get("unknown_ids") and meta.get("landmark_ids") is not None else "")
+        why.append(f"{int(unknown.sum())} of ids the map does not hold{ids}")
+    if bad_range.any():
+        why.append(f"{int(bad_range.sum())} with a range <= 0")
+    if outside.any():
+        why.append(f"{int(outside.sum())} outside the commands' span {edges[0]:.6g}-{edges[-1]:.6g} s (the detections' "
+                   f"times {s.sighting_t.min():.6g}-{s.sighting_t.max():.6g} s: another clock, or another unit?)"
+                   + ("; --time log takes every topic's record times"
+                      if meta.get("source", {}).get("time") == "header" else ""))
+    return f"none of the {len(unknown)} detections can be used: " + ", ".join(why)
 
 
 def build(s: Streams, dt: float, meta: dict[str, Any], source: str, sensor: SensorPose = SensorPose()) -> Trajectory:

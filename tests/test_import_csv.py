@@ -149,3 +149,17 @@ def test_a_sensor_behind_the_origin_is_given_after_a_space(tmp_path):
     folder = write_csv(tmp_path / "log", drive(seconds=6.0))
     assert main(["import", "csv", str(folder), "--out", str(tmp_path / "l.npz"), "--sensor-pose", "-0.25,0,0"]) == 0
     assert trajectory.load(tmp_path / "l.npz").meta["sensor_pose"] == {"x_m": -0.25, "y_m": 0.0, "yaw_rad": 0.0}
+
+
+def test_a_truth_row_at_the_last_frame_boundary_is_not_outside_it():
+    """Commands and truth both at t = 0, 0.1, 0.2, 0.3: the last boundary, 0 + 3 x 0.1, is 0.30000000000000004 by
+    rounding, past the last truth row; it is that row's time, not a pose outside the truth (``TIME_SLACK_S``)."""
+    from aibo_core.timed_log import truth_at
+
+    t = np.array([0.0, 0.1, 0.2, 0.3])
+    edges = 0.0 + 0.1 * np.arange(4)
+    assert edges[-1] > t[-1]
+    _, gaps = truth_at(t, t, t, np.zeros(4), edges)
+    assert gaps["poses_outside_groundtruth"] == 0 and gaps["poses_flagged"] == 0
+    _, gaps = truth_at(t, t, t, np.zeros(4), np.append(edges, 0.4))
+    assert gaps["poses_outside_groundtruth"] == 1 and gaps["flagged_runs"] == [[4, 4]]
