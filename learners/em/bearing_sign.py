@@ -48,10 +48,11 @@ def sign_errors(batch: Batch, poses: np.ndarray) -> tuple[float, float] | None:
 
 
 def suspect(model: Model, batch: Batch, poses: np.ndarray) -> bool:
-    """Whether a fit's bearings look like the other convention's (module docstring): a range sensor's, with at least
-    ``MIN_SIGHTINGS``, their noise above ``SUSPECT_SIGMA_RAD`` or the negated ones fitting ``poses`` as well."""
+    """Whether a fit's bearings look like the other convention's (module docstring): with at least ``MIN_SIGHTINGS``,
+    their noise above ``SUSPECT_SIGMA_RAD`` or the negated ones fitting ``poses`` as well (``sign_check`` asks it of a
+    range sensor's fit only)."""
     errors = sign_errors(batch, poses)
-    if model.sensor.kind != "range_mm" or errors is None:
+    if errors is None:
         return False
     return model.sensor.sigma_bearing > SUSPECT_SIGMA_RAD or errors[1] <= errors[0]
 
@@ -70,12 +71,15 @@ def sign_check(logs: list[Trajectory], model: Model, options: Any) -> dict[str, 
     from learners.em.estep import e_step
     from learners.em.learner import EMLearner
 
+    if model.sensor.kind != "range_mm":
+        return None
     batch = make_batch(logs)
-    if model.sensor.kind != "range_mm" or not suspect(model, batch, e_step(model, batch, "compiled").mu_gamma):
+    given = e_step(model, batch, "compiled")
+    if not suspect(model, batch, given.mu_gamma):
         return None
     flipped = negated(logs)
     other = EMLearner(replace(options, uncertainty=False, map_repair=False), check_field=False).fit(flipped).params
-    return {"loglik_given": float(e_step(model, batch, "compiled").loglik),
+    return {"loglik_given": float(given.loglik),
             "loglik_negated": float(e_step(other, make_batch(flipped), "compiled").loglik),
             "sigma_bearing_given": float(model.sensor.sigma_bearing),
             "sigma_bearing_negated": float(other.sensor.sigma_bearing)}
