@@ -35,6 +35,19 @@ def test_clockwise_bearings_are_named_and_counter_clockwise_ones_are_not(tmp_pat
     assert record["sigma_bearing_given"] > 0.3 and record["sigma_bearing_negated"] < 0.05
 
 
+def test_diagnose_says_so_too(tmp_path, capsys):
+    """``aibo diagnose`` checks its base model's bearings as ``aibo learn`` does: the warning on the page, in
+    report.json and on stderr; the search goes on with the log as given."""
+    trajectory.save(negated([diff_drive_log(120.0, seed=3)])[0], tmp_path / "log.npz")
+    out = tmp_path / "diag"
+    assert main(["diagnose", str(tmp_path / "log.npz"), "--out", str(out), "--candidates", "floor_drift",
+                 "--replicas", "0"]) == 0
+    assert WARNING in capsys.readouterr().err
+    report = json.loads((out / "report.json").read_text())
+    assert report["bearing_sign"]["loglik_negated"] > report["bearing_sign"]["loglik_given"] + 1000.0
+    assert any(w.startswith(WARNING) for w in report["warnings"]) and WARNING in (out / "report.html").read_text()
+
+
 def test_known_answers_on_a_straight_path():
     """Landmarks seen from poses on the x axis: bearings as given fit exactly, negated ones miss by twice the bearing
     (wrapped); too few sightings: no verdict. The warning only beyond its margin."""

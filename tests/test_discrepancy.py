@@ -132,6 +132,7 @@ def test_a_log_from_another_generator(tmp_path):
     assert main(["diagnose", str(log), "--out", str(out), "--candidates", "floor_drift,velocity_fade,beacon_height_scale"]) == 0
     report = json.loads((out / "report.json").read_text())
     assert report["effect"] == "floor_drift" and np.allclose(report["parameters"]["drift_mm_s"], [12, 0], atol=4.0)
+    assert report["bearing_sign"] is None  # its bearings looked right: no second fit made
     # a continuous-command model with a range sensor gets the wheeled simulator (WheeledRobot-v0): the check runs,
     # and the named drift takes the world-heading signature out of the disagreements
     cal = report["calibrated_simulation"]

@@ -35,6 +35,7 @@ from learners.discrepancy.search import OUTLIER_SHARE, search
 from learners.discrepancy.signatures import probe_signature, signatures
 from learners.discrepancy.statistics import plain_reading
 from learners.em.learner import feature_map_for
+from learners.em.bearing_sign import sign_warnings
 from learners.em.map_check import map_warnings, repair_warning
 from learners.em.options import DEFAULT_GATE, EMOptions
 from learners.em.support import TESTS_BIAS
@@ -203,6 +204,7 @@ def run(args) -> int:
                            f"whole log(s), {d['why']}" for d in found["dropped_in_final"]]
     report["warnings"] += [w for e in report["effects"] for w in e["warnings"]]
     report["warnings"] += motion_warning(report)
+    report["warnings"] += sign_warnings(found.get("bearing_sign"))
     report["warnings"] += map_warnings(found.get("map_check", []))
     report["warnings"] += [repair_warning(found["map_repair"])] if found.get("map_repair") else []
     report["warnings"] += outlier_warning(report)
@@ -609,6 +611,9 @@ def _report(found: dict, effects: list[dict], before, after, sig_before) -> dict
         # pairs of them that may be swapped, tried exchanged (EMOptions.map_repair: as aibo learn): "held" true, the
         # search ran on the exchange; None: none tried
         "map_repair": found.get("map_repair"),
+        # a range sensor's bearings checked for the other sign, as aibo learn does (learners.em.bearing_sign.sign_check
+        # of the base model); None: they looked right
+        "bearing_sign": found.get("bearing_sign"),
         "base_change": base_shift(found["base"], found["model"]) if effects else None,
         # each round's winner, the limit, what it left significant, what the final fit dropped (``passed_over``)
         "search_rounds": {"max_rounds": found["max_rounds"], "winners": found["winners"],

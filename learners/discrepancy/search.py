@@ -38,6 +38,7 @@ from learners.arrays.batch import make_batch
 from learners.base import LearnResult
 from learners.em.estep import e_step
 from learners.em.learner import EMLearner
+from learners.em.bearing_sign import sign_check, sign_warnings
 from learners.em.map_check import exchanges, judged, repair_warning, tried_exchanges
 from learners.em.options import DEFAULT_GATE, EMOptions
 from learners.model.effects import EFFECT_MODELS
@@ -515,7 +516,8 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
     ``"map_check"``: the landmarks whose sightings the base model's map does not explain, ``learners.em.map_check``,
     and where ``opts.map_repair`` found pairs that may be swapped, ``"map_repair"``, ``map_check.repair_record``: the
     base fitted on the logs with their ids exchanged, and where that holds, every fit here, the base's too, made on
-    the repaired logs, which ``"logs"`` then are),
+    the repaired logs, which ``"logs"`` then are; ``"bearing_sign"``: ``learners.em.bearing_sign.sign_check``'s record
+    of the base, None where its bearings looked right),
     the candidates the logs cannot support (``"skipped"``: name -> what the log lacks), the fits' context
     (``"context"``: a refit on the training halves) and where the rounds stand (``"state"``, :class:`SearchState`).
     ``action_model``: of the base fit (``aibo learn --action-model``). ``pool``: a worker pool of ``jobs`` workers to run in
@@ -541,6 +543,10 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
         map_repair = records[-1] if tried is not None else records[0]
         if tried is not None:  # the search runs on the repair
             given, (base, refit, logs, n_out) = fixed, tried
+    # bearings of the other sign (a range sensor's, as ``aibo learn`` checks): said here, the search goes on as given
+    bearing_sign = sign_check(given, base, opts)
+    for warning in sign_warnings(bearing_sign):
+        progress(f"  {warning}")
     n_sightings = sum(tr.n_sightings for tr in given)
     train = [training_log(tr) for tr in logs]
     # candidates are warm-started
@@ -570,7 +576,7 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
         found = finish(st, ctx, workers, max_rounds, progress)
     return {"base": base, "base_refit": None if refit is None else refit.info.spurious_refit, "logs": logs,
             "outliers": {"set_aside": n_out, "sightings": n_sightings}, "map_check": mapped, "map_repair": map_repair,
-            "skipped": skipped, "context": ctx,
+            "bearing_sign": bearing_sign, "skipped": skipped, "context": ctx,
             "action_model": action_model, "jobs": jobs, **found}
 
 
