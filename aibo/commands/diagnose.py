@@ -34,8 +34,8 @@ from learners.discrepancy.score import (
 from learners.discrepancy.search import OUTLIER_SHARE, search
 from learners.discrepancy.signatures import probe_signature, signatures
 from learners.discrepancy.statistics import plain_reading
-from learners.em.learner import feature_map_for
 from learners.em.bearing_sign import sign_warnings
+from learners.em.learner import feature_map_for
 from learners.em.map_check import map_warnings, repair_warning
 from learners.em.options import DEFAULT_GATE, EMOptions
 from learners.em.support import TESTS_BIAS

@@ -36,9 +36,9 @@ from aibo_core.trajectory import Trajectory
 from aibo_core.workers import pool_map, process_pool
 from learners.arrays.batch import make_batch
 from learners.base import LearnResult
+from learners.em.bearing_sign import sign_check, sign_warnings
 from learners.em.estep import e_step
 from learners.em.learner import EMLearner
-from learners.em.bearing_sign import sign_check, sign_warnings
 from learners.em.map_check import exchanges, judged, repair_warning, tried_exchanges
 from learners.em.options import DEFAULT_GATE, EMOptions
 from learners.model.effects import EFFECT_MODELS
