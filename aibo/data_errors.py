@@ -20,4 +20,5 @@ def naming_files(logs: Sequence[str], init: str | None = None) -> Iterator[None]
         raise CLIError(f"{', '.join(str(p) for p in logs)}: field '{exc.field}': {exc}") from exc
     except StartModelError as exc:
         where = f"{init}: field '{exc.model_field}': " if init else ""
-        raise CLIError(f"{where}{exc} ({logs[0]}: field '{exc.field}')") from exc
+        log = f"{logs[0]}: field '{exc.field}'" if exc.field else f"{logs[0]}"
+        raise CLIError(f"{where}{exc} ({log})") from exc

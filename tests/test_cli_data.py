@@ -106,8 +106,32 @@ def test_a_start_model_that_does_not_fit_names_both_files(log, tmp_path, capsys)
     capsys.readouterr()
     assert main(["learn", str(log), "--init", str(init), "--out", str(tmp_path / "x.json"), *FAST]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert err == [f"aibo: error: {init}: field 'action_model.velocities': the start model has 39 commands, the log "
+    assert err == [f"aibo: error: {init}: field 'action_model.velocities': the model has 39 commands, the log "
                    f"40 ({log}: field 'attempted')"]
+
+
+def test_a_start_model_of_the_other_kind_names_both_files(log, tmp_path, capsys):
+    """A model of discrete commands given for a log of velocity commands (``aibo learn --init``), and a model whose
+    sensor is another's (``check_model_fits``, the one check for --init and ``aibo export tum``): both fields named."""
+    from dataclasses import replace
+
+    from learners.em.learner import check_model_fits
+    from learners.em.support import StartModelError
+    from learners.model.io import load_model
+
+    model = tmp_path / "m.json"
+    wheeled = tmp_path / "wheeled.npz"
+    assert main(["learn", str(log), "--out", str(model), *FAST]) == 0
+    assert main(["collect", "--env", "wheeled", "--steps", "300", "--seed", "1", "--out", str(wheeled)]) == 0
+    capsys.readouterr()
+    assert main(["learn", str(wheeled), "--init", str(model), "--out", str(tmp_path / "x.json"), *FAST]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"aibo: error: {model}: field 'action_model.feature_map': a model of discrete commands (actions), "
+                   f"the log holds velocity commands (controls) ({wheeled}: field 'controls')"]
+    fitted = load_model(model)
+    with pytest.raises(StartModelError, match="the model's sensor measures range_mm, the log's height_px") as caught:
+        check_model_fits(replace(fitted, sensor=replace(fitted.sensor, kind="range_mm")), [trajectory.load(log)])
+    assert (caught.value.model_field, caught.value.field) == ("sensor_model.kind", "sensor_kind")
 
 
 def test_help_names_the_format_written():

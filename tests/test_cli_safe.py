@@ -428,7 +428,7 @@ def test_an_init_model_the_log_cannot_use_is_one_line(entry, field, what, learne
     trajectory.save(replace(trajectory.load(blind_log), field=None), log)
     init = _write_model(learned, tmp_path / "init.json", _effects(entry))
     assert main(["learn", str(log), "--init", str(init), "--out", str(tmp_path / "m.json")]) == 2
-    _one_line_error(capsys, f"--init {init}", f"'{field}'", what)
+    _one_line_error(capsys, f"{init}: field '{field}'", what, str(log))
 
 
 def test_an_init_model_with_other_control_names_is_refused(tmp_path, capsys):
@@ -445,7 +445,8 @@ def test_an_init_model_with_other_control_names_is_refused(tmp_path, capsys):
     save_model(tmp_path / "init.json", model, {"learner": "test"})
     assert main(["learn", str(tmp_path / "log.npz"), "--init", str(tmp_path / "init.json"),
                  "--out", str(tmp_path / "m.json")]) == 2
-    _one_line_error(capsys, "'action_model.control_names'", "left_mm_s", "v_mm_s")
+    _one_line_error(capsys, f"{tmp_path / 'init.json'}: field 'action_model.control_names'", "left_mm_s", "v_mm_s",
+                    f"{tmp_path / 'log.npz'}: field 'control_names'")
 
 
 def test_replay_refuses_a_log_of_another_frame_rate(learned, blind_log, tmp_path, capsys):

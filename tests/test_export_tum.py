@@ -111,4 +111,5 @@ def test_a_model_of_the_other_kind_of_commands_is_named(fitted, tmp_path, capsys
                  "--out", str(tmp_path / "est.tum")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "aibo.json: field 'action_model.feature_map': a model of discrete commands" in err
-    assert "log.npz holds velocity commands" in err and not (tmp_path / "est.tum").exists()
+    assert "the log holds velocity commands (controls) (" in err and "log.npz: field 'controls')" in err
+    assert not (tmp_path / "est.tum").exists()

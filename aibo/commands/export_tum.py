@@ -8,6 +8,7 @@ the score does; evo pairs the two files by timestamp.
 
 from __future__ import annotations
 
+from aibo.data_errors import naming_files
 from aibo.errors import CLIError
 from aibo.paths import check_files, declared_inputs
 from aibo_core import trajectory
@@ -26,14 +27,8 @@ def run(args) -> int:
     if args.truth and tr.pose is None:
         raise CLIError(f"{args.log}: field 'pose': missing, so there is no truth for --truth (a log imported with truth has it)")
     model = load_model(args.model)
-    kinds = {True: "discrete commands (actions)", False: "velocity commands (controls)"}
-    if model.action.discrete != tr.discrete:
-        raise CLIError(f"{args.model}: field 'action_model.feature_map': a model of {kinds[model.action.discrete]}, "
-                       f"but {args.log} holds {kinds[tr.discrete]}")
-    if model.sensor.kind != tr.sensor_kind:
-        raise CLIError(f"{args.model}: field 'sensor_model.kind': the model's sensor measures {model.sensor.kind}, "
-                       f"{args.log}'s {tr.sensor_kind}")
-    check_model_fits(model, [tr])
+    with naming_files([args.log], args.model):
+        check_model_fits(model, [tr])
     (track,), _ = smoothed_poses(model, [tr])
     t = frame_times(tr)
     note = f"smoothed poses of {args.log} under {args.model} (aibo export tum)"

@@ -207,10 +207,8 @@ def run(args) -> int:
         print(f"aibo: warning: {warning}", file=sys.stderr)
     init = model_io.load_model(args.init) if args.init else None
     if init is not None:
-        try:
+        with naming_files(args.logs, args.init):
             check_model_fits(init, logs)
-        except ValueError as err:
-            raise CLIError(f"--init {args.init}: {err}") from None
         check_action_model(args.action_model, init, args.init, logs[0])
     learner = make_learner(args)
     progress = Progress(args.learner)

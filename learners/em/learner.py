@@ -161,25 +161,40 @@ def feature_map_for(action_model: str | None, discrete: bool, control_names: tup
     return "diff_drive" if len(control_names) == 2 else "linear"
 
 
+#: The two kinds of commands, as a model's and a log's errors name them.
+COMMAND_KINDS = {True: "discrete commands (actions)", False: "velocity commands (controls)"}
+
+
 def check_model_fits(model: Model, logs: list[Trajectory], batch: Batch | None = None) -> None:
-    """Refuse (ValueError, one line naming the field) a start model that does not describe these logs:
-    other control names, an effect the logs cannot support (``EffectModel.NEEDS``), or effect
-    parameters of another shape than the logs need (e.g. one height scale per landmark)."""
+    """Refuse (StartModelError: one line naming the model's field and the log's) a model that does not describe
+    these logs: the other kind of commands or another number of them, another sensor, other control names, an effect
+    the logs cannot support (``EffectModel.NEEDS``), or effect parameters of another shape than the logs need (e.g.
+    one height scale per landmark). For a start model (``aibo learn --init``) and a fitted one (``aibo export tum``)."""
     tr = logs[0]
     act = model.action
-    if not act.discrete and not tr.discrete and tuple(act.control_names) != tuple(tr.control_names or ()):
-        raise ValueError(f"field 'action_model.control_names': {list(act.control_names)}, but the log's controls are "
-                         f"{list(tr.control_names or ())}")
+    if act.discrete != tr.discrete:
+        raise StartModelError(f"a model of {COMMAND_KINDS[act.discrete]}, the log holds {COMMAND_KINDS[tr.discrete]}",
+                              "action_model.feature_map", "actions" if tr.discrete else "controls")
+    if tr.discrete and len(act.weights) != len(tr.attempted):
+        raise StartModelError(f"the model has {len(act.weights)} commands, the log {len(tr.attempted)}",
+                              "action_model.velocities", "attempted")
+    if model.sensor.kind != tr.sensor_kind:
+        raise StartModelError(f"the model's sensor measures {model.sensor.kind}, the log's {tr.sensor_kind}",
+                              "sensor_model.kind", "sensor_kind")
+    if not tr.discrete and tuple(act.control_names) != tuple(tr.control_names or ()):
+        raise StartModelError(f"{list(act.control_names)}, but the log's controls are {list(tr.control_names or ())}",
+                              "action_model.control_names", "control_names")
     batch = batch if batch is not None else make_batch(logs)
     for effect in model.effects:
         lacking = [need for need in effect.NEEDS if any(getattr(t, need) is None for t in logs)]
         if lacking:
-            raise ValueError(f"field 'effects.{effect.name}': needs the log's {', '.join(lacking)}, which the log(s) lack")
+            raise StartModelError(f"needs the log's {', '.join(lacking)}, which the log(s) lack",
+                                  f"effects.{effect.name}", lacking[0])
         neutral = type(effect).start(batch).values()
         for key, value in effect.values().items():
             if value.shape != neutral[key].shape:
-                raise ValueError(f"field 'effects.{effect.name}.parameters.{key}': shape {value.shape}, these logs need "
-                                 f"{neutral[key].shape} ({effect.PARAMS[key].unit})")
+                raise StartModelError(f"shape {value.shape}, these logs need {neutral[key].shape} "
+                                      f"({effect.PARAMS[key].unit})", f"effects.{effect.name}.parameters.{key}")
 
 
 def face_value_gate(batch: Batch, start: Model, gate: float) -> np.ndarray | None:
@@ -315,15 +330,6 @@ class EMLearner:
                                                       for t in logs))
         else:
             start = init
-        if tr.discrete and start.action.discrete and len(start.action.weights) != len(tr.attempted):
-            raise StartModelError(f"the start model has {len(start.action.weights)} commands, the log "
-                                  f"{len(tr.attempted)}", "action_model.velocities", "attempted")
-        if start.action.discrete != tr.discrete:
-            raise StartModelError("the start model's action model does not fit this log's kind of commands",
-                                  "action_model.feature_map", "actions" if tr.discrete else "controls")
-        if start.sensor.kind != tr.sensor_kind:
-            raise StartModelError(f"the start model's sensor measures {start.sensor.kind}, the log {tr.sensor_kind}",
-                                  "sensor_model.kind", "sensor_kind")
         start = start.with_(sensor=start.sensor.in_basis(basis, degree))
         if init is None and tr.sensor_kind == "range_mm" and self.options.range_shrink:
             start = start.with_effect(OffCenterShrink(0.0))  # a range is depth (EMOptions.range_shrink)
