@@ -23,7 +23,9 @@ sensor away from the robot's origin (``SensorPose``), as in ``aibo_core.timed_lo
 
 from __future__ import annotations
 
+import codecs
 import csv
+import io
 import os
 from pathlib import Path
 from typing import Any, Callable, NamedTuple
@@ -52,16 +54,47 @@ class Table(NamedTuple):
     rows: np.ndarray
 
 
+def _text(data: bytes) -> str:
+    """A CSV file's bytes as text: UTF-16 after its byte-order mark (a spreadsheet's "Unicode text"), else UTF-8 (a
+    byte-order mark, "CSV UTF-8", read as none), else Latin-1 (a Windows spreadsheet's "CSV": an accented note in a
+    column the import does not read; the numbers and the column names it reads are ASCII in all three)."""
+    if data.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)):
+        return data.decode("utf-16")
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        return data.decode("latin-1")
+
+
+def _delimiter(text: str) -> str:
+    """The cells' separator: a comma, or where the header line holds none, a tab (a spreadsheet's "Unicode text",
+    tab-separated) or a semicolon (a spreadsheet's "CSV" where the comma is the decimal mark: its numbers are
+    refused by cell)."""
+    header = next((line for line in text.splitlines() if line.strip()), "")
+    if "," in header:
+        return ","
+    return "\t" if "\t" in header else ";" if ";" in header else ","
+
+
+def _decimal_comma(cell: str) -> bool:
+    """Whether ``cell`` is a number with a comma for its decimal point (``'2,5'``)."""
+    try:
+        float(cell.replace(",", ".", 1))
+    except ValueError:
+        return False
+    return "," in cell
+
+
 def read_table(path: Path, columns: tuple[str, ...]) -> Table:
-    """The named columns of a CSV file with a header line; at least one row. Blank lines are skipped, a UTF-8
-    byte-order mark (a spreadsheet's "CSV UTF-8") read as none; errors name the row by its line in the file."""
+    """The named columns of a CSV file with a header line; at least one row. Blank lines are skipped, the text read
+    as ``_text`` says; errors name the row by its line in the file."""
     if not path.is_file():
         raise LogSourceError(f"{path}: file not found (a CSV log holds {', '.join(n + '.csv' for n in FILES)}; "
                              "truth.csv optional)")
     try:
-        with open(path, newline="", encoding="utf-8-sig") as f:
-            reader = csv.reader(f)
-            rows = [(reader.line_num, r) for r in reader if r and any(c.strip() for c in r)]
+        text = _text(path.read_bytes())
+        reader = csv.reader(io.StringIO(text, newline=""), delimiter=_delimiter(text))
+        rows = [(reader.line_num, r) for r in reader if r and any(c.strip() for c in r)]
     except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise LogSourceError(f"{path}: not readable as CSV ({exc})") from None
     if not rows:
@@ -86,7 +119,8 @@ def read_table(path: Path, columns: tuple[str, ...]) -> Table:
             except ValueError:
                 out[i, j] = np.nan
             if not abs(out[i, j]) <= MAX_ABS:
-                what = "empty" if not cell else f"{cell!r} is not a finite number of magnitude <= {MAX_ABS:g}"
+                what = "empty" if not cell else f"{cell!r} is not a finite number of magnitude <= {MAX_ABS:g}" + (
+                    " (a decimal comma? write the numbers with a decimal point)" if _decimal_comma(cell) else "")
                 raise LogSourceError(f"{path}: row {line}, column {name!r}: {what}")
     return Table(out, np.array([line for line, _ in rows[1:]], dtype=np.int64))
 

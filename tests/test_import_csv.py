@@ -144,6 +144,35 @@ def test_a_spreadsheet_export_imports_as_the_file(tmp_path):
         np.testing.assert_array_equal(getattr(sheet, field), getattr(plain, field), err_msg=field)
 
 
+def test_other_spreadsheet_encodings_import_as_the_file(tmp_path, capsys):
+    """A Windows spreadsheet's "CSV" (Latin-1, an accented note in a column not read), its "Unicode text" (UTF-16,
+    tab-separated): the same log as the plain files. Semicolons with decimal commas: refused by row and column."""
+    rows = drive(seconds=6.0)
+    assert _import(write_csv(tmp_path / "plain", rows), tmp_path / "plain.npz") == 0
+    plain = trajectory.load(tmp_path / "plain.npz")
+    for kind in ("latin-1", "utf-16", "semicolon"):
+        folder = write_csv(tmp_path / kind, rows)
+        for name in ("commands", "landmarks", "detections"):
+            lines = (folder / f"{name}.csv").read_text().splitlines()
+            if kind == "latin-1":
+                text = "\n".join([lines[0] + ",note"] + [line + ",caf\u00e9" for line in lines[1:]]) + "\n"
+                (folder / f"{name}.csv").write_bytes(text.encode("latin-1"))
+            elif kind == "utf-16":
+                (folder / f"{name}.csv").write_bytes("\r\n".join(line.replace(",", "\t") for line in lines).encode("utf-16"))
+            else:
+                (folder / f"{name}.csv").write_text("\n".join(line.replace(",", ";").replace(".", ",") for line in lines))
+        if kind == "semicolon":
+            assert _import(folder, tmp_path / f"{kind}.npz") == 2
+            err = capsys.readouterr().err
+            assert err.count("\n") == 1 and "landmarks.csv: row 2, column 'x_m': '2,0' is not a finite number" in err
+            assert "(a decimal comma? write the numbers with a decimal point)" in err
+            continue
+        assert _import(folder, tmp_path / f"{kind}.npz") == 0, capsys.readouterr().err
+        log = trajectory.load(tmp_path / f"{kind}.npz")
+        for field in ("controls", "landmarks", "sighting_frame", "sighting_landmark", "sighting_value"):
+            np.testing.assert_array_equal(getattr(log, field), getattr(plain, field), err_msg=f"{kind}: {field}")
+
+
 def test_a_sensor_behind_the_origin_is_given_after_a_space(tmp_path):
     """``--sensor-pose -0.25,0,0``: the value read as the option's (argparse alone takes it for an option)."""
     folder = write_csv(tmp_path / "log", drive(seconds=6.0))
