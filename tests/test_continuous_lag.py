@@ -143,3 +143,69 @@ def test_on_a_real_robot_a_known_shift_of_the_commands_is_recovered():
             for s in (0.0, -0.15)]
     assert abs(lags[1]["lag_s"] - lags[0]["lag_s"] - 0.15) < 0.02, lags
     assert lags[1]["interval_95"][0] <= lags[0]["lag_s"] + 0.15 <= lags[1]["interval_95"][1] + 0.02, lags
+
+
+def test_a_grid_walk_that_falls_from_its_first_step_gets_a_point_half_a_step_in():
+    """``learners.discrepancy.grid.below_first_step``, known answers: the profile falls from the grid's first step
+    (0.1 s) and 0.1 s is not significantly above no lag (2 x gain < 3.84): one more point at 0.05 s; not where 0.1 s is
+    significant, where the profile rises further on, on a discrete log (a lag acts in whole frames there), or with one
+    point walked."""
+    from types import SimpleNamespace
+
+    from learners.arrays.batch import make_batch
+    from learners.discrepancy.grid import below_first_step
+    from learners.model.model import start_model
+    from tests._diffdrive import diff_drive_log
+    from tests._logs import sim_log
+
+    wheeled = diff_drive_log(30.0, seed=1)
+    batch = make_batch([wheeled])
+    start = start_model(batch, wheeled.dt, wheeled.sensor_kind, None, wheeled.control_names, "unicycle").with_effect(
+        ActuationLag(0.0))
+    ctx = SimpleNamespace(batch=batch)
+    assert below_first_step(start, "actuation_lag", [0.0, -10.0, -30.0], ctx) == pytest.approx(0.05)
+    assert below_first_step(start, "actuation_lag", [0.0, 1.5, -5.0], ctx) == pytest.approx(0.05)
+    assert below_first_step(start, "actuation_lag", [0.0, 2.5, -5.0], ctx) is None  # 0.1 s significant
+    assert below_first_step(start, "actuation_lag", [0.0, -10.0, -5.0], ctx) is None  # 0.2 s the better
+    assert below_first_step(start, "actuation_lag", [0.0], ctx) is None
+    aibo = sim_log(600)
+    batch = make_batch([aibo])
+    start = start_model(batch, aibo.dt, aibo.sensor_kind, len(aibo.attempted)).with_effect(ActuationLag(0.0))
+    assert below_first_step(start, "actuation_lag", [0.0, -10.0, -30.0], SimpleNamespace(batch=batch)) is None
+
+
+def test_the_profile_interval_has_points_on_both_sides_near_zero():
+    """``learners.discrepancy.profile.local_step``: the grid's step where half of it stays in the domain, else the
+    distance to its end, at least a quarter step."""
+    from learners.discrepancy.profile import local_step
+
+    assert local_step(0.25, 0.1, 0.0) == 0.1 and local_step(0.05, 0.1, 0.0) == 0.1
+    assert local_step(0.048, 0.1, 0.0) == pytest.approx(0.048) and local_step(0.01, 0.1, 0.0) == 0.025
+
+
+@pytest.mark.slow
+def test_diagnose_names_a_lag_below_the_grids_first_step(tmp_path):
+    """The same independent generator's log as ``test_learn_finds_a_lag_below_the_grids_first_step`` (net lag
+    0.05 s): ``aibo diagnose`` names the lag within 5 ms of it, its whole-log interval holding it (its walk had gained
+    +0.0 nats and named none); stamped 0.1 s early (no net lag), it names none."""
+    import json
+
+    from aibo.cli import main
+    from aibo_core import trajectory
+    from aibo_core.csv_import import import_folder
+    from tests._scripts import load_script
+
+    drive = load_script("sensor_mount").write_drive
+    for early in (0.05, 0.1):
+        drive(tmp_path / f"{early}", 1, 0.3, 5.0, (0.0, 0.0, 0.0), delay_s=-early)
+        trajectory.save(import_folder(tmp_path / f"{early}", 0.1), tmp_path / f"{early}.npz")
+        out = tmp_path / f"d{early}"
+        assert main(["diagnose", str(tmp_path / f"{early}.npz"), "--out", str(out), "--candidates", "actuation_lag",
+                     "--replicas", "0"]) == 0
+        named = {e["name"]: e for e in json.loads((out / "report.json").read_text())["effects"]}
+        if early == 0.1:
+            assert "actuation_lag" not in named, named
+            continue
+        lag = named["actuation_lag"]["intervals"]["lag_s"]
+        lo, hi = lag["interval_95"]
+        assert abs(lag["value"] - 0.05) < 0.005 and lo <= 0.05 <= hi and hi - lo < 0.03, lag
