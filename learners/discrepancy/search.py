@@ -544,7 +544,7 @@ def search(logs: list[Trajectory], candidates: list[str], opts: EMOptions, jobs:
         if tried is not None:  # the search runs on the repair
             given, (base, refit, logs, n_out) = fixed, tried
     # bearings of the other sign (a range sensor's, as ``aibo learn`` checks): said here, the search goes on as given
-    bearing_sign = sign_check(given, base, opts)
+    bearing_sign = sign_check(given, base, opts) if given else None
     for warning in sign_warnings(bearing_sign):
         progress(f"  {warning}")
     n_sightings = sum(tr.n_sightings for tr in given)
