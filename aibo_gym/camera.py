@@ -2,7 +2,7 @@
 
 * Head pan (rad, relative to the body): ``pan_amplitude * sin(2 pi t / pan_period)``, t in s.
 * A beacon is *visible* when its bearing relative to the camera axis (heading + pan) is within
-  ``fov / 2`` and its distance is within ``range_mm``. At most one sighting per frame: the visible
+  ``fov / 2`` and its distance is within ``range_mm`` and at least :data:`MIN_SIGHT_MM`. At most one sighting per frame: the visible
   beacon nearest the image centre, detected with probability ``detect_prob``.
 * Sighting: height px = ``focal_px * beacon_height_mm / d`` + N(0, sigma_height^2) (pinhole,
   57000 / d by default; config ``sensor_curve`` replaces the pinhole, see :class:`MeanHeight`) and
@@ -15,6 +15,17 @@ import math
 from typing import Any
 
 from .context import Sighting, wrap_angle
+
+MIN_SIGHT_MM = 1.0
+"""The smallest distance (mm) at which a camera sees a landmark, whatever ``range_mm`` says: one closer (the
+robot stands on it) is not seen, in both envs. Its bearing is undefined at 0 and a size curve in 1/d blows up."""
+
+
+def sight_range(cfg: dict[str, Any]) -> tuple[float, float]:
+    """(min, max) distance (mm) at which a landmark is seen: the config's ``range_mm``, its min raised to
+    :data:`MIN_SIGHT_MM`."""
+    rmin, rmax = cfg["range_mm"]
+    return max(float(rmin), MIN_SIGHT_MM), float(rmax)
 
 
 def head_pan(t: float, amplitude: float, period: float) -> float:
@@ -46,7 +57,7 @@ class Camera:
     def __init__(self, cfg: dict[str, Any], sigma_height: float, sigma_angle: float) -> None:
         self.beacons = [(float(b[0]), float(b[1])) for b in cfg["beacons"]]
         self.half_fov = 0.5 * cfg["fov"]
-        self.rmin, self.rmax = cfg["range_mm"]
+        self.rmin, self.rmax = sight_range(cfg)
         self.detect_prob = cfg["detect_prob"]
         self.mean_height = MeanHeight(cfg)
         self.sigma_height = sigma_height

@@ -24,8 +24,10 @@ big_slip_prob     0.0                                 probability per frame of a
 big_slip_std      [30, 30, 0.2]                       std of a large slip (mm, mm, rad)
 pan_amplitude     1.4                                 head pan amplitude, rad (pan = A sin(2 pi t / T))
 pan_period        3.0                                 head pan period T, s
-fov               0.99                                camera horizontal field of view (total), rad
+fov               0.99                                camera horizontal field of view (total), rad,
+                                                      0 < fov <= 2 pi
 range_mm          [1275, 4175]                        distances at which a beacon is recognized, mm
+                                                      (never closer than ``camera.MIN_SIGHT_MM``, 1 mm)
 detect_prob       0.9                                 probability a visible beacon is detected
 focal_px          190                                 camera focal length, px
 beacon_height_mm  300                                 beacon height, mm (height px = focal*H/d)
@@ -37,7 +39,8 @@ sigma_height      None                                px; overrides the preset w
 sigma_angle       None                                rad; overrides the preset when set
 walls             "clamp"                             "clamp", "pymunk", "none" or "open" (no walls and
                                                       the episode goes on off the field)
-robot_radius      150                                 robot body radius for walls="pymunk", mm
+robot_radius      150                                 robot body radius for walls="pymunk" (and only
+                                                      checked there: < half the field width), mm
 pymunk_substeps   4                                   fixed physics substeps per frame
 effects           {}                                  {name: {param: value}}, see aibo_gym.effects and
                                                       aibo_gym.catalogue
@@ -46,7 +49,8 @@ reward            "none"                              "none" (reward 0) or "expl
 reward_weights    {"balance": 1, "coverage": 1,       weight of each exploration reward term (a partial
                    "sightings": 0, "wall": 0.01,      dict updates these; unknown terms are refused)
                    "info_gain": 0}
-start_pose        [0, 0, 0]                           (x mm, y mm, theta rad) or "random"
+start_pose        [0, 0, 0]                           (x mm, y mm, theta rad; on the field unless
+                                                      walls="open") or "random"
 ================  ==================================  ==============================================
 """
 
@@ -58,6 +62,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from .camera import MIN_SIGHT_MM
 from .effects import finalize_effects, validate_effects
 
 NOISE_PRESETS: dict[str, dict[str, float]] = {
@@ -205,16 +210,18 @@ def _angle_range(key: str, v: Any, hi: float) -> float:
 
 
 def _fov(key: str, v: Any) -> float:
-    x = _angle_range(key, v, 2 * math.pi)
-    if x == 0:
-        raise _bad(key, v, "a number in (0, 2 pi]")
+    want = f"a number in (0, {2 * math.pi:.4g}] rad (0 < fov <= 2 pi)"
+    x = _num(key, v, want)
+    if not 0.0 < x <= 2 * math.pi:
+        raise _bad(key, v, want)
     return x
 
 
 def _range_mm(key: str, v: Any) -> list[float]:
-    xs = _numbers(key, v, 2, "[min, max] mm with 0 <= min < max")
-    if not 0 <= xs[0] < xs[1]:
-        raise _bad(key, v, "[min, max] mm with 0 <= min < max")
+    want = f"[min, max] mm with 0 <= min < max and max >= {MIN_SIGHT_MM:g} (nothing closer is ever seen)"
+    xs = _numbers(key, v, 2, want)
+    if not (0 <= xs[0] < xs[1] and xs[1] >= MIN_SIGHT_MM):
+        raise _bad(key, v, want)
     return xs
 
 
@@ -227,20 +234,30 @@ def _sigma(key: str, v: Any) -> float | None:
     return x
 
 
-def _slip_cov(key: str, v: Any) -> list[list[float]] | None:
-    if v is None:
-        return None
-    want = "None or a 3 x 3 symmetric positive definite covariance (mm^2, rad^2)"
+COVARIANCE_WANT = "a 3 x 3 symmetric positive definite covariance (mm^2, rad^2)"
+CURVE_WANT = '{"basis": "power" | "inverse", "coef": [c0, c1, ...]} with both keys'
+
+
+def covariance(key: str, v: Any, want: str = COVARIANCE_WANT) -> list[list[float]]:
+    """``v`` as a symmetric positive definite 3 x 3 covariance (mm^2, rad^2; symmetrized), else the one-line
+    error naming ``key`` and ``want`` (what the key accepts)."""
     m = np.array(_rows(key, v, 3, 3, want))
     if not np.allclose(m, m.T, rtol=1e-9, atol=1e-12) or np.linalg.eigvalsh(0.5 * (m + m.T)).min() <= 0:
         raise _bad(key, v, want)
     return (0.5 * (m + m.T)).tolist()
 
 
+def _slip_cov(key: str, v: Any) -> list[list[float]] | None:
+    return None if v is None else covariance(key, v, f"None or {COVARIANCE_WANT}")
+
+
 def _sensor_curve(key: str, v: Any) -> dict[str, Any] | None:
-    if v is None:
-        return None
-    want = 'None or {"basis": "power" | "inverse", "coef": [c0, c1, ...]}'
+    return None if v is None else sensor_curve(key, v, f"None or {CURVE_WANT}")
+
+
+def sensor_curve(key: str, v: Any, want: str = CURVE_WANT) -> dict[str, Any]:
+    """``v`` as a sensor curve {"basis", "coef"} (both keys: a partial dict is refused, since a coef means
+    nothing without its basis), else the one-line error naming ``key`` and ``want``."""
     if not isinstance(v, dict) or set(v) != {"basis", "coef"}:
         raise _bad(key, v, want)
     basis = _choice(SENSOR_BASES)(f"{key}.basis", v["basis"])
@@ -301,13 +318,20 @@ CHECKS: dict[str, Callable[[str, Any], Any]] = {
 }
 
 
-def _cross_checks(cfg: dict[str, Any]) -> None:
+def check_field_fit(cfg: dict[str, Any]) -> None:
+    """The checks of ``start_pose`` and ``robot_radius`` against ``field`` (both envs), each only where it
+    matters: a fixed start inside the field unless ``walls="open"`` (no walls, the episode goes on off the
+    field, so a start off it is a valid pose); ``robot_radius`` below half the field width only for
+    ``walls="pymunk"`` (the only mode with a robot body); a field wider than the ``START_MARGIN_MM`` margin
+    of ``start_pose="random"``."""
     half_l, half_w = cfg["field"][0] / 2, cfg["field"][1] / 2
     sp = cfg["start_pose"]
-    if isinstance(sp, list) and (abs(sp[0]) > half_l or abs(sp[1]) > half_w):
-        raise _bad("start_pose", sp, f"a position inside the field |x| <= {half_l:g}, |y| <= {half_w:g}")
-    if cfg["robot_radius"] >= min(half_l, half_w):
-        raise _bad("robot_radius", cfg["robot_radius"], f"a radius < {min(half_l, half_w):g} mm (half the field width)")
+    if cfg["walls"] != "open" and isinstance(sp, list) and (abs(sp[0]) > half_l or abs(sp[1]) > half_w):
+        raise _bad("start_pose", sp, f"a position inside the field |x| <= {half_l:g}, |y| <= {half_w:g} "
+                   f"with walls={cfg['walls']!r} (only walls='open' starts off the field)")
+    if cfg["walls"] == "pymunk" and cfg["robot_radius"] >= min(half_l, half_w):
+        raise _bad("robot_radius", cfg["robot_radius"], f"a radius < {min(half_l, half_w):g} mm (half the field width) "
+                   "with walls='pymunk'")
     if sp == "random" and min(half_l, half_w) <= START_MARGIN_MM:
         raise _bad("start_pose", sp, f"a fixed pose: the field is too small for a {START_MARGIN_MM:g} mm margin")
 
@@ -320,14 +344,16 @@ def make_config(config: dict[str, Any] | None = None) -> dict[str, Any]:
     """
     cfg = merge_config(default_config(), config)
     out = {key: CHECKS[key](key, value) for key, value in cfg.items()}
-    _cross_checks(out)
+    check_field_fit(out)
     out["effects"] = finalize_effects(out["effects"], out)
     return out
 
 
-def merge_config(cfg: dict[str, Any], config: dict[str, Any] | None) -> dict[str, Any]:
+def merge_config(cfg: dict[str, Any], config: dict[str, Any] | None, whole: tuple[str, ...] = ()) -> dict[str, Any]:
     """``cfg`` (a fresh dict of defaults) updated with the user's ``config``, unvalidated: nested dicts
-    merged, anything else replaced (deep copies). An unknown key raises ValueError naming the valid keys."""
+    merged, except those of the keys in ``whole`` (a dict whose entries only mean something together, e.g.
+    a sensor curve's basis and coef), anything else replaced (deep copies). An unknown key raises ValueError
+    naming the valid keys."""
     if config is None:
         config = {}
     if not isinstance(config, dict):
@@ -335,12 +361,40 @@ def merge_config(cfg: dict[str, Any], config: dict[str, Any] | None) -> dict[str
     for key, value in config.items():
         if key not in cfg:
             raise ValueError(f"unknown config key '{key}' (valid keys: {', '.join(sorted(cfg))})")
-        if isinstance(cfg[key], dict) and isinstance(value, dict):
+        if isinstance(cfg[key], dict) and isinstance(value, dict) and key not in whole:
             merged = copy.deepcopy(cfg[key])
             merged.update(value)
             value = merged
         cfg[key] = copy.deepcopy(value)
     return cfg
+
+
+def check_reset_options(options: Any, checks: dict[str, Callable[[Any], Any]]) -> dict[str, Any]:
+    """``reset(options=...)`` validated: None (no options) or a dict of the env's options, ``checks``
+    {option name: check of its value}; returns {name: checked value} for every option, None for those not
+    given. A non-dict, an unknown option or a bad value raises a one-line ValueError naming the option."""
+    valid = ", ".join(map(repr, checks))
+    if options is None:
+        options = {}
+    if not isinstance(options, dict):
+        raise ValueError(f"reset options must be None or a dict, got {type(options).__name__} (valid options: {valid})")
+    for name in options:
+        if name not in checks:
+            raise ValueError(f"unknown reset option {name!r} (valid options: {valid})")
+    return {name: None if options.get(name) is None else check(options[name]) for name, check in checks.items()}
+
+
+def option_array(name: str, value: Any, kinds: str, want: str) -> np.ndarray:
+    """Reset option ``name``'s ``value`` as a non-empty 1-d NumPy array of a dtype kind in ``kinds`` (e.g.
+    ``"iuf"`` numbers, ``"bi"`` booleans or integers), else a one-line ValueError naming the option and ``want``."""
+    try:
+        a = np.asarray(value)
+    except (ValueError, TypeError):  # ragged nested lists
+        a = None
+    if a is None or a.ndim != 1 or a.size == 0 or a.dtype.kind not in kinds:
+        got = type(value).__name__ if a is None or a.dtype.kind in "OSU" else f"shape {a.shape}, dtype {a.dtype}"
+        raise ValueError(f"reset option {name!r}: expected {want}, got {got}")
+    return a
 
 
 def sensor_sigmas(cfg: dict[str, Any]) -> tuple[float, float]:

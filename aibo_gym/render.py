@@ -3,7 +3,10 @@
 Drawn: the field (green, white outline and centre line), the beacons (coloured disks; the one
 sighted this frame gets a white ring), the camera's recognition zone (the sector within
 ``fov/2`` of heading + pan and within ``range_mm``, shaded), the robot (disk with heading line
-in black and head direction in yellow) and its trail (last 3000 poses). Scale: 0.1 px/mm.
+in black and head direction in yellow) and its trail (last 3000 poses). The image spans the field, the
+beacons and a fixed ``start_pose`` (with ``walls="open"`` it may be off the field), plus 250 mm. Scale:
+0.1 px/mm, or less so that the image's long side stays within ``MAX_IMAGE_PX`` (a large field or far
+beacons give a coarser image, never a huge one).
 
 ``render_mode="human"`` shows the same image with matplotlib when a display is available;
 headless (no ``DISPLAY``/``WAYLAND_DISPLAY`` on Linux, or a non-interactive backend) it warns
@@ -21,7 +24,10 @@ from typing import Any
 
 import numpy as np
 
-SCALE_PX_PER_MM = 0.1
+SCALE_PX_PER_MM = 0.1  # the scale of a field that fits in MAX_IMAGE_PX, px/mm
+MAX_IMAGE_PX = 1280  # the rendered image's longest side at most, px (a coarser scale beyond)
+MIN_DISK_PX = 3.0  # beacons and the robot are drawn at least this radius, px
+PAD_MM = 250.0  # margin drawn around the field, the beacons and the start, mm
 TRAIL_LEN = 3000
 BEACON_COLORS = [(230, 40, 40), (40, 90, 230), (240, 200, 20), (200, 60, 220), (30, 200, 220), (250, 130, 20)]
 FIELD = (40, 130, 60)
@@ -34,15 +40,17 @@ class Renderer:
     def __init__(self, env: Any) -> None:
         self.env = env
         cfg = env.config
-        self.s = SCALE_PX_PER_MM
-        bx = [b[0] for b in cfg["beacons"]]
-        by = [b[1] for b in cfg["beacons"]]
+        points = [list(b) for b in cfg["beacons"]]
+        if isinstance(cfg["start_pose"], list):
+            points.append(cfg["start_pose"][:2])
+        bx = [p[0] for p in points]
+        by = [p[1] for p in points]
         hl, hw = cfg["field"][0] / 2, cfg["field"][1] / 2
-        pad = 250.0
-        self.x0, self.x1 = min(-hl, *bx) - pad, max(hl, *bx) + pad
-        self.y0, self.y1 = min(-hw, *by) - pad, max(hw, *by) + pad
-        self.w = int(math.ceil((self.x1 - self.x0) * self.s))
-        self.h = int(math.ceil((self.y1 - self.y0) * self.s))
+        self.x0, self.x1 = min(-hl, *bx) - PAD_MM, max(hl, *bx) + PAD_MM
+        self.y0, self.y1 = min(-hw, *by) - PAD_MM, max(hw, *by) + PAD_MM
+        self.s = min(SCALE_PX_PER_MM, MAX_IMAGE_PX / max(self.x1 - self.x0, self.y1 - self.y0))
+        self.w = min(int(math.ceil((self.x1 - self.x0) * self.s)), MAX_IMAGE_PX)
+        self.h = min(int(math.ceil((self.y1 - self.y0) * self.s)), MAX_IMAGE_PX)
         # world coordinates (mm) of every pixel centre
         self.wx = (self.x0 + (np.arange(self.w) + 0.5) / self.s).astype(np.float32)
         self.wy = (self.y1 - (np.arange(self.h) + 0.5) / self.s).astype(np.float32)
@@ -58,7 +66,7 @@ class Renderer:
         return (x - self.x0) * self.s, (self.y1 - y) * self.s
 
     def _disk(self, img: np.ndarray, x: float, y: float, r_mm: float, color, ring: bool = False) -> None:
-        r = r_mm
+        r = max(r_mm, MIN_DISK_PX / self.s)  # still visible in a coarse image
         c0 = max(int((x - r - self.x0) * self.s), 0)
         c1 = min(int((x + r - self.x0) * self.s) + 2, self.w)
         r0 = max(int((self.y1 - y - r) * self.s), 0)
@@ -68,7 +76,7 @@ class Renderer:
         dx = self.wx[c0:c1][None, :] - x
         dy = self.wy[r0:r1][:, None] - y
         d2 = dx * dx + dy * dy
-        mask = (d2 <= r * r) & (d2 >= (r - 3 / self.s) ** 2) if ring else d2 <= r * r
+        mask = (d2 <= r * r) & (d2 >= max(r - 3 / self.s, 0.0) ** 2) if ring else d2 <= r * r
         img[r0:r1, c0:c1][mask] = color
 
     def _line(self, img: np.ndarray, x0: float, y0: float, x1: float, y1: float, color, width_px: int = 1) -> None:

@@ -1,6 +1,6 @@
 """The robot's body: its true action model and its motion per frame.
 
-Each of the 40 actions (see :mod:`aibo_gym.actions`) has a *true* velocity (vx mm/s, vy mm/s,
+Each of the 40 actions (see :mod:`aibo_core.actions`) has a *true* velocity (vx mm/s, vy mm/s,
 vtheta rad/s, robot frame) that differs from what the action attempts. It is drawn once from
 ``robot_seed`` (independent of any episode seed) by :func:`true_velocities`:
 

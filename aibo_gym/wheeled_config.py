@@ -22,14 +22,18 @@ weights             None                                    F x 3 true velocity 
                                                             mm/s, rad/s); None: ``DEFAULT_WEIGHTS`` (diff
                                                             drive, unicycle; linear with k = 2)
 motion_cov          diag(9, 1, 1e-4)                        3 x 3 per-frame robot-frame motion noise
-                                                            covariance (mm^2, rad^2), SPD
+                                                            covariance (mm^2, rad^2), SPD (not None;
+                                                            near-noise-free: e.g. 1e-12 * identity)
 sensor_curve        {"basis": "power", "coef": [0, 1]}      measured range (mm) = sum c_k d^k (power) or
-                                                            sum c_k d^-k (inverse), d mm; default range = d
+                                                            sum c_k d^-k (inverse), d mm; default range = d.
+                                                            Both keys: a dict replaces the default whole
+                                                            (a coef means nothing without its basis)
 sigma_range_mm      50                                      range noise std, mm
 sigma_bearing       0.02                                    bearing noise std, rad
 fov                 1.18                                    camera field of view (total), rad, centred
-                                                            on the heading
+                                                            on the heading, 0 < fov <= 2 pi
 range_mm            [300, 8500]                             distances at which a landmark is seen, mm
+                                                            (never closer than ``camera.MIN_SIGHT_MM``, 1)
 detect_prob         0.9                                     probability a visible landmark is reported
 detect_by_distance  None                                    or [[d_mm, p], ...], d increasing: the
                                                             probability by distance (linear between the
@@ -60,7 +64,6 @@ import numpy as np
 from aibo_core.features import ZERO_OUTPUTS, n_features
 
 from .config import (
-    START_MARGIN_MM,
     WALL_MODES,
     _bad,
     _beacons,
@@ -74,10 +77,11 @@ from .config import (
     _prob,
     _range_mm,
     _rows,
-    _sensor_curve,
-    _slip_cov,
     _start_pose,
+    check_field_fit,
+    covariance,
     merge_config,
+    sensor_curve,
 )
 from .effects import finalize_effects, validate_effects
 
@@ -143,12 +147,6 @@ def _sigma(key: str, v: Any) -> float:
     return x
 
 
-def _motion_cov(key: str, v: Any) -> list[list[float]]:
-    if v is None:
-        raise _bad(key, v, "a 3 x 3 symmetric positive definite covariance (mm^2, rad^2)")
-    return _slip_cov(key, v)
-
-
 def _table(what: str, top: float) -> Callable[[str, Any], list[list[float]] | None]:
     """A check of a table of [x >= 0, value in [0, top]] pairs, x increasing."""
     want = f"None or a list of [{what}, value in [0, {top:g}]] pairs, the first >= 0 and increasing"
@@ -164,12 +162,6 @@ def _table(what: str, top: float) -> Callable[[str, Any], list[list[float]] | No
     return check
 
 
-def _curve(key: str, v: Any) -> dict[str, Any]:
-    if v is None:
-        raise _bad(key, v, '{"basis": "power" | "inverse", "coef": [c0, c1, ...]}')
-    return _sensor_curve(key, v)
-
-
 CHECKS: dict[str, Callable[[str, Any], Any]] = {
     "field": _pair_positive,
     "beacons": _beacons,
@@ -180,8 +172,8 @@ CHECKS: dict[str, Callable[[str, Any], Any]] = {
     "control_high": _vector,
     "feature_map": _choice(FEATURE_MAP_NAMES),
     "weights": _weights,
-    "motion_cov": _motion_cov,
-    "sensor_curve": _curve,
+    "motion_cov": covariance,
+    "sensor_curve": sensor_curve,
     "sigma_range_mm": _sigma,
     "sigma_bearing": _sigma,
     "fov": _fov,
@@ -226,21 +218,13 @@ def _check_controls(cfg: dict[str, Any]) -> None:
 
 def _cross_checks(cfg: dict[str, Any]) -> None:
     _check_controls(cfg)
-    half_l, half_w = cfg["field"][0] / 2, cfg["field"][1] / 2
-    sp = cfg["start_pose"]
-    walled = cfg["walls"] in ("clamp", "pymunk", "none")
-    if walled and isinstance(sp, list) and (abs(sp[0]) > half_l or abs(sp[1]) > half_w):
-        raise _bad("start_pose", sp, f"a position inside the field |x| <= {half_l:g}, |y| <= {half_w:g}")
-    if cfg["walls"] == "pymunk" and cfg["robot_radius"] >= min(half_l, half_w):
-        raise _bad("robot_radius", cfg["robot_radius"], f"a radius < {min(half_l, half_w):g} mm (half the field width)")
-    if sp == "random" and min(half_l, half_w) <= START_MARGIN_MM:
-        raise _bad("start_pose", sp, f"a fixed pose: the field is too small for a {START_MARGIN_MM:g} mm margin")
+    check_field_fit(cfg)
 
 
 def make_config(config: dict[str, Any] | None = None) -> dict[str, Any]:
     """Merge ``config`` into :func:`default_config`, validate, and return the full normalized dict
     (``weights`` filled in). Raises a one-line ValueError naming the key on an unknown key or a bad value."""
-    cfg = merge_config(default_config(), config)
+    cfg = merge_config(default_config(), config, whole=("sensor_curve",))
     out = {key: CHECKS[key](key, value) for key, value in cfg.items()}
     _cross_checks(out)
     out["effects"] = finalize_effects(out["effects"], out)

@@ -7,11 +7,12 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+from gymnasium.error import ResetNeeded
 
 from aibo_core.actions import N_ACTIONS, attempted_velocities
 
 from ..camera import Camera, head_pan
-from ..config import REWARD_TERMS, make_config, sensor_sigmas
+from ..config import REWARD_TERMS, check_reset_options, make_config, option_array, sensor_sigmas
 from ..context import NO_COMMAND, Frame, Motion, Sighting
 from ..effects import EffectChain
 from ..policies.onboard import OnboardTracker
@@ -33,7 +34,7 @@ class AiboBeaconsEnv(gym.Env):
 
     ``Discrete(40)``: action ``8*i + j`` walks "as fast as possible" with normalized turn
     ``A_TURN[i]`` in {-1/2, -1/6, 0, 1/6, 1/2} and direction ``B_DIRECTION[j]`` in
-    {0, pi/4, ..., -pi/4} (see :mod:`aibo_gym.actions`). Its *true* velocity
+    {0, pi/4, ..., -pi/4} (see :mod:`aibo_core.actions`). Its *true* velocity
     (:func:`aibo_gym.robot.true_velocities`, mm/s, mm/s, rad/s, robot frame) depends on ``robot_seed``.
 
     ## Observation space
@@ -54,7 +55,8 @@ class AiboBeaconsEnv(gym.Env):
     =========  ===========================  ===========================================
 
     The sighting is taken at the end of the frame (after the move). The reset observation has no
-    sighting.
+    sighting. A beacon is seen within ``range_mm`` and ``fov / 2`` of the camera axis (:mod:`aibo_gym.camera`),
+    never closer than :data:`aibo_gym.camera.MIN_SIGHT_MM` = 1 mm (the robot standing on it).
 
     The observation carries the frame's first sighting (row 0 of ``info["sightings"]``).
 
@@ -118,6 +120,13 @@ class AiboBeaconsEnv(gym.Env):
     ## Head pan
     ``pan_amplitude * sin(2 pi t / pan_period)`` (rad); ``reset(options={"head_pan": pans})`` uses
     ``pans[t]`` after step t instead (a measured log's pans, to replay it), the sinusoid after the last.
+    ``pans`` is a non-empty 1-d array of finite angles (rad, relative to the body); each is wrapped to
+    (-pi, pi] (the same camera direction), so the observation and ``info["head_pan"]`` stay in range.
+
+    ## Reset options
+
+    ``options`` is None or a dict whose only valid key is ``"head_pan"`` (None: the sinusoid); any other
+    key, a non-dict or a bad value raises a one-line ValueError naming the option.
 
     ## Starting state
 
@@ -144,8 +153,11 @@ class AiboBeaconsEnv(gym.Env):
     ``"AiboBeacons-v0"`` works after ``import aibo_gym``. Actions outside ``action_space`` (e.g. 1.5)
     raise ValueError; Python and NumPy integers are accepted.
     see :mod:`aibo_gym.config` for every key (unknown keys or bad values raise ValueError).
-    ``"rgb_array"`` returns a top-down uint8 image; ``"human"`` shows it with matplotlib when a
-    display exists, else warns once and shows nothing.
+    ``"rgb_array"`` returns a top-down uint8 image (0.1 px/mm, or less so that its long side stays
+    within :data:`aibo_gym.render.MAX_IMAGE_PX` = 1280 px); ``"human"`` shows it with matplotlib when a
+    display exists, else warns once and shows nothing, pausing ``1 / metadata["render_fps"]`` s per frame.
+    The instance's ``metadata["render_fps"]`` is ``1 / dt`` (30 by default), the rate video recorders use.
+    ``step`` before the first ``reset`` raises ``gymnasium.error.ResetNeeded``.
 
     ## Seeding
 
@@ -165,6 +177,8 @@ class AiboBeaconsEnv(gym.Env):
         self.config = make_config(config)
         self.render_mode = render_mode
         cfg = self.config
+        self.metadata = {**self.metadata, "render_fps": 1.0 / float(cfg["dt"])}  # frames per simulated second
+        self._reset_done = False
         self.n_beacons = len(cfg["beacons"])
         self.velocities = true_velocities(cfg)
         self.velocities.flags.writeable = False  # effects see it through Frame.velocities
@@ -205,7 +219,9 @@ class AiboBeaconsEnv(gym.Env):
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        opts = check_reset_options(options, {"head_pan": self._check_pan_schedule})
         super().reset(seed=seed)
+        self._reset_done = True
         self._episode = 0 if seed is not None else self._episode + 1
         self.effects.reset(max(self.np_random_seed, 0), self._episode)
         x, y, th = draw_start(self.config, self.np_random)
@@ -213,7 +229,7 @@ class AiboBeaconsEnv(gym.Env):
         self.pose = (x, y, wrap_angle(th))
         self.start_pose = list(self.pose)
         self.steps = 0
-        self._pan_schedule = self._check_pan_schedule(options)
+        self._pan_schedule = opts["head_pan"]
         self.head_pan = self._pan(0)
         self.last_sightings = []
         self._command, self._previous_command, self._command_start = NO_COMMAND, NO_COMMAND, 0
@@ -229,6 +245,8 @@ class AiboBeaconsEnv(gym.Env):
         return obs, info
 
     def step(self, action):
+        if not self._reset_done:
+            raise ResetNeeded("AiboBeacons-v0: call reset() before step()")
         a = self._check_action(action)
         rng = self.np_random
         z = rng.standard_normal(8).tolist()
@@ -286,15 +304,15 @@ class AiboBeaconsEnv(gym.Env):
 
     # ------------------------------------------------------------------ internals
     @staticmethod
-    def _check_pan_schedule(options: dict[str, Any] | None) -> np.ndarray | None:
-        """``reset(options={"head_pan": pans})``: the head pan (rad) after each step, e.g. a measured
-        log's (``Trajectory.head_pan``) to replay it; the config's sinusoid after the last."""
-        if not options or options.get("head_pan") is None:
-            return None
-        pans = np.asarray(options["head_pan"], dtype=float)
-        if pans.ndim != 1 or not np.all(np.isfinite(pans)):
-            raise ValueError("reset option 'head_pan': expected a 1-d array of finite angles (rad), one per step")
-        return pans
+    def _check_pan_schedule(value: Any) -> np.ndarray:
+        """Reset option ``head_pan`` (not None): the head pan (rad, relative to the body) after each step, e.g. a
+        measured log's (``Trajectory.head_pan``) to replay it, each wrapped to (-pi, pi]; the config's sinusoid
+        after the last. ValueError naming the option unless a non-empty 1-d array of finite numbers."""
+        want = "a non-empty 1-d array of finite angles (rad), one per step"
+        pans = option_array("head_pan", value, "iuf", want).astype(float)
+        if not np.all(np.isfinite(pans)):
+            raise ValueError(f"reset option 'head_pan': expected {want}, got non-finite values")
+        return np.array([wrap_angle(p) for p in pans.tolist()])
 
     def _pan(self, step: int) -> float:
         """Head pan (rad) at the end of frame ``step`` (0: at reset): the schedule's or the sinusoid's."""

@@ -8,10 +8,12 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+from gymnasium.error import ResetNeeded
 
 from aibo_core.features import FEATURE_MAPS
 
-from ..camera import MeanHeight
+from ..camera import MeanHeight, sight_range
+from ..config import check_reset_options, option_array
 from ..context import NO_COMMAND, Frame, Motion, Sighting, wrap_angle
 from ..effects import EffectChain
 from ..robot import draw_start, move
@@ -87,7 +89,9 @@ class WheeledRobotEnv(gym.Env):
 
     ## Sensing
 
-    In an image frame, every landmark within ``range_mm`` and ``fov / 2`` of the heading is reported
+    In an image frame, every landmark within ``range_mm`` (and at least
+    :data:`aibo_gym.camera.MIN_SIGHT_MM` = 1 mm away: the camera cannot see a landmark it stands on)
+    and ``fov / 2`` of the heading is reported
     with probability ``detect_prob`` (or ``detect_by_distance``'s at its distance; times ``detect_by_angle``'s factor
     at its angle off the heading, at most 1), in landmark order:
     range = f(d) + N(0, sigma_range_mm^2), f the
@@ -95,6 +99,9 @@ class WheeledRobotEnv(gym.Env):
     A frame takes an image on schedule (every ``image_every``-th frame, each with probability
     ``image_prob``), or as ``reset(options={"images": mask})`` says: ``mask[t]`` (bool, one per step,
     e.g. the frames of a measured log that have a sighting) for step t, the schedule after the last.
+    ``options`` is None or a dict whose only valid key is ``"images"`` (None: the schedule; else a
+    non-empty 1-d array of booleans or 0/1); any other key, a non-dict or a bad value raises a one-line
+    ValueError naming the option.
     The sightings are taken at the end of the frame (after the move).
 
     ## Effects
@@ -123,7 +130,9 @@ class WheeledRobotEnv(gym.Env):
     ## Arguments
 
     ``gym.make("aibo_gym:WheeledRobot-v0", config={...})``; every key in :mod:`aibo_gym.wheeled_config`
-    (unknown keys or bad values raise a one-line ValueError naming the key). No render modes.
+    (unknown keys or bad values raise a one-line ValueError naming the key). No render modes; the
+    instance's ``metadata["render_fps"]`` is ``1 / dt`` (10 by default). ``step`` before the first
+    ``reset`` raises ``gymnasium.error.ResetNeeded``.
 
     ## Seeding
 
@@ -142,6 +151,8 @@ class WheeledRobotEnv(gym.Env):
         self.config = cfg = make_config(config)
         self.render_mode = None
         self.dt = float(cfg["dt"])
+        self.metadata = {**self.metadata, "render_fps": 1.0 / self.dt}  # frames per simulated second
+        self._reset_done = False
         self.k = len(cfg["control_names"])
         self.weights = true_weights(cfg)
         self.weights.flags.writeable = False
@@ -151,6 +162,7 @@ class WheeledRobotEnv(gym.Env):
         self.landmarks.flags.writeable = False
         self.n_landmarks = len(self.landmarks)
         self.range_curve = MeanHeight(cfg)
+        self._sight_range = sight_range(cfg)
         self.walls = make_walls(cfg)
         self.effects = EffectChain(cfg, sensor_capacity=self.n_landmarks)
         self.max_sightings = self.effects.max_sightings
@@ -176,7 +188,9 @@ class WheeledRobotEnv(gym.Env):
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        opts = check_reset_options(options, {"images": self._check_images})
         super().reset(seed=seed)
+        self._reset_done = True
         self._episode = 0 if seed is not None else self._episode + 1
         self.effects.reset(max(self.np_random_seed, 0), self._episode)
         x, y, th = draw_start(self.config, self.np_random)
@@ -184,13 +198,15 @@ class WheeledRobotEnv(gym.Env):
         self.pose = (x, y, wrap_angle(th))
         self.start_pose = list(self.pose)
         self.steps = 0
-        self._images = self._check_images(options)
+        self._images = opts["images"]
         self.last_sightings = []
         self._command, self._previous_command, self._command_start = NO_COMMAND, NO_COMMAND, 0
         zeros = np.zeros(self.k)
         return self._observation([], zeros), self._info([], zeros, np.zeros(3), False, False)
 
     def step(self, action):
+        if not self._reset_done:
+            raise ResetNeeded("WheeledRobot-v0: call reset() before step()")
         c = self._check_action(action)
         rng = self.np_random
         b = self.n_landmarks
@@ -251,13 +267,13 @@ class WheeledRobotEnv(gym.Env):
 
     # ------------------------------------------------------------------ the camera
     @staticmethod
-    def _check_images(options: dict[str, Any] | None) -> np.ndarray | None:
-        """``reset(options={"images": mask})``: which steps take an image (bool, one per step)."""
-        if not options or options.get("images") is None:
-            return None
-        mask = np.asarray(options["images"])
-        if mask.ndim != 1 or mask.dtype.kind not in "bi" or (mask.dtype.kind == "i" and not np.isin(mask, (0, 1)).all()):
-            raise ValueError("reset option 'images': expected a 1-d array of booleans, one per step")
+    def _check_images(value: Any) -> np.ndarray:
+        """Reset option ``images`` (not None): which steps take an image (bool, one per step); ValueError naming the
+        option unless a non-empty 1-d array of booleans or of integers 0 / 1."""
+        want = "a non-empty 1-d array of booleans (or 0 / 1), one per step"
+        mask = option_array("images", value, "bi", want)
+        if mask.dtype.kind == "i" and not np.isin(mask, (0, 1)).all():
+            raise ValueError(f"reset option 'images': expected {want}, got integers other than 0 and 1")
         return mask.astype(bool)
 
     def _image(self, u: float) -> bool:
@@ -279,7 +295,7 @@ class WheeledRobotEnv(gym.Env):
         """The sightings of the frame's end pose: every visible landmark detected, then the sensing effects."""
         cfg = self.config
         x, y, th = self.pose
-        rmin, rmax = cfg["range_mm"]
+        rmin, rmax = self._sight_range
         half_fov = 0.5 * cfg["fov"]
         sr, sb = cfg["sigma_range_mm"], cfg["sigma_bearing"]
         sightings = []
