@@ -23,7 +23,10 @@ What the log gets (frames of ``dt`` seconds from the first command, ``t0``):
 - ``meta``: the source (dataset, robot, files, ``t0``), every count of what was dropped (sightings of
   other robots, unknown barcodes, non-positive ranges, sightings outside the log span, measurement rows
   repeated exactly, repeated or backward odometry/ground-truth rows) and the ground-truth gaps. A barcode
-  or landmark listed twice with different meanings is refused. It carries neither the start pose
+  or landmark listed twice with different meanings is refused, as are a file of another kind (another count of
+  columns: ``COLUMNS``), a fractional id, a bearing beyond a full turn (``csv_import.check_bearings``) and a lag not
+  well below the log's span (``MAX_LAG_FRACTION``); errors name the line in the file (1-based, comment lines
+  counted). It carries neither the start pose
   nor any ``field``: the learner must find its start from the sightings, as on any real robot.
 """
 
@@ -31,12 +34,22 @@ from __future__ import annotations
 
 import os
 import warnings
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
 
+from .csv_import import check_bearings
 from .geometry import wrap
-from .timed_log import after_frame_end, held_average, increasing, nearest_frame_end, pose_valid, truth_at  # noqa: F401 (pose_valid: re-exported)
+from .timed_log import (  # noqa: F401 (pose_valid: re-exported)
+    LogSourceError,
+    after_frame_end,
+    held_average,
+    increasing,
+    nearest_frame_end,
+    pose_valid,
+    truth_at,
+)
 from .trajectory import VELOCITY_CONTROLS, Trajectory
 
 #: Subjects 1-5 are the robots, 6-20 the landmarks (Barcodes.dat).
@@ -53,7 +66,66 @@ class MRCLAMError(ValueError):
     """A missing folder, file or robot, or an unreadable file (one line naming it)."""
 
 
-def _read(path: Path, ncols: int) -> np.ndarray:
+#: Each file's columns (by role), the ones the import reads: errors name them. Landmark_Groundtruth.dat may hold two
+#: more, the x and y std-dev (m), which are not read (``EXTRA_COLUMNS``).
+COLUMNS = {"barcodes": ("subject", "barcode"), "landmarks": ("subject", "x m", "y m"),
+           "odometry": ("time s", "v m/s", "omega rad/s"), "measurement": ("time s", "barcode", "range m", "bearing rad"),
+           "groundtruth": ("time s", "x m", "y m", "theta rad")}
+EXTRA_COLUMNS = {"landmarks": 2}
+#: Columns that hold ids (subject or barcode numbers): a fraction is refused, not truncated to another id.
+ID_COLUMNS = {"barcodes": (0, 1), "landmarks": (0,), "measurement": (1,)}
+
+
+def _data_lines(path: Path) -> list[tuple[int, list[str]]]:
+    """(number of the line in the file, 1-based as an editor counts them, comment lines included; its fields) of every
+    line holding data (anything before a ``#`` but blanks): what the errors name."""
+    with open(path, encoding="utf-8", errors="replace") as f:
+        return [(n, fields) for n, line in enumerate(f, 1) if (fields := line.split("#", 1)[0].split())]
+
+
+def _line(path: Path, row: int) -> int:
+    """The line in the file (``_data_lines``) of data row ``row`` (0-based)."""
+    return _data_lines(path)[row][0]
+
+
+def _numbers(count: int) -> str:
+    return f"{count} number" + ("" if count == 1 else "s")
+
+
+def _column(col: int, names: tuple[str, ...]) -> str:
+    """``column N (its name)`` of 0-based ``col``, as the errors name it."""
+    return f"column {col + 1}" + (f" ({names[col]})" if col < len(names) else "")
+
+
+def _not_a_table(path: Path, names: tuple[str, ...]) -> MRCLAMError:
+    """The error of a file NumPy cannot read as a table: the first line whose count of fields differs from the
+    others', or the first field that is not a number, by its line in the file."""
+    rows = _data_lines(path)
+    widths = Counter(len(fields) for _, fields in rows)
+    width = widths.most_common(1)[0][0] if widths else 0
+    for n, fields in rows:
+        if len(fields) != width:
+            return MRCLAMError(f"{path}: line {n} has {_numbers(len(fields))}, the others {width} (a file cut short "
+                               "or edited?)")
+        for col, cell in enumerate(fields):
+            try:
+                float(cell)
+            except ValueError:
+                return MRCLAMError(f"{path}: line {n}, {_column(col, names)}: {cell!r} is not a number")
+    return MRCLAMError(f"{path}: not a table of numbers")
+
+
+def _read(path: Path, role: str | int) -> np.ndarray:
+    """The columns ``COLUMNS[role]`` of a dataset file; MRCLAMError (one line naming the file, and the line in it)
+    for a missing or unreadable file, one of another kind (another count of columns), a value that is not a finite
+    number of magnitude <= ``MAX_ABS``, or an id (``ID_COLUMNS``) that is not an integer. ``role`` may also be a
+    number of columns (the first that many read, more allowed, no column an id)."""
+    if isinstance(role, str):
+        names = COLUMNS[role]
+        ncols = len(names)
+        widths: tuple[int, ...] | None = (ncols, ncols + EXTRA_COLUMNS[role]) if role in EXTRA_COLUMNS else (ncols,)
+    else:
+        names, ncols, widths = (), int(role), None
     if not path.is_file():
         raise MRCLAMError(f"{path}: file not found (an MRCLAM dataset folder holds Barcodes.dat, "
                           "Landmark_Groundtruth.dat and RobotN_{Odometry,Measurement,Groundtruth}.dat)")
@@ -61,18 +133,28 @@ def _read(path: Path, ncols: int) -> np.ndarray:
         with warnings.catch_warnings():  # numpy warns of an empty file; the error below says it in one line
             warnings.simplefilter("ignore", UserWarning)
             a = np.loadtxt(path, comments="#", ndmin=2)
-    except ValueError as exc:
-        raise MRCLAMError(f"{path}: not a table of numbers ({exc})") from None
+    except ValueError:
+        raise _not_a_table(path, names) from None
+    want = " or ".join(str(w) for w in widths) if widths else f"at least {ncols}"
+    what = f" ({', '.join(names)})" if names else ""
     if len(a) == 0:
-        raise MRCLAMError(f"{path}: no data rows (expected rows of {ncols} numbers)")
-    if a.shape[1] < ncols:
-        raise MRCLAMError(f"{path}: expected rows of {ncols} numbers, got shape {a.shape}")
-    bad = ~(np.abs(a[:, :ncols]) <= MAX_ABS)  # also NaN
+        raise MRCLAMError(f"{path}: no data rows (expected rows of {want} numbers{what})")
+    if a.shape[1] not in (widths or range(ncols, a.shape[1] + 1)):
+        raise MRCLAMError(f"{path}: expected rows of {want} numbers{what}, got rows of {a.shape[1]} ({len(a)} rows): "
+                          "a file of another kind?")
+    a = a[:, :ncols]
+    bad = ~(np.abs(a) <= MAX_ABS)  # also NaN
     if bad.any():
         row, col = (int(i) for i in np.argwhere(bad)[0])
-        raise MRCLAMError(f"{path}: row {row + 1} of the data, column {col + 1}: {a[row, col]!r} is not a finite "
-                          f"number of magnitude <= {MAX_ABS:g}")
-    return a[:, :ncols]
+        raise MRCLAMError(f"{path}: line {_line(path, row)}, {_column(col, names)}: {float(a[row, col])!r} is not a "
+                          f"finite number of magnitude <= {MAX_ABS:g}")
+    for col in ID_COLUMNS.get(role, ()) if isinstance(role, str) else ():
+        fraction = np.flatnonzero(a[:, col] != np.round(a[:, col]))
+        if len(fraction):
+            row = int(fraction[0])
+            raise MRCLAMError(f"{path}: line {_line(path, row)}, {_column(col, names)}: {float(a[row, col])!r} is not "
+                              "an integer")
+    return a
 
 
 def _unique_rows(a: np.ndarray) -> tuple[np.ndarray, int]:
@@ -83,15 +165,31 @@ def _unique_rows(a: np.ndarray) -> tuple[np.ndarray, int]:
 
 
 def _one_to_one(keys: np.ndarray, values: np.ndarray, path: Path, key: str, value: str) -> dict[int, int]:
-    """{key: value} of a table's two columns; MRCLAMError naming the file when a key is listed with two values (its
-    sightings would go to one of them silently). A row repeated exactly is harmless."""
+    """{key: value} of a table's two columns; MRCLAMError naming the file and both lines when a key is listed with two
+    values (its sightings would go to one of them silently). A row repeated exactly is harmless."""
     out: dict[int, int] = {}
-    for k, v in zip(keys.tolist(), values.tolist()):
+    first: dict[int, int] = {}
+    for i, (k, v) in enumerate(zip(keys.tolist(), values.tolist())):
         k, v = int(k), int(v)
+        first.setdefault(k, i)
         if out.setdefault(k, v) != v:
-            raise MRCLAMError(f"{path}: {key} {k} is listed for {value} {out[k]} and for {value} {v}; each {key} "
-                              "must name one")
+            raise MRCLAMError(f"{path}: {key} {k} is listed for {value} {out[k]} and for {value} {v} (lines "
+                              f"{_line(path, first[k])} and {_line(path, i)}); each {key} must name one")
     return out
+
+
+def _listed_once(subjects: np.ndarray, path: Path) -> None:
+    """MRCLAMError naming the file and both lines when a landmark's subject is listed twice (which position holds?)."""
+    first: dict[int, int] = {}
+    for i, s in enumerate(subjects.tolist()):
+        if first.setdefault(s, i) != i:
+            raise MRCLAMError(f"{path}: subject {s} is listed on line {_line(path, first[s])} and on line "
+                              f"{_line(path, i)}; each landmark must be listed once")
+
+
+#: The longest ``lag_s`` (``--lag``), as a fraction of the log's span: the first ``lag_s`` seconds of the log take the
+#: first command (nothing is known of the commands before it), so a lag must be well below the log's length.
+MAX_LAG_FRACTION = 0.1
 
 
 def file_names(robot: int) -> dict[str, str]:
@@ -122,13 +220,18 @@ def import_robot(folder: str | os.PathLike, robot: int, dt: float = DEFAULT_DT, 
     if not (np.isfinite(dt) and dt > 0):
         raise MRCLAMError(f"--dt {dt}: must be a positive number of seconds")
     names = file_names(robot)
-    barcodes = _read(folder / names["barcodes"], 2).astype(np.int64)
-    lm_table = _read(folder / names["landmarks"], 3)
-    odo = _read(folder / names["odometry"], 3)
-    meas = _read(folder / names["measurement"], 4)
+    barcodes = _read(folder / names["barcodes"], "barcodes").astype(np.int64)
+    lm_table = _read(folder / names["landmarks"], "landmarks")
+    odo = _read(folder / names["odometry"], "odometry")
+    meas = _read(folder / names["measurement"], "measurement")
+    try:  # a bearing beyond a full turn is degrees (or no bearing), as the other importers refuse it
+        check_bearings(folder / names["measurement"], meas[:, 3],
+                       lambda i: f"line {_line(folder / names['measurement'], i)}, column 4 (bearing rad)")
+    except LogSourceError as exc:
+        raise MRCLAMError(str(exc)) from None
     # the Vicon file is optional: without it the log carries no pose (a run to learn from, not to score)
     has_truth = (folder / names["groundtruth"]).exists()
-    gt = _read(folder / names["groundtruth"], 4) if has_truth else np.zeros((0, 4))
+    gt = _read(folder / names["groundtruth"], "groundtruth") if has_truth else np.zeros((0, 4))
 
     keep, odo_rep, odo_back = increasing(odo[:, 0])
     odo = odo[keep]
@@ -150,6 +253,10 @@ def import_robot(folder: str | os.PathLike, robot: int, dt: float = DEFAULT_DT, 
     T = int(np.floor((t_end - t0) / dt + 1e-9))
     if T < 1:
         raise MRCLAMError(f"robot {robot}: the log span from {start_s} s holds no frame of {dt} s")
+    if abs(lag_s) >= MAX_LAG_FRACTION * T * dt:
+        raise MRCLAMError(f"--lag {lag_s:g}: the log of robot {robot} is {T * dt:g} s long; a lag must be well "
+                          f"below that (less than {MAX_LAG_FRACTION:.0%} of it, {MAX_LAG_FRACTION * T * dt:g} s): its "
+                          f"first {abs(lag_s):g} s would all take one command")
     edges = t0 + dt * np.arange(T + 1)
     controls = held_average(odo[:, 0] + lag_s, odo[:, 1:3] * [1000.0, 1.0], edges)
 
@@ -157,7 +264,7 @@ def import_robot(folder: str | os.PathLike, robot: int, dt: float = DEFAULT_DT, 
     subjects = lm_table[:, 0].astype(np.int64)
     landmarks = lm_table[:, 1:3] * 1000.0
     subject_of = _one_to_one(barcodes[:, 1], barcodes[:, 0], folder / names["barcodes"], "barcode", "subject")
-    _one_to_one(subjects, np.arange(len(subjects)), folder / names["landmarks"], "subject", "row")
+    _listed_once(subjects, folder / names["landmarks"])
     lm_index = {int(s): i for i, s in enumerate(subjects)}
     subj = np.array([subject_of.get(int(b), -1) for b in meas[:, 1]], dtype=np.int64)
     is_robot = np.isin(subj, ROBOTS)

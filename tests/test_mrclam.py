@@ -408,8 +408,8 @@ def test_an_empty_file_is_one_line_without_numpys_warning(tmp_path, capsys):
 @pytest.mark.parametrize("name, rows, text", [
     ("Barcodes.dat", [(1, 5), (2, 14), (6, 63), (7, 81), (8, 7), (9, 63)], "barcode 63 is listed for subject 6 and for "
                                                                           "subject 9"),
-    ("Landmark_Groundtruth.dat", [(6, 2.0, 1.0), (7, 4.0, -1.0), (6, 6.0, 1.0)], "subject 6 is listed for row 0 and "
-                                                                                 "for row 2"),
+    ("Landmark_Groundtruth.dat", [(6, 2.0, 1.0), (7, 4.0, -1.0), (6, 6.0, 1.0)], "subject 6 is listed on line 5 and "
+                                                                                 "on line 7"),
 ])
 def test_a_barcode_or_landmark_listed_twice_is_refused(tmp_path, capsys, name, rows, text):
     tiny_dataset(tmp_path)
