@@ -44,6 +44,17 @@ DIAGNOSE_ROUNDS = 3
 DIAGNOSE_REPLICAS = 16
 
 
+def _reproduce_interrupted(args) -> str:
+    """What an interrupted ``aibo reproduce`` left: EM's checkpoint in --out, once EM has written one; before that
+    (simulating, compiling) nothing. Never imports the command (an interrupt while importing it ran nothing)."""
+    reproduce = sys.modules.get("aibo.commands.reproduce")
+    if reproduce is None or not reproduce.checkpoint_left(args):
+        return NOTHING_WRITTEN
+    if args.no_resume:
+        return "EM's checkpoint is in --out: the same command without --no-resume resumes from it"
+    return "the same command resumes EM from its checkpoint in --out (--no-resume starts over)"
+
+
 class _Parser(argparse.ArgumentParser):
     """argparse, with its usage errors as one line ``aibo: error: ...`` (exit status 2) like all others."""
 
@@ -163,8 +174,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="use the paper's exact recipe (fixed motion noise, one sample per frame)")
     rp.add_argument("--no-resume", action="store_true",
                     help="ignore the checkpoint an interrupted identical run left in --out")
-    rp.set_defaults(run=commands.run_reproduce, interrupted="the same command resumes EM from its checkpoint in --out "
-                    "(--no-resume starts over)")
+    rp.set_defaults(run=commands.run_reproduce, interrupted=_reproduce_interrupted)
 
     dg = sub.add_parser("diagnose", help="find where model and data disagree, name the missing effect, refit")
     dg.add_argument("logs", nargs="+", type=path, help="aibo-trajectory/2 logs (.npz; /1 files are converted on read) of one robot")
@@ -381,7 +391,8 @@ def main(argv: list[str] | None = None) -> int:
         print("aibo: error: out of memory (use a shorter log or fewer logs)", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"aibo: interrupted; {getattr(args, 'interrupted', NOTHING_WRITTEN)}", file=sys.stderr)
+        said = getattr(args, "interrupted", NOTHING_WRITTEN)
+        print(f"aibo: interrupted; {said(args) if callable(said) else said}", file=sys.stderr)
         return 130
 
 

@@ -7,7 +7,10 @@ Every command calls ``check_files(inputs, outputs)`` before any work. It refuses
 - two outputs that are the same file (one would clobber the other);
 - an output that is an existing folder, or whose name is longer than the file system allows;
 - the same input given twice under one label (e.g. a log and a symlink to it), or two logs with the same
-  bytes (a copy): it would count twice.
+  bytes (a copy): it would count twice;
+- an output (file or folder) that cannot be written: its nearest existing folder (where missing folders are made)
+  is a file, or refuses a new file (``check_writable``: read-only, no permission, ``/proc``), so a command never
+  fails at its end, after all its work, on where it writes.
 
 ``check_replaceable(label, folder, names)``: a folder of outputs replaced whole
 (``aibo_core.atomic.atomic_folder``) may hold only those outputs, so nothing else in it is lost; nor may it be
@@ -140,6 +143,38 @@ def check_files(inputs: Sequence[Named], outputs: Sequence[Named], folders: Sequ
         for other_label, other in outputs[:i]:
             if same_file(path, other):
                 raise CLIError(f"{label} {path} is the same file as {other_label} {other}: choose another name")
+    probed: set[Path] = set()
+    for label, path in [*folders, *outputs]:
+        check_writable(label, path, probed)
+
+
+def check_writable(label: str, path: str | os.PathLike, probed: set[Path] | None = None) -> None:
+    """Refuse (CLIError, one line naming ``label`` and ``path``) an output file or folder that cannot be written
+    beside: the nearest existing folder above it (where its missing folders would be made, and where the atomic
+    writes put their temp files) must be a folder this process can make a file in. A probe file of ours
+    (``aibo_core.atomic``'s temp name, which a later write cleans if this process is killed) is made and removed at
+    once: permission bits do not tell (root passes them, and ``/proc`` or a read-only mount refuse anyway).
+    ``probed``: folders already found writable (one probe each)."""
+    parent = Path(os.path.abspath(path)).parent
+    existing = parent
+    while not os.path.lexists(existing) and existing != existing.parent:
+        existing = existing.parent
+    if probed is not None and existing in probed:
+        return
+    if not existing.is_dir():
+        raise CLIError(f"{label} {path}: {existing} is {'a file, ' if existing.is_file() else ''}not a folder to "
+                       "write in")
+    probe = existing / f".aibo-{os.getpid()}-{os.urandom(4).hex()}.tmp"  # aibo_core.atomic's temp name
+    try:
+        fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    except OSError as exc:
+        where = (f"cannot write in the folder {existing}" if existing == parent else
+                 f"the folder {parent} does not exist and cannot be made in {existing}")
+        raise CLIError(f"{label} {path}: {where} ({exc.strerror or exc})") from None
+    os.close(fd)
+    os.unlink(probe)
+    if probed is not None:
+        probed.add(existing)
 
 
 def check_replaceable(label: str, folder: str | os.PathLike, names: Sequence[str]) -> None:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -47,6 +47,22 @@ def policy_specs(names: list[str], params: dict[str, dict] | None = None) -> lis
             extra.setdefault("localizer", "ekf")
         out.append(validate_policy({"name": spec["name"], "params": {**spec["params"], **extra}}))
     return out
+
+
+def check_params(spec: dict[str, Any], field: Sequence[float]) -> None:
+    """ValueError (one line naming the policy and the parameter) for a validated policy spec (``validate_policy``)
+    whose numbers no run could use on a ``field`` (length, width mm): ``hold_s`` not positive (the rule the policies
+    apply when built, ``HoldPolicy.set_hold``, checked here before any run starts) or ``margin_mm`` outside [0, half
+    the field's shorter side) (no predicted path would be safe)."""
+    name, params = spec["name"], spec["params"]
+    hold = params.get("hold_s")
+    if hold is not None and not hold > 0:
+        raise ValueError(f"policy '{name}': hold_s must be positive seconds, got {hold:g}")
+    margin = params.get("margin_mm")
+    half = min(float(v) for v in field) / 2
+    if margin is not None and not 0 <= margin < half:
+        raise ValueError(f"policy '{name}': margin_mm must be >= 0 and below half the field's shorter side "
+                         f"({half:g} mm), got {margin:g}")
 
 
 def build_specs(policies: list[dict], minutes: list[float], seeds: list[int], config: dict[str, Any] | None = None,

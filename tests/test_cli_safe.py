@@ -57,7 +57,7 @@ def test_import_mrclam_refuses_huge_values(tmp_path, capsys):
     lines[5] = "7 1e300 -1.0 0 0"
     (data / "Landmark_Groundtruth.dat").write_text("\n".join(lines) + "\n")
     assert main(["import", "mrclam", str(data), "--robot", "1", "--out", str(tmp_path / "x.npz")]) == 2
-    _one_line_error(capsys, "Landmark_Groundtruth.dat", "row 2", "column 2", "1e+300")
+    _one_line_error(capsys, "Landmark_Groundtruth.dat", "line 6", "column 2", "1e+300")
     assert not (tmp_path / "x.npz").exists()
 
 

@@ -23,6 +23,9 @@ def run(args) -> int:
     check_files(inputs=declared_inputs(args), outputs=[("--out", args.out)] + ([("--plot", args.plot)] if args.plot else []))
     if args.replay and not args.model:
         raise CLIError("--replay needs --model (the model whose simulator replays the log)")
+    if args.preset and args.model:
+        raise CLIError(f"--preset {args.preset}: not with --model, whose fitted sensor noise the simulator takes (the "
+                       "log would name a preset it did not use); drop --preset, or --model for a preset's noise")
     model_config, log, env = calibrated_config(args.model, args.replay, args.env)
     steps = args.steps or DEFAULT_STEPS[env]
     t0 = time.perf_counter()
@@ -54,8 +57,28 @@ def run_aibo(args, model_config: dict, log, steps: int):
     if log is not None:
         return replay(config, log.actions, args.seed, head_pan=log.head_pan, source=str(args.replay),
                       progress=sys.stderr.isatty())
+    check_policy(args, config)
     return collect(config, steps=steps, seed=args.seed, policy=args.policy or "random-balanced",
                    localizer=args.localizer, progress=sys.stderr.isatty(), policy_params=args.policy_params)
+
+
+def check_policy(args, config: dict) -> None:
+    """Refuse (CLIError naming --policy-params) policy parameters no run could use in the env ``config``
+    (``experiments.policies.check_params``), before the simulation. A bad config, policy name or parameter is
+    left to ``collect``, which says it as always."""
+    from aibo_gym.collect import policy_spec
+    from aibo_gym.config import make_config
+    from experiments.policies import check_params
+
+    try:
+        field = make_config(config)["field"]
+        spec = policy_spec(args.policy or "random-balanced", args.localizer, args.policy_params)
+    except ValueError:
+        return
+    try:
+        check_params(spec, field)
+    except ValueError as err:
+        raise CLIError(f"--policy-params: {err}") from None
 
 
 def run_wheeled(args, model_config: dict, log, steps: int):

@@ -62,6 +62,16 @@ def run_checkpoint(out: Path, args, steps: int) -> Path:
     return checkpoint_path(out / f"model_em.{hashlib.sha1(run_id.encode()).hexdigest()[:8]}.json")
 
 
+def checkpoint_left(args) -> bool:
+    """Whether the --out folder of this run (``args``) holds EM's checkpoint of it: what an interrupt leaves to
+    resume from (none before EM's first checkpoint)."""
+    out = Path(args.out or DEFAULT_OUT[args.quick])
+    try:
+        return run_checkpoint(out, args, QUICK_STEPS if args.quick else FULL_STEPS).is_file()
+    except OSError:
+        return False
+
+
 #: The --out folder by default: a --quick run has its own, so it never replaces a full run's results.
 DEFAULT_OUT = {False: "runs/reproduce", True: "runs/reproduce-quick"}
 #: Exit status of a run whose EM errors miss the bar (2 is a usage error).
