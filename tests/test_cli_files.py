@@ -9,6 +9,7 @@ import pytest
 
 from aibo.cli import main
 from aibo.paths import CHECKPOINT_SUFFIX, checkpoint_path, name_max
+from tests._errors import one_line_error as _one_line_error
 
 
 @pytest.fixture(scope="module")
@@ -18,12 +19,6 @@ def log(tmp_path_factory):
     return path
 
 
-def _one_line_error(capsys, *expect: str) -> str:
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("aibo: error:"), err
-    for text in expect:
-        assert text in err[0], err
-    return err[0]
 
 
 def _alias(kind: str, log, tmp_path):

@@ -10,15 +10,8 @@ from pathlib import Path
 import pytest
 
 from aibo.cli import main
+from tests._errors import one_line_error as _one_line_error
 from tests.test_mrclam import tiny_dataset
-
-
-def _one_line_error(capsys, *expect: str) -> str:
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("aibo: error:"), err
-    for text in expect:
-        assert text in err[0], err
-    return err[0]
 
 
 def _alias(kind: str, target: Path, tmp_path: Path) -> Path:
