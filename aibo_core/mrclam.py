@@ -115,17 +115,13 @@ def _not_a_table(path: Path, names: tuple[str, ...]) -> MRCLAMError:
     return MRCLAMError(f"{path}: not a table of numbers")
 
 
-def _read(path: Path, role: str | int) -> np.ndarray:
+def _read(path: Path, role: str) -> np.ndarray:
     """The columns ``COLUMNS[role]`` of a dataset file; MRCLAMError (one line naming the file, and the line in it)
     for a missing or unreadable file, one of another kind (another count of columns), a value that is not a finite
-    number of magnitude <= ``MAX_ABS``, or an id (``ID_COLUMNS``) that is not an integer. ``role`` may also be a
-    number of columns (the first that many read, more allowed, no column an id)."""
-    if isinstance(role, str):
-        names = COLUMNS[role]
-        ncols = len(names)
-        widths: tuple[int, ...] | None = (ncols, ncols + EXTRA_COLUMNS[role]) if role in EXTRA_COLUMNS else (ncols,)
-    else:
-        names, ncols, widths = (), int(role), None
+    number of magnitude <= ``MAX_ABS``, or an id (``ID_COLUMNS``) that is not an integer."""
+    names = COLUMNS[role]
+    ncols = len(names)
+    widths = (ncols, ncols + EXTRA_COLUMNS[role]) if role in EXTRA_COLUMNS else (ncols,)
     if not path.is_file():
         raise MRCLAMError(f"{path}: file not found (an MRCLAM dataset folder holds Barcodes.dat, "
                           "Landmark_Groundtruth.dat and RobotN_{Odometry,Measurement,Groundtruth}.dat)")
@@ -135,11 +131,11 @@ def _read(path: Path, role: str | int) -> np.ndarray:
             a = np.loadtxt(path, comments="#", ndmin=2)
     except ValueError:
         raise _not_a_table(path, names) from None
-    want = " or ".join(str(w) for w in widths) if widths else f"at least {ncols}"
-    what = f" ({', '.join(names)})" if names else ""
+    want = " or ".join(str(w) for w in widths)
+    what = f" ({', '.join(names)})"
     if len(a) == 0:
         raise MRCLAMError(f"{path}: no data rows (expected rows of {want} numbers{what})")
-    if a.shape[1] not in (widths or range(ncols, a.shape[1] + 1)):
+    if a.shape[1] not in widths:
         raise MRCLAMError(f"{path}: expected rows of {want} numbers{what}, got rows of {a.shape[1]} ({len(a)} rows): "
                           "a file of another kind?")
     a = a[:, :ncols]
@@ -148,7 +144,7 @@ def _read(path: Path, role: str | int) -> np.ndarray:
         row, col = (int(i) for i in np.argwhere(bad)[0])
         raise MRCLAMError(f"{path}: line {_line(path, row)}, {_column(col, names)}: {float(a[row, col])!r} is not a "
                           f"finite number of magnitude <= {MAX_ABS:g}")
-    for col in ID_COLUMNS.get(role, ()) if isinstance(role, str) else ():
+    for col in ID_COLUMNS.get(role, ()):
         fraction = np.flatnonzero(a[:, col] != np.round(a[:, col]))
         if len(fraction):
             row = int(fraction[0])

@@ -48,11 +48,11 @@ def mrclam_slice(robot: int = 1, seconds: float = 150.0) -> tuple[Rows, float]:
     from aibo_core.mrclam import _read, file_names
 
     names = file_names(robot)
-    odo = _read(DATA / names["odometry"], 3)
-    meas = _read(DATA / names["measurement"], 4)
-    gt = _read(DATA / names["groundtruth"], 4)
-    barcodes = _read(DATA / names["barcodes"], 2).astype(np.int64)
-    lm = _read(DATA / names["landmarks"], 3)
+    odo = _read(DATA / names["odometry"], "odometry")
+    meas = _read(DATA / names["measurement"], "measurement")
+    gt = _read(DATA / names["groundtruth"], "groundtruth")
+    barcodes = _read(DATA / names["barcodes"], "barcodes").astype(np.int64)
+    lm = _read(DATA / names["landmarks"], "landmarks")
     t0 = odo[0, 0]
     odo = odo[odo[:, 0] <= t0 + seconds]
     t_last = odo[-1, 0]
